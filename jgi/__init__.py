@@ -1,0 +1,18 @@
+"""jgi: global-illumination estimators as pure JAX functions, for studying them.
+
+    import jgi
+    scene = jgi.load_scene("cornell_box")          # a built-in, or a .toml scene file
+    image = jgi.render(scene, "pt", spp=64, seed=0, strategy="mis", heuristic="power")
+"""
+
+from . import _xla  # noqa: F401  (performance flags; must precede JAX's backend start-up)
+from . import estimators
+from .estimators.registry import REGISTRY, ParameterError
+from .render import render
+from .scene import Scene, SceneBuilder, SceneError
+from .scenefile import load_scene
+from . import scenes
+
+__version__ = "0.1.0"
+__all__ = ["render", "load_scene", "Scene", "SceneBuilder", "SceneError", "ParameterError",
+           "REGISTRY", "scenes", "estimators"]

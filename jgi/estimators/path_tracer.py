@@ -1,0 +1,197 @@
+"""Unidirectional path tracing with BSDF sampling, light sampling, or both combined by MIS.
+
+Estimator (Kajiya 1986; Veach 1997 ch. 9; the lecture's "path sampling" and "multiple importance
+sampling"): a camera ray is extended by sampling the BSDF at each vertex x_k. Radiance reaching
+the camera is gathered by two strategies:
+
+* **BSDF sampling** (``strategy="bsdf"``): when the sampled ray hits an emitter, add
+  beta * L_e. Cannot see point, spot or directional lights (the lecture: "fails for point light
+  sources").
+* **Light sampling / next-event estimation** (``strategy="light"``): at each non-specular vertex
+  draw n_g points on the lights and add (1/n_g) beta f L_i |cos| / p_g when unoccluded;
+  emitters hit by BSDF rays then count only after a specular bounce (or straight from the camera).
+* **MIS** (``strategy="mis"``): both, weighted by the balance heuristic
+  w = n p / (n_f p_f + n_g p_g) or the power heuristic with exponent ``beta`` (jgi.mis), n_f = 1.
+
+beta (path throughput) is multiplied by f |cos| / p at every bounce. Russian roulette after
+``rr_depth`` segments keeps the estimator unbiased (beta /= q). ``max_depth`` counts path
+segments (1: emitters seen directly, 2: direct lighting; Mitsuba's convention), and
+``path_length = L > 0`` keeps only paths of exactly L segments, so that summing over L reproduces
+the full image (the lecture's "contributions of different path lengths").
+
+Not included, deliberately: textures, shading normals, participating media.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+from jax import Array
+
+from .. import bsdf as B
+from .. import camera as C
+from .. import geometry as G
+from .. import lights as LT
+from .. import mis
+from .. import rng
+from ..scene import Scene
+from ..vec import V3, dot, max_component, where
+from .registry import Estimator, Param, register
+
+
+@dataclass(frozen=True)
+class PathTracerConfig:
+    """Static (compile-time) settings; hashable so one compile serves all renders with them."""
+
+    strategy: str = "mis"       # "bsdf" | "light" | "mis"
+    heuristic: str = "balance"  # "balance" | "power"
+    beta: float = 2.0           # power-heuristic exponent
+    light_samples: int = 1      # n_g shadow rays per vertex
+    max_depth: int = 8          # maximum number of path segments
+    rr_depth: int = 5           # Russian roulette from this many segments on (-1: never)
+    path_length: int = 0        # > 0: keep only paths of exactly this many segments
+
+    @property
+    def dims_per_bounce(self) -> int:
+        return 4 + 3 * self.light_samples
+
+    @property
+    def exponent(self) -> float:
+        return 1.0 if self.heuristic == "balance" else float(self.beta)
+
+
+class PathState(NamedTuple):
+    o: V3                # ray origin
+    d: V3                # ray direction (unit)
+    throughput: V3       # beta: product of f |cos| / pdf so far
+    L: V3                # radiance accumulated along the path
+    active: Array        # lanes still being traced
+    prev_pdf: Array      # solid-angle pdf of the BSDF sample that produced d
+    prev_delta: Array    # that sample came from a Dirac lobe (no MIS possible)
+    prev_p: V3           # the vertex d left from (reference point for pdf_li)
+
+
+def radiance(scene: Scene, cfg: PathTracerConfig, key: Array, o: V3, d: V3) -> V3:
+    """Radiance arriving along rays (o, d), one path each; randomness from stream ``key``.
+
+    Dimensions 0 and 1 of each stream are left for the camera's pixel jitter."""
+    mats, lights = scene.materials, scene.lights
+    kinds = mats.kinds
+    n_f, n_g = 1.0, float(cfg.light_samples)
+    max_depth = cfg.path_length if cfg.path_length > 0 else cfg.max_depth
+    has_lights = lights.count > 0
+    use_nee = cfg.strategy in ("light", "mis") and has_lights
+    z = jnp.zeros_like(o.x)
+    Z = V3(z, z, z)
+
+    def counts(length):
+        return (length == cfg.path_length) if cfg.path_length > 0 else (length <= max_depth)
+
+    def bsdf_hit_weight(s: PathState, depth, pdf_light):
+        first_or_specular = (depth == 0) | s.prev_delta
+        if cfg.strategy == "bsdf" or not has_lights:
+            return jnp.ones_like(z)
+        if cfg.strategy == "light":
+            return jnp.where(first_or_specular, 1.0, 0.0)
+        w = mis.heuristic_weight(n_f, s.prev_pdf, [(n_g, pdf_light)], cfg.exponent)
+        return jnp.where(first_or_specular, 1.0, w)
+
+    def bounce(depth, s: PathState) -> PathState:
+        base = 2 + depth * cfg.dims_per_bounce
+        hit = G.intersect(scene, s.o, s.d)
+        wo = -s.d
+        length = depth + 1  # segments of the path ending at this hit
+
+        # ---- Emission found by the sampled ray (BSDF sampling strategy) ----
+        if has_lights:
+            Le = LT.emitted(lights, hit.emitter, hit.n, wo)
+            pdf_light = LT.pdf_li(lights, hit.emitter, s.prev_p, hit.p, hit.n)
+            w_f = bsdf_hit_weight(s, depth, pdf_light)
+            take = s.active & hit.valid & counts(length)
+            L = s.L + where(take, s.throughput * Le * w_f, Z)
+            if lights.environment >= 0:
+                Lenv = LT.environment_radiance(lights, z)
+                pdf_env = lights.pmf[lights.environment] * jnp.float32(0.25 / jnp.pi)
+                w_env = bsdf_hit_weight(s, depth, jnp.broadcast_to(pdf_env, z.shape))
+                take = s.active & ~hit.valid & counts(length)
+                L = L + where(take, s.throughput * Lenv * w_env, Z)
+        else:
+            L = s.L
+        active = s.active & hit.valid & (length < max_depth)
+        mp = B.lookup(mats, hit.material)
+
+        # ---- Light sampling (next-event estimation) ----
+        if use_nee:
+            nee_ok = active & ~B.is_delta(mp) & counts(length + 1)
+            for j in range(cfg.light_samples):
+                dj = base + 4 + 3 * j
+                ls = LT.sample_li(lights, hit.p, rng.uniform(key, dj), rng.uniform(key, dj + 1),
+                                  rng.uniform(key, dj + 2))
+                f, pdf_bsdf = B.evaluate(kinds, mp, hit.n, wo, ls.wi)
+                cos_i = jnp.abs(dot(ls.wi, hit.n))
+                o_shadow = G.offset_origin(hit.p, hit.n, ls.wi)
+                t_max = ls.dist * (1.0 - 1e-4) - 1e-4
+                visible = ~G.occluded(scene, o_shadow, ls.wi, t_max)
+                if cfg.strategy == "mis":
+                    w_g = mis.heuristic_weight(n_g, ls.pdf, [(n_f, pdf_bsdf)], cfg.exponent)
+                    w_g = jnp.where(ls.delta, 1.0, w_g)
+                else:
+                    w_g = jnp.ones_like(z)
+                ok = nee_ok & ls.valid & visible & (ls.pdf > 0)
+                scale = w_g * cos_i / (n_g * jnp.where(ok, ls.pdf, 1.0))
+                L = L + where(ok, s.throughput * f * ls.Li * scale, Z)
+
+        # ---- BSDF sampling: extend the path ----
+        bs = B.sample(kinds, mp, hit.n, wo, rng.uniform(key, base), rng.uniform(key, base + 1),
+                      rng.uniform(key, base + 2))
+        throughput = s.throughput * bs.weight
+        active = active & bs.valid
+
+        # ---- Russian roulette ----
+        if cfg.rr_depth >= 0:
+            q = jnp.clip(max_component(throughput), 0.0, 0.95)
+            roulette = length >= cfg.rr_depth
+            survive = rng.uniform(key, base + 3) < q
+            active = active & (~roulette | survive)
+            throughput = where(roulette, throughput / jnp.where(q > 0, q, 1.0), throughput)
+
+        o_next = G.offset_origin(hit.p, hit.n, bs.wi)
+        return PathState(o_next, bs.wi, throughput, L, active, bs.pdf, bs.delta, hit.p)
+
+    state = PathState(o, d, V3(z + 1, z + 1, z + 1), Z, z == 0, z, z == 0, o)
+    state = jax.lax.fori_loop(0, max_depth, bounce, state)
+    return state.L
+
+
+def trace_pixels(scene: Scene, cfg: PathTracerConfig, seed, pixel: Array, sample: Array) -> V3:
+    """Radiance samples for (pixel, sample) index arrays: the per-path estimator the renderer
+    vmaps (as arrays) over a chunk."""
+    W = scene.camera.width
+    key = rng.path_key(seed, pixel, sample)
+    px, py = pixel % W, pixel // W
+    o, d = C.sample_ray(scene.camera, px, py, rng.uniform(key, 0), rng.uniform(key, 1))
+    return radiance(scene, cfg, key, o, d)
+
+
+def _run(scene: Scene, *, spp: int, seed: int, progress: bool = False, **params):
+    from ..render import render_paths
+
+    cfg = PathTracerConfig(**params)
+    return render_paths(scene, lambda sc, pix, smp, sd: trace_pixels(sc, cfg, sd, pix, smp),
+                        spp=spp, seed=seed, progress=progress, cache_key=("pt", cfg))
+
+
+PARAMS = (
+    Param("strategy", "mis", "which estimator gathers light", str, ("bsdf", "light", "mis")),
+    Param("heuristic", "balance", "MIS heuristic", str, ("balance", "power")),
+    Param("beta", 2.0, "power-heuristic exponent", float, minimum=0.1, maximum=16),
+    Param("light_samples", 1, "n_g: light samples (shadow rays) per vertex", int, minimum=1, maximum=64),
+    Param("max_depth", 8, "maximum path segments (1 = emitters only, 2 = direct light)", int, minimum=1, maximum=1024),
+    Param("rr_depth", 5, "Russian roulette from this many segments (-1 = off)", int, minimum=-1),
+    Param("path_length", 0, "keep only paths with exactly this many segments (0 = all)", int, minimum=0, maximum=1024),
+)
+
+register(Estimator("pt", "path tracing with BSDF sampling, light sampling or MIS", _run, PARAMS))

@@ -1,0 +1,181 @@
+"""Ray-primitive intersection for spheres, parallelograms and triangles; closest-hit queries.
+
+Rays are struct-of-arrays (origin ``o`` and unit direction ``d`` as :class:`V3` of shape [N]).
+Small primitive tables are unrolled at trace time (one fused kernel over all primitives, the
+scene's values still arrays, not constants); larger triangle tables use a loop (or a BVH, see
+:mod:`jgi.bvh`). Every test is written so that parallel rays, zero-area primitives and rays that
+miss produce ``t = inf`` and never NaN.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+from jax import Array
+
+from .scene import Quads, Scene, Spheres, Triangles
+from .vec import V3, cross, dot, normalize
+
+INF = jnp.float32(jnp.inf)
+T_MIN = 1e-6          # reject hits this close to the origin (origins are also offset, see spawn)
+UNROLL_LIMIT = 32     # primitive tables up to this size are unrolled into the kernel
+
+SPHERE, QUAD, TRIANGLE = 0, 1, 2
+
+
+class Hit(NamedTuple):
+    t: Array          # distance along the ray; inf on a miss
+    valid: Array      # bool
+    p: V3             # hit position
+    n: V3             # unit geometric normal, as the primitive defines it (not flipped)
+    material: Array   # int32 material row
+    emitter: Array    # int32 light element, -1 if the surface does not emit
+
+
+# --- single-primitive tests (scalar primitive, vector of rays) ---------------------------------
+
+def sphere_t(center: V3, radius, o: V3, d: V3) -> Array:
+    """Nearest t > T_MIN; discriminant in the form r^2 - |oc - (oc.d) d|^2 (pbrt-v4) so that it
+    stays accurate for small, distant spheres."""
+    oc = o - center
+    b = dot(oc, d)
+    closest = oc - d * b
+    disc = radius * radius - dot(closest, closest)
+    hit = disc >= 0
+    s = jnp.sqrt(jnp.where(hit, disc, 0.0))
+    t0, t1 = -b - s, -b + s
+    t = jnp.where(t0 > T_MIN, t0, t1)
+    return jnp.where(hit & (t > T_MIN), t, INF)
+
+
+def quad_t(origin: V3, normal: V3, dual_u: V3, dual_v: V3, o: V3, d: V3) -> Array:
+    """Plane hit, then parallelogram coordinates a = (p - origin).dual_u, b = (p - origin).dual_v
+    in [0, 1]; the duals are precomputed so the test needs no cross product."""
+    denom = dot(normal, d)
+    ok = jnp.abs(denom) > 1e-12
+    t = dot(normal, origin - o) / jnp.where(ok, denom, 1.0)
+    rel = o + d * t - origin
+    a, b = dot(rel, dual_u), dot(rel, dual_v)
+    hit = ok & (t > T_MIN) & (a >= 0) & (a <= 1) & (b >= 0) & (b <= 1)
+    return jnp.where(hit, t, INF)
+
+
+def triangle_t(v0: V3, e1: V3, e2: V3, o: V3, d: V3) -> tuple[Array, Array, Array]:
+    """Moller-Trumbore; returns (t, b1, b2)."""
+    pvec = cross(d, e2)
+    det = dot(e1, pvec)
+    ok = jnp.abs(det) > 1e-14
+    inv = 1.0 / jnp.where(ok, det, 1.0)
+    tvec = o - v0
+    b1 = dot(tvec, pvec) * inv
+    qvec = cross(tvec, e1)
+    b2 = dot(d, qvec) * inv
+    t = dot(e2, qvec) * inv
+    hit = ok & (b1 >= 0) & (b2 >= 0) & (b1 + b2 <= 1) & (t > T_MIN)
+    return jnp.where(hit, t, INF), b1, b2
+
+
+def quad_duals(q: Quads) -> tuple[V3, V3]:
+    """Vectors with dual_u.edge_u = 1, dual_u.edge_v = 0 (and vice versa) in the quad's plane."""
+    n = cross(q.edge_u, q.edge_v)
+    n2 = dot(n, n)
+    inv = jnp.where(n2 > 0, 1.0 / jnp.where(n2 > 0, n2, 1.0), 0.0)
+    return cross(q.edge_v, n) * inv, cross(n, q.edge_u) * inv
+
+
+# --- closest hit over the scene --------------------------------------------------------------
+
+def _take(v: V3, i) -> V3:
+    return V3(v.x[i], v.y[i], v.z[i])
+
+
+def _scan(count: int, body, carry):
+    """Unrolled for small tables (fuses into one kernel), a rolled loop for large ones."""
+    if count <= UNROLL_LIMIT:
+        for i in range(count):
+            carry = body(i, carry)
+        return carry
+    return jax.lax.fori_loop(0, count, body, carry)
+
+
+def closest_hit(scene: Scene, o: V3, d: V3, t_max: Array | None = None):
+    """(t, kind, index) of the nearest primitive with T_MIN < t < t_max (inf and -1 on a miss)."""
+    shape = o.x.shape
+    best_t = jnp.full(shape, INF) if t_max is None else jnp.broadcast_to(t_max, shape)
+    best_kind = jnp.full(shape, -1, jnp.int32)
+    best_idx = jnp.full(shape, -1, jnp.int32)
+    carry = (best_t, best_kind, best_idx)
+
+    def update(carry, t, kind, i):
+        bt, bk, bi = carry
+        closer = t < bt
+        return (jnp.where(closer, t, bt), jnp.where(closer, kind, bk), jnp.where(closer, i, bi))
+
+    sp: Spheres = scene.spheres
+    if sp.count:
+        def body(i, c):
+            return update(c, sphere_t(_take(sp.center, i), sp.radius[i], o, d), SPHERE, i)
+        carry = _scan(sp.count, body, carry)
+
+    q: Quads = scene.quads
+    if q.count:
+        du, dv = quad_duals(q)
+
+        def body(i, c):
+            t = quad_t(_take(q.origin, i), _take(q.normal, i), _take(du, i), _take(dv, i), o, d)
+            return update(c, t, QUAD, i)
+        carry = _scan(q.count, body, carry)
+
+    tr: Triangles = scene.triangles
+    if tr.count:
+        def body(i, c):
+            t, _, _ = triangle_t(_take(tr.v0, i), _take(tr.edge1, i), _take(tr.edge2, i), o, d)
+            return update(c, t, TRIANGLE, i)
+        carry = _scan(tr.count, body, carry)
+    return carry
+
+
+def intersect(scene: Scene, o: V3, d: V3) -> Hit:
+    """Closest hit with its position, geometric normal, material and emitter."""
+    t, kind, idx = closest_hit(scene, o, d)
+    valid = kind >= 0
+    tt = jnp.where(valid, t, 0.0)
+    p = o + d * tt
+    zero_i = jnp.zeros_like(kind)
+    n = V3(jnp.zeros_like(tt), jnp.zeros_like(tt), jnp.ones_like(tt))
+    material, emitter = zero_i, jnp.full_like(kind, -1)
+
+    sp = scene.spheres
+    if sp.count:
+        sel = kind == SPHERE
+        i = jnp.where(sel, idx, 0)
+        c = _take(sp.center, i)
+        ns = normalize(p - c)
+        n = V3(*(jnp.where(sel, a, b) for a, b in zip(ns, n)))
+        material = jnp.where(sel, sp.material[i], material)
+        emitter = jnp.where(sel, sp.emitter[i], emitter)
+    for k, table in ((QUAD, scene.quads), (TRIANGLE, scene.triangles)):
+        if table.count:
+            sel = kind == k
+            i = jnp.where(sel, idx, 0)
+            nt = _take(table.normal, i)
+            n = V3(*(jnp.where(sel, a, b) for a, b in zip(nt, n)))
+            material = jnp.where(sel, table.material[i], material)
+            emitter = jnp.where(sel, table.emitter[i], emitter)
+    return Hit(jnp.where(valid, t, INF), valid, p, n, material, emitter)
+
+
+def occluded(scene: Scene, o: V3, d: V3, t_max: Array) -> Array:
+    """True where something lies strictly between o and o + t_max d (shadow rays)."""
+    _, kind, _ = closest_hit(scene, o, d, t_max)
+    return kind >= 0
+
+
+def offset_origin(p: V3, n: V3, w: V3) -> V3:
+    """Move a spawned ray's origin off the surface, to the side ``w`` leaves on, by an amount
+    relative to the position's magnitude, so that the surface is not hit again."""
+    eps = 1e-4 * (1.0 + jnp.maximum(jnp.maximum(jnp.abs(p.x), jnp.abs(p.y)), jnp.abs(p.z)))
+    side = jnp.where(dot(n, w) >= 0, eps, -eps)
+    return p + n * side

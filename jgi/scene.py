@@ -1,0 +1,484 @@
+"""The scene: an immutable pytree of struct-of-arrays tables with static sizes.
+
+Every float in a scene is a pytree leaf, so one compiled estimator serves every scene with the
+same *structure* (primitive counts and which material/light kinds occur), and ``jax.grad`` can
+differentiate an image with respect to any of them (albedos, light emission, positions).
+
+Tables:
+  * ``Spheres``, ``Quads`` (parallelograms), ``Triangles``: geometry, a material index and an
+    emitter index (the light element that makes the primitive emissive, or -1).
+  * ``Materials``: one row per material; ``kind`` selects the BSDF (see :mod:`jgi.bsdf`).
+  * ``Lights``: a flat table of *light elements* chosen for next-event estimation with
+    probability proportional to power. A diffuse area light on a mesh contributes one element per
+    triangle, so light selection and ``pdf_li`` are the same code for every emitter shape.
+  * ``Camera``: a pinhole camera (see :mod:`jgi.camera`).
+
+Scenes are made with :class:`SceneBuilder` (used by :mod:`jgi.scenes` and the TOML loader).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field as dc_field
+
+import equinox as eqx
+import jax.numpy as jnp
+import numpy as np
+from jax import Array
+
+from . import transform as xf
+from .vec import V3
+
+# Material kinds (jgi.bsdf implements each).
+DIFFUSE, MIRROR, DIELECTRIC, PHONG = 0, 1, 2, 3
+MATERIAL_KINDS = {"diffuse": DIFFUSE, "mirror": MIRROR, "dielectric": DIELECTRIC, "phong": PHONG}
+
+# Light element kinds (jgi.lights implements each).
+AREA_QUAD, AREA_TRIANGLE, AREA_SPHERE, POINT, SPOT, DIRECTIONAL, ENVIRONMENT = range(7)
+LIGHT_KIND_NAMES = ("area_quad", "area_triangle", "area_sphere", "point", "spot", "directional",
+                    "environment")
+DELTA_POSITION_KINDS = (POINT, SPOT)
+DELTA_DIRECTION_KINDS = (DIRECTIONAL,)
+
+
+def _v3(a) -> V3:
+    a = np.asarray(a, np.float32).reshape(-1, 3)
+    return V3(jnp.asarray(a[:, 0]), jnp.asarray(a[:, 1]), jnp.asarray(a[:, 2]))
+
+
+def _v3_scalar(a) -> V3:
+    a = np.asarray(a, np.float32).reshape(3)
+    return V3(jnp.asarray(a[0]), jnp.asarray(a[1]), jnp.asarray(a[2]))
+
+
+class Spheres(eqx.Module):
+    center: V3
+    radius: Array
+    material: Array
+    emitter: Array
+
+    @property
+    def count(self) -> int:
+        return int(self.radius.shape[0])
+
+
+class Quads(eqx.Module):
+    """Parallelograms origin + a * edge_u + b * edge_v, (a, b) in [0, 1]^2."""
+
+    origin: V3
+    edge_u: V3
+    edge_v: V3
+    normal: V3  # unit cross(edge_u, edge_v); emitters radiate on this side only
+    material: Array
+    emitter: Array
+
+    @property
+    def count(self) -> int:
+        return int(self.material.shape[0])
+
+
+class Triangles(eqx.Module):
+    """Triangles v0 + b1 * edge1 + b2 * edge2 (Moller-Trumbore layout)."""
+
+    v0: V3
+    edge1: V3
+    edge2: V3
+    normal: V3  # unit geometric normal cross(edge1, edge2)
+    material: Array
+    emitter: Array
+
+    @property
+    def count(self) -> int:
+        return int(self.material.shape[0])
+
+
+class Materials(eqx.Module):
+    kind: Array       # int32 [M]
+    diffuse: V3       # Lambertian albedo k_d (diffuse, phong)
+    specular: V3      # k_s: mirror reflectance, dielectric tint, Phong specular albedo
+    exponent: Array   # Phong exponent n
+    ior: Array        # dielectric index of refraction (inside / outside)
+    kinds: tuple[int, ...] = eqx.field(static=True)  # kinds present, to skip dead code
+
+
+class Lights(eqx.Module):
+    kind: Array         # int32 [K]
+    p0: V3              # quad/triangle corner, sphere centre, point/spot position
+    e1: V3              # quad/triangle edge 1
+    e2: V3              # quad/triangle edge 2
+    radius: Array       # sphere radius
+    normal: V3          # unit normal of quad/triangle emitters (emitting side)
+    direction: V3       # spot axis / directional travel direction (unit)
+    emission: V3        # radiance L_e (area, environment), intensity I (point, spot), irradiance E (directional)
+    cos_total: Array    # spot: cosine of the cone half-angle (no light outside)
+    cos_falloff: Array  # spot: cosine where the smooth falloff starts
+    area: Array         # area of area-light elements (0 otherwise)
+    pmf: Array          # selection probability (proportional to power)
+    cdf: Array          # inclusive running sum of pmf, for inversion
+    bound_center: V3    # scene bounding sphere (directional and environment emission)
+    bound_radius: Array
+    kinds: tuple[int, ...] = eqx.field(static=True)
+    environment: int = eqx.field(static=True)  # element index of the environment light or -1
+
+    @property
+    def count(self) -> int:
+        return int(self.kind.shape[0])
+
+
+class Camera(eqx.Module):
+    """Pinhole camera. ``forward`` is unit; ``right``/``up`` are scaled to the image-plane
+    half-extents at distance 1, so a film point (sx, sy) in [-1, 1]^2 maps to the direction
+    forward + sx * right + sy * up."""
+
+    position: V3
+    forward: V3
+    right: V3
+    up: V3
+    width: int = eqx.field(static=True)
+    height: int = eqx.field(static=True)
+
+
+class Scene(eqx.Module):
+    camera: Camera
+    spheres: Spheres
+    quads: Quads
+    triangles: Triangles
+    materials: Materials
+    lights: Lights
+    name: str = eqx.field(static=True, default="scene")
+
+    @property
+    def resolution(self) -> tuple[int, int]:
+        return self.camera.width, self.camera.height
+
+    def with_resolution(self, width: int, height: int) -> "Scene":
+        """Same scene and field of view, another film size."""
+        cam = self.camera
+        aspect_old = cam.width / cam.height
+        aspect_new = width / height
+        right = cam.right * (aspect_new / aspect_old)
+        new = Camera(cam.position, cam.forward, right, cam.up, int(width), int(height))
+        return eqx.tree_at(lambda s: s.camera, self, new)
+
+
+# ------------------------------------------------------------------------------------------------
+# Builder
+# ------------------------------------------------------------------------------------------------
+
+class SceneError(ValueError):
+    """An invalid scene description; the message names the source, the key and what is allowed."""
+
+
+@dataclass
+class _Material:
+    kind: int
+    diffuse: tuple = (0.0, 0.0, 0.0)
+    specular: tuple = (0.0, 0.0, 0.0)
+    exponent: float = 1.0
+    ior: float = 1.5
+
+
+@dataclass
+class SceneBuilder:
+    """Accumulates materials, shapes, lights and a camera; ``build()`` makes the pytree."""
+
+    name: str = "scene"
+    materials: list = dc_field(default_factory=list)
+    material_names: dict = dc_field(default_factory=dict)
+    spheres: list = dc_field(default_factory=list)    # (center, radius, material, emission|None)
+    quads: list = dc_field(default_factory=list)      # (origin, u, v, material, emission|None)
+    triangles: list = dc_field(default_factory=list)  # (v0, v1, v2, material, emission|None)
+    lights: list = dc_field(default_factory=list)     # dicts for point/spot/directional/env
+    camera_args: dict | None = None
+
+    # --- materials --------------------------------------------------------------------------
+    def material(self, name: str, kind: str, *, diffuse=(0.0, 0.0, 0.0), specular=(1.0, 1.0, 1.0),
+                 exponent: float = 1.0, ior: float = 1.5) -> int:
+        if kind not in MATERIAL_KINDS:
+            raise SceneError(f"material '{name}': unknown type '{kind}'; allowed: "
+                             f"{', '.join(MATERIAL_KINDS)}")
+        if name in self.material_names:
+            raise SceneError(f"material '{name}' is defined twice")
+        k = MATERIAL_KINDS[kind]
+        m = _Material(k, _rgb(diffuse), _rgb(specular), float(exponent), float(ior))
+        if k == DIFFUSE:
+            m.specular = (0.0, 0.0, 0.0)
+        if k in (MIRROR, DIELECTRIC):
+            m.diffuse = (0.0, 0.0, 0.0)
+        self.material_names[name] = len(self.materials)
+        self.materials.append(m)
+        return self.material_names[name]
+
+    def _mat(self, material) -> int:
+        if isinstance(material, (int, np.integer)):
+            return int(material)
+        if material not in self.material_names:
+            raise SceneError(f"unknown material '{material}'; defined: "
+                             f"{', '.join(self.material_names) or '(none)'}")
+        return self.material_names[material]
+
+    # --- shapes -----------------------------------------------------------------------------
+    def sphere(self, center, radius: float, material, emission=None):
+        self.spheres.append((np.asarray(center, float), float(radius), self._mat(material),
+                             None if emission is None else _rgb(emission)))
+
+    def quad(self, origin, edge_u, edge_v, material, emission=None):
+        self.quads.append((np.asarray(origin, float), np.asarray(edge_u, float),
+                           np.asarray(edge_v, float), self._mat(material),
+                           None if emission is None else _rgb(emission)))
+
+    def rectangle(self, to_world: np.ndarray, material, emission=None):
+        """Mitsuba's ``rectangle``: [-1, 1]^2 in the z = 0 plane, normal +z, then ``to_world``."""
+        o = xf.apply_point(to_world, [-1.0, -1.0, 0.0])
+        u = xf.apply_point(to_world, [1.0, -1.0, 0.0]) - o
+        v = xf.apply_point(to_world, [-1.0, 1.0, 0.0]) - o
+        self.quad(o, u, v, material, emission)
+
+    def cube(self, to_world: np.ndarray, material, emission=None):
+        """Mitsuba's ``cube``: [-1, 1]^3 as six outward-facing quads, then ``to_world``."""
+        faces = [  # (corner, edge u, edge v) with cross(u, v) pointing outwards
+            ([-1, -1, 1], [2, 0, 0], [0, 2, 0]), ([1, -1, -1], [-2, 0, 0], [0, 2, 0]),
+            ([1, -1, 1], [0, 0, -2], [0, 2, 0]), ([-1, -1, -1], [0, 0, 2], [0, 2, 0]),
+            ([-1, 1, 1], [2, 0, 0], [0, 0, -2]), ([-1, -1, -1], [2, 0, 0], [0, 0, 2]),
+        ]
+        for c, u, v in faces:
+            o = xf.apply_point(to_world, c)
+            self.quad(o, xf.apply_vector(to_world, u), xf.apply_vector(to_world, v), material,
+                      emission)
+
+    def mesh(self, vertices, faces, material, emission=None, to_world=None):
+        v = np.asarray(vertices, float)
+        f = np.asarray(faces, np.int64)
+        if to_world is not None:
+            v = xf.apply_point(to_world, v)
+        m = self._mat(material)
+        e = None if emission is None else _rgb(emission)
+        for a, b, c in v[f]:
+            self.triangles.append((a, b, c, m, e))
+
+    # --- lights -----------------------------------------------------------------------------
+    def point_light(self, position, intensity):
+        self.lights.append(dict(kind=POINT, p0=position, emission=_rgb(intensity)))
+
+    def spot_light(self, position, target, intensity, cutoff_deg=30.0, falloff_deg=None):
+        d = np.asarray(target, float) - np.asarray(position, float)
+        falloff_deg = cutoff_deg * 0.75 if falloff_deg is None else falloff_deg
+        if not 0 < cutoff_deg <= 90 or not 0 <= falloff_deg <= cutoff_deg:
+            raise SceneError("spot light: need 0 < cutoff <= 90 and 0 <= falloff <= cutoff degrees")
+        self.lights.append(dict(kind=SPOT, p0=position, direction=d / np.linalg.norm(d),
+                                emission=_rgb(intensity),
+                                cos_total=np.cos(np.radians(cutoff_deg)),
+                                cos_falloff=np.cos(np.radians(falloff_deg))))
+
+    def directional_light(self, direction, irradiance):
+        d = np.asarray(direction, float)
+        self.lights.append(dict(kind=DIRECTIONAL, direction=d / np.linalg.norm(d),
+                                emission=_rgb(irradiance)))
+
+    def environment_light(self, radiance):
+        if any(l["kind"] == ENVIRONMENT for l in self.lights):
+            raise SceneError("only one environment light is allowed")
+        self.lights.append(dict(kind=ENVIRONMENT, emission=_rgb(radiance)))
+
+    # --- camera -----------------------------------------------------------------------------
+    def camera(self, position, look_at, up=(0, 1, 0), fov=40.0, width=256, height=256,
+               fov_axis="y"):
+        self.camera_args = dict(position=position, look_at=look_at, up=up, fov=fov,
+                                width=width, height=height, fov_axis=fov_axis)
+
+    # --- build ------------------------------------------------------------------------------
+    def build(self) -> Scene:
+        if self.camera_args is None:
+            raise SceneError("the scene has no camera")
+        elements = []  # light element rows
+        sph_emit, quad_emit, tri_emit = [], [], []
+        for c, r, m, e in self.spheres:
+            sph_emit.append(-1 if e is None else len(elements))
+            if e is not None:
+                elements.append(dict(kind=AREA_SPHERE, p0=c, radius=r, emission=e,
+                                     area=4 * np.pi * r * r))
+        for o, u, v, m, e in self.quads:
+            quad_emit.append(-1 if e is None else len(elements))
+            if e is not None:
+                n = np.cross(u, v)
+                a = float(np.linalg.norm(n))
+                elements.append(dict(kind=AREA_QUAD, p0=o, e1=u, e2=v, emission=e, area=a,
+                                     normal=n / a if a > 0 else np.zeros(3)))
+        for a_, b_, c_, m, e in self.triangles:
+            tri_emit.append(-1 if e is None else len(elements))
+            if e is not None:
+                n = np.cross(b_ - a_, c_ - a_)
+                a = float(np.linalg.norm(n))
+                elements.append(dict(kind=AREA_TRIANGLE, p0=a_, e1=b_ - a_, e2=c_ - a_,
+                                     emission=e, area=0.5 * a,
+                                     normal=n / a if a > 0 else np.zeros(3)))
+        elements.extend(self.lights)
+        center, radius = self._bounds()
+        return Scene(
+            camera=self._build_camera(),
+            spheres=self._build_spheres(sph_emit),
+            quads=self._build_quads(quad_emit),
+            triangles=self._build_triangles(tri_emit),
+            materials=self._build_materials(),
+            lights=_build_lights(elements, center, radius),
+            name=self.name,
+        )
+
+    def _bounds(self):
+        pts = []
+        for c, r, *_ in self.spheres:
+            pts += [c - r, c + r]
+        for o, u, v, *_ in self.quads:
+            pts += [o, o + u, o + v, o + u + v]
+        for a, b, c, *_ in self.triangles:
+            pts += [a, b, c]
+        for l in self.lights:
+            if "p0" in l:
+                pts.append(np.asarray(l["p0"], float))
+        if not pts:
+            return np.zeros(3), 1.0
+        pts = np.array(pts)
+        lo, hi = pts.min(0), pts.max(0)
+        center = 0.5 * (lo + hi)
+        return center, max(float(np.linalg.norm(hi - lo)) * 0.5, 1e-3)
+
+    def _build_camera(self) -> Camera:
+        a = self.camera_args
+        w, h = int(a["width"]), int(a["height"])
+        if w <= 0 or h <= 0:
+            raise SceneError(f"camera: width and height must be positive, got {w}x{h}")
+        if not 0 < a["fov"] < 180:
+            raise SceneError(f"camera: fov must be in (0, 180) degrees, got {a['fov']}")
+        pos = np.asarray(a["position"], float)
+        fwd = np.asarray(a["look_at"], float) - pos
+        if np.linalg.norm(fwd) == 0:
+            raise SceneError("camera: look_at equals position")
+        fwd /= np.linalg.norm(fwd)
+        right = np.cross(fwd, np.asarray(a["up"], float))
+        if np.linalg.norm(right) < 1e-9:
+            raise SceneError("camera: up is parallel to the viewing direction")
+        right /= np.linalg.norm(right)
+        up = np.cross(right, fwd)
+        t = np.tan(np.radians(a["fov"]) / 2)
+        axis = a.get("fov_axis", "y")
+        if axis == "smaller":
+            axis = "x" if w < h else "y"
+        if axis == "x":
+            tx, ty = t, t * h / w
+        elif axis == "y":
+            tx, ty = t * w / h, t
+        else:
+            raise SceneError(f"camera: fov_axis must be 'x', 'y' or 'smaller', got {axis!r}")
+        return Camera(_v3_scalar(pos), _v3_scalar(fwd), _v3_scalar(right * tx), _v3_scalar(up * ty),
+                      w, h)
+
+    def _build_spheres(self, emit) -> Spheres:
+        n = len(self.spheres)
+        c = np.array([s[0] for s in self.spheres]).reshape(n, 3)
+        r = np.array([s[1] for s in self.spheres], np.float32)
+        if np.any(r < 0):
+            raise SceneError("sphere radius must be non-negative")
+        return Spheres(_v3(c), jnp.asarray(r, jnp.float32),
+                       jnp.asarray([s[2] for s in self.spheres], jnp.int32),
+                       jnp.asarray(emit, jnp.int32))
+
+    def _build_quads(self, emit) -> Quads:
+        n = len(self.quads)
+        o = np.array([q[0] for q in self.quads]).reshape(n, 3)
+        u = np.array([q[1] for q in self.quads]).reshape(n, 3)
+        v = np.array([q[2] for q in self.quads]).reshape(n, 3)
+        nrm = np.cross(u, v)
+        ln = np.linalg.norm(nrm, axis=1, keepdims=True)
+        nrm = np.where(ln > 0, nrm / np.where(ln > 0, ln, 1), 0.0)
+        return Quads(_v3(o), _v3(u), _v3(v), _v3(nrm),
+                     jnp.asarray([q[3] for q in self.quads], jnp.int32),
+                     jnp.asarray(emit, jnp.int32))
+
+    def _build_triangles(self, emit) -> Triangles:
+        n = len(self.triangles)
+        a = np.array([t[0] for t in self.triangles]).reshape(n, 3)
+        b = np.array([t[1] for t in self.triangles]).reshape(n, 3)
+        c = np.array([t[2] for t in self.triangles]).reshape(n, 3)
+        e1, e2 = b - a, c - a
+        nrm = np.cross(e1, e2)
+        ln = np.linalg.norm(nrm, axis=1, keepdims=True)
+        nrm = np.where(ln > 0, nrm / np.where(ln > 0, ln, 1), 0.0)
+        return Triangles(_v3(a), _v3(e1), _v3(e2), _v3(nrm),
+                         jnp.asarray([t[3] for t in self.triangles], jnp.int32),
+                         jnp.asarray(emit, jnp.int32))
+
+    def _build_materials(self) -> Materials:
+        ms = self.materials or [_Material(DIFFUSE, (0.5, 0.5, 0.5))]
+        for m in ms:
+            if m.kind == PHONG and m.exponent < 0:
+                raise SceneError("phong exponent must be >= 0")
+            if m.kind == DIELECTRIC and m.ior <= 0:
+                raise SceneError("dielectric ior must be > 0")
+        return Materials(
+            kind=jnp.asarray([m.kind for m in ms], jnp.int32),
+            diffuse=_v3([m.diffuse for m in ms]),
+            specular=_v3([m.specular for m in ms]),
+            exponent=jnp.asarray([m.exponent for m in ms], jnp.float32),
+            ior=jnp.asarray([m.ior for m in ms], jnp.float32),
+            kinds=tuple(sorted({m.kind for m in ms})),
+        )
+
+
+def _rgb(v) -> tuple:
+    a = np.broadcast_to(np.asarray(v, float), (3,))
+    if not np.all(np.isfinite(a)):
+        raise SceneError(f"colour {list(a)} is not finite")
+    return tuple(float(x) for x in a)
+
+
+def luminance_np(rgb) -> float:
+    r, g, b = rgb
+    return 0.2126 * r + 0.7152 * g + 0.0722 * b
+
+
+def light_power(el: dict, radius: float) -> float:
+    """Emitted power (luminance), used for power-proportional light selection."""
+    lum = luminance_np(el["emission"])
+    k = el["kind"]
+    if k in (AREA_QUAD, AREA_TRIANGLE, AREA_SPHERE):
+        return np.pi * el["area"] * lum
+    if k == POINT:
+        return 4 * np.pi * lum
+    if k == SPOT:
+        return 2 * np.pi * (1 - 0.5 * (el["cos_total"] + el["cos_falloff"])) * lum
+    if k == DIRECTIONAL:
+        return np.pi * radius * radius * lum
+    if k == ENVIRONMENT:
+        return 4 * np.pi * np.pi * radius * radius * lum
+    raise AssertionError(k)
+
+
+def _build_lights(elements: list, center, radius) -> Lights:
+    k = len(elements)
+    power = np.array([light_power(e, radius) for e in elements], float)
+    if k and power.sum() > 0:
+        pmf = power / power.sum()
+    else:
+        pmf = np.full(k, 1.0 / max(k, 1))
+    cdf = np.cumsum(pmf)
+    if k:
+        cdf[-1] = 1.0
+
+    def col(key, default):
+        return [e.get(key, default) for e in elements]
+
+    z3 = (0.0, 0.0, 0.0)
+    env = [i for i, e in enumerate(elements) if e["kind"] == ENVIRONMENT]
+    return Lights(
+        kind=jnp.asarray(col("kind", 0), jnp.int32),
+        p0=_v3(col("p0", z3)), e1=_v3(col("e1", z3)), e2=_v3(col("e2", z3)),
+        radius=jnp.asarray(col("radius", 0.0), jnp.float32),
+        normal=_v3(col("normal", z3)), direction=_v3(col("direction", (0.0, 0.0, 1.0))),
+        emission=_v3(col("emission", z3)),
+        cos_total=jnp.asarray(col("cos_total", 1.0), jnp.float32),
+        cos_falloff=jnp.asarray(col("cos_falloff", 1.0), jnp.float32),
+        area=jnp.asarray(col("area", 0.0), jnp.float32),
+        pmf=jnp.asarray(pmf, jnp.float32), cdf=jnp.asarray(cdf, jnp.float32),
+        bound_center=_v3_scalar(center), bound_radius=jnp.asarray(radius, jnp.float32),
+        kinds=tuple(sorted({e["kind"] for e in elements})),
+        environment=env[0] if env else -1,
+    )

@@ -1,0 +1,99 @@
+"""Sampling warps: each ``sample_*`` maps uniforms in [0,1)^2 to a domain, next to its ``pdf_*``.
+
+pbrt-v4 style triples (sample, pdf, and where useful the inverse): the chi-square tests in
+``tests/test_warps.py`` check every sampler against its own pdf. Densities are with respect to
+solid angle for directions and area for positions. Directions are in a local frame whose +z is
+the frame axis (the surface normal or a lobe axis); see :func:`jgi.vec.to_world`.
+"""
+
+from __future__ import annotations
+
+import jax.numpy as jnp
+from jax import Array
+
+from .vec import V3
+
+PI = jnp.float32(jnp.pi)
+INV_PI = jnp.float32(1.0 / jnp.pi)
+INV_4PI = jnp.float32(0.25 / jnp.pi)
+
+
+def _safe_sqrt(x: Array) -> Array:
+    return jnp.sqrt(jnp.maximum(x, 0.0))
+
+
+# --- disc -------------------------------------------------------------------------------------
+
+def sample_concentric_disc(u1: Array, u2: Array) -> tuple[Array, Array]:
+    """Shirley-Chiu concentric map of the square onto the unit disc (area-preserving)."""
+    a, b = 2.0 * u1 - 1.0, 2.0 * u2 - 1.0
+    first = jnp.abs(a) > jnp.abs(b)
+    r = jnp.where(first, a, b)
+    safe_a = jnp.where(a == 0, 1.0, a)
+    safe_b = jnp.where(b == 0, 1.0, b)
+    phi = jnp.where(first, (PI / 4) * (b / safe_a), (PI / 2) - (PI / 4) * (a / safe_b))
+    zero = (a == 0) & (b == 0)
+    return jnp.where(zero, 0.0, r * jnp.cos(phi)), jnp.where(zero, 0.0, r * jnp.sin(phi))
+
+
+def pdf_disc() -> Array:
+    return INV_PI
+
+
+# --- hemisphere and sphere ----------------------------------------------------------------------
+
+def sample_cosine_hemisphere(u1: Array, u2: Array) -> V3:
+    """Malley's method: disc sample lifted to the hemisphere; pdf = cos(theta) / pi."""
+    x, y = sample_concentric_disc(u1, u2)
+    return V3(x, y, _safe_sqrt(1.0 - x * x - y * y))
+
+
+def pdf_cosine_hemisphere(cos_theta: Array) -> Array:
+    return jnp.where(cos_theta > 0, cos_theta * INV_PI, 0.0)
+
+
+def sample_uniform_sphere(u1: Array, u2: Array) -> V3:
+    z = 1.0 - 2.0 * u1
+    r = _safe_sqrt(1.0 - z * z)
+    phi = 2.0 * PI * u2
+    return V3(r * jnp.cos(phi), r * jnp.sin(phi), z)
+
+
+def pdf_uniform_sphere() -> Array:
+    return INV_4PI
+
+
+def sample_uniform_cone(u1: Array, u2: Array, cos_max: Array) -> V3:
+    """Uniform direction within angle acos(cos_max) of +z; pdf = 1 / (2 pi (1 - cos_max))."""
+    cos_t = 1.0 - u1 * (1.0 - cos_max)
+    sin_t = _safe_sqrt(1.0 - cos_t * cos_t)
+    phi = 2.0 * PI * u2
+    return V3(sin_t * jnp.cos(phi), sin_t * jnp.sin(phi), cos_t)
+
+
+def pdf_uniform_cone(cos_max: Array) -> Array:
+    solid_angle = 2.0 * PI * (1.0 - cos_max)
+    return jnp.where(solid_angle > 0, 1.0 / jnp.where(solid_angle > 0, solid_angle, 1.0), 0.0)
+
+
+# --- Phong lobe ---------------------------------------------------------------------------------
+
+def sample_phong_lobe(u1: Array, u2: Array, exponent: Array) -> V3:
+    """Direction about +z with density (n + 1) / (2 pi) cos^n(alpha) (Lafortune & Willems 1994)."""
+    cos_a = u1 ** (1.0 / (exponent + 1.0))
+    sin_a = _safe_sqrt(1.0 - cos_a * cos_a)
+    phi = 2.0 * PI * u2
+    return V3(sin_a * jnp.cos(phi), sin_a * jnp.sin(phi), cos_a)
+
+
+def pdf_phong_lobe(cos_alpha: Array, exponent: Array) -> Array:
+    c = jnp.maximum(cos_alpha, 0.0)
+    return (exponent + 1.0) * (0.5 * INV_PI) * c ** exponent
+
+
+# --- triangle -----------------------------------------------------------------------------------
+
+def sample_uniform_triangle(u1: Array, u2: Array) -> tuple[Array, Array]:
+    """Barycentrics (b1, b2) uniform over the triangle (square-root parameterisation)."""
+    s = _safe_sqrt(u1)
+    return s * (1.0 - u2), s * u2
