@@ -25,7 +25,7 @@ Not included, deliberately: textures, shading normals, participating media.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import NamedTuple
+from typing import Callable, NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -74,10 +74,14 @@ class PathState(NamedTuple):
     prev_p: V3           # the vertex d left from (reference point for pdf_li)
 
 
-def radiance(scene: Scene, cfg: PathTracerConfig, key: Array, o: V3, d: V3) -> V3:
-    """Radiance arriving along rays (o, d), one path each; randomness from stream ``key``.
+def radiance(scene: Scene, cfg: PathTracerConfig, uniform: Callable[[Array], Array], o: V3,
+             d: V3) -> V3:
+    """Radiance arriving along rays (o, d), one path each.
 
-    Dimensions 0 and 1 of each stream are left for the camera's pixel jitter."""
+    ``uniform(dim)`` returns the paths' random numbers for dimension ``dim`` (an [N] array), so
+    the same code runs on hashed streams (``lambda k: rng.uniform(key, k)``) and on explicit
+    primary-sample vectors (Metropolis). Dimensions 0 and 1 are the camera's pixel jitter;
+    bounce b uses dimensions 2 + b * cfg.dims_per_bounce onwards."""
     mats, lights = scene.materials, scene.lights
     kinds = mats.kinds
     n_f, n_g = 1.0, float(cfg.light_samples)
@@ -128,8 +132,8 @@ def radiance(scene: Scene, cfg: PathTracerConfig, key: Array, o: V3, d: V3) -> V
             nee_ok = active & ~B.is_delta(mp) & counts(length + 1)
             for j in range(cfg.light_samples):
                 dj = base + 4 + 3 * j
-                ls = LT.sample_li(lights, hit.p, rng.uniform(key, dj), rng.uniform(key, dj + 1),
-                                  rng.uniform(key, dj + 2))
+                ls = LT.sample_li(lights, hit.p, uniform(dj), uniform(dj + 1),
+                                  uniform(dj + 2))
                 f, pdf_bsdf = B.evaluate(kinds, mp, hit.n, wo, ls.wi)
                 cos_i = jnp.abs(dot(ls.wi, hit.n))
                 o_shadow = G.offset_origin(hit.p, hit.n, ls.wi)
@@ -145,8 +149,8 @@ def radiance(scene: Scene, cfg: PathTracerConfig, key: Array, o: V3, d: V3) -> V
                 L = L + where(ok, s.throughput * f * ls.Li * scale, Z)
 
         # ---- BSDF sampling: extend the path ----
-        bs = B.sample(kinds, mp, hit.n, wo, rng.uniform(key, base), rng.uniform(key, base + 1),
-                      rng.uniform(key, base + 2))
+        bs = B.sample(kinds, mp, hit.n, wo, uniform(base), uniform(base + 1),
+                      uniform(base + 2))
         throughput = s.throughput * bs.weight
         active = active & bs.valid
 
@@ -154,7 +158,7 @@ def radiance(scene: Scene, cfg: PathTracerConfig, key: Array, o: V3, d: V3) -> V
         if cfg.rr_depth >= 0:
             q = jnp.clip(max_component(throughput), 0.0, 0.95)
             roulette = length >= cfg.rr_depth
-            survive = rng.uniform(key, base + 3) < q
+            survive = uniform(base + 3) < q
             active = active & (~roulette | survive)
             throughput = where(roulette, throughput / jnp.where(q > 0, q, 1.0), throughput)
 
@@ -173,7 +177,7 @@ def trace_pixels(scene: Scene, cfg: PathTracerConfig, seed, pixel: Array, sample
     key = rng.path_key(seed, pixel, sample)
     px, py = pixel % W, pixel // W
     o, d = C.sample_ray(scene.camera, px, py, rng.uniform(key, 0), rng.uniform(key, 1))
-    return radiance(scene, cfg, key, o, d)
+    return radiance(scene, cfg, lambda dim: rng.uniform(key, dim), o, d)
 
 
 def _run(scene: Scene, *, spp: int, seed: int, progress: bool = False, **params):
