@@ -15,6 +15,7 @@ import jax
 import jax.numpy as jnp
 from jax import Array
 
+from ._xla import materialize
 from .scene import Quads, Scene, Spheres, Triangles
 from .vec import V3, cross, dot, normalize
 
@@ -134,7 +135,7 @@ def closest_hit(scene: Scene, o: V3, d: V3, t_max: Array | None = None):
             t, _, _ = triangle_t(_take(tr.v0, i), _take(tr.edge1, i), _take(tr.edge2, i), o, d)
             return update(c, t, TRIANGLE, i)
         carry = _scan(tr.count, body, carry)
-    return carry
+    return materialize(carry)
 
 
 def intersect(scene: Scene, o: V3, d: V3) -> Hit:
@@ -164,7 +165,7 @@ def intersect(scene: Scene, o: V3, d: V3) -> Hit:
             n = V3(*(jnp.where(sel, a, b) for a, b in zip(nt, n)))
             material = jnp.where(sel, table.material[i], material)
             emitter = jnp.where(sel, table.emitter[i], emitter)
-    return Hit(jnp.where(valid, t, INF), valid, p, n, material, emitter)
+    return materialize(Hit(jnp.where(valid, t, INF), valid, p, n, material, emitter))
 
 
 def occluded(scene: Scene, o: V3, d: V3, t_max: Array) -> Array:

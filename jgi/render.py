@@ -26,7 +26,7 @@ from .vec import V3
 DEFAULT_CHUNK = 1 << 16
 CHUNKS_PER_CALL = 4
 
-_COMPILED: dict = {}  # compile cache: (estimator key, chunk, chunks per call) -> jitted fn
+_COMPILED: dict = {}  # compile cache: (estimator key, chunk size) -> jitted fn
 
 
 def render(scene: Scene | str, estimator: str = "pt", spp: int = 16, seed: int = 0,
@@ -47,7 +47,7 @@ def render(scene: Scene | str, estimator: str = "pt", spp: int = 16, seed: int =
     return est.run(scene, spp=int(spp), seed=int(seed), progress=progress, **resolved)
 
 
-def _accumulate(scene: Scene, seed, sample0, pixel0, total_left, *, path_fn, chunk, n_chunks):
+def _accumulate(scene: Scene, seed, sample0, pixel0, total_left, *, path_fn, chunk):
     W, H = scene.camera.width, scene.camera.height
     P = W * H
     lane = jnp.arange(chunk, dtype=jnp.int32)
@@ -68,6 +68,7 @@ def _accumulate(scene: Scene, seed, sample0, pixel0, total_left, *, path_fn, chu
         return img.at[pixel].add(vals), bad
 
     init = (jnp.zeros((P, 3), jnp.float32), jnp.int32(0))
+    n_chunks = (total_left + chunk - 1) // chunk  # traced: one compile for any count
     return jax.lax.fori_loop(0, n_chunks, body, init)
 
 
@@ -79,14 +80,14 @@ def render_paths(scene: Scene, path_fn: Callable[..., V3], *, spp: int, seed: in
     W, H = scene.camera.width, scene.camera.height
     P = W * H
     total = P * spp
-    chunk = chunk or min(DEFAULT_CHUNK, 1 << max(int(np.ceil(np.log2(max(total, 1)))), 8))
-    n_chunks = max(1, min(CHUNKS_PER_CALL, -(-total // chunk)))
-    key = (cache_key, chunk, n_chunks)
+    # the chunk size depends on the image size only, so every spp reuses one compilation
+    chunk = chunk or min(DEFAULT_CHUNK, 1 << max(int(np.ceil(np.log2(P))), 8))
+    key = (cache_key, chunk)
     fn = _COMPILED.get(key)
     if fn is None:
-        fn = jax.jit(partial(_accumulate, path_fn=path_fn, chunk=chunk, n_chunks=n_chunks))
+        fn = jax.jit(partial(_accumulate, path_fn=path_fn, chunk=chunk))
         _COMPILED[key] = fn
-    per_call = chunk * n_chunks
+    per_call = chunk * CHUNKS_PER_CALL
     img = None
     bad = 0
     t0 = time.perf_counter()

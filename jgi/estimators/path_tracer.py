@@ -37,6 +37,7 @@ from .. import geometry as G
 from .. import lights as LT
 from .. import mis
 from .. import rng
+from .._xla import materialize
 from ..scene import Scene
 from ..vec import V3, dot, max_component, where
 from .registry import Estimator, Param, register
@@ -151,6 +152,7 @@ def radiance(scene: Scene, cfg: PathTracerConfig, uniform: Callable[[Array], Arr
         # ---- BSDF sampling: extend the path ----
         bs = B.sample(kinds, mp, hit.n, wo, uniform(base), uniform(base + 1),
                       uniform(base + 2))
+        bs = materialize(bs)  # computed once: feeds throughput, origin, pdf and RR
         throughput = s.throughput * bs.weight
         active = active & bs.valid
 

@@ -1,0 +1,98 @@
+"""Path-tracing throughput on the Cornell box: jgi against Mitsuba 3 measured in the same run.
+
+    python experiments/bench_pt.py [--spp 64] [--resolution 256] [--no-mitsuba] [--json out.json]
+
+Both render the same scene (jgi's ``cornell_box`` replicates Mitsuba's ``cornell_box()``) at
+max depth 8 with Russian roulette from depth 5, NEE + MIS. Prints compile time, million paths
+per second for each, their ratio, and the image means (to check both compute the same thing).
+Mitsuba uses its ``llvm_ad_rgb`` variant (needs ``DRJIT_LIBLLVM_PATH`` pointing at LLVM 19's
+``libLLVM.so.19.1``; set automatically when Debian's ``libllvm19`` is installed).
+"""
+
+from __future__ import annotations
+
+import argparse
+import glob
+import json
+import os
+import sys
+import time
+
+import numpy as np
+
+
+def bench_jgi(resolution: int, spp: int, repeats: int) -> dict:
+    import jax
+
+    import jgi
+
+    scene = jgi.load_scene("cornell_box", resolution=resolution)
+    t0 = time.perf_counter()
+    jgi.render(scene, "pt", spp=1, seed=0, max_depth=8, rr_depth=5)
+    compile_s = time.perf_counter() - t0
+    times, img = [], None
+    for r in range(repeats):
+        t0 = time.perf_counter()
+        img = jgi.render(scene, "pt", spp=spp, seed=1 + r, max_depth=8, rr_depth=5)
+        times.append(time.perf_counter() - t0)
+    best = min(times)
+    return dict(name="jgi", mpaths_per_s=resolution * resolution * spp / best / 1e6,
+                seconds=best, compile_s=compile_s, mean_rgb=img.reshape(-1, 3).mean(0).tolist(),
+                devices=[str(d) for d in jax.devices()])
+
+
+def bench_mitsuba(resolution: int, spp: int, repeats: int) -> dict | None:
+    if "DRJIT_LIBLLVM_PATH" not in os.environ:
+        found = sorted(glob.glob("/usr/lib/*/libLLVM.so.19.1"))
+        if found:
+            os.environ["DRJIT_LIBLLVM_PATH"] = found[0]
+    try:
+        import mitsuba as mi
+        mi.set_variant("llvm_ad_rgb")
+    except Exception as e:  # not installed, or no usable LLVM
+        print(f"mitsuba unavailable: {e}", file=sys.stderr)
+        return None
+    desc = mi.cornell_box()
+    desc["sensor"]["film"]["width"] = desc["sensor"]["film"]["height"] = resolution
+    desc["sensor"]["film"]["rfilter"] = {"type": "box"}
+    desc["integrator"] = {"type": "path", "max_depth": 8, "rr_depth": 5}
+    scene = mi.load_dict(desc)
+    t0 = time.perf_counter()
+    np.asarray(mi.render(scene, spp=1, seed=0))
+    compile_s = time.perf_counter() - t0
+    times, img = [], None
+    for r in range(repeats):
+        t0 = time.perf_counter()
+        img = np.asarray(mi.render(scene, spp=spp, seed=1 + r))
+        times.append(time.perf_counter() - t0)
+    best = min(times)
+    return dict(name="mitsuba3 llvm_ad_rgb", mpaths_per_s=resolution * resolution * spp / best / 1e6,
+                seconds=best, compile_s=compile_s, mean_rgb=img.reshape(-1, 3).mean(0).tolist())
+
+
+def main(argv=None) -> dict:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--spp", type=int, default=64)
+    ap.add_argument("--resolution", type=int, default=256)
+    ap.add_argument("--repeats", type=int, default=3)
+    ap.add_argument("--no-mitsuba", action="store_true")
+    ap.add_argument("--json", default=None)
+    a = ap.parse_args(argv)
+    out = {"jgi": bench_jgi(a.resolution, a.spp, a.repeats)}
+    if not a.no_mitsuba:
+        out["mitsuba"] = bench_mitsuba(a.resolution, a.spp, a.repeats)
+    for r in out.values():
+        if r:
+            print(f"{r['name']:24s} {r['mpaths_per_s']:8.2f} Mpaths/s  ({r['seconds']:.2f} s render, "
+                  f"{r['compile_s']:.1f} s first call)  mean rgb {np.round(r['mean_rgb'], 4).tolist()}")
+    if out.get("mitsuba"):
+        out["ratio"] = out["jgi"]["mpaths_per_s"] / out["mitsuba"]["mpaths_per_s"]
+        print(f"jgi / Mitsuba 3 throughput: {out['ratio']:.2f}x")
+    if a.json:
+        with open(a.json, "w") as f:
+            json.dump(out, f, indent=2)
+    return out
+
+
+if __name__ == "__main__":
+    main()
