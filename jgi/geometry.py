@@ -16,14 +16,14 @@ import jax.numpy as jnp
 from jax import Array
 
 from ._xla import materialize
-from .scene import Quads, Scene, Spheres, Triangles
+from .scene import Boxes, Quads, Rects, Scene, Spheres, Triangles
 from .vec import V3, cross, dot, normalize
 
 INF = jnp.float32(jnp.inf)
 T_MIN = 1e-6          # reject hits this close to the origin (origins are also offset, see spawn)
 UNROLL_LIMIT = 32     # primitive tables up to this size are unrolled into the kernel
 
-SPHERE, QUAD, TRIANGLE = 0, 1, 2
+SPHERE, QUAD, TRIANGLE, RECT, BOX = 0, 1, 2, 3, 4
 
 
 class Hit(NamedTuple):
@@ -78,6 +78,62 @@ def triangle_t(v0: V3, e1: V3, e2: V3, o: V3, d: V3) -> tuple[Array, Array, Arra
     return jnp.where(hit, t, INF), b1, b2
 
 
+def safe_reciprocal(d: V3) -> V3:
+    """1/d per component, with zero components mapped to a huge finite value of the same sign
+    (so slab tests never form 0 * inf)."""
+    def rcp(x):
+        small = jnp.abs(x) < 1e-20
+        return 1.0 / jnp.where(small, jnp.where(x < 0, -1e-20, 1e-20), x)
+    return d.map(rcp)
+
+
+def rect_t(axis: int, plane, lo_a, hi_a, lo_b, hi_b, o: V3, d: V3, inv_d: V3) -> Array:
+    """Axis-aligned rectangle: t from the plane equation with the ray's precomputed 1/d, then
+    two interval tests; a non-finite t (ray parallel to the plane) fails every comparison."""
+    a, b = [k for k in range(3) if k != axis]
+    t = (plane - o[axis]) * inv_d[axis]
+    u = o[a] + t * d[a]
+    v = o[b] + t * d[b]
+    hit = (t > T_MIN) & (u >= lo_a) & (u <= hi_a) & (v >= lo_b) & (v <= hi_b)
+    return jnp.where(hit, t, INF)
+
+
+def _box_local(c: V3, au: V3, av: V3, aw: V3, o: V3, d: V3) -> tuple[V3, V3]:
+    rel = o - c
+    return V3(dot(rel, au), dot(rel, av), dot(rel, aw)), V3(dot(d, au), dot(d, av), dot(d, aw))
+
+
+def box_t(c: V3, au: V3, av: V3, aw: V3, half: V3, o: V3, d: V3) -> Array:
+    """Oriented box by the slab method in the box frame (Kay & Kajiya 1986); the entry distance
+    if the origin is outside, else the exit distance."""
+    lo, ld = _box_local(c, au, av, aw, o, d)
+    inv = safe_reciprocal(ld)
+    t1 = (-half - lo) * inv
+    t2 = (half - lo) * inv
+    near = V3(jnp.minimum(t1.x, t2.x), jnp.minimum(t1.y, t2.y), jnp.minimum(t1.z, t2.z))
+    far = V3(jnp.maximum(t1.x, t2.x), jnp.maximum(t1.y, t2.y), jnp.maximum(t1.z, t2.z))
+    t_near = jnp.maximum(jnp.maximum(near.x, near.y), near.z)
+    t_far = jnp.minimum(jnp.minimum(far.x, far.y), far.z)
+    t = jnp.where(t_near > T_MIN, t_near, t_far)
+    return jnp.where((t_near <= t_far) & (t > T_MIN), t, INF)
+
+
+def box_normal(c: V3, au: V3, av: V3, aw: V3, half: V3, p: V3) -> V3:
+    """Outward normal of the face containing p: the axis where |p_local| / half is largest."""
+    rel = p - c
+    lx, ly, lz = dot(rel, au), dot(rel, av), dot(rel, aw)
+    rx = jnp.abs(lx) / jnp.maximum(half.x, 1e-30)
+    ry = jnp.abs(ly) / jnp.maximum(half.y, 1e-30)
+    rz = jnp.abs(lz) / jnp.maximum(half.z, 1e-30)
+    use_x = (rx >= ry) & (rx >= rz)
+    use_y = ~use_x & (ry >= rz)
+    use_z = ~use_x & ~use_y
+    sx = jnp.where(use_x, jnp.sign(lx), 0.0)
+    sy = jnp.where(use_y, jnp.sign(ly), 0.0)
+    sz = jnp.where(use_z, jnp.sign(lz), 0.0)
+    return normalize(au * sx + av * sy + aw * sz)
+
+
 def quad_duals(q: Quads) -> tuple[V3, V3]:
     """Vectors with dual_u.edge_u = 1, dual_u.edge_v = 0 (and vice versa) in the quad's plane."""
     n = cross(q.edge_u, q.edge_v)
@@ -120,6 +176,29 @@ def closest_hit(scene: Scene, o: V3, d: V3, t_max: Array | None = None):
             return update(c, sphere_t(_take(sp.center, i), sp.radius[i], o, d), SPHERE, i)
         carry = _scan(sp.count, body, carry)
 
+    r: Rects = scene.rects
+    if r.count:
+        inv_d = safe_reciprocal(d)
+        start = 0
+        for axis, n_axis in enumerate(r.axis_counts):
+            def body(i, c, axis=axis):
+                t = rect_t(axis, r.plane[i], r.lo_a[i], r.hi_a[i], r.lo_b[i], r.hi_b[i], o, d, inv_d)
+                return update(c, t, RECT, i)
+            if n_axis <= UNROLL_LIMIT:
+                for i in range(start, start + n_axis):
+                    carry = body(i, carry)
+            else:
+                carry = jax.lax.fori_loop(start, start + n_axis, body, carry)
+            start += n_axis
+
+    bx: Boxes = scene.boxes
+    if bx.count:
+        def body(i, c):
+            t = box_t(_take(bx.center, i), _take(bx.axis_u, i), _take(bx.axis_v, i),
+                      _take(bx.axis_w, i), _take(bx.half, i), o, d)
+            return update(c, t, BOX, i)
+        carry = _scan(bx.count, body, carry)
+
     q: Quads = scene.quads
     if q.count:
         du, dv = quad_duals(q)
@@ -157,7 +236,15 @@ def intersect(scene: Scene, o: V3, d: V3) -> Hit:
         n = V3(*(jnp.where(sel, a, b) for a, b in zip(ns, n)))
         material = jnp.where(sel, sp.material[i], material)
         emitter = jnp.where(sel, sp.emitter[i], emitter)
-    for k, table in ((QUAD, scene.quads), (TRIANGLE, scene.triangles)):
+    bx = scene.boxes
+    if bx.count:
+        sel = kind == BOX
+        i = jnp.where(sel, idx, 0)
+        nb = box_normal(_take(bx.center, i), _take(bx.axis_u, i), _take(bx.axis_v, i),
+                        _take(bx.axis_w, i), _take(bx.half, i), p)
+        n = V3(*(jnp.where(sel, a, b) for a, b in zip(nb, n)))
+        material = jnp.where(sel, bx.material[i], material)
+    for k, table in ((QUAD, scene.quads), (TRIANGLE, scene.triangles), (RECT, scene.rects)):
         if table.count:
             sel = kind == k
             i = jnp.where(sel, idx, 0)

@@ -5,8 +5,11 @@ same *structure* (primitive counts and which material/light kinds occur), and ``
 differentiate an image with respect to any of them (albedos, light emission, positions).
 
 Tables:
-  * ``Spheres``, ``Quads`` (parallelograms), ``Triangles``: geometry, a material index and an
-    emitter index (the light element that makes the primitive emissive, or -1).
+  * ``Spheres``, ``Rects`` (axis-aligned rectangles), ``Boxes`` (oriented cubes), ``Quads``
+    (other parallelograms), ``Triangles``: geometry, a material index and an emitter index (the
+    light element that makes the primitive emissive, or -1). The builder files each quad and
+    cube under the most specific table that represents it exactly, since the ray test is the
+    renderer's inner loop.
   * ``Materials``: one row per material; ``kind`` selects the BSDF (see :mod:`jgi.bsdf`).
   * ``Lights``: a flat table of *light elements* chosen for next-event estimation with
     probability proportional to power. A diffuse area light on a mesh contributes one element per
@@ -70,6 +73,46 @@ class Quads(eqx.Module):
     normal: V3  # unit cross(edge_u, edge_v); emitters radiate on this side only
     material: Array
     emitter: Array
+
+    @property
+    def count(self) -> int:
+        return int(self.material.shape[0])
+
+
+class Rects(eqx.Module):
+    """Axis-aligned rectangles, a specialisation of quads chosen automatically by the builder.
+
+    Rectangle i lies in the plane x_axis = ``plane`` (axis static, rows sorted by axis, with
+    ``axis_counts`` rows per axis) and spans [lo_a, hi_a] x [lo_b, hi_b] in the other two axes
+    in increasing order (for axis y: a = x, b = z). Its ray test is about a fifth of a general
+    parallelogram's, which matters for architectural scenes such as the Cornell box."""
+
+    plane: Array
+    lo_a: Array
+    hi_a: Array
+    lo_b: Array
+    hi_b: Array
+    normal: V3  # unit normal (+-1 along the axis), the side cross(edge_u, edge_v) points to
+    material: Array
+    emitter: Array
+    axis_counts: tuple[int, int, int] = eqx.field(static=True)
+
+    @property
+    def count(self) -> int:
+        return int(self.material.shape[0])
+
+
+class Boxes(eqx.Module):
+    """Oriented boxes (Mitsuba's ``cube`` under a rotation/scale transform without shear):
+    centre + sum_k s_k half_k axis_k with s_k in [-1, 1]; one slab test replaces six quads."""
+
+    center: V3
+    axis_u: V3   # unit box axes (rows of the world-to-box rotation)
+    axis_v: V3
+    axis_w: V3
+    half: V3     # half extents along the axes
+    material: Array
+    emitter: Array  # always -1: emissive cubes are built from quads so they can be sampled
 
     @property
     def count(self) -> int:
@@ -140,6 +183,8 @@ class Camera(eqx.Module):
 class Scene(eqx.Module):
     camera: Camera
     spheres: Spheres
+    rects: Rects
+    boxes: Boxes
     quads: Quads
     triangles: Triangles
     materials: Materials
@@ -186,6 +231,7 @@ class SceneBuilder:
     material_names: dict = dc_field(default_factory=dict)
     spheres: list = dc_field(default_factory=list)    # (center, radius, material, emission|None)
     quads: list = dc_field(default_factory=list)      # (origin, u, v, material, emission|None)
+    boxes: list = dc_field(default_factory=list)      # (center, axes[3x3 rows], half[3], material)
     triangles: list = dc_field(default_factory=list)  # (v0, v1, v2, material, emission|None)
     lights: list = dc_field(default_factory=list)     # dicts for point/spot/directional/env
     camera_args: dict | None = None
@@ -234,7 +280,18 @@ class SceneBuilder:
         self.quad(o, u, v, material, emission)
 
     def cube(self, to_world: np.ndarray, material, emission=None):
-        """Mitsuba's ``cube``: [-1, 1]^3 as six outward-facing quads, then ``to_world``."""
+        """Mitsuba's ``cube``: [-1, 1]^3 under ``to_world``. Without shear and emission it is
+        stored as one oriented box; otherwise as six outward-facing quads."""
+        cols = np.asarray(to_world, float)[:3, :3]
+        half = np.linalg.norm(cols, axis=0)
+        if emission is None and np.all(half > 0):
+            axes = (cols / half).T
+            if np.allclose(axes @ axes.T, np.eye(3), atol=1e-9):
+                if np.linalg.det(axes) < 0:
+                    axes[2] = -axes[2]
+                self.boxes.append((xf.apply_point(to_world, [0.0, 0.0, 0.0]), axes, half,
+                                   self._mat(material)))
+                return
         faces = [  # (corner, edge u, edge v) with cross(u, v) pointing outwards
             ([-1, -1, 1], [2, 0, 0], [0, 2, 0]), ([1, -1, -1], [-2, 0, 0], [0, 2, 0]),
             ([1, -1, 1], [0, 0, -2], [0, 2, 0]), ([-1, -1, -1], [0, 0, 2], [0, 2, 0]),
@@ -316,6 +373,8 @@ class SceneBuilder:
         return Scene(
             camera=self._build_camera(),
             spheres=self._build_spheres(sph_emit),
+            rects=self._build_rects(quad_emit),
+            boxes=self._build_boxes(),
             quads=self._build_quads(quad_emit),
             triangles=self._build_triangles(tri_emit),
             materials=self._build_materials(),
@@ -331,6 +390,8 @@ class SceneBuilder:
             pts += [o, o + u, o + v, o + u + v]
         for a, b, c, *_ in self.triangles:
             pts += [a, b, c]
+        for c, axes, half, _ in self.boxes:
+            pts += [c - np.abs(axes.T) @ half, c + np.abs(axes.T) @ half]
         for l in self.lights:
             if "p0" in l:
                 pts.append(np.asarray(l["p0"], float))
@@ -381,17 +442,60 @@ class SceneBuilder:
                        jnp.asarray([s[2] for s in self.spheres], jnp.int32),
                        jnp.asarray(emit, jnp.int32))
 
+    def _rect_axis(self, q) -> int:
+        """The axis a quad is an axis-aligned rectangle across, or -1."""
+        o, u, v = q[0], q[1], q[2]
+        scale = max(np.abs(u).max(), np.abs(v).max(), 1e-30)
+        nz_u = np.abs(u) > 1e-12 * scale
+        nz_v = np.abs(v) > 1e-12 * scale
+        if nz_u.sum() != 1 or nz_v.sum() != 1 or np.argmax(nz_u) == np.argmax(nz_v):
+            return -1
+        return int(3 - np.argmax(nz_u) - np.argmax(nz_v))
+
+    def _build_rects(self, emit) -> Rects:
+        rows = [(self._rect_axis(q), i) for i, q in enumerate(self.quads)]
+        rows = sorted((a, i) for a, i in rows if a >= 0)
+        plane, lo_a, hi_a, lo_b, hi_b, nrm, mat, em = [], [], [], [], [], [], [], []
+        for axis, i in rows:
+            o, u, v, m, _ = self.quads[i]
+            a, b = [k for k in range(3) if k != axis]
+            corners = np.array([o, o + u, o + v, o + u + v])
+            plane.append(o[axis])
+            lo_a.append(corners[:, a].min()); hi_a.append(corners[:, a].max())
+            lo_b.append(corners[:, b].min()); hi_b.append(corners[:, b].max())
+            n = np.zeros(3)
+            n[axis] = np.sign(np.cross(u, v)[axis])
+            nrm.append(n)
+            mat.append(m)
+            em.append(emit[i])
+        counts = tuple(sum(1 for a, _ in rows if a == k) for k in range(3))
+        f32 = lambda x: jnp.asarray(np.asarray(x, np.float32).reshape(-1))
+        return Rects(f32(plane), f32(lo_a), f32(hi_a), f32(lo_b), f32(hi_b),
+                     _v3(np.asarray(nrm).reshape(-1, 3)), jnp.asarray(mat, jnp.int32).reshape(-1),
+                     jnp.asarray(em, jnp.int32).reshape(-1), counts)
+
+    def _build_boxes(self) -> Boxes:
+        n = len(self.boxes)
+        c = np.array([b[0] for b in self.boxes]).reshape(n, 3)
+        ax = np.array([b[1] for b in self.boxes]).reshape(n, 3, 3)
+        h = np.array([b[2] for b in self.boxes]).reshape(n, 3)
+        return Boxes(_v3(c), _v3(ax[:, 0]), _v3(ax[:, 1]), _v3(ax[:, 2]), _v3(h),
+                     jnp.asarray([b[3] for b in self.boxes], jnp.int32).reshape(-1),
+                     jnp.full((n,), -1, jnp.int32))
+
     def _build_quads(self, emit) -> Quads:
-        n = len(self.quads)
-        o = np.array([q[0] for q in self.quads]).reshape(n, 3)
-        u = np.array([q[1] for q in self.quads]).reshape(n, 3)
-        v = np.array([q[2] for q in self.quads]).reshape(n, 3)
+        keep = [i for i, q in enumerate(self.quads) if self._rect_axis(q) < 0]
+        n = len(keep)
+        qs = [self.quads[i] for i in keep]
+        o = np.array([q[0] for q in qs]).reshape(n, 3)
+        u = np.array([q[1] for q in qs]).reshape(n, 3)
+        v = np.array([q[2] for q in qs]).reshape(n, 3)
         nrm = np.cross(u, v)
         ln = np.linalg.norm(nrm, axis=1, keepdims=True)
         nrm = np.where(ln > 0, nrm / np.where(ln > 0, ln, 1), 0.0)
         return Quads(_v3(o), _v3(u), _v3(v), _v3(nrm),
-                     jnp.asarray([q[3] for q in self.quads], jnp.int32),
-                     jnp.asarray(emit, jnp.int32))
+                     jnp.asarray([q[3] for q in qs], jnp.int32).reshape(-1),
+                     jnp.asarray([emit[i] for i in keep], jnp.int32).reshape(-1))
 
     def _build_triangles(self, emit) -> Triangles:
         n = len(self.triangles)
