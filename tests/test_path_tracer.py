@@ -1,0 +1,249 @@
+"""The path tracer against closed forms, against itself under every strategy, and for robustness.
+
+Every statistical check uses fixed seeds and a tolerance of 5 standard errors, with the standard
+error measured from independent renders (different seeds) of the same configuration.
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import jgi
+from jgi import camera as C
+import sys
+
+import jgi.render  # noqa: F401  (the module; jgi.render is also the function)
+from jgi import scenes
+from jgi.scene import SceneBuilder
+R = sys.modules["jgi.render"]
+
+from tests.conftest import assert_agree, region_stats
+
+SEEDS = range(6)
+
+
+def renders(scene, seeds=SEEDS, spp=16, **params):
+    return np.stack([jgi.render(scene, "pt", spp=spp, seed=s, **params) for s in seeds])
+
+
+# --- closed forms -----------------------------------------------------------------------------
+
+@pytest.fixture(scope="module")
+def furnace():
+    return scenes.furnace(resolution=8, albedo=0.6, emission=1.5)
+
+
+@pytest.mark.parametrize("strategy", ["bsdf", "light", "mis"])
+@pytest.mark.parametrize("depth", [1, 3, 6])
+def test_white_furnace_every_depth(furnace, strategy, depth):
+    """Closed box, every wall emits L_e and reflects rho: L = L_e (1 + rho + ... + rho^(D-1))."""
+    expected = 1.5 * sum(0.6**k for k in range(depth))
+    imgs = renders(furnace, spp=8, strategy=strategy, max_depth=depth, rr_depth=-1)
+    mean, se = region_stats(imgs, regions=2)
+    if strategy == "bsdf":  # every path carries exactly the expected value
+        np.testing.assert_allclose(imgs, expected, rtol=2e-5)
+    assert np.all(np.abs(mean - expected) <= 5 * se + 2e-5 * expected), (mean, se, expected)
+
+
+def test_white_furnace_russian_roulette_is_unbiased(furnace):
+    expected = 1.5 * sum(0.6**k for k in range(8))
+    imgs = renders(furnace, spp=16, strategy="bsdf", max_depth=8, rr_depth=2)
+    mean, se = region_stats(imgs, regions=2)
+    assert np.all(se > 0), "Russian roulette should add variance"
+    assert np.all(np.abs(mean - expected) <= 5 * se), (mean, se, expected)
+
+
+def point_light_reference(scene, rho, intensity, height, sub=12):
+    """Pixel integrals of L = (rho / pi) I cos(theta) / d^2 by a sub-pixel grid of rays."""
+    cam = scene.camera
+    W, H = cam.width, cam.height
+    u = (np.arange(sub) + 0.5) / sub
+    py, px, v, w = np.meshgrid(np.arange(H), np.arange(W), u, u, indexing="ij")
+    o, d = C.sample_ray(cam, jnp.asarray(px.ravel()), jnp.asarray(py.ravel()),
+                        jnp.asarray(w.ravel(), jnp.float32), jnp.asarray(v.ravel(), jnp.float32))
+    o, d = np.asarray(o.stack()), np.asarray(d.stack())
+    t = -o[:, 1] / d[:, 1]
+    x = o + d * t[:, None]
+    to_light = np.array([0.0, height, 0.0]) - x
+    d2 = (to_light**2).sum(1)
+    cos = height / np.sqrt(d2)
+    L = np.where(t > 0, rho / np.pi * intensity * cos / d2, 0.0)
+    return L.reshape(H, W, sub * sub).mean(-1)
+
+
+@pytest.mark.parametrize("strategy", ["light", "mis"])
+def test_point_light_over_plane_matches_closed_form(strategy):
+    rho, I, h = 0.5, 10.0, 1.0
+    scene = scenes.point_light_plane(resolution=16, intensity=I, height=h, albedo=rho)
+    imgs = renders(scene, seeds=range(12), spp=8, strategy=strategy, max_depth=2)
+    ref = point_light_reference(scene, rho, I, h)
+    assert ref.min() > 0
+    mean, se = region_stats(imgs, regions=4)
+    ref_regions = ref.reshape(4, 4, 4, 4).mean(axis=(1, 3))
+    z = np.abs(mean[..., 0] - ref_regions) / se[..., 0]
+    assert z.max() < 5, z
+    # grey light and albedo: the three channels carry identical values
+    np.testing.assert_array_equal(imgs[..., 0], imgs[..., 2])
+    assert abs(imgs.mean() / ref.mean() - 1) < 5 * imgs.mean(axis=(1, 2, 3)).std(ddof=1) / np.sqrt(12) / ref.mean()
+
+
+def test_bsdf_sampling_cannot_see_point_lights():
+    scene = scenes.point_light_plane(resolution=8)
+    img = jgi.render(scene, "pt", spp=4, strategy="bsdf")
+    assert np.all(img == 0.0)
+
+
+# --- strategies agree -------------------------------------------------------------------------
+
+@pytest.fixture(scope="module")
+def cornell():
+    return scenes.cornell_box(resolution=16)
+
+
+@pytest.fixture(scope="module")
+def cornell_reference(cornell):
+    return renders(cornell, spp=32, strategy="mis", heuristic="balance")
+
+
+@pytest.mark.parametrize("params", [
+    dict(strategy="bsdf"),
+    dict(strategy="light"),
+    dict(strategy="mis", heuristic="power", beta=2.0),
+    dict(strategy="mis", heuristic="balance", light_samples=3),
+])
+def test_strategies_agree_on_cornell_box(cornell, cornell_reference, params):
+    imgs = renders(cornell, spp=32, **params)
+    assert_agree(imgs, cornell_reference, regions=4, label=str(params))
+
+
+def test_path_lengths_sum_to_the_full_image(cornell, cornell_reference):
+    """Fixed-length renders (exactly L segments) add up to the max-depth render."""
+    depth = 4
+    full = renders(cornell, spp=32, max_depth=depth, rr_depth=-1)
+    parts = sum(renders(cornell, spp=32, seeds=[100 + 10 * L + s for s in SEEDS], path_length=L,
+                        rr_depth=-1) for L in range(1, depth + 1))
+    assert_agree(parts, full, regions=4, label="sum of path lengths")
+    direct_only = renders(cornell, spp=8, seeds=[0], path_length=1)[0]
+    lit = direct_only.max(-1) > 0
+    assert 0 < lit.mean() < 0.2  # only the light itself is visible with one segment
+
+
+# --- multiple importance sampling weights -------------------------------------------------------
+
+def test_mis_weights_sum_to_one(rng_np):
+    from jgi import mis
+
+    for beta in (1.0, 2.0, 3.5):
+        p = rng_np.exponential(size=(3, 1000)).astype(np.float32) * 10.0 ** rng_np.uniform(-6, 6, (3, 1000))
+        n = np.array([1.0, 3.0, 2.0])
+        total = sum(mis.heuristic_weight(n[i], p[i], [(n[j], p[j]) for j in range(3) if j != i], beta)
+                    for i in range(3))
+        np.testing.assert_allclose(np.asarray(total), 1.0, rtol=1e-5)
+    # extreme ratios stay finite and in [0, 1]
+    w = mis.power(1.0, jnp.float32(1e30), 1.0, jnp.float32(1e-30))
+    assert np.isfinite(w) and 0.99 <= float(w) <= 1.0
+    assert float(mis.balance(1.0, jnp.float32(0.0), 1.0, jnp.float32(0.0))) == 0.0
+
+
+# --- determinism, chunking and compilation --------------------------------------------------------
+
+def test_same_seed_same_image_different_seed_independent(cornell):
+    a = jgi.render(cornell, "pt", spp=4, seed=7)
+    b = jgi.render(cornell, "pt", spp=4, seed=7)
+    c = jgi.render(cornell, "pt", spp=4, seed=8)
+    np.testing.assert_array_equal(a, b)
+    assert not np.array_equal(a, c)
+
+
+def test_different_seeds_give_independent_noise():
+    """On the furnace (known mean, light-tailed noise) the residuals of two seeds are
+    uncorrelated: |r| < 5 / sqrt(n) for n pixels."""
+    scene = scenes.furnace(resolution=32, albedo=0.6, emission=1.5)
+    expected = 1.5 * sum(0.6**k for k in range(3))
+    a = jgi.render(scene, "pt", spp=2, seed=7, max_depth=3)[..., 0].ravel() - expected
+    c = jgi.render(scene, "pt", spp=2, seed=8, max_depth=3)[..., 0].ravel() - expected
+    assert a.std() > 0
+    assert abs(np.corrcoef(a, c)[0, 1]) < 5 / np.sqrt(a.size)
+
+
+def test_image_does_not_depend_on_chunking(cornell):
+    from jgi.estimators.path_tracer import PathTracerConfig, trace_pixels
+
+    cfg = PathTracerConfig()
+    fn = lambda sc, pix, smp, sd: trace_pixels(sc, cfg, sd, pix, smp)
+    a = R.render_paths(cornell, fn, spp=6, seed=3, cache_key=("test-chunk", cfg), chunk=256)
+    b = R.render_paths(cornell, fn, spp=6, seed=3, cache_key=("test-chunk", cfg), chunk=1024)
+    np.testing.assert_allclose(a, b, rtol=1e-5, atol=1e-6)
+
+
+def test_one_compilation_serves_every_spp_and_seed(cornell):
+    jgi.render(cornell, "pt", spp=3, seed=1, max_depth=5)
+    fns = [fn for key, fn in R._COMPILED.items() if key[0][0] == "pt" and key[0][1].max_depth == 5]
+    assert len(fns) == 1
+    before = fns[0]._cache_size()
+    jgi.render(cornell, "pt", spp=5, seed=2, max_depth=5)
+    jgi.render(cornell, "pt", spp=17, seed=3, max_depth=5)
+    assert fns[0]._cache_size() == before == 1
+
+
+def test_scene_values_are_arguments_not_constants(cornell):
+    """Changing an albedo reuses the compiled kernel (values are pytree leaves) and changes the
+    image."""
+    jgi.render(cornell, "pt", spp=2, seed=0, max_depth=5)
+    brighter = jax.tree_util.tree_map(lambda x: x, cornell)
+    import equinox as eqx
+    brighter = eqx.tree_at(lambda s: s.materials.diffuse.x, brighter, cornell.materials.diffuse.x * 0.5)
+    a = jgi.render(cornell, "pt", spp=2, seed=0, max_depth=5)
+    b = jgi.render(brighter, "pt", spp=2, seed=0, max_depth=5)
+    assert b[..., 0].mean() < a[..., 0].mean()
+    fns = [fn for key, fn in R._COMPILED.items() if key[0][0] == "pt" and key[0][1].max_depth == 5]
+    assert fns[0]._cache_size() == 1
+
+
+# --- robustness -----------------------------------------------------------------------------------
+
+def degenerate_scene():
+    b = SceneBuilder("degenerate")
+    b.material("white", "diffuse", diffuse=(0.8, 0.8, 0.8))
+    b.material("glass", "dielectric", ior=1.5)
+    b.material("same", "dielectric", ior=1.0)
+    b.material("shiny", "phong", diffuse=(0.2, 0.2, 0.2), specular=(0.7, 0.7, 0.7), exponent=5000)
+    b.quad((-5, 0, -5), (0, 0, 10), (10, 0, 0), "white")            # floor, seen edge-on below
+    b.quad((0, 1, 0), (0, 0, 0), (1, 0, 0), "white", emission=(5, 5, 5))  # zero-area light
+    b.quad((-1, 2, -1), (0, 0, 0.5), (0.5, 0, 0), "white", emission=(5, 5, 5))
+    b.sphere((0, 0.5, 0), 0.0, "white", emission=(3, 3, 3))         # zero-radius light
+    b.sphere((0.8, 0.5, 0.2), 0.4, "glass")                          # total internal reflection
+    b.sphere((-0.8, 0.5, 0.2), 0.4, "same")                          # index-matched
+    b.sphere((0.0, 0.3, -1.0), 0.3, "shiny")
+    b.point_light((0, 3, 0), (2, 2, 2))
+    b.spot_light((2, 3, 0), (0, 0, 0), (5, 5, 5), cutoff_deg=30)
+    b.directional_light((0.3, -1, 0.1), (0.5, 0.5, 0.5))
+    b.environment_light((0.1, 0.1, 0.1))
+    b.camera(position=(0, 0.0, 4), look_at=(0, 0.0, 0), fov=60, width=12, height=12)  # eye in the floor plane
+    return b.build()
+
+
+@pytest.mark.parametrize("strategy", ["bsdf", "mis"])
+def test_no_nan_or_inf_on_degenerate_inputs(strategy):
+    scene = degenerate_scene()
+    with np.errstate(all="raise"):
+        img = jgi.render(scene, "pt", spp=16, seed=0, strategy=strategy)
+    assert np.all(np.isfinite(img))
+    assert img.max() > 0
+
+
+def test_bad_parameters_are_refused_with_names():
+    scene = scenes.furnace(resolution=4)
+    with pytest.raises(jgi.ParameterError, match="strategy.*'bsdf', 'light', 'mis'"):
+        jgi.render(scene, "pt", strategy="nee")
+    with pytest.raises(jgi.ParameterError, match="no parameter 'max_bounces'.*max_depth"):
+        jgi.render(scene, "pt", max_bounces=3)
+    with pytest.raises(jgi.ParameterError, match="unknown estimator 'ptx'.*pt"):
+        jgi.render(scene, "ptx")
+    with pytest.raises(jgi.ParameterError, match="spp"):
+        jgi.render(scene, "pt", spp=0)
+    with pytest.raises(jgi.ParameterError, match="max_depth.*below the minimum"):
+        jgi.render(scene, "pt", max_depth=0)
