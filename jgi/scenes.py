@@ -105,30 +105,32 @@ def ring_mesh(radius: float, height: float, segments: int):
 
 
 def veach_plates(resolution: int = 256) -> Scene:
-    """Four plates of exponent 10^4 .. 30 reflecting four sphere lights of radius 0.03 .. 1."""
+    """Veach's MIS scene (1997, fig. 9.8): four plates from rough (Phong n = 30) to nearly
+    mirror-like (n = 10^4), each tilted to reflect a row of four spherical lights of radius
+    0.9 .. 0.03 and equal power (radiance ~ 1 / r^2) into the camera. BSDF sampling wins on
+    smooth plates with large lights, light sampling on rough plates with small lights."""
     b = SceneBuilder("veach_plates")
-    b.material("floor", "diffuse", diffuse=(0.4, 0.4, 0.4))
+    b.material("floor", "diffuse", diffuse=(0.3, 0.3, 0.3))
     b.material("lamp", "diffuse", diffuse=(0.0, 0.0, 0.0))
-    b.quad((-10, -4.1, -10), (0, 0, 20), (20, 0, 0), "floor")
-    b.quad((-10, -10, -2), (20, 0, 0), (0, 20, 0), "floor")
-    exps = (10000.0, 1000.0, 150.0, 30.0)
-    plates = [((0.0, -3.5, 0.0), -0.8), ((0.0, -2.3, -0.5), -0.5),
-              ((0.0, -1.0, -0.85), -0.25), ((0.0, 0.4, -1.05), -0.05)]
-    for i, (e, (c, tilt)) in enumerate(zip(exps, plates)):
-        name = f"plate{i}"
-        b.material(name, "phong", diffuse=(0, 0, 0), specular=(0.35, 0.35, 0.35), exponent=e)
-        ang = np.arctan(tilt)  # plate tilted about x so it reflects the lights into the camera
-        u = np.array([8.0, 0, 0])
-        v = np.array([0, np.sin(ang + np.pi / 2), np.cos(ang + np.pi / 2)]) * 1.2
-        o = np.array(c) - u / 2 - v / 2
-        b.quad(o, v, u, name)
-    radii = (0.03, 0.1, 0.3, 0.9)
-    for i, r in enumerate(radii):
-        x = -3.75 + 2.5 * i
-        L = 0.5 * (0.9 / r) ** 2  # equal power
-        b.sphere((x, 0.0, 0.0 - 1.0 + 0.0), r, "lamp", emission=(L * 0.9, L * 0.9, L))
-    b.sphere((10, 10, 4), 0.5, "lamp", emission=(40.0, 40.0, 40.0))
-    b.camera(position=(0, 2, 15), look_at=(0, -2, 2.5), fov=28, width=resolution,
+    b.quad((-12, -4.5, -12), (0, 0, 30), (24, 0, 0), "floor")
+    b.quad((-12, -4.5, -4), (24, 0, 0), (0, 16, 0), "floor")
+    eye = np.array([0.0, 2.0, 15.0])
+    light_row = np.array([0.0, 0.2, -2.0])
+    centers = [(0.0, -3.6, 4.4), (0.0, -2.75, 3.0), (0.0, -1.8, 1.7), (0.0, -0.75, 0.5)]
+    for i, (e, c) in enumerate(zip((30.0, 150.0, 1000.0, 10000.0), centers)):
+        c = np.array(c)
+        n = (eye - c) / np.linalg.norm(eye - c) + (light_row - c) / np.linalg.norm(light_row - c)
+        n /= np.linalg.norm(n)
+        along = np.cross(np.array([1.0, 0.0, 0.0]), n)  # in the plate, perpendicular to x
+        u, v = np.array([8.0, 0.0, 0.0]), along * 1.25
+        b.material(f"plate{i}", "phong", diffuse=(0.0, 0.0, 0.0), specular=(0.4, 0.4, 0.4), exponent=e)
+        b.quad(c - u / 2 - v / 2, u, v, f"plate{i}")
+    for i, r in enumerate((0.9, 0.3, 0.1, 0.03)):
+        radiance = 4.0 * (0.3 / r) ** 2  # equal power
+        b.sphere(light_row + np.array([-3.75 + 2.5 * i, 0.0, 0.0]), r, "lamp",
+                 emission=(radiance, radiance * 0.95, radiance * 0.85))
+    b.sphere((8.0, 12.0, 10.0), 1.0, "lamp", emission=(6.0, 6.0, 6.0))  # dim fill light
+    b.camera(position=tuple(eye), look_at=(0, -1.6, 2.0), fov=34, width=resolution,
              height=resolution)
     return b.build()
 
