@@ -1,6 +1,7 @@
 """Estimators register themselves in :mod:`jgi.estimators.registry` when imported here."""
 
 from . import path_tracer  # noqa: F401
+from . import whitted  # noqa: F401
 from .registry import REGISTRY, Estimator, Param, ParameterError, get, register
 
 __all__ = ["REGISTRY", "Estimator", "Param", "ParameterError", "get", "register"]
