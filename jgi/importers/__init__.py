@@ -1,0 +1,3 @@
+"""Scene importers for other renderers' formats (the subset jgi represents exactly)."""
+
+from .mitsuba import load_mitsuba_xml  # noqa: F401
