@@ -338,9 +338,11 @@ class SceneBuilder:
 
     # --- camera -----------------------------------------------------------------------------
     def camera(self, position, look_at, up=(0, 1, 0), fov=40.0, width=256, height=256,
-               fov_axis="y"):
+               fov_axis="y", mirror=False):
+        """Pinhole camera; ``mirror`` flips the image horizontally (left-handed cameras, e.g.
+        pbrt's LookAt without a ``Scale -1 1 1``)."""
         self.camera_args = dict(position=position, look_at=look_at, up=up, fov=fov,
-                                width=width, height=height, fov_axis=fov_axis)
+                                width=width, height=height, fov_axis=fov_axis, mirror=mirror)
 
     # --- build ------------------------------------------------------------------------------
     def build(self) -> Scene:
@@ -429,6 +431,8 @@ class SceneBuilder:
             tx, ty = t * w / h, t
         else:
             raise SceneError(f"camera: fov_axis must be 'x', 'y' or 'smaller', got {axis!r}")
+        if a.get("mirror"):
+            right = -right
         return Camera(_v3_scalar(pos), _v3_scalar(fwd), _v3_scalar(right * tx), _v3_scalar(up * ty),
                       w, h)
 
