@@ -107,18 +107,40 @@ def _trace_chunk(scene, seed, start, n_emitted, *, chunk, max_depth):
 
 
 def trace_photons(scene: Scene, n_photons: int, seed: int = 0, max_depth: int = 8,
-                  chunk: int = 1 << 16) -> PhotonMap:
+                  chunk: int = 1 << 16, devices=None) -> PhotonMap:
     """Emit ``n_photons`` photons and return the stored ones (numpy arrays, compacted).
 
-    Photon i uses random stream (seed, i), so the map does not depend on ``chunk``; chunks keep
-    memory bounded (about 13 floats per stored photon on the host)."""
+    Photon i uses random stream (seed, i), so the map does not depend on ``chunk`` or on the
+    number of ``devices`` (default: all visible; chunks are split over them with
+    :mod:`jgi.sharding`); chunks keep memory bounded (13 floats per stored photon)."""
     if scene.lights.count == 0:
         raise ValueError("the scene has no lights to emit photons from")
     chunk = int(min(chunk, max(256, 1 << int(np.ceil(np.log2(max(n_photons, 1)))))))
+    starts = list(range(0, n_photons, chunk))
+    devices = list(devices if devices is not None else jax.devices())
     parts = []
-    for start in range(0, n_photons, chunk):
-        pm, valid = _trace_chunk(scene, jnp.uint32(seed), jnp.int32(start), jnp.int32(n_photons),
-                                 chunk=chunk, max_depth=max_depth)
+
+    def keep(pm, valid):
         mask = np.asarray(valid).ravel()
         parts.append(jax.tree_util.tree_map(lambda a: np.asarray(a).ravel()[mask], pm))
+
+    if len(devices) == 1:
+        for start in starts:
+            keep(*_trace_chunk(scene, jnp.uint32(seed), jnp.int32(start), jnp.int32(n_photons),
+                               chunk=chunk, max_depth=max_depth))
+    else:
+        from .sharding import device_mesh, sharded_calls
+
+        mesh = device_mesh(devices)
+        D = len(devices)
+        fn = sharded_calls(
+            lambda sc, sd, s0, _p0, n: _trace_chunk.__wrapped__(sc, sd, s0, n, chunk=chunk,
+                                                               max_depth=max_depth),
+            mesh, ("photons", chunk, max_depth))
+        for first in range(0, len(starts), D):
+            group = [starts[min(first + k, len(starts) - 1)] for k in range(D)]
+            pm, valid = fn(scene, jnp.uint32(seed), jnp.asarray(group, jnp.int32),
+                           jnp.zeros(D, jnp.int32), jnp.full(D, n_photons, jnp.int32))
+            for k in range(min(D, len(starts) - first)):  # in chunk order, as on one device
+                keep(jax.tree_util.tree_map(lambda a: a[k], pm), valid[k])
     return jax.tree_util.tree_map(lambda *xs: np.concatenate(xs), *parts)
