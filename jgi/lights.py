@@ -140,12 +140,9 @@ def sample_li(lights: Lights, x: V3, u_sel: Array, u1: Array, u2: Array) -> Ligh
         t = -b - jnp.sqrt(disc)
         pdf_cone = jnp.where(one_minus > 0, 1.0 / (2.0 * jnp.pi * jnp.where(one_minus > 0, one_minus, 1.0)), 0.0)
         cone = LightSample(d_cone, t, emission, pdf_cone * pmf, zero > 0, outside & (pdf_cone > 0))
-        # inside the sphere: uniform area sampling
-        y = p0 + warps.sample_uniform_sphere(u1, u2) * r
-        area = 4.0 * jnp.pi * r * r
-        inside = towards(y, normalize(p0 - y), jnp.where(area > 0, 1.0 / jnp.where(area > 0, area, 1.0), 0.0))
+        # inside the sphere nothing is received: spheres emit outwards only (as ``emitted``)
         out = choose((kind == AREA_SPHERE) & outside, cone, out)
-        out = choose((kind == AREA_SPHERE) & ~outside, inside, out)
+        out = choose((kind == AREA_SPHERE) & ~outside, out._replace(valid=zero > 0), out)
     if POINT in kinds or SPOT in kinds:
         v = p0 - x
         d2 = dot(v, v)
