@@ -63,10 +63,19 @@ def pdf_uniform_sphere() -> Array:
     return INV_4PI
 
 
-def sample_uniform_cone(u1: Array, u2: Array, cos_max: Array) -> V3:
-    """Uniform direction within angle acos(cos_max) of +z; pdf = 1 / (2 pi (1 - cos_max))."""
-    cos_t = 1.0 - u1 * (1.0 - cos_max)
-    sin_t = _safe_sqrt(1.0 - cos_t * cos_t)
+def sample_uniform_cone(u1: Array, u2: Array, cos_max: Array,
+                        one_minus_cos_max: Array | None = None) -> V3:
+    """Uniform direction within angle acos(cos_max) of +z; pdf = 1 / (2 pi (1 - cos_max)).
+
+    Works with 1 - cos(theta) = u1 (1 - cos_max) and sin^2 = (1 - cos)(1 + cos): in float32,
+    sqrt(1 - cos^2) of a cosine near 1 keeps only a few distinct values, which clumps the
+    samples of narrow cones (small or distant sphere lights). Callers that know
+    ``one_minus_cos_max`` more precisely than ``1 - cos_max`` (e.g. sin^2 / (1 + cos)) pass it.
+    """
+    om_max = (1.0 - cos_max) if one_minus_cos_max is None else one_minus_cos_max
+    one_minus = u1 * om_max
+    cos_t = 1.0 - one_minus
+    sin_t = _safe_sqrt(one_minus * (2.0 - one_minus))
     phi = 2.0 * PI * u2
     return V3(sin_t * jnp.cos(phi), sin_t * jnp.sin(phi), cos_t)
 
@@ -79,9 +88,14 @@ def pdf_uniform_cone(cos_max: Array) -> Array:
 # --- Phong lobe ---------------------------------------------------------------------------------
 
 def sample_phong_lobe(u1: Array, u2: Array, exponent: Array) -> V3:
-    """Direction about +z with density (n + 1) / (2 pi) cos^n(alpha) (Lafortune & Willems 1994)."""
-    cos_a = u1 ** (1.0 / (exponent + 1.0))
-    sin_a = _safe_sqrt(1.0 - cos_a * cos_a)
+    """Direction about +z with density (n + 1) / (2 pi) cos^n(alpha) (Lafortune & Willems 1994).
+
+    cos(alpha) = u1^(1 / (n + 1)); 1 - cos(alpha) = -expm1(log(u1) / (n + 1)) keeps the angle
+    precise in float32 for sharp lobes (see :func:`sample_uniform_cone`).
+    """
+    one_minus = -jnp.expm1(jnp.log(u1) / (exponent + 1.0))
+    cos_a = 1.0 - one_minus
+    sin_a = _safe_sqrt(one_minus * (2.0 - one_minus))
     phi = 2.0 * PI * u2
     return V3(sin_a * jnp.cos(phi), sin_a * jnp.sin(phi), cos_a)
 
