@@ -137,9 +137,7 @@ def radiance(scene: Scene, cfg: PathTracerConfig, uniform: Callable[[Array], Arr
                                   uniform(dj + 2))
                 f, pdf_bsdf = B.evaluate(kinds, mp, hit.n, wo, ls.wi)
                 cos_i = jnp.abs(dot(ls.wi, hit.n))
-                o_shadow = G.offset_origin(hit.p, hit.n, ls.wi)
-                t_max = ls.dist * (1.0 - 1e-4) - 1e-4
-                visible = ~G.occluded(scene, o_shadow, ls.wi, t_max)
+                visible = ~G.occluded(scene, *G.shadow_ray(hit.p, hit.n, ls.wi, ls.dist))
                 if cfg.strategy == "mis":
                     w_g = mis.heuristic_weight(n_g, ls.pdf, [(n_f, pdf_bsdf)], cfg.exponent)
                     w_g = jnp.where(ls.delta, 1.0, w_g)
