@@ -10,7 +10,10 @@
    ``lax.optimization_barrier`` does not do this on the CPU backend. The reduce adds zero (or
    ORs False), so results are bit-identical.
 
-Neither changes results beyond float rounding order.
+3. :func:`take`: rows of small tables (materials, a handful of primitives) read with a chain of
+   selects rather than a gather, which XLA's CPU backend emits as a separate, unfused loop.
+
+None of these changes results beyond float rounding order.
 """
 
 from __future__ import annotations
@@ -55,3 +58,19 @@ def materialize(tree):
 
     out = jax.lax.reduce(ops, inits, combine, (0,))
     return jax.tree_util.tree_unflatten(treedef, list(out))
+
+
+SMALL_TABLE = 8  # tables up to this many rows are read with selects
+
+
+def take(table, idx):
+    """``table[idx]`` for a 1-D table and an index array of valid rows (0 <= idx < len)."""
+    n = table.shape[0]
+    if n == 1:
+        return jnp.broadcast_to(table[0], jnp.shape(idx))
+    if n > SMALL_TABLE:
+        return table[idx]
+    out = jnp.broadcast_to(table[n - 1], jnp.shape(idx))
+    for i in range(n - 2, -1, -1):
+        out = jnp.where(idx == i, table[i], out)
+    return out

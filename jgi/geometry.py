@@ -79,17 +79,15 @@ def triangle_t(v0: V3, e1: V3, e2: V3, o: V3, d: V3) -> tuple[Array, Array, Arra
 
 
 def safe_reciprocal(d: V3) -> V3:
-    """1/d per component, with zero components mapped to a huge finite value of the same sign
-    (so slab tests never form 0 * inf)."""
-    def rcp(x):
-        small = jnp.abs(x) < 1e-20
-        return 1.0 / jnp.where(small, jnp.where(x < 0, -1e-20, 1e-20), x)
-    return d.map(rcp)
+    """1/d per component, with components below 1e-20 in magnitude replaced by 1e-20 (so slab
+    and plane tests never form 0 * inf; the sign of such a component does not matter: the ray
+    is parallel to that slab for any finite distance)."""
+    return d.map(lambda x: 1.0 / jnp.where(jnp.abs(x) < 1e-20, jnp.float32(1e-20), x))
 
 
 def rect_t(axis: int, plane, lo_a, hi_a, lo_b, hi_b, o: V3, d: V3, inv_d: V3) -> Array:
     """Axis-aligned rectangle: t from the plane equation with the ray's precomputed 1/d, then
-    two interval tests; a non-finite t (ray parallel to the plane) fails every comparison."""
+    two interval tests."""
     a, b = [k for k in range(3) if k != axis]
     t = (plane - o[axis]) * inv_d[axis]
     u = o[a] + t * d[a]
@@ -98,15 +96,16 @@ def rect_t(axis: int, plane, lo_a, hi_a, lo_b, hi_b, o: V3, d: V3, inv_d: V3) ->
     return jnp.where(hit, t, INF)
 
 
-def _box_local(c: V3, au: V3, av: V3, aw: V3, o: V3, d: V3) -> tuple[V3, V3]:
+def box_t(c: V3, au: V3, av: V3, aw: V3, half: V3, o: V3, d: V3, with_normal: bool = False):
+    """Oriented box by the slab method in the box frame (Kay & Kajiya 1986): (t, n).
+
+    t is the entry distance if the origin is outside, else the exit distance (inf on a miss).
+    With ``with_normal``, n is the outward normal of the face crossed at t: the slab whose
+    entry (exit) distance bounds the interval, signed against (with) the local direction;
+    otherwise None."""
     rel = o - c
-    return V3(dot(rel, au), dot(rel, av), dot(rel, aw)), V3(dot(d, au), dot(d, av), dot(d, aw))
-
-
-def box_t(c: V3, au: V3, av: V3, aw: V3, half: V3, o: V3, d: V3) -> Array:
-    """Oriented box by the slab method in the box frame (Kay & Kajiya 1986); the entry distance
-    if the origin is outside, else the exit distance."""
-    lo, ld = _box_local(c, au, av, aw, o, d)
+    lo = V3(dot(rel, au), dot(rel, av), dot(rel, aw))
+    ld = V3(dot(d, au), dot(d, av), dot(d, aw))
     inv = safe_reciprocal(ld)
     t1 = (-half - lo) * inv
     t2 = (half - lo) * inv
@@ -114,8 +113,20 @@ def box_t(c: V3, au: V3, av: V3, aw: V3, half: V3, o: V3, d: V3) -> Array:
     far = V3(jnp.maximum(t1.x, t2.x), jnp.maximum(t1.y, t2.y), jnp.maximum(t1.z, t2.z))
     t_near = jnp.maximum(jnp.maximum(near.x, near.y), near.z)
     t_far = jnp.minimum(jnp.minimum(far.x, far.y), far.z)
-    t = jnp.where(t_near > T_MIN, t_near, t_far)
-    return jnp.where((t_near <= t_far) & (t > T_MIN), t, INF)
+    entering = t_near > T_MIN
+    t = jnp.where(entering, t_near, t_far)
+    t = jnp.where((t_near <= t_far) & (t > T_MIN), t, INF)
+    if not with_normal:
+        return t, None
+    # the bounding slab: argmax of the near distances on entry, argmin of the far ones on exit
+    on_x = jnp.where(entering, (near.x >= near.y) & (near.x >= near.z),
+                     (far.x <= far.y) & (far.x <= far.z))
+    on_y = ~on_x & jnp.where(entering, near.y >= near.z, far.y <= far.z)
+    axis = where(on_x, au, where(on_y, av, aw))
+    d_axis = jnp.where(on_x, ld.x, jnp.where(on_y, ld.y, ld.z))
+    # entering through a face means moving against its outward normal
+    sign = jnp.where((d_axis < 0) == entering, 1.0, -1.0)
+    return t, axis * sign
 
 
 def box_normal(c: V3, au: V3, av: V3, aw: V3, half: V3, p: V3) -> V3:
@@ -157,6 +168,29 @@ def _scan(count: int, body, carry):
     return jax.lax.fori_loop(0, count, body, carry)
 
 
+def _rect_axes(r: Rects):
+    """(axis, first row, row count) for each axis that has rectangles."""
+    out, start = [], 0
+    for axis, n_axis in enumerate(r.axis_counts):
+        if n_axis:
+            out.append((axis, start, n_axis))
+        start += n_axis
+    return out
+
+
+def _scan_rects(r: Rects, o: V3, d: V3, inv_d: V3, body, carry):
+    for axis, start, n_axis in _rect_axes(r):
+        def one(i, c, axis=axis):
+            return body(i, c, axis, rect_t(axis, r.plane[i], r.lo_a[i], r.hi_a[i], r.lo_b[i],
+                                           r.hi_b[i], o, d, inv_d))
+        if n_axis <= UNROLL_LIMIT:
+            for i in range(start, start + n_axis):
+                carry = one(i, carry)
+        else:
+            carry = jax.lax.fori_loop(start, start + n_axis, one, carry)
+    return carry
+
+
 def closest_hit(scene: Scene, o: V3, d: V3, t_max: Array | None = None):
     """(t, kind, index) of the nearest primitive with T_MIN < t < t_max (inf and -1 on a miss)."""
     shape = o.x.shape
@@ -175,30 +209,15 @@ def closest_hit(scene: Scene, o: V3, d: V3, t_max: Array | None = None):
         def body(i, c):
             return update(c, sphere_t(_take(sp.center, i), sp.radius[i], o, d), SPHERE, i)
         carry = _scan(sp.count, body, carry)
-
     r: Rects = scene.rects
     if r.count:
-        inv_d = safe_reciprocal(d)
-        start = 0
-        for axis, n_axis in enumerate(r.axis_counts):
-            def body(i, c, axis=axis):
-                t = rect_t(axis, r.plane[i], r.lo_a[i], r.hi_a[i], r.lo_b[i], r.hi_b[i], o, d, inv_d)
-                return update(c, t, RECT, i)
-            if n_axis <= UNROLL_LIMIT:
-                for i in range(start, start + n_axis):
-                    carry = body(i, carry)
-            else:
-                carry = jax.lax.fori_loop(start, start + n_axis, body, carry)
-            start += n_axis
-
+        carry = _scan_rects(r, o, d, safe_reciprocal(d),
+                            lambda i, c, axis, t: update(c, t, RECT, i), carry)
     bx: Boxes = scene.boxes
     if bx.count:
         def body(i, c):
-            t = box_t(_take(bx.center, i), _take(bx.axis_u, i), _take(bx.axis_v, i),
-                      _take(bx.axis_w, i), _take(bx.half, i), o, d)
-            return update(c, t, BOX, i)
+            return update(c, box_t(*_box_row(bx, i), o, d)[0], BOX, i)
         carry = _scan(bx.count, body, carry)
-
     q: Quads = scene.quads
     if q.count:
         du, dv = quad_duals(q)
@@ -207,7 +226,6 @@ def closest_hit(scene: Scene, o: V3, d: V3, t_max: Array | None = None):
             t = quad_t(_take(q.origin, i), _take(q.normal, i), _take(du, i), _take(dv, i), o, d)
             return update(c, t, QUAD, i)
         carry = _scan(q.count, body, carry)
-
     tr: Triangles = scene.triangles
     if tr.count:
         def body(i, c):
@@ -217,48 +235,114 @@ def closest_hit(scene: Scene, o: V3, d: V3, t_max: Array | None = None):
     return materialize(carry)
 
 
-def intersect(scene: Scene, o: V3, d: V3) -> Hit:
-    """Closest hit with its position, geometric normal, material and emitter."""
-    t, kind, idx = closest_hit(scene, o, d)
-    valid = kind >= 0
-    tt = jnp.where(valid, t, 0.0)
-    p = o + d * tt
-    zero_i = jnp.zeros_like(kind)
-    n = V3(jnp.zeros_like(tt), jnp.zeros_like(tt), jnp.ones_like(tt))
-    material, emitter = zero_i, jnp.full_like(kind, -1)
+def _box_row(bx: Boxes, i):
+    return (_take(bx.center, i), _take(bx.axis_u, i), _take(bx.axis_v, i), _take(bx.axis_w, i),
+            _take(bx.half, i))
 
-    sp = scene.spheres
+
+class _Nearest(NamedTuple):
+    """Closest-hit scan state: the nearest t so far and the attributes of that primitive, so no
+    table has to be gathered again afterwards."""
+    t: Array
+    n: V3              # geometric normal (sphere: its centre, resolved after the scan)
+    material: Array
+    emitter: Array
+    sphere: Array      # bool, only carried when the scene has spheres
+
+
+def intersect(scene: Scene, o: V3, d: V3) -> Hit:
+    """Closest hit with its position, geometric normal, material and emitter.
+
+    One pass over the primitives keeps the nearest hit's attributes (normal, material, emitter)
+    as it goes: cheaper than recording (kind, index) and gathering from every table afterwards."""
+    shape = o.x.shape
+    zf = jnp.zeros(shape, jnp.float32)
+    has_spheres = scene.spheres.count > 0
+    carry = _Nearest(jnp.full(shape, INF), V3(zf, zf, zf + 1.0), jnp.zeros(shape, jnp.int32),
+                     jnp.full(shape, -1, jnp.int32), zf > 0 if has_spheres else None)
+
+    def update(c: _Nearest, closer, t, n: V3, material, emitter, sphere=False) -> _Nearest:
+        sel = lambda a, b: jnp.where(closer, a, b)  # noqa: E731
+        return _Nearest(sel(t, c.t), V3(sel(n.x, c.n.x), sel(n.y, c.n.y), sel(n.z, c.n.z)),
+                        sel(material, c.material), sel(emitter, c.emitter),
+                        sel(sphere, c.sphere) if has_spheres else None)
+
+    sp: Spheres = scene.spheres
     if sp.count:
-        sel = kind == SPHERE
-        i = jnp.where(sel, idx, 0)
-        c = _take(sp.center, i)
-        ns = normalize(p - c)
-        n = V3(*(jnp.where(sel, a, b) for a, b in zip(ns, n)))
-        material = jnp.where(sel, sp.material[i], material)
-        emitter = jnp.where(sel, sp.emitter[i], emitter)
-    bx = scene.boxes
+        def body(i, c):
+            center = _take(sp.center, i)
+            t = sphere_t(center, sp.radius[i], o, d)
+            return update(c, t < c.t, t, center, sp.material[i], sp.emitter[i], True)
+        carry = _scan(sp.count, body, carry)
+    r: Rects = scene.rects
+    if r.count:
+        inv_d = safe_reciprocal(d)
+
+        def rect_body(i, c, axis, t):
+            return update(c, t < c.t, t, _take(r.normal, i), r.material[i], r.emitter[i])
+        carry = _scan_rects(r, o, d, inv_d, rect_body, carry)
+    bx: Boxes = scene.boxes
     if bx.count:
-        sel = kind == BOX
-        i = jnp.where(sel, idx, 0)
-        nb = box_normal(_take(bx.center, i), _take(bx.axis_u, i), _take(bx.axis_v, i),
-                        _take(bx.axis_w, i), _take(bx.half, i), p)
-        n = V3(*(jnp.where(sel, a, b) for a, b in zip(nb, n)))
-        material = jnp.where(sel, bx.material[i], material)
-    for k, table in ((QUAD, scene.quads), (TRIANGLE, scene.triangles), (RECT, scene.rects)):
-        if table.count:
-            sel = kind == k
-            i = jnp.where(sel, idx, 0)
-            nt = _take(table.normal, i)
-            n = V3(*(jnp.where(sel, a, b) for a, b in zip(nt, n)))
-            material = jnp.where(sel, table.material[i], material)
-            emitter = jnp.where(sel, table.emitter[i], emitter)
-    return materialize(Hit(jnp.where(valid, t, INF), valid, p, n, material, emitter))
+        def body(i, c):
+            t, n = box_t(*_box_row(bx, i), o, d, with_normal=True)
+            return update(c, t < c.t, t, n, bx.material[i], bx.emitter[i])
+        carry = _scan(bx.count, body, carry)
+    q: Quads = scene.quads
+    if q.count:
+        du, dv = quad_duals(q)
+
+        def body(i, c):
+            t = quad_t(_take(q.origin, i), _take(q.normal, i), _take(du, i), _take(dv, i), o, d)
+            return update(c, t < c.t, t, _take(q.normal, i), q.material[i], q.emitter[i])
+        carry = _scan(q.count, body, carry)
+    tr: Triangles = scene.triangles
+    if tr.count:
+        def body(i, c):
+            t, _, _ = triangle_t(_take(tr.v0, i), _take(tr.edge1, i), _take(tr.edge2, i), o, d)
+            return update(c, t < c.t, t, _take(tr.normal, i), tr.material[i], tr.emitter[i])
+        carry = _scan(tr.count, body, carry)
+
+    valid = carry.t < INF
+    tt = jnp.where(valid, carry.t, 0.0)
+    p = o + d * tt
+    n = carry.n
+    if has_spheres:
+        ns = normalize(p - n)
+        n = V3(*(jnp.where(carry.sphere, a, b) for a, b in zip(ns, n)))
+    return materialize(Hit(carry.t, valid, p, n, carry.material, carry.emitter))
 
 
 def occluded(scene: Scene, o: V3, d: V3, t_max: Array) -> Array:
-    """True where something lies strictly between o and o + t_max d (shadow rays)."""
-    _, kind, _ = closest_hit(scene, o, d, t_max)
-    return kind >= 0
+    """True where something lies strictly between o and o + t_max d (shadow rays).
+
+    An any-hit query: the OR over primitives of T_MIN < t_i < t_max, with no nearest-hit
+    bookkeeping."""
+    shape = o.x.shape
+    t_max = jnp.broadcast_to(t_max, shape)
+    occ = jnp.zeros(shape, bool)
+
+    sp: Spheres = scene.spheres
+    if sp.count:
+        occ = _scan(sp.count, lambda i, a: a | (sphere_t(_take(sp.center, i), sp.radius[i], o, d)
+                                                 < t_max), occ)
+    r: Rects = scene.rects
+    if r.count:
+        occ = _scan_rects(r, o, d, safe_reciprocal(d), lambda i, a, axis, t: a | (t < t_max), occ)
+    bx: Boxes = scene.boxes
+    if bx.count:
+        occ = _scan(bx.count, lambda i, a: a | (box_t(*_box_row(bx, i), o, d)[0] < t_max), occ)
+    q: Quads = scene.quads
+    if q.count:
+        du, dv = quad_duals(q)
+        occ = _scan(q.count, lambda i, a: a | (quad_t(_take(q.origin, i), _take(q.normal, i),
+                                                      _take(du, i), _take(dv, i), o, d) < t_max),
+                    occ)
+    tr: Triangles = scene.triangles
+    if tr.count:
+        occ = _scan(tr.count, lambda i, a: a | (triangle_t(_take(tr.v0, i), _take(tr.edge1, i),
+                                                           _take(tr.edge2, i), o, d)[0] < t_max),
+                    occ)
+    return occ
 
 
 def offset_origin(p: V3, n: V3, w: V3) -> V3:

@@ -5,6 +5,12 @@
 memory stays bounded at any spp and one compilation serves every chunk and every render of
 scenes with the same structure. Path (pixel p, sample s) always draws its random numbers from
 the stream (seed, p, s): the image does not depend on chunk sizes.
+
+``render_wavefront`` is the driver for estimators written as a per-segment *step* (the path
+tracer): a fixed set of lanes advances one path segment per iteration, and a lane whose path has
+ended starts the next path of its work list at once (path regeneration, Novak et al. 2010), so
+no lane idles while the longest path of a batch finishes. Which (pixel, sample) a lane traces
+never depends on the others, so the image is still a function of the seed alone.
 """
 
 from __future__ import annotations
@@ -13,7 +19,7 @@ import sys
 import time
 import warnings
 from functools import partial
-from typing import Callable
+from typing import Callable, NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -117,3 +123,126 @@ def _progress(done: int, total: int, elapsed: float) -> None:
     rate = done / max(elapsed, 1e-9) / 1e6
     sys.stderr.write(f"\r[{bar:<30}] {100 * frac:5.1f}%  {rate:6.2f} Mpaths/s  ETA {eta:6.1f}s")
     sys.stderr.flush()
+
+
+# --- wavefront driver with path regeneration --------------------------------------------------
+
+WAVEFRONT_LANES = 1 << 14   # lanes per loop: the whole lane state stays in the L2 caches
+WAVEFRONT_SLOTS = 4         # work slots per lane and call (pixels one after another)
+WAVEFRONT_SAMPLES = 64      # samples per slot and call
+
+
+class _Lanes(NamedTuple):
+    state: object        # the estimator's per-lane path state (a pytree of [lanes] arrays)
+    slot: jax.Array      # index (0..slots-1) of the work slot the lane is tracing
+    sample: jax.Array    # sample within that slot
+    alive: jax.Array     # the lane has a path in flight
+    acc: tuple           # per slot, the V3 sum of the radiance of its finished paths
+    bad: jax.Array       # finished paths with a non-finite value (dropped)
+
+
+def _slot_work(slot_id, P, spp, per_slot):
+    """(pixel, first sample, sample count) of global work slot ``slot_id``: slots enumerate
+    pixels fastest, then blocks of ``per_slot`` samples."""
+    pixel = slot_id % P
+    block = slot_id // P
+    first = block * per_slot
+    return pixel, first, jnp.clip(spp - first, 0, per_slot)
+
+
+def _wavefront_call(scene: Scene, seed, slot0, spp, per_slot, *, start_fn, step_fn, lanes,
+                    slots):
+    """Trace every path of work slots slot0 + j * lanes + lane (j < slots) and return the
+    (P, 3) sum of their radiance. ``start_fn(scene, seed, pixel, sample) -> state`` and
+    ``step_fn(scene, state) -> (state, alive, L)`` define the estimator."""
+    W, H = scene.camera.width, scene.camera.height
+    P = W * H
+    lane = jnp.arange(lanes, dtype=jnp.int32)
+    n_slots = P * ((spp + per_slot - 1) // per_slot)
+
+    def work(slot):
+        sid = slot0 + slot * lanes + lane
+        pixel, first, count = _slot_work(sid, P, spp, per_slot)
+        return pixel, first, jnp.where(sid < n_slots, count, 0)
+
+    def fresh(slot, sample, keep, state):
+        """Start path (pixel, first + sample) of slot ``slot`` in lanes where ``keep`` is False."""
+        pixel, first, _ = work(slot)
+        new = start_fn(scene, seed, pixel, first + sample)
+        if state is None:
+            return new
+        return jax.tree_util.tree_map(lambda a, b: jnp.where(keep, a, b), state, new)
+
+    zero = jnp.zeros((lanes,), jnp.int32)
+    z = jnp.zeros((lanes,), jnp.float32)
+    acc0 = tuple(V3(z, z, z) for _ in range(slots))
+    alive0 = work(zero)[2] > 0
+    init = _Lanes(fresh(zero, zero, None, None), zero, zero, alive0, acc0, zero)
+
+    def body(c: _Lanes) -> _Lanes:
+        state, alive_path, L = step_fn(scene, c.state)
+        finished = c.alive & ~alive_path
+        finite = jnp.isfinite(L.x) & jnp.isfinite(L.y) & jnp.isfinite(L.z)
+        bad = c.bad + (finished & ~finite).astype(jnp.int32)
+        take = finished & finite
+        acc = tuple(V3(*(a + jnp.where(take & (c.slot == j), l, 0.0) for a, l in zip(acc_j, L)))
+                    for j, acc_j in enumerate(c.acc))
+        sample = c.sample + finished.astype(jnp.int32)
+        next_slot = finished & (sample >= work(c.slot)[2])
+        slot = c.slot + next_slot.astype(jnp.int32)
+        sample = jnp.where(next_slot, 0, sample)
+        alive = jnp.where(finished, (slot < slots) & (work(jnp.minimum(slot, slots - 1))[2] > 0),
+                          c.alive)
+        state = fresh(slot, sample, ~(finished & alive), state)
+        return _Lanes(state, slot, sample, alive, acc, bad)
+
+    out = jax.lax.while_loop(lambda c: jnp.any(c.alive), body, init)
+    img = jnp.zeros((P, 3), jnp.float32)
+    for j, acc_j in enumerate(out.acc):
+        pixel = work(jnp.full((lanes,), j, jnp.int32))[0]
+        img = img.at[pixel].add(acc_j.stack())
+    return img, jnp.sum(out.bad)
+
+
+def render_wavefront(scene: Scene, start_fn: Callable, step_fn: Callable, *, spp: int, seed: int,
+                     cache_key, progress: bool = False, lanes: int | None = None,
+                     slots: int = WAVEFRONT_SLOTS, per_slot: int | None = None) -> np.ndarray:
+    """Average over ``spp`` samples per pixel of paths traced segment by segment.
+
+    ``start_fn(scene, seed, pixel, sample) -> state`` starts the paths for (pixel, sample) index
+    arrays; ``step_fn(scene, state) -> (state, alive, L)`` advances every lane by one segment and
+    says which paths are still going; when a lane's ``alive`` turns False its ``L`` (a V3) is
+    that path's final estimate. Work is split into slots of (pixel, up to ``per_slot`` samples);
+    a call traces ``lanes x slots`` slots. Non-finite path values are dropped with a warning, as
+    in :func:`render_paths`."""
+    W, H = scene.camera.width, scene.camera.height
+    P = W * H
+    lanes = lanes or min(WAVEFRONT_LANES, 1 << max(int(np.ceil(np.log2(P))), 8))
+    key = (cache_key, ("wavefront", lanes, slots))
+    fn = _COMPILED.get(key)
+    if fn is None:
+        fn = jax.jit(partial(_wavefront_call, start_fn=start_fn, step_fn=step_fn, lanes=lanes,
+                             slots=slots))
+        _COMPILED[key] = fn
+    # enough samples per slot to give every lane work, at most WAVEFRONT_SAMPLES per call
+    per_slot = per_slot or -(-spp * P // (lanes * slots))
+    per_slot = max(1, min(per_slot, spp, WAVEFRONT_SAMPLES))
+    n_slots = P * -(-spp // per_slot)
+    per_call = lanes * slots
+    img, bad = None, 0
+    t0 = time.perf_counter()
+    for slot0 in range(0, n_slots, per_call):
+        part, nbad = fn(scene, jnp.uint32(seed), jnp.int32(slot0), jnp.int32(spp),
+                        jnp.int32(per_slot))
+        img = part if img is None else img + part
+        bad = bad + nbad
+        if progress:
+            done = min(slot0 + per_call, n_slots) / n_slots
+            _progress(int(done * P * spp), P * spp, time.perf_counter() - t0)
+    out = np.asarray(img, np.float32).reshape(H, W, 3) / np.float32(spp)
+    if progress:
+        sys.stderr.write("\n")
+    bad = int(bad)
+    if bad:
+        warnings.warn(f"{bad} path samples were not finite and were dropped", RuntimeWarning)
+    return out

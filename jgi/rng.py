@@ -39,7 +39,19 @@ def path_key(seed, pixel, sample) -> Array:
 
 def uniform(key: Array, dim) -> Array:
     """The ``dim``-th uniform float32 in [0, 1) of stream ``key`` (24 random bits)."""
-    h = lowbias32(key + (jnp.asarray(dim).astype(_U32) + _U32(1)) * _U32(_WEYL))
+    return uniform_at(counter(key, dim), 0)
+
+
+def counter(key: Array, dim) -> Array:
+    """The hash input of dimension ``dim`` of stream ``key``; with :func:`uniform_at`, a block of
+    consecutive dimensions costs one add each (``uniform(key, dim + k) == uniform_at(counter(key,
+    dim), k)`` exactly, by arithmetic modulo 2^32)."""
+    return key + (jnp.asarray(dim).astype(_U32) + _U32(1)) * _U32(_WEYL)
+
+
+def uniform_at(c: Array, k: int) -> Array:
+    """Uniform number ``k`` dimensions after the counter ``c`` (see :func:`counter`)."""
+    h = lowbias32(c + _U32((k * _WEYL) & 0xFFFFFFFF)) if k else lowbias32(c)
     return (h >> 8).astype(jnp.float32) * jnp.float32(1.0 / 16777216.0)
 
 

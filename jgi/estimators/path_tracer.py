@@ -37,8 +37,8 @@ from .. import geometry as G
 from .. import lights as LT
 from .. import mis
 from .. import rng
-from .._xla import materialize
-from ..scene import Scene
+from .._xla import materialize, take
+from ..scene import DIELECTRIC, DIFFUSE, MIRROR, PHONG, Scene
 from ..vec import V3, dot, max_component, where
 from .registry import Estimator, Param, register
 
@@ -75,27 +75,41 @@ class PathState(NamedTuple):
     prev_p: V3           # the vertex d left from (reference point for pdf_li)
 
 
-def radiance(scene: Scene, cfg: PathTracerConfig, uniform: Callable[[Array], Array], o: V3,
-             d: V3) -> V3:
-    """Radiance arriving along rays (o, d), one path each.
+def _material(mats, m: Array) -> B.MaterialParams:
+    """``bsdf.lookup`` for the path tracer's inner loop: small material tables are read with
+    selects instead of gathers (see jgi._xla.take), and a kind that is the only one present is a
+    constant, so the BSDF code for the absent kinds folds away."""
+    kinds = mats.kinds
+    kind = (jnp.full(m.shape, kinds[0], jnp.int32) if len(kinds) == 1 else take(mats.kind, m))
+    zero = jnp.zeros(m.shape, jnp.float32)
+    uses_ks = any(k in kinds for k in (MIRROR, DIELECTRIC, PHONG))
+    kd = V3(*(take(c, m) for c in mats.diffuse)) if (DIFFUSE in kinds or PHONG in kinds) else V3(zero, zero, zero)
+    ks = V3(*(take(c, m) for c in mats.specular)) if uses_ks else V3(zero, zero, zero)
+    exponent = take(mats.exponent, m) if PHONG in kinds else zero
+    ior = take(mats.ior, m) if DIELECTRIC in kinds else zero + 1.0
+    return B.MaterialParams(kind, kd, ks, exponent, ior)
 
-    ``uniform(dim)`` returns the paths' random numbers for dimension ``dim`` (an [N] array), so
-    the same code runs on hashed streams (``lambda k: rng.uniform(key, k)``) and on explicit
-    primary-sample vectors (Metropolis). Dimensions 0 and 1 are the camera's pixel jitter;
-    bounce b uses dimensions 2 + b * cfg.dims_per_bounce onwards."""
+
+def _shade(scene: Scene, cfg: PathTracerConfig, s: PathState, hit: G.Hit, depth,
+           u: Callable[[int], Array]) -> PathState:
+    """One path vertex: emission found by the ray, next-event estimation, BSDF sampling and
+    Russian roulette. ``depth`` (segments before this one) may be a scalar or per-lane;
+    ``u(k)`` is this bounce's k-th random number (dimension 2 + depth * dims_per_bounce + k)."""
     mats, lights = scene.materials, scene.lights
     kinds = mats.kinds
     n_f, n_g = 1.0, float(cfg.light_samples)
     max_depth = cfg.path_length if cfg.path_length > 0 else cfg.max_depth
     has_lights = lights.count > 0
     use_nee = cfg.strategy in ("light", "mis") and has_lights
-    z = jnp.zeros_like(o.x)
+    z = jnp.zeros_like(s.o.x)
     Z = V3(z, z, z)
+    wo = -s.d
+    length = depth + 1  # segments of the path ending at this hit
 
     def counts(length):
         return (length == cfg.path_length) if cfg.path_length > 0 else (length <= max_depth)
 
-    def bsdf_hit_weight(s: PathState, depth, pdf_light):
+    def bsdf_hit_weight(pdf_light):
         first_or_specular = (depth == 0) | s.prev_delta
         if cfg.strategy == "bsdf" or not has_lights:
             return jnp.ones_like(z)
@@ -104,70 +118,80 @@ def radiance(scene: Scene, cfg: PathTracerConfig, uniform: Callable[[Array], Arr
         w = mis.heuristic_weight(n_f, s.prev_pdf, [(n_g, pdf_light)], cfg.exponent)
         return jnp.where(first_or_specular, 1.0, w)
 
+    # ---- Emission found by the sampled ray (BSDF sampling strategy) ----
+    if has_lights:
+        Le = LT.emitted(lights, hit.emitter, hit.n, wo)
+        pdf_light = LT.pdf_li(lights, hit.emitter, s.prev_p, hit.p, hit.n)
+        take_e = s.active & hit.valid & counts(length)
+        L = s.L + where(take_e, s.throughput * Le * bsdf_hit_weight(pdf_light), Z)
+        if lights.environment >= 0:
+            Lenv = LT.environment_radiance(lights, z)
+            pdf_env = lights.pmf[lights.environment] * jnp.float32(0.25 / jnp.pi)
+            w_env = bsdf_hit_weight(jnp.broadcast_to(pdf_env, z.shape))
+            take_env = s.active & ~hit.valid & counts(length)
+            L = L + where(take_env, s.throughput * Lenv * w_env, Z)
+    else:
+        L = s.L
+    active = s.active & hit.valid & (length < max_depth)
+    mp = _material(mats, hit.material)
+
+    # ---- Light sampling (next-event estimation) ----
+    if use_nee:
+        nee_ok = active & ~B.is_delta(mp) & counts(length + 1)
+        for j in range(cfg.light_samples):
+            dj = 4 + 3 * j
+            ls = LT.sample_li(lights, hit.p, u(dj), u(dj + 1), u(dj + 2))
+            f, pdf_bsdf = B.evaluate(kinds, mp, hit.n, wo, ls.wi)
+            cos_i = jnp.abs(dot(ls.wi, hit.n))
+            visible = ~G.occluded(scene, *G.shadow_ray(hit.p, hit.n, ls.wi, ls.dist))
+            if cfg.strategy == "mis":
+                w_g = mis.heuristic_weight(n_g, ls.pdf, [(n_f, pdf_bsdf)], cfg.exponent)
+                w_g = jnp.where(ls.delta, 1.0, w_g)
+            else:
+                w_g = jnp.ones_like(z)
+            ok = nee_ok & ls.valid & visible & (ls.pdf > 0)
+            scale = w_g * cos_i / (n_g * jnp.where(ok, ls.pdf, 1.0))
+            L = L + where(ok, s.throughput * f * ls.Li * scale, Z)
+
+    # ---- BSDF sampling: extend the path ----
+    bs = B.sample(kinds, mp, hit.n, wo, u(0), u(1), u(2))
+    bs = materialize(bs)  # computed once: feeds throughput, origin, pdf and RR
+    throughput = s.throughput * bs.weight
+    active = active & bs.valid
+
+    # ---- Russian roulette ----
+    if cfg.rr_depth >= 0:
+        q = jnp.clip(max_component(throughput), 0.0, 0.95)
+        roulette = length >= cfg.rr_depth
+        survive = u(3) < q
+        active = active & (~roulette | survive)
+        throughput = where(roulette, throughput / jnp.where(q > 0, q, 1.0), throughput)
+
+    o_next = G.offset_origin(hit.p, hit.n, bs.wi)
+    return PathState(o_next, bs.wi, throughput, L, active, bs.pdf, bs.delta, hit.p)
+
+
+def _camera_state(o: V3, d: V3) -> PathState:
+    z = jnp.zeros_like(o.x)
+    return PathState(o, d, V3(z + 1, z + 1, z + 1), V3(z, z, z), z == 0, z, z == 0, o)
+
+
+def radiance(scene: Scene, cfg: PathTracerConfig, uniform: Callable[[Array], Array], o: V3,
+             d: V3) -> V3:
+    """Radiance arriving along rays (o, d), one path each.
+
+    ``uniform(dim)`` returns the paths' random numbers for dimension ``dim`` (an [N] array), so
+    the same code runs on hashed streams (``lambda k: rng.uniform(key, k)``) and on explicit
+    primary-sample vectors (Metropolis). Dimensions 0 and 1 are the camera's pixel jitter;
+    bounce b uses dimensions 2 + b * cfg.dims_per_bounce onwards."""
+    max_depth = cfg.path_length if cfg.path_length > 0 else cfg.max_depth
+
     def bounce(depth, s: PathState) -> PathState:
         base = 2 + depth * cfg.dims_per_bounce
         hit = G.intersect(scene, s.o, s.d)
-        wo = -s.d
-        length = depth + 1  # segments of the path ending at this hit
+        return _shade(scene, cfg, s, hit, depth, lambda k: uniform(base + k))
 
-        # ---- Emission found by the sampled ray (BSDF sampling strategy) ----
-        if has_lights:
-            Le = LT.emitted(lights, hit.emitter, hit.n, wo)
-            pdf_light = LT.pdf_li(lights, hit.emitter, s.prev_p, hit.p, hit.n)
-            w_f = bsdf_hit_weight(s, depth, pdf_light)
-            take = s.active & hit.valid & counts(length)
-            L = s.L + where(take, s.throughput * Le * w_f, Z)
-            if lights.environment >= 0:
-                Lenv = LT.environment_radiance(lights, z)
-                pdf_env = lights.pmf[lights.environment] * jnp.float32(0.25 / jnp.pi)
-                w_env = bsdf_hit_weight(s, depth, jnp.broadcast_to(pdf_env, z.shape))
-                take = s.active & ~hit.valid & counts(length)
-                L = L + where(take, s.throughput * Lenv * w_env, Z)
-        else:
-            L = s.L
-        active = s.active & hit.valid & (length < max_depth)
-        mp = B.lookup(mats, hit.material)
-
-        # ---- Light sampling (next-event estimation) ----
-        if use_nee:
-            nee_ok = active & ~B.is_delta(mp) & counts(length + 1)
-            for j in range(cfg.light_samples):
-                dj = base + 4 + 3 * j
-                ls = LT.sample_li(lights, hit.p, uniform(dj), uniform(dj + 1),
-                                  uniform(dj + 2))
-                f, pdf_bsdf = B.evaluate(kinds, mp, hit.n, wo, ls.wi)
-                cos_i = jnp.abs(dot(ls.wi, hit.n))
-                visible = ~G.occluded(scene, *G.shadow_ray(hit.p, hit.n, ls.wi, ls.dist))
-                if cfg.strategy == "mis":
-                    w_g = mis.heuristic_weight(n_g, ls.pdf, [(n_f, pdf_bsdf)], cfg.exponent)
-                    w_g = jnp.where(ls.delta, 1.0, w_g)
-                else:
-                    w_g = jnp.ones_like(z)
-                ok = nee_ok & ls.valid & visible & (ls.pdf > 0)
-                scale = w_g * cos_i / (n_g * jnp.where(ok, ls.pdf, 1.0))
-                L = L + where(ok, s.throughput * f * ls.Li * scale, Z)
-
-        # ---- BSDF sampling: extend the path ----
-        bs = B.sample(kinds, mp, hit.n, wo, uniform(base), uniform(base + 1),
-                      uniform(base + 2))
-        bs = materialize(bs)  # computed once: feeds throughput, origin, pdf and RR
-        throughput = s.throughput * bs.weight
-        active = active & bs.valid
-
-        # ---- Russian roulette ----
-        if cfg.rr_depth >= 0:
-            q = jnp.clip(max_component(throughput), 0.0, 0.95)
-            roulette = length >= cfg.rr_depth
-            survive = uniform(base + 3) < q
-            active = active & (~roulette | survive)
-            throughput = where(roulette, throughput / jnp.where(q > 0, q, 1.0), throughput)
-
-        o_next = G.offset_origin(hit.p, hit.n, bs.wi)
-        return PathState(o_next, bs.wi, throughput, L, active, bs.pdf, bs.delta, hit.p)
-
-    state = PathState(o, d, V3(z + 1, z + 1, z + 1), Z, z == 0, z, z == 0, o)
-    state = jax.lax.fori_loop(0, max_depth, bounce, state)
-    return state.L
+    return jax.lax.fori_loop(0, max_depth, bounce, _camera_state(o, d)).L
 
 
 def trace_pixels(scene: Scene, cfg: PathTracerConfig, seed, pixel: Array, sample: Array) -> V3:
@@ -180,12 +204,42 @@ def trace_pixels(scene: Scene, cfg: PathTracerConfig, seed, pixel: Array, sample
     return radiance(scene, cfg, lambda dim: rng.uniform(key, dim), o, d)
 
 
+# --- the same estimator as a per-segment step, for the wavefront renderer ----------------------
+
+class _Lane(NamedTuple):
+    path: PathState
+    depth: Array     # segments traced so far
+    key: Array       # the path's random stream, rng.path_key(seed, pixel, sample)
+
+
+def _start(scene: Scene, seed, pixel: Array, sample: Array) -> _Lane:
+    W = scene.camera.width
+    key = rng.path_key(seed, pixel, sample)
+    c = rng.counter(key, 0)
+    o, d = C.sample_ray(scene.camera, pixel % W, pixel // W, rng.uniform_at(c, 0),
+                        rng.uniform_at(c, 1))
+    return _Lane(_camera_state(o, d), jnp.zeros_like(pixel), key)
+
+
+def _step(scene: Scene, cfg: PathTracerConfig, lane: _Lane):
+    """Trace one more segment of every lane's path: exactly one iteration of :func:`radiance`'s
+    loop, with the lane's own depth, so paths are identical to :func:`trace_pixels`'."""
+    max_depth = cfg.path_length if cfg.path_length > 0 else cfg.max_depth
+    s = lane.path
+    c = rng.counter(lane.key, 2 + lane.depth * cfg.dims_per_bounce)
+    hit = G.intersect(scene, s.o, s.d)
+    s = _shade(scene, cfg, s, hit, lane.depth, lambda k: rng.uniform_at(c, k))
+    depth = lane.depth + 1
+    alive = s.active & (depth < max_depth)
+    return _Lane(s, depth, lane.key), alive, s.L
+
+
 def _run(scene: Scene, *, spp: int, seed: int, progress: bool = False, **params):
-    from ..render import render_paths
+    from ..render import render_wavefront
 
     cfg = PathTracerConfig(**params)
-    return render_paths(scene, lambda sc, pix, smp, sd: trace_pixels(sc, cfg, sd, pix, smp),
-                        spp=spp, seed=seed, progress=progress, cache_key=("pt", cfg))
+    return render_wavefront(scene, _start, lambda sc, lane: _step(sc, cfg, lane), spp=spp, seed=seed,
+                            progress=progress, cache_key=("pt", cfg))
 
 
 PARAMS = (
