@@ -11,6 +11,7 @@ from __future__ import annotations
 import jax.numpy as jnp
 from jax import Array
 
+from ._xla import sincos
 from .vec import V3
 
 PI = jnp.float32(jnp.pi)
@@ -33,7 +34,8 @@ def sample_concentric_disc(u1: Array, u2: Array) -> tuple[Array, Array]:
     safe_b = jnp.where(b == 0, 1.0, b)
     phi = jnp.where(first, (PI / 4) * (b / safe_a), (PI / 2) - (PI / 4) * (a / safe_b))
     zero = (a == 0) & (b == 0)
-    return jnp.where(zero, 0.0, r * jnp.cos(phi)), jnp.where(zero, 0.0, r * jnp.sin(phi))
+    sin_phi, cos_phi = sincos(phi)
+    return jnp.where(zero, 0.0, r * cos_phi), jnp.where(zero, 0.0, r * sin_phi)
 
 
 def pdf_disc() -> Array:
@@ -56,7 +58,8 @@ def sample_uniform_sphere(u1: Array, u2: Array) -> V3:
     z = 1.0 - 2.0 * u1
     r = _safe_sqrt(1.0 - z * z)
     phi = 2.0 * PI * u2
-    return V3(r * jnp.cos(phi), r * jnp.sin(phi), z)
+    sin_phi, cos_phi = sincos(phi)
+    return V3(r * cos_phi, r * sin_phi, z)
 
 
 def pdf_uniform_sphere() -> Array:
@@ -77,7 +80,8 @@ def sample_uniform_cone(u1: Array, u2: Array, cos_max: Array,
     cos_t = 1.0 - one_minus
     sin_t = _safe_sqrt(one_minus * (2.0 - one_minus))
     phi = 2.0 * PI * u2
-    return V3(sin_t * jnp.cos(phi), sin_t * jnp.sin(phi), cos_t)
+    sin_phi, cos_phi = sincos(phi)
+    return V3(sin_t * cos_phi, sin_t * sin_phi, cos_t)
 
 
 def pdf_uniform_cone(cos_max: Array) -> Array:
@@ -97,7 +101,8 @@ def sample_phong_lobe(u1: Array, u2: Array, exponent: Array) -> V3:
     cos_a = 1.0 - one_minus
     sin_a = _safe_sqrt(one_minus * (2.0 - one_minus))
     phi = 2.0 * PI * u2
-    return V3(sin_a * jnp.cos(phi), sin_a * jnp.sin(phi), cos_a)
+    sin_phi, cos_phi = sincos(phi)
+    return V3(sin_a * cos_phi, sin_a * sin_phi, cos_a)
 
 
 def pdf_phong_lobe(cos_alpha: Array, exponent: Array) -> Array:
