@@ -154,9 +154,9 @@ def test_cornell_box_as_pbrt_renders_like_the_builtin(tmp_path, flip):
     text, builtin = cornell_pbrt(16, flip)
     (tmp_path / "cb.pbrt").write_text(text)
     scene = load_pbrt(tmp_path / "cb.pbrt")
-    seeds = range(6)
-    a = np.stack([jgi.render(scene, "pt", spp=32, seed=s) for s in seeds])
-    b = np.stack([jgi.render(builtin, "pt", spp=32, seed=100 + s) for s in seeds])
+    seeds = range(16)
+    a = np.stack([jgi.render(scene, "pt", spp=12, seed=s) for s in seeds])
+    b = np.stack([jgi.render(builtin, "pt", spp=12, seed=100 + s) for s in seeds])
     if not flip:
         b = b[:, :, ::-1]
     assert_agree(a, b, regions=4, label=f"pbrt cornell flip={flip}")

@@ -29,10 +29,10 @@ def test_kelemen_small_step_is_symmetric_and_stays_on_the_torus(rng_np):
 @pytest.mark.parametrize("p_large", [0.3, 1.0])
 def test_pssmlt_matches_path_tracer_per_region(p_large):
     scene = jgi.scenes.cornell_box(resolution=16)
-    seeds = range(6)
-    mlt = np.stack([jgi.render(scene, "pssmlt", spp=64, seed=s, chains=512,
+    seeds = range(12)
+    mlt = np.stack([jgi.render(scene, "pssmlt", spp=32, seed=s, chains=512,
                                bootstrap_samples=8192, p_large=p_large) for s in seeds])
-    pt = np.stack([jgi.render(scene, "pt", spp=64, seed=100 + s) for s in seeds])
+    pt = np.stack([jgi.render(scene, "pt", spp=32, seed=100 + s) for s in seeds])
     assert_agree(mlt, pt, regions=4, label=f"pssmlt p_large={p_large}")
 
 

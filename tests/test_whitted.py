@@ -7,7 +7,7 @@ import numpy as np
 
 import jgi
 from jgi import scenes
-from tests.conftest import assert_agree
+from tests.conftest import assert_agree, critical_t
 from tests.test_path_tracer import point_light_reference, region_stats
 
 
@@ -52,11 +52,11 @@ def specular_room_with_point_light(resolution=16):
 
 def test_whitted_matches_path_tracer_restricted_to_specular_chains_and_direct_light():
     scene = specular_room_with_point_light()
-    seeds = range(8)
-    whitted = np.stack([jgi.render(scene, "whitted", spp=32, seed=s) for s in seeds])
-    restricted = np.stack([path_tracer_one_diffuse_vertex(scene, 100 + s, 32) for s in seeds])
+    seeds = range(16)
+    whitted = np.stack([jgi.render(scene, "whitted", spp=16, seed=s) for s in seeds])
+    restricted = np.stack([path_tracer_one_diffuse_vertex(scene, 100 + s, 16) for s in seeds])
     assert_agree(whitted, restricted, regions=4, label="whitted vs restricted pt")
-    full = np.stack([jgi.render(scene, "pt", spp=32, seed=200 + s) for s in seeds])
+    full = np.stack([jgi.render(scene, "pt", spp=16, seed=200 + s) for s in seeds])
     # and it is *not* the full solution: indirect light and caustics are missing
     mw, sw = region_stats(whitted)
     mf, sf = region_stats(full)
@@ -69,4 +69,4 @@ def test_whitted_point_light_over_plane():
     ref = point_light_reference(scene, 0.5, 10.0, 1.0)
     mean, se = region_stats(imgs, regions=4)
     z = np.abs(mean[..., 0] - ref.reshape(4, 4, 4, 4).mean(axis=(1, 3))) / se[..., 0]
-    assert z.max() < 5, z
+    assert z.max() < critical_t(len(imgs) - 1, z.size), z
