@@ -61,8 +61,17 @@ def is_delta(mp: MaterialParams) -> Array:
 
 def facing(n: V3, w: V3) -> V3:
     """The normal flipped onto ``w``'s side."""
-    s = jnp.where(dot(n, w) < 0, -1.0, 1.0)
-    return n * s
+    return _side(n, w)[0]
+
+
+def _side(n: V3, wo: V3) -> tuple[V3, Array]:
+    """(n flipped onto wo's side, |cos theta_o|). Every side test of an opaque BSDF derives from
+    this one dot product: recomputing dot(wo, n_flipped) instead can round (XLA contracts it into
+    FMAs differently per fusion) to the other sign when wo grazes the surface, making ``valid``
+    and ``weight`` disagree."""
+    cos_o = dot(n, wo)
+    flip = cos_o < 0
+    return n * jnp.where(flip, -1.0, 1.0), jnp.abs(cos_o)
 
 
 def specular_probability(mp: MaterialParams) -> Array:
@@ -71,11 +80,19 @@ def specular_probability(mp: MaterialParams) -> Array:
     return jnp.where(tot > 0, ls / jnp.where(tot > 0, tot, 1.0), 0.0)
 
 
+def _cos2_transmitted(cos_i: Array, eta: Array) -> Array:
+    """cos^2(theta_t) = 1 - (1 - cos_i^2) / eta^2 (Snell), <= 0 under total internal reflection.
+
+    Written as (cos_i^2 + eta^2 - 1) / eta^2: the textbook form cancels catastrophically in
+    float32 at grazing incidence (for eta = 1 it gave F = 1e-5 at cos_i = 1e-3 instead of 0)."""
+    return (cos_i * cos_i + (eta * eta - 1.0)) / (eta * eta)
+
+
 def fresnel_dielectric(cos_i: Array, eta: Array) -> Array:
     """Unpolarised Fresnel reflectance for relative index eta = eta_t / eta_i, cos_i >= 0."""
-    sin2_t = (1.0 - cos_i * cos_i) / (eta * eta)
-    tir = sin2_t >= 1.0
-    cos_t = jnp.sqrt(jnp.maximum(1.0 - sin2_t, 0.0))
+    cos2_t = _cos2_transmitted(cos_i, eta)
+    tir = cos2_t <= 0.0
+    cos_t = jnp.sqrt(jnp.maximum(cos2_t, 0.0))
     r_parl = (eta * cos_i - cos_t) / jnp.maximum(eta * cos_i + cos_t, 1e-12)
     r_perp = (cos_i - eta * cos_t) / jnp.maximum(cos_i + eta * cos_t, 1e-12)
     return jnp.where(tir, 1.0, 0.5 * (r_parl * r_parl + r_perp * r_perp))
@@ -84,9 +101,9 @@ def fresnel_dielectric(cos_i: Array, eta: Array) -> Array:
 def refract(wo: V3, n: V3, eta: Array) -> tuple[V3, Array]:
     """Transmitted direction for wo on n's side, eta = eta_t / eta_i; (direction, valid)."""
     cos_i = dot(wo, n)
-    sin2_t = (1.0 - cos_i * cos_i) / (eta * eta)
-    ok = sin2_t < 1.0
-    cos_t = jnp.sqrt(jnp.maximum(1.0 - sin2_t, 0.0))
+    cos2_t = _cos2_transmitted(cos_i, eta)
+    ok = cos2_t > 0.0
+    cos_t = jnp.sqrt(jnp.maximum(cos2_t, 0.0))
     return (-wo) / eta + n * (cos_i / eta - cos_t), ok
 
 
@@ -94,9 +111,9 @@ def refract(wo: V3, n: V3, eta: Array) -> tuple[V3, Array]:
 
 def evaluate(kinds, mp: MaterialParams, n: V3, wo: V3, wi: V3) -> tuple[V3, Array]:
     """(f(wo, wi), pdf(wo -> wi)) for the non-Dirac part of the material."""
-    nf = facing(n, wo)
+    nf, cos_o = _side(n, wo)
     cos_i = dot(wi, nf)
-    above = (cos_i > 0) & (dot(wo, nf) > 0)
+    above = (cos_i > 0) & (cos_o > 0)
     zero = jnp.zeros_like(cos_i)
     f = V3(zero, zero, zero)
     pdf = zero
@@ -110,7 +127,10 @@ def evaluate(kinds, mp: MaterialParams, n: V3, wo: V3, wi: V3) -> tuple[V3, Arra
     if PHONG in kinds:
         sel = mp.kind == PHONG
         cos_a = jnp.maximum(dot(wi, reflect(wo, nf)), 0.0)
-        lobe = cos_a ** mp.exponent
+        # the lobe is the hemisphere about the mirror direction (0^0 = 1 would let an exponent
+        # of 0 reflect into the opposite hemisphere too, which sample_phong_lobe never reaches)
+        # (the inner where keeps gradients finite: d/dn 0^n = 0 * log 0)
+        lobe = jnp.where(cos_a > 0, jnp.where(cos_a > 0, cos_a, 1.0) ** mp.exponent, 0.0)
         spec_f = mp.ks * ((mp.exponent + 2.0) * jnp.float32(0.5 / jnp.pi) * lobe)
         ps = specular_probability(mp)
         phong_pdf = (1.0 - ps) * diffuse_pdf + ps * warps.pdf_phong_lobe(cos_a, mp.exponent)
@@ -133,11 +153,11 @@ def sample(kinds, mp: MaterialParams, n: V3, wo: V3, u_lobe: Array, u1: Array, u
                           jnp.where(sel, s.pdf, acc.pdf), jnp.where(sel, s.delta, acc.delta),
                           jnp.where(sel, s.valid, acc.valid))
 
-    nf = facing(n, wo)
+    nf, cos_o = _side(n, wo)
     if DIFFUSE in kinds or PHONG in kinds:
         wi_d = to_world(warps.sample_cosine_hemisphere(u1, u2), nf)
     if DIFFUSE in kinds:
-        ok = (dot(wo, nf) > 0) & (dot(wi_d, nf) > 0)
+        ok = (cos_o > 0) & (dot(wi_d, nf) > 0)
         s = BSDFSample(wi_d, where(ok, mp.kd, V3(zero, zero, zero)),
                        warps.pdf_cosine_hemisphere(dot(wi_d, nf)), zero > 0, ok)
         out = choose(mp.kind == DIFFUSE, s, out)
@@ -151,8 +171,8 @@ def sample(kinds, mp: MaterialParams, n: V3, wo: V3, u_lobe: Array, u1: Array, u
         s = BSDFSample(wi, where(ok, w, V3(zero, zero, zero)), pdf, zero > 0, ok)
         out = choose(mp.kind == PHONG, s, out)
     if MIRROR in kinds:
-        ok = dot(wo, nf) > 0
-        s = BSDFSample(reflect(wo, nf), mp.ks, zero, ok, ok)
+        ok = cos_o > 0
+        s = BSDFSample(reflect(wo, nf), where(ok, mp.ks, V3(zero, zero, zero)), zero, ok, ok)
         out = choose(mp.kind == MIRROR, s, out)
     if DIELECTRIC in kinds:
         entering = dot(wo, n) > 0

@@ -106,8 +106,10 @@ def sample_phong_lobe(u1: Array, u2: Array, exponent: Array) -> V3:
 
 
 def pdf_phong_lobe(cos_alpha: Array, exponent: Array) -> Array:
-    c = jnp.maximum(cos_alpha, 0.0)
-    return (exponent + 1.0) * (0.5 * INV_PI) * c ** exponent
+    """(n + 1) / (2 pi) cos^n(alpha) on the lobe's hemisphere, 0 outside (also for n = 0)."""
+    inside = cos_alpha > 0
+    c = jnp.where(inside, cos_alpha, 1.0)  # finite gradients outside the lobe
+    return jnp.where(inside, (exponent + 1.0) * (0.5 * INV_PI) * c ** exponent, 0.0)
 
 
 # --- triangle -----------------------------------------------------------------------------------

@@ -160,3 +160,11 @@ def test_uniform_triangle():
     # uniform barycentrics: density 1 / area = 2 on the unit right triangle
     assert_chi2(b, lambda q: np.where(q.sum(1) <= 1.0, 2.0, 0.0), dom, "uniform triangle",
                 nodes=24)
+
+
+def test_samples_where_the_pdf_is_zero_reject():
+    """Negative control: cosine samples mirrored below the horizon, where the pdf is 0."""
+    d = stack(_cosine(*uniforms(10, 20_000)))
+    d[:100, 2] *= -1.0
+    r = chi2_test(d, lambda p: warps.pdf_cosine_hemisphere(z_of(p)), SphereDomain())
+    assert not r.ok() and "pdf is 0" in r.message, r.message
