@@ -61,8 +61,7 @@ def radiance(scene: Scene, cfg: WhittedConfig, uniform, o: V3, d: V3) -> V3:
                 dj = base + 1 + 3 * j
                 ls = LT.sample_li(lights, hit.p, uniform(dj), uniform(dj + 1), uniform(dj + 2))
                 f, _ = B.evaluate(mats.kinds, mp, hit.n, wo, ls.wi)
-                o_sh = G.offset_origin(hit.p, hit.n, ls.wi)
-                visible = ~G.occluded(scene, o_sh, ls.wi, ls.dist * (1.0 - 1e-4) - 1e-4)
+                visible = ~G.occluded(scene, *G.shadow_ray(hit.p, hit.n, ls.wi, ls.dist))
                 ok = diffuse_end & ls.valid & visible & (ls.pdf > 0)
                 scale = jnp.abs(dot(ls.wi, hit.n)) / (cfg.light_samples * jnp.where(ok, ls.pdf, 1.0))
                 L = L + where(ok, beta * f * ls.Li * scale, Z)
