@@ -131,7 +131,8 @@ def sample_li(lights: Lights, x: V3, u_sel: Array, u1: Array, u2: Array) -> Ligh
     if AREA_SPHERE in kinds:
         r = lights.radius[k]
         axis, cos_max, one_minus, outside = _sphere_cone(p0, r, x)
-        d_cone = to_world(warps.sample_uniform_cone(u1, u2, cos_max), axis)
+        # one_minus = sin^2 / (1 + cos) keeps small (distant) cones their true width in float32
+        d_cone = to_world(warps.sample_uniform_cone(u1, u2, cos_max, one_minus), axis)
         # the sampled ray's nearest intersection with the sphere (tangent point if it grazes)
         oc = x - p0
         b = dot(oc, d_cone)
@@ -139,7 +140,9 @@ def sample_li(lights: Lights, x: V3, u_sel: Array, u1: Array, u2: Array) -> Ligh
         disc = jnp.maximum(r * r - dot(closest, closest), 0.0)
         t = -b - jnp.sqrt(disc)
         pdf_cone = jnp.where(one_minus > 0, 1.0 / (2.0 * jnp.pi * jnp.where(one_minus > 0, one_minus, 1.0)), 0.0)
-        cone = LightSample(d_cone, t, emission, pdf_cone * pmf, zero > 0, outside & (pdf_cone > 0))
+        ok = outside & (pdf_cone > 0)
+        cone = LightSample(d_cone, t, where(ok, emission, V3(zero, zero, zero)), pdf_cone * pmf,
+                           zero > 0, ok)
         # inside the sphere nothing is received: spheres emit outwards only (as ``emitted``)
         out = choose((kind == AREA_SPHERE) & outside, cone, out)
         out = choose((kind == AREA_SPHERE) & ~outside, out._replace(valid=zero > 0), out)
@@ -172,14 +175,18 @@ def sample_li(lights: Lights, x: V3, u_sel: Array, u1: Array, u2: Array) -> Ligh
 def pdf_li(lights: Lights, k: Array, x: V3, y: V3, n_y: V3) -> Array:
     """Solid-angle density (incl. selection) with which ``sample_li`` from x produces the point
     y on emitter element k (with geometric normal n_y); used by MIS when a BSDF-sampled ray hits
-    an emitter. For the environment pass ``k = lights.environment``."""
+    an emitter. For the environment pass ``k = lights.environment``.
+
+    ``n_y`` is the primitive's geometric normal (unflipped). Like ``sample_li`` and ``emitted``,
+    the density is one-sided: zero when x is behind a quad or triangle emitter or inside (or on)
+    a sphere emitter, where ``sample_li`` never produces y."""
     kk = jnp.maximum(k, 0)
     kind = lights.kind[kk]
     pmf = lights.pmf[kk]
     v = y - x
     d2 = dot(v, v)
     dist = jnp.sqrt(d2)
-    cos_l = jnp.abs(dot(v, n_y)) / jnp.where(dist > 0, dist, 1.0)
+    cos_l = -dot(v, n_y) / jnp.where(dist > 0, dist, 1.0)
     area = lights.area[kk]
     inv_area = jnp.where(area > 0, 1.0 / jnp.where(area > 0, area, 1.0), 0.0)
     pdf = _area_to_solid_angle(inv_area, d2, cos_l)
@@ -187,7 +194,7 @@ def pdf_li(lights: Lights, k: Array, x: V3, y: V3, n_y: V3) -> Array:
     if AREA_SPHERE in kinds:
         _, _, one_minus, outside = _sphere_cone(_take(lights.p0, kk), lights.radius[kk], x)
         pdf_cone = jnp.where(one_minus > 0, 1.0 / (2.0 * jnp.pi * jnp.where(one_minus > 0, one_minus, 1.0)), 0.0)
-        pdf = jnp.where((kind == AREA_SPHERE) & outside, pdf_cone, pdf)
+        pdf = jnp.where(kind == AREA_SPHERE, jnp.where(outside, pdf_cone, 0.0), pdf)
     if ENVIRONMENT in kinds:
         pdf = jnp.where(kind == ENVIRONMENT, warps.INV_4PI, pdf)
     return jnp.where(k >= 0, pdf * pmf, 0.0)

@@ -109,22 +109,61 @@ class PlaneDomain:
 
 # --- quadrature and histogram --------------------------------------------------------------------
 
-def cell_integrals(density, domain, nodes: int = 8) -> np.ndarray:
-    """Integral of ``density(points [M, dim]) -> [M]`` over each cell, tensor Gauss-Legendre."""
+def _gauss_cells(density, domain, lo_a, hi_a, lo_b, hi_b, nodes):
+    """(integral, some node zero, some node nonzero) per cell [lo_a, hi_a] x [lo_b, hi_b]."""
     x, w = np.polynomial.legendre.leggauss(nodes)
-    ea, eb = domain.a_edges, domain.b_edges
-    ha, hb = 0.5 * np.diff(ea), 0.5 * np.diff(eb)
-    qa = (ea[:-1, None] + ha[:, None] * (x + 1.0))  # [na, nodes]
-    qb = (eb[:-1, None] + hb[:, None] * (x + 1.0))
-    A = np.broadcast_to(qa[:, None, :, None], (len(ha), len(hb), nodes, nodes))
-    B = np.broadcast_to(qb[None, :, None, :], (len(ha), len(hb), nodes, nodes))
-    pts = domain.points(A.ravel(), B.ravel())
-    val = np.asarray(density(pts), np.float64).reshape(A.shape) * domain.jacobian(A, B)
+    ha, hb = 0.5 * (hi_a - lo_a), 0.5 * (hi_b - lo_b)
+    A = lo_a[:, None, None] + ha[:, None, None] * (x[None, :, None] + 1.0)
+    B = lo_b[:, None, None] + hb[:, None, None] * (x[None, None, :] + 1.0)
+    A, B = np.broadcast_arrays(A, B)
+    val = np.asarray(density(domain.points(A.ravel(), B.ravel())), np.float64).reshape(A.shape)
     if not np.all(np.isfinite(val)):
         raise AssertionError("the pdf is not finite at some quadrature points")
-    wts = (ha[:, None, None, None] * hb[None, :, None, None]
-           * w[None, None, :, None] * w[None, None, None, :])
-    return (val * wts).sum(axis=(2, 3))
+    val = val * domain.jacobian(A, B)
+    out = (val * (w[:, None] * w[None, :])).sum(axis=(1, 2)) * ha * hb
+    return out, np.any(val == 0, axis=(1, 2)), np.any(val != 0, axis=(1, 2))
+
+
+def _refine(density, domain, lo_a, hi_a, lo_b, hi_b, refine, nodes, depth, out):
+    """Replace ``out[refine]`` by the sum over 2 x 2 sub-cells, recursively. A sub-cell is split
+    again if the density is zero at some of its nodes and not at others, or zero at all of them
+    while a sibling is not (a thin tip of the support can fall between the nodes)."""
+    i = np.flatnonzero(refine)
+    if depth == 0 or len(i) == 0:
+        return out
+    ma, mb = 0.5 * (lo_a[i] + hi_a[i]), 0.5 * (lo_b[i] + hi_b[i])
+    sla = np.concatenate([lo_a[i], ma, lo_a[i], ma])
+    sha = np.concatenate([ma, hi_a[i], ma, hi_a[i]])
+    slb = np.concatenate([lo_b[i], lo_b[i], mb, mb])
+    shb = np.concatenate([mb, mb, hi_b[i], hi_b[i]])
+    sub, zero, nonzero = _gauss_cells(density, domain, sla, sha, slb, shb, nodes)
+    sibling_nonzero = np.tile(nonzero.reshape(4, -1).any(0), 4)
+    again = (zero & nonzero) | (~nonzero & sibling_nonzero)
+    sub = _refine(density, domain, sla, sha, slb, shb, again, nodes, depth - 1, sub)
+    out = out.copy()
+    out[i] = sub.reshape(4, len(i)).sum(0)
+    return out
+
+
+def cell_integrals(density, domain, nodes: int = 8, depth: int = 4) -> np.ndarray:
+    """Integral of ``density(points [M, dim]) -> [M]`` over each cell of the domain's grid:
+    tensor Gauss-Legendre, refined ``depth`` times on the support's edges (cells with zero and
+    nonzero nodes, and empty cells next to nonempty ones), since the edges of a light's
+    silhouette, a horizon or a cone make the density discontinuous."""
+    ea, eb = domain.a_edges, domain.b_edges
+    na, nb = len(ea) - 1, len(eb) - 1
+    ia, ib = np.meshgrid(np.arange(na), np.arange(nb), indexing="ij")
+    ia, ib = ia.ravel(), ib.ravel()
+    la, ha, lb, hb = ea[ia], ea[ia + 1], eb[ib], eb[ib + 1]
+    out, zero, nonzero = _gauss_cells(density, domain, la, ha, lb, hb, nodes)
+    nz = np.pad(nonzero.reshape(na, nb), 1)
+    near = np.zeros((na, nb), bool)
+    for da in (-1, 0, 1):
+        for db in (-1, 0, 1):
+            near |= nz[1 + da: 1 + da + na, 1 + db: 1 + db + nb]
+    refine = (zero & nonzero) | (~nonzero & near.ravel())
+    out = _refine(density, domain, la, ha, lb, hb, refine, nodes, depth, out)
+    return out.reshape(na, nb)
 
 
 def histogram(samples, domain) -> tuple[np.ndarray, int]:
