@@ -16,9 +16,11 @@ wavefront jgi picks one with the Fresnel probability instead, which has the same
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
+from jax import Array
 
 from .. import bsdf as B
 from .. import camera as C
@@ -36,14 +38,28 @@ class WhittedConfig:
     light_samples: int = 1    # shadow rays per diffuse hit
 
 
-def radiance(scene: Scene, cfg: WhittedConfig, uniform, o: V3, d: V3) -> V3:
+class DiffuseVertex(NamedTuple):
+    """Where a camera path's specular chain ends: the first non-specular hit."""
+
+    L: V3            # emission seen along the chain plus direct light at the vertex
+    beta: V3         # throughput of the specular chain
+    p: V3            # the vertex (valid where ``found``)
+    n: V3            # its geometric normal
+    wo: V3           # direction back along the path
+    material: Array
+    found: Array     # bool: the chain ended on a non-specular surface
+
+
+def trace_to_diffuse(scene: Scene, cfg: WhittedConfig, uniform, o: V3, d: V3) -> DiffuseVertex:
+    """Follow rays (o, d) through specular surfaces to the first non-specular hit, adding
+    emission seen on the way and direct light (shadow rays) at that hit."""
     mats, lights = scene.materials, scene.lights
     z = jnp.zeros_like(o.x)
     Z = V3(z, z, z)
     dims = 1 + 3 * cfg.light_samples
 
     def step(depth, s):
-        o, d, beta, L, active = s
+        o, d, beta, L, active, v = s
         hit = G.intersect(scene, o, d)
         wo = -d
         base = 2 + depth * dims
@@ -65,14 +81,23 @@ def radiance(scene: Scene, cfg: WhittedConfig, uniform, o: V3, d: V3) -> V3:
                 ok = diffuse_end & ls.valid & visible & (ls.pdf > 0)
                 scale = jnp.abs(dot(ls.wi, hit.n)) / (cfg.light_samples * jnp.where(ok, ls.pdf, 1.0))
                 L = L + where(ok, beta * f * ls.Li * scale, Z)
+        v = DiffuseVertex(v.L, where(diffuse_end, beta, v.beta), where(diffuse_end, hit.p, v.p),
+                          where(diffuse_end, hit.n, v.n), where(diffuse_end, wo, v.wo),
+                          jnp.where(diffuse_end, hit.material, v.material), v.found | diffuse_end)
         # ---- follow the specular chain ----
         bs = B.sample(mats.kinds, mp, hit.n, wo, uniform(base), z, z)
         active = active & specular & bs.valid
-        return (G.offset_origin(hit.p, hit.n, bs.wi), bs.wi, beta * bs.weight, L, active)
+        return (G.offset_origin(hit.p, hit.n, bs.wi), bs.wi, beta * bs.weight, L, active, v)
 
     one = jnp.ones_like(z)
-    state = (o, d, V3(one, one, one), Z, z == 0)
-    return jax.lax.fori_loop(0, cfg.max_depth, step, state)[3]
+    v0 = DiffuseVertex(Z, Z, o, V3(z, z, one), V3(z, z, one), jnp.zeros_like(z, jnp.int32), z > 0)
+    state = (o, d, V3(one, one, one), Z, z == 0, v0)
+    _, _, _, L, _, v = jax.lax.fori_loop(0, cfg.max_depth, step, state)
+    return v._replace(L=L)
+
+
+def radiance(scene: Scene, cfg: WhittedConfig, uniform, o: V3, d: V3) -> V3:
+    return trace_to_diffuse(scene, cfg, uniform, o, d).L
 
 
 def trace_pixels(scene: Scene, cfg: WhittedConfig, seed, pixel, sample) -> V3:
