@@ -109,6 +109,19 @@ class PlaneDomain:
 
 # --- quadrature and histogram --------------------------------------------------------------------
 
+def bucket(n: int) -> int:
+    """The next power of two >= n (at least 1024): sizes that jitted functions are called with,
+    so that varying sample and quadrature counts reuse a handful of compilations."""
+    return max(1024, 1 << int(np.ceil(np.log2(max(n, 1)))))
+
+
+def _evaluate(density, pts: np.ndarray) -> np.ndarray:
+    """density(pts), called on a copy padded to a :func:`bucket` size (repeating the last row)."""
+    n = len(pts)
+    padded = np.concatenate([pts, np.repeat(pts[-1:], bucket(n) - n, axis=0)])
+    return np.asarray(density(padded), np.float64)[:n]
+
+
 def _gauss_cells(density, domain, lo_a, hi_a, lo_b, hi_b, nodes):
     """(integral, some node zero, some node nonzero) per cell [lo_a, hi_a] x [lo_b, hi_b]."""
     x, w = np.polynomial.legendre.leggauss(nodes)
@@ -116,7 +129,7 @@ def _gauss_cells(density, domain, lo_a, hi_a, lo_b, hi_b, nodes):
     A = lo_a[:, None, None] + ha[:, None, None] * (x[None, :, None] + 1.0)
     B = lo_b[:, None, None] + hb[:, None, None] * (x[None, None, :] + 1.0)
     A, B = np.broadcast_arrays(A, B)
-    val = np.asarray(density(domain.points(A.ravel(), B.ravel())), np.float64).reshape(A.shape)
+    val = _evaluate(density, domain.points(A.ravel(), B.ravel())).reshape(A.shape)
     if not np.all(np.isfinite(val)):
         raise AssertionError("the pdf is not finite at some quadrature points")
     val = val * domain.jacobian(A, B)
@@ -245,7 +258,7 @@ def chi2_test(samples, pdf, domain, *, n_total: int | None = None, total: float 
         inside = (ia >= 0) & (ia < empty.shape[0]) & (ib >= 0) & (ib < empty.shape[1])
         sel = np.zeros(len(a), bool)
         sel[inside] = empty[ia[inside], ib[inside]]
-        at = np.asarray(pdf(samples[sel]), np.float64)
+        at = _evaluate(pdf, samples[sel])
         if np.any(at <= 0):
             return Result(np.inf, 0, 0.0, grid_mass, 0,
                           f"{int((at <= 0).sum())} samples where the pdf is 0, e.g. "
