@@ -2,7 +2,8 @@
 
 A sampler is correct when the points it produces are distributed with the density its ``pdf``
 claims. The test bins a domain into a grid, integrates the claimed density over every cell by
-tensor-product Gauss-Legendre quadrature (in float64), histograms many samples into the same
+tensor-product Gauss-Legendre quadrature (in float64; cells on the edge of the pdf's support,
+where it is discontinuous, are subdivided adaptively), histograms many samples into the same
 cells, pools cells whose expected count is below ``min_expected`` (the chi-square approximation
 needs about 5 per cell) and computes Pearson's statistic and its p-value with
 ``scipy.stats.chi2``. The null hypothesis "samples follow the pdf" is rejected at p < 1e-3.
@@ -21,6 +22,10 @@ Domains:
   expects ``n_total`` times the pdf mass outside the grid, computed as (total - grid integral).
   ``a`` is computed as ``sin^2 / (1 + cos)`` near the axis, so it keeps its float precision.
 * :class:`PlaneDomain`: points of a rectangle in the plane (densities per unit area).
+
+Samples in a cell where the quadrature found no mass reject the sampler if the pdf is zero at
+those samples (impossible points); otherwise the cell is a sliver of support between nodes and
+is pooled. Usage: ``assert_chi2(samples, pdf, SphereDomain(axis=n), "label", n_total=N)``.
 """
 
 from __future__ import annotations
