@@ -342,3 +342,29 @@ def render(scene: Scene, *, spp: int = 1, seed: int = 0, cfg: CacheConfig = Cach
     beta = np.stack([np.asarray(c) for c in v.beta])
     L = np.stack([np.asarray(c) for c in v.L]) + np.where(pts.found, beta * albedo / np.pi * E, 0.0)
     return L.reshape(3, spp, H, W).mean(1).transpose(1, 2, 0).astype(np.float32)
+
+
+def _run(scene: Scene, *, spp: int, seed: int, progress: bool = False, a=0.2, gather_m=8,
+         gather_n=24, spacing=8, passes=4, cached=True, gradients=True):
+    cfg = CacheConfig(a=a, gather_m=gather_m, gather_n=gather_n, spacing=spacing, passes=passes,
+                      gradients=gradients)
+    return render(scene, spp=spp, seed=seed, cfg=cfg, cached=cached)
+
+
+def _register():
+    from .estimators.registry import Estimator, Param, register
+
+    register(Estimator(
+        "irradiance_cache",
+        "direct light + specular chains, indirect diffuse light by final gathering with an "
+        "irradiance cache (Ward 1988)", _run,
+        (Param("a", 0.2, "Ward's error threshold (smaller: more records)", float, minimum=1e-4, maximum=10.0),
+         Param("gather_m", 8, "final-gather strata in theta", int, minimum=1, maximum=256),
+         Param("gather_n", 24, "final-gather strata in phi", int, minimum=1, maximum=512),
+         Param("spacing", 8, "first-pass record spacing in pixels", int, minimum=1),
+         Param("passes", 4, "refinement passes (spacing halves each pass)", int, minimum=0, maximum=16),
+         Param("cached", True, "false: plain final gathering at every shading point", bool),
+         Param("gradients", True, "use rotation and translation gradients", bool))))
+
+
+_register()
