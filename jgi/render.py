@@ -129,7 +129,7 @@ def _progress(done: int, total: int, elapsed: float) -> None:
 # --- wavefront driver with path regeneration --------------------------------------------------
 
 WAVEFRONT_LANES = 1 << 14   # lanes per loop: the whole lane state stays in the L2 caches
-WAVEFRONT_SLOTS = 4         # work slots per lane and call (pixels one after another)
+WAVEFRONT_SLOTS = 4        # work slots per lane and call (pixels one after another)
 WAVEFRONT_SAMPLES = 64      # samples per slot and call
 
 
@@ -183,7 +183,7 @@ def _wavefront_call(scene: Scene, seed, slot0, spp, per_slot, *, start_fn, step_
     def body(c: _Lanes) -> _Lanes:
         # computed once and stored: otherwise XLA recomputes the step in every consumer
         # (each accumulator, each state leaf); measured 1.6x fewer CPU-seconds
-        state, alive_path, L = materialize(step_fn(scene, c.state))
+        state, alive_path, L = step_fn(scene, c.state)
         finished = c.alive & ~alive_path
         finite = jnp.isfinite(L.x) & jnp.isfinite(L.y) & jnp.isfinite(L.z)
         bad = c.bad + (finished & ~finite).astype(jnp.int32)
@@ -197,7 +197,10 @@ def _wavefront_call(scene: Scene, seed, slot0, spp, per_slot, *, start_fn, step_
         alive = jnp.where(finished, (slot < slots) & (work(jnp.minimum(slot, slots - 1))[2] > 0),
                           c.alive)
         state = fresh(slot, sample, ~(finished & alive), state)
-        return _Lanes(state, slot, sample, alive, acc, bad)
+        # the new lane state computed in one pass and stored: otherwise XLA copies the step into
+        # every consumer (each accumulator, each state leaf): 1.6x fewer CPU-seconds than
+        # without, 4% fewer than materialising only the step
+        return materialize(_Lanes(state, slot, sample, alive, acc, bad))
 
     out = jax.lax.while_loop(lambda c: jnp.any(c.alive), body, init)
     img = jnp.zeros((P, 3), jnp.float32)
@@ -209,7 +212,8 @@ def _wavefront_call(scene: Scene, seed, slot0, spp, per_slot, *, start_fn, step_
 
 def render_wavefront(scene: Scene, start_fn: Callable, step_fn: Callable, *, spp: int, seed: int,
                      cache_key, progress: bool = False, lanes: int | None = None,
-                     slots: int = WAVEFRONT_SLOTS, per_slot: int | None = None) -> np.ndarray:
+                     slots: int = WAVEFRONT_SLOTS, per_slot: int | None = None,
+                     devices=None) -> np.ndarray:
     """Average over ``spp`` samples per pixel of paths traced segment by segment.
 
     ``start_fn(scene, seed, pixel, sample) -> state`` starts the paths for (pixel, sample) index
@@ -221,22 +225,45 @@ def render_wavefront(scene: Scene, start_fn: Callable, step_fn: Callable, *, spp
     W, H = scene.camera.width, scene.camera.height
     P = W * H
     lanes = lanes or min(WAVEFRONT_LANES, 1 << max(int(np.ceil(np.log2(P))), 8))
-    key = (cache_key, ("wavefront", lanes, slots))
+    devices = list(devices if devices is not None else jax.devices())
+    D = len(devices)
+    key = (cache_key, ("wavefront", lanes, slots, tuple(devices)))
     fn = _COMPILED.get(key)
     if fn is None:
-        fn = jax.jit(partial(_wavefront_call, start_fn=start_fn, step_fn=step_fn, lanes=lanes,
-                             slots=slots))
+        call = partial(_wavefront_call, start_fn=start_fn, step_fn=step_fn, lanes=lanes,
+                       slots=slots)
+        if D == 1:
+            fn = jax.jit(call)
+        else:
+            from jax.sharding import Mesh, PartitionSpec as Ps
+
+            def per_device(sc, sd, s0, n, ps):
+                img, nbad = call(sc, sd, s0[0], n, ps)
+                return img[None], nbad[None]
+
+            mesh = Mesh(np.array(devices), ("d",))
+            fn = jax.jit(jax.shard_map(per_device, mesh=mesh,
+                                       in_specs=(Ps(), Ps(), Ps("d"), Ps(), Ps()),
+                                       out_specs=Ps("d"), check_vma=False))
         _COMPILED[key] = fn
     # enough samples per slot to give every lane work, at most WAVEFRONT_SAMPLES per call
-    per_slot = per_slot or -(-spp * P // (lanes * slots))
+    per_slot = per_slot or -(-spp * P // (lanes * slots * D))
     per_slot = max(1, min(per_slot, spp, WAVEFRONT_SAMPLES))
     n_slots = P * -(-spp // per_slot)
-    per_call = lanes * slots
+    per_call = lanes * slots * D
     img, bad = None, 0
     t0 = time.perf_counter()
     for slot0 in range(0, n_slots, per_call):
-        part, nbad = fn(scene, jnp.uint32(seed), jnp.int32(slot0), jnp.int32(spp),
-                        jnp.int32(per_slot))
+        if D == 1:
+            part, nbad = fn(scene, jnp.uint32(seed), jnp.int32(slot0), jnp.int32(spp),
+                            jnp.int32(per_slot))
+        else:
+            starts = jnp.asarray([slot0 + k * lanes * slots for k in range(D)], jnp.int32)
+            parts, nbads = fn(scene, jnp.uint32(seed), starts, jnp.int32(spp),
+                              jnp.int32(per_slot))
+            part, nbad = parts[0], nbads[0]
+            for k in range(1, D):  # in device order: the image does not depend on timing
+                part, nbad = part + parts[k], nbad + nbads[k]
         img = part if img is None else img + part
         bad = bad + nbad
         if progress:

@@ -135,7 +135,8 @@ def _shade(scene: Scene, cfg: PathTracerConfig, s: PathState, hit: G.Hit, depth,
     active = s.active & hit.valid & (length < max_depth)
     mp = _material(mats, hit.material)
 
-    # ---- Light sampling (next-event estimation) ----
+    # ---- Light sampling (next-event estimation): shadow rays and their unoccluded values ----
+    shadow = []  # (origin, direction, t_max, contribution if visible)
     if use_nee:
         nee_ok = active & ~B.is_delta(mp) & counts(length + 1)
         for j in range(cfg.light_samples):
@@ -143,15 +144,15 @@ def _shade(scene: Scene, cfg: PathTracerConfig, s: PathState, hit: G.Hit, depth,
             ls = LT.sample_li(lights, hit.p, u(dj), u(dj + 1), u(dj + 2))
             f, pdf_bsdf = B.evaluate(kinds, mp, hit.n, wo, ls.wi)
             cos_i = jnp.abs(dot(ls.wi, hit.n))
-            visible = ~G.occluded(scene, *G.shadow_ray(hit.p, hit.n, ls.wi, ls.dist))
             if cfg.strategy == "mis":
                 w_g = mis.heuristic_weight(n_g, ls.pdf, [(n_f, pdf_bsdf)], cfg.exponent)
                 w_g = jnp.where(ls.delta, 1.0, w_g)
             else:
                 w_g = jnp.ones_like(z)
-            ok = nee_ok & ls.valid & visible & (ls.pdf > 0)
+            ok = nee_ok & ls.valid & (ls.pdf > 0)
             scale = w_g * cos_i / (n_g * jnp.where(ok, ls.pdf, 1.0))
-            L = L + where(ok, s.throughput * f * ls.Li * scale, Z)
+            shadow.append((*G.shadow_ray(hit.p, hit.n, ls.wi, ls.dist),
+                           where(ok, s.throughput * f * ls.Li * scale, Z)))
 
     # ---- BSDF sampling: extend the path ----
     bs = B.sample(kinds, mp, hit.n, wo, u(0), u(1), u(2))
@@ -167,6 +168,9 @@ def _shade(scene: Scene, cfg: PathTracerConfig, s: PathState, hit: G.Hit, depth,
         active = active & (~roulette | survive)
         throughput = where(roulette, throughput / jnp.where(q > 0, q, 1.0), throughput)
 
+    # ---- Shadow rays: add the light samples that are unoccluded ----
+    for o_s, d_s, t_max, value in shadow:
+        L = L + where(~G.occluded(scene, o_s, d_s, t_max), value, Z)
     o_next = G.offset_origin(hit.p, hit.n, bs.wi)
     return PathState(o_next, bs.wi, throughput, L, active, bs.pdf, bs.delta, hit.p)
 
