@@ -88,12 +88,18 @@ def safe_reciprocal(d: V3) -> V3:
 def rect_t(axis: int, plane, lo_a, hi_a, lo_b, hi_b, o: V3, d: V3, inv_d: V3) -> Array:
     """Axis-aligned rectangle: t from the plane equation with the ray's precomputed 1/d, then
     two interval tests."""
+    t, hit = _rect_hit(axis, plane, lo_a, hi_a, lo_b, hi_b, o, d, inv_d)
+    return jnp.where(hit, t, INF)
+
+
+def _rect_hit(axis: int, plane, lo_a, hi_a, lo_b, hi_b, o: V3, d: V3, inv_d: V3):
+    """(t, hit) of :func:`rect_t` before t is replaced by inf on a miss (the scans fold the
+    test into their own comparison, one select less per rectangle)."""
     a, b = [k for k in range(3) if k != axis]
     t = (plane - o[axis]) * inv_d[axis]
     u = o[a] + t * d[a]
     v = o[b] + t * d[b]
-    hit = (t > T_MIN) & (u >= lo_a) & (u <= hi_a) & (v >= lo_b) & (v <= hi_b)
-    return jnp.where(hit, t, INF)
+    return t, (t > T_MIN) & (u >= lo_a) & (u <= hi_a) & (v >= lo_b) & (v <= hi_b)
 
 
 def box_t(c: V3, au: V3, av: V3, aw: V3, half: V3, o: V3, d: V3, with_normal: bool = False):
@@ -179,10 +185,11 @@ def _rect_axes(r: Rects):
 
 
 def _scan_rects(r: Rects, o: V3, d: V3, inv_d: V3, body, carry):
+    """``body(i, carry, t, hit)`` over the rectangles, unrolled per axis for small tables."""
     for axis, start, n_axis in _rect_axes(r):
         def one(i, c, axis=axis):
-            return body(i, c, axis, rect_t(axis, r.plane[i], r.lo_a[i], r.hi_a[i], r.lo_b[i],
-                                           r.hi_b[i], o, d, inv_d))
+            return body(i, c, *_rect_hit(axis, r.plane[i], r.lo_a[i], r.hi_a[i], r.lo_b[i],
+                                         r.hi_b[i], o, d, inv_d))
         if n_axis <= UNROLL_LIMIT:
             for i in range(start, start + n_axis):
                 carry = one(i, carry)
@@ -212,7 +219,7 @@ def closest_hit(scene: Scene, o: V3, d: V3, t_max: Array | None = None):
     r: Rects = scene.rects
     if r.count:
         carry = _scan_rects(r, o, d, safe_reciprocal(d),
-                            lambda i, c, axis, t: update(c, t, RECT, i), carry)
+                            lambda i, c, t, hit: update(c, jnp.where(hit, t, INF), RECT, i), carry)
     bx: Boxes = scene.boxes
     if bx.count:
         def body(i, c):
@@ -278,8 +285,9 @@ def intersect(scene: Scene, o: V3, d: V3) -> Hit:
     if r.count:
         inv_d = safe_reciprocal(d)
 
-        def rect_body(i, c, axis, t):
-            return update(c, t < c.t, t, _take(r.normal, i), r.material[i], r.emitter[i])
+        def rect_body(i, c, t, hit):
+            return update(c, hit & (t < c.t), t, _take(r.normal, i), r.material[i],
+                          r.emitter[i])
         carry = _scan_rects(r, o, d, inv_d, rect_body, carry)
     bx: Boxes = scene.boxes
     if bx.count:
@@ -316,18 +324,24 @@ def occluded(scene: Scene, o: V3, d: V3, t_max: Array) -> Array:
     """True where something lies strictly between o and o + t_max d (shadow rays).
 
     An any-hit query: the OR over primitives of T_MIN < t_i < t_max, with no nearest-hit
-    bookkeeping."""
+    bookkeeping. ``d`` need not be a unit vector (t is then in units of its length; see
+    :func:`shadow_ray`)."""
     shape = o.x.shape
     t_max = jnp.broadcast_to(t_max, shape)
     occ = jnp.zeros(shape, bool)
 
     sp: Spheres = scene.spheres
     if sp.count:
-        occ = _scan(sp.count, lambda i, a: a | (sphere_t(_take(sp.center, i), sp.radius[i], o, d)
-                                                 < t_max), occ)
+        # the sphere test needs a unit direction: t scales by the length
+        n2 = dot(d, d)
+        length = jnp.sqrt(jnp.where(n2 > 0, n2, 1.0))
+        du, t_max_u = d * (1.0 / length), t_max * length
+        occ = _scan(sp.count, lambda i, a: a | (sphere_t(_take(sp.center, i), sp.radius[i], o,
+                                                         du) < t_max_u), occ)
     r: Rects = scene.rects
     if r.count:
-        occ = _scan_rects(r, o, d, safe_reciprocal(d), lambda i, a, axis, t: a | (t < t_max), occ)
+        occ = _scan_rects(r, o, d, safe_reciprocal(d),
+                          lambda i, a, t, hit: a | (hit & (t < t_max)), occ)
     bx: Boxes = scene.boxes
     if bx.count:
         occ = _scan(bx.count, lambda i, a: a | (box_t(*_box_row(bx, i), o, d)[0] < t_max), occ)
@@ -364,13 +378,14 @@ def shadow_ray(p: V3, n: V3, wi: V3, dist: Array) -> tuple[V3, V3, Array]:
     sampled point (pbrt-v4's ``SpawnRayTo``): keeping ``wi`` and ``dist`` from the unshifted
     point would make the ray meet the light's own surface before t_max whenever the surface and
     the light are close to parallel (measured: 18% of light samples lost on the top of the
-    Cornell box's tall block)."""
+    Cornell box's tall block).
+
+    For a finite sample the direction is the segment itself, not normalised, and t_max is
+    1 - SHADOW_EPSILON (no square root or division: cheaper, and :func:`occluded` accepts
+    any direction length); towards infinity it is ``wi`` with t_max = inf."""
     o = offset_origin(p, n, wi)
     finite = jnp.isfinite(dist)
     v = p + wi * jnp.where(finite, dist, 0.0) - o
-    d2 = dot(v, v)
-    ok = finite & (d2 > 0)
-    dist_o = jnp.sqrt(jnp.where(ok, d2, 1.0))
-    d = where(ok, v * (1.0 / dist_o), wi)
-    t_max = jnp.where(ok, dist_o * (1.0 - SHADOW_EPSILON), jnp.where(finite, 0.0, INF))
+    d = where(finite, v, wi)
+    t_max = jnp.where(finite, jnp.where(dot(v, v) > 0, 1.0 - SHADOW_EPSILON, 0.0), INF)
     return o, d, t_max
