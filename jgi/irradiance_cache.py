@@ -36,6 +36,7 @@ tables here hold thousands of records, where that is faster on the CPU than a ha
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass, field
 from functools import partial
 from typing import NamedTuple
@@ -181,8 +182,8 @@ def ward_weight(x: V3, n: V3, rp: V3, rn: V3, R) -> Array:
     return jnp.where((nn > 0) & ~behind, w, 0.0)
 
 
-@partial(jax.jit, static_argnames=("a",))
-def interpolate(rec: Records, x: V3, n: V3, a: float):
+@jax.jit
+def interpolate(rec: Records, x: V3, n: V3, a):
     """(E(x), sum of accepted weights) by Ward's interpolation over all records."""
     def body(i, acc):
         num, wsum = acc
@@ -257,6 +258,8 @@ def irradiance(scene: Scene, pts: ShadingPoints, *, cfg: CacheConfig, cached: bo
     stats = stats if stats is not None else CacheStats()
     n_pts = len(pts.found)
     batch = 64
+    # the gather kernel depends only on the gather settings: one compilation for every a
+    gather_cfg = dataclasses.replace(cfg, a=0.0, spacing=1, passes=0, per_pass=1)
 
     def compute(idx: np.ndarray):
         out = []
@@ -264,7 +267,7 @@ def irradiance(scene: Scene, pts: ShadingPoints, *, cfg: CacheConfig, cached: bo
             sel = idx[s0:s0 + batch]
             pad = np.pad(sel, (0, batch - len(sel)), mode="edge")
             take = lambda a: V3(*(jnp.asarray(c[pad]) for c in a))
-            E, R, gr, gt = gather(scene, cfg, jnp.uint32(seed), jnp.asarray(pad, jnp.int32),
+            E, R, gr, gt = gather(scene, gather_cfg, jnp.uint32(seed), jnp.asarray(pad, jnp.int32),
                                   take(pts.p), take(pts.n))
             k = len(sel)
             cut = lambda t: jax.tree_util.tree_map(lambda a: np.asarray(a)[:k], t)
@@ -297,7 +300,7 @@ def irradiance(scene: Scene, pts: ShadingPoints, *, cfg: CacheConfig, cached: bo
     qp, qn = V3(*(jnp.asarray(c) for c in pts.p)), V3(*(jnp.asarray(c) for c in pts.n))
     for it in range(cfg.passes + 1):
         table = _pad_records(recs, _capacity(sum(len(r[3]) for r in recs)))
-        E, wsum = interpolate(table, qp, qn, cfg.a)
+        E, wsum = interpolate(table, qp, qn, jnp.float32(cfg.a))
         covered = (np.asarray(wsum) > 0) & found
         uncovered = np.nonzero(found & ~covered)[0]
         stats.history.append((int(sum(len(r[3]) for r in recs)), len(uncovered)))
