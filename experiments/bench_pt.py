@@ -1,12 +1,18 @@
 """Path-tracing throughput on the Cornell box: jgi against Mitsuba 3 measured in the same run.
 
-    python experiments/bench_pt.py [--spp 64] [--resolution 256] [--no-mitsuba] [--json out.json]
+    python experiments/bench_pt.py [--spp 64] [--resolution 256] [--devices N] [--no-mitsuba]
+                                   [--json out.json]
 
 Both render the same scene (jgi's ``cornell_box`` replicates Mitsuba's ``cornell_box()``) at
 max depth 8 with Russian roulette from depth 5, NEE + MIS. Prints compile time, million paths
-per second for each, their ratio, and the image means (to check both compute the same thing).
-Mitsuba uses its ``llvm_ad_rgb`` variant (needs ``DRJIT_LIBLLVM_PATH`` pointing at LLVM 19's
-``libLLVM.so.19.1``; set automatically when Debian's ``libllvm19`` is installed).
+per second for each (wall clock, and per CPU-second of the process, which is less sensitive to
+other jobs on a shared machine), their ratio, and the image means (to check both compute the
+same thing). Mitsuba uses its ``llvm_ad_rgb`` variant (needs ``DRJIT_LIBLLVM_PATH`` pointing
+at LLVM 19's ``libLLVM.so.19.1``; set automatically when Debian's ``libllvm19`` is installed).
+
+``--devices N`` splits jgi's lanes over N virtual CPU devices
+(``--xla_force_host_platform_device_count``, set before JAX starts), each running its own
+loop; by default XLA splits every kernel over the cores instead.
 """
 
 from __future__ import annotations
@@ -30,14 +36,16 @@ def bench_jgi(resolution: int, spp: int, repeats: int) -> dict:
     t0 = time.perf_counter()
     jgi.render(scene, "pt", spp=1, seed=0, max_depth=8, rr_depth=5)
     compile_s = time.perf_counter() - t0
-    times, img = [], None
+    times, cpu, img = [], [], None
     for r in range(repeats):
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.process_time()
         img = jgi.render(scene, "pt", spp=spp, seed=1 + r, max_depth=8, rr_depth=5)
         times.append(time.perf_counter() - t0)
+        cpu.append(time.process_time() - c0)
     best = min(times)
-    return dict(name="jgi", mpaths_per_s=resolution * resolution * spp / best / 1e6,
-                seconds=best, compile_s=compile_s, mean_rgb=img.reshape(-1, 3).mean(0).tolist(),
+    n = resolution * resolution * spp
+    return dict(name="jgi", mpaths_per_s=n / best / 1e6, seconds=best, compile_s=compile_s,
+                mpaths_per_cpu_s=n / min(cpu) / 1e6, mean_rgb=img.reshape(-1, 3).mean(0).tolist(),
                 devices=[str(d) for d in jax.devices()])
 
 
@@ -60,14 +68,17 @@ def bench_mitsuba(resolution: int, spp: int, repeats: int) -> dict | None:
     t0 = time.perf_counter()
     np.asarray(mi.render(scene, spp=1, seed=0))
     compile_s = time.perf_counter() - t0
-    times, img = [], None
+    times, cpu, img = [], [], None
     for r in range(repeats):
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.process_time()
         img = np.asarray(mi.render(scene, spp=spp, seed=1 + r))
         times.append(time.perf_counter() - t0)
+        cpu.append(time.process_time() - c0)
     best = min(times)
-    return dict(name="mitsuba3 llvm_ad_rgb", mpaths_per_s=resolution * resolution * spp / best / 1e6,
-                seconds=best, compile_s=compile_s, mean_rgb=img.reshape(-1, 3).mean(0).tolist())
+    n = resolution * resolution * spp
+    return dict(name="mitsuba3 llvm_ad_rgb", mpaths_per_s=n / best / 1e6, seconds=best,
+                compile_s=compile_s, mpaths_per_cpu_s=n / min(cpu) / 1e6,
+                mean_rgb=img.reshape(-1, 3).mean(0).tolist())
 
 
 def main(argv=None) -> dict:
@@ -75,15 +86,24 @@ def main(argv=None) -> dict:
     ap.add_argument("--spp", type=int, default=64)
     ap.add_argument("--resolution", type=int, default=256)
     ap.add_argument("--repeats", type=int, default=3)
+    ap.add_argument("--devices", type=int, default=1,
+                    help="split jgi's lanes over this many virtual CPU devices")
     ap.add_argument("--no-mitsuba", action="store_true")
     ap.add_argument("--json", default=None)
     a = ap.parse_args(argv)
+    if a.devices > 1:
+        if "jax" in sys.modules:
+            sys.exit("--devices must be set before JAX is imported")
+        os.environ["XLA_FLAGS"] = (os.environ.get("XLA_FLAGS", "") +
+                                   f" --xla_force_host_platform_device_count={a.devices}").strip()
+    print(f"load average {os.getloadavg()[0]:.2f} on {os.cpu_count()} CPUs", file=sys.stderr)
     out = {"jgi": bench_jgi(a.resolution, a.spp, a.repeats)}
     if not a.no_mitsuba:
         out["mitsuba"] = bench_mitsuba(a.resolution, a.spp, a.repeats)
     for r in out.values():
         if r:
-            print(f"{r['name']:24s} {r['mpaths_per_s']:8.2f} Mpaths/s  ({r['seconds']:.2f} s render, "
+            print(f"{r['name']:24s} {r['mpaths_per_s']:8.2f} Mpaths/s  "
+                  f"({r['mpaths_per_cpu_s']:.2f} per CPU-s; {r['seconds']:.2f} s render, "
                   f"{r['compile_s']:.1f} s first call)  mean rgb {np.round(r['mean_rgb'], 4).tolist()}")
     if out.get("mitsuba"):
         out["ratio"] = out["jgi"]["mpaths_per_s"] / out["mitsuba"]["mpaths_per_s"]
