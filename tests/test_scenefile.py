@@ -107,6 +107,23 @@ def test_mesh_demo_loads_the_generated_mesh():
     assert set(s.lights.kinds) == {AREA_QUAD, SPOT}
 
 
+def test_the_documented_example_loads(tmp_path):
+    """The complete example in docs/scene-format.md is a valid scene with what it describes."""
+    doc = (ROOT / "docs" / "scene-format.md").read_text()
+    example = doc.split("## A complete example")[1].split("```toml")[1].split("```")[0]
+    (tmp_path / "meshes").mkdir()
+    (tmp_path / "meshes" / "torus.ply").write_bytes((ROOT / "scenes" / "meshes" / "torus.ply").read_bytes())
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        s = load(tmp_path, example)
+    assert s.name == "example" and s.resolution == (320, 240)
+    assert (s.rects.count, s.spheres.count, s.boxes.count, s.triangles.count) == (2, 1, 1, 2304)
+    assert set(s.materials.kinds) == {DIFFUSE, MIRROR, DIELECTRIC, PHONG}
+    np.testing.assert_array_equal(np.asarray(s.lights.kind),
+                                  [AREA_QUAD, POINT, SPOT, DIRECTIONAL, ENVIRONMENT])
+    np.testing.assert_allclose(v3(s.lights.normal, 0), [0, -1, 0])  # the light faces down
+
+
 def test_a_loaded_scene_renders():
     scene = jgi.load_scene(ROOT / "scenes" / "mesh_demo.toml", width=16, height=16)
     assert scene.resolution == (16, 16)
