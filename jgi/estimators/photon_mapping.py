@@ -1,0 +1,294 @@
+"""Photon mapping (Jensen 1996, 2001) and its progressive forms (Hachisuka et al. 2008, 2009).
+
+All three start from the photon maps of :mod:`jgi.photons` and the density estimate of
+:mod:`jgi.photon_map`, and see the scene from the camera through specular chains
+(:func:`jgi.estimators.whitted.trace_to_diffuse`) to the first non-specular point x:
+
+* ``pm`` - direct visualisation: L(x) = L_r estimated from the global map at x (every
+  bounce of light, direct included, from photons). Fixed radius, or k nearest photons.
+* ``pm_jensen`` - Jensen's split of the reflected radiance at x (the lecture's four
+  integrals): direct light by shadow rays, specular/glossy by Monte Carlo (the chain),
+  caustics (L S+ D) from the caustic map at x, and indirect diffuse by final gathering:
+  ``final_gather`` cosine-distributed rays from x, each followed through specular surfaces to
+  a diffuse point y where the global map gives the radiance (emitters and caustics seen by
+  gather rays are skipped: they are counted by the other terms).
+* ``ppm`` / ``sppm`` - progressive photon mapping: each pass shoots ``photons`` photons; every
+  pixel keeps (N_i, R_i, tau_i) and, with M_i new photons within R_i,
+      N_i <- N_i + alpha M_i,  R_i^2 <- R_i^2 (N_i + alpha M_i) / (N_i + M_i),
+      tau_i <- (tau_i + Phi_i) R_new^2 / R_old^2,
+  so the radius shrinks and the estimate L_i = tau_i / (pi R_i^2 T) is consistent as the
+  number of passes T grows (alpha in (0, 1)). ``ppm`` keeps one visible point per pixel from
+  the first pass (Hachisuka 2008); ``sppm`` traces a new jittered one every pass (2009), so
+  anti-aliasing and glossy/depth effects converge too.
+Only the diffuse part (k_d / pi) of a surface reflects photons in the estimates.
+"""
+
+from __future__ import annotations
+
+from functools import partial
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from .. import bsdf as B
+from .. import camera as C
+from .. import photon_map as PMap
+from .. import rng
+from ..photons import trace_photons
+from ..scene import Scene
+from ..vec import V3, coordinate_system, dot, where
+from .registry import Estimator, Param, register
+from .whitted import WhittedConfig, trace_to_diffuse
+
+_SALT = 0x1B873593
+QUERY_CHUNK = 1024
+
+
+def _kd(scene: Scene, m):
+    kd = scene.materials.diffuse
+    return V3(kd.x[m], kd.y[m], kd.z[m])
+
+
+def _facing(n: V3, wo: V3) -> V3:
+    return where(dot(n, wo) < 0, -n, n)
+
+
+@partial(jax.jit, static_argnames=("light_samples", "max_depth"))
+def visible_points(scene: Scene, seed, pixel, sample, light_samples: int, max_depth: int):
+    W = scene.camera.width
+    key = rng.path_key(seed, pixel, sample)
+    o, d = C.sample_ray(scene.camera, pixel % W, pixel // W, rng.uniform(key, 0), rng.uniform(key, 1))
+    v = trace_to_diffuse(scene, WhittedConfig(max_depth=max_depth, light_samples=light_samples),
+                         lambda k: rng.uniform(key, k), o, d)
+    return v._replace(n=_facing(v.n, v.wo))
+
+
+@partial(jax.jit, static_argnames=("cap", "k", "kind", "thickness"))
+def radiance_estimate(scene: Scene, grid: PMap.HashGrid, x: V3, n: V3, material, r, cap: int,
+                      k: int, kind: str, thickness, filter_params):
+    """L_r at points x from a photon grid: radius r, or (k > 0) the k nearest within r."""
+    g = PMap.gather(grid, x, n, cap, thickness)
+    r2 = PMap.knn_radius2(g, k, r) if k > 0 else jnp.broadcast_to(r * r, x.x.shape)
+    kd = _kd(scene, material)
+    f = V3(*(c[:, None] / jnp.pi for c in kd))
+    L, count = PMap.estimate(g, r2, f, kind, **filter_params)
+    return L, count, g.truncated
+
+
+def _warn_truncated(trunc, cap, r):
+    if trunc:
+        import warnings
+        warnings.warn(f"photon grid cells held more than cap={cap} photons: the estimate is biased "
+                      f"low; use a smaller radius than {r} or a larger cap", RuntimeWarning,
+                      stacklevel=3)
+
+
+def _estimate_chunked(scene, grid, x, n, m, r, *, cap, k, kind, thickness, filter_params):
+    out, trunc = [], False
+    N = x.x.shape[0]
+    cap = cap or PMap.auto_cap(grid)
+    chunk = PMap.query_chunk(cap)
+    for s in range(0, N, chunk):
+        sl = slice(s, s + chunk)
+        xs, ns = V3(*(c[sl] for c in x)), V3(*(c[sl] for c in n))
+        pad = chunk - xs.x.shape[0]
+        padv = lambda v: V3(*(jnp.pad(c, (0, pad), mode="edge") for c in v))
+        L, _, t = radiance_estimate(scene, grid, padv(xs), padv(ns), jnp.pad(m[sl], (0, pad), mode="edge"),
+                                    jnp.float32(r), cap, k, kind, thickness, filter_params)
+        out.append(np.stack([np.asarray(c)[: chunk - pad] for c in L]))
+        trunc |= bool(np.any(np.asarray(t)[: chunk - pad]))
+    _warn_truncated(trunc, cap, r)
+    return np.concatenate(out, axis=1), trunc
+
+
+def _pixels(scene, spp):
+    P = scene.camera.width * scene.camera.height
+    return (jnp.tile(jnp.arange(P, dtype=jnp.int32), spp),
+            jnp.repeat(jnp.arange(spp, dtype=jnp.int32), P))
+
+
+def _to_image(scene, L, spp):
+    W, H = scene.camera.width, scene.camera.height
+    return np.asarray(L, np.float32).reshape(3, spp, H, W).mean(1).transpose(1, 2, 0)
+
+
+def render_pm(scene: Scene, *, spp: int = 4, seed: int = 0, photons: int = 200_000, radius: float = 0.05,
+              k: int = 0, filter: str = "box", cone_k: float = 1.1, alpha: float = 0.918,
+              beta: float = 1.953, cap: int | None = None, max_depth: int = 8, thickness: float | None = None,
+              stats: dict | None = None):
+    """Direct visualisation of the global photon map (see the module docstring)."""
+    pm = trace_photons(scene, photons, seed=seed, max_depth=max_depth)
+    grid = PMap.build_grid(pm, radius, cap=(cap or 128) if k > 0 else None)
+    radius = float(grid.cell)
+    pix, smp = _pixels(scene, spp)
+    v = visible_points(scene, jnp.uint32(seed), pix, smp, 0, max_depth)
+    fp = dict(k=cone_k) if filter == "cone" else dict(alpha=alpha, beta=beta) if filter == "gaussian" else {}
+    L, trunc = _estimate_chunked(scene, grid, v.p, v.n, v.material, radius, cap=cap, k=k, kind=filter,
+                                 thickness=thickness, filter_params=fp)
+    found = np.asarray(v.found)
+    beta_ = np.stack([np.asarray(c) for c in v.beta])
+    total = np.stack([np.asarray(c) for c in v.L]) + np.where(found, beta_ * L, 0.0)
+    if stats is not None:
+        stats.update(stored=pm.count, truncated=trunc)
+    return _to_image(scene, total, spp)
+
+
+@partial(jax.jit, static_argnames=("n_gather", "max_depth"))
+def _gather_points(scene: Scene, seed, ids, x: V3, n: V3, n_gather: int, max_depth: int):
+    """Final-gather rays from x: the diffuse points they reach and the chain throughput."""
+    N = x.x.shape[0]
+    key = rng.derive(rng.path_key(seed, ids[:, None] * n_gather + jnp.arange(n_gather)[None, :], 0), _SALT)
+    u1, u2 = rng.uniform(key, 0), rng.uniform(key, 1)
+    from ..warps import sample_cosine_hemisphere
+    local = sample_cosine_hemisphere(u1, u2)
+    s, t = coordinate_system(n)
+    ex = lambda v: V3(*(c[:, None] for c in v))
+    d = ex(s) * local.x + ex(t) * local.y + ex(n) * local.z
+    from .. import geometry as G
+    o = G.offset_origin(ex(x), ex(n), d)
+    flat = lambda v: V3(*(c.reshape(-1) for c in v))
+    kf = key.reshape(-1)
+    v = trace_to_diffuse(scene, WhittedConfig(max_depth=max_depth, light_samples=0),
+                         lambda k: rng.uniform(kf, k + 2), flat(o), flat(d))
+    return v._replace(n=_facing(v.n, v.wo))
+
+
+def render_jensen(scene: Scene, *, spp: int = 1, seed: int = 0, photons: int = 200_000,
+                  caustic_photons: int = 50_000, k: int = 50, k_caustic: int = 50,
+                  radius: float = 0.08, caustic_radius: float = 0.05, final_gather: int = 32,
+                  caustics: bool = True, cap: int | None = None, max_depth: int = 8, filter: str = "box",
+                  stats: dict | None = None):
+    """Jensen's two-pass method with the four-way split (see the module docstring)."""
+    pm = trace_photons(scene, photons, seed=seed, max_depth=max_depth)
+    grid = PMap.build_grid(pm, radius, cap=cap or 128)
+    radius = float(grid.cell)
+    pix, smp = _pixels(scene, spp)
+    v = visible_points(scene, jnp.uint32(seed), pix, smp, 1, max_depth)
+    found = np.asarray(v.found)
+    beta_ = np.stack([np.asarray(c) for c in v.beta])
+    total = np.stack([np.asarray(c) for c in v.L])  # emission along the chain + direct light
+    kdx = np.stack([np.asarray(c) for c in _kd(scene, v.material)])
+    if caustics:
+        cpm = trace_photons(scene, caustic_photons, seed=seed + 7919, max_depth=max_depth)
+        cpm = cpm.select(cpm.caustic)
+        if cpm.count:
+            cgrid = PMap.build_grid(cpm, caustic_radius, cap=cap or 128)
+            Lc, _ = _estimate_chunked(scene, cgrid, v.p, v.n, v.material, float(cgrid.cell), cap=cap,
+                                      k=k_caustic, kind=filter, thickness=None, filter_params={})
+            total = total + np.where(found, beta_ * Lc, 0.0)
+    # indirect diffuse by final gathering on the global map
+    idx = np.nonzero(found)[0]
+    ind = np.zeros((3, len(found)), np.float32)
+    batch = max(1, 1024 // final_gather)
+    for s0 in range(0, len(idx), batch):
+        sel = idx[s0:s0 + batch]
+        pad = np.pad(sel, (0, batch - len(sel)), mode="edge")
+        take = lambda vv: V3(*(jnp.asarray(np.asarray(c)[pad]) for c in vv))
+        g = _gather_points(scene, jnp.uint32(seed), jnp.asarray(pad, jnp.int32), take(v.p), take(v.n),
+                           final_gather, max_depth)
+        Lg, _ = _estimate_chunked(scene, grid, g.p, g.n, g.material, radius, cap=cap, k=k,
+                                  kind=filter, thickness=None, filter_params={})
+        gb = np.stack([np.asarray(c) for c in g.beta])
+        Lg = np.where(np.asarray(g.found), gb * Lg, 0.0).reshape(3, batch, final_gather).mean(-1)
+        ind[:, sel] = Lg[:, : len(sel)]
+    total = total + np.where(found, beta_ * kdx * ind, 0.0)
+    if stats is not None:
+        stats.update(stored=pm.count)
+    return _to_image(scene, total, spp)
+
+
+@partial(jax.jit, static_argnames=("cap",))
+def _ppm_gather(scene: Scene, grid, x: V3, n: V3, material, r2, cap: int):
+    g = PMap.gather(grid, x, n, cap, None)
+    inside = g.d2 < r2[:, None]
+    kd = _kd(scene, material)
+    M = jnp.sum(inside, axis=-1).astype(jnp.float32)
+    phi = V3(*(jnp.sum(jnp.where(inside, p, 0.0), axis=-1) * c / jnp.pi for p, c in zip(g.power, kd)))
+    return M, phi, g.truncated
+
+
+def render_progressive(scene: Scene, *, spp: int = 1, seed: int = 0, passes: int = 16,
+                       photons: int = 50_000, radius: float = 0.1, alpha: float = 0.7,
+                       stochastic: bool = True, cap: int | None = None, max_depth: int = 8,
+                       stats: dict | None = None):
+    """PPM (``stochastic=False``) or SPPM; ``spp`` visible points per pixel per pass."""
+    if not 0.0 < alpha < 1.0:
+        raise ValueError(f"alpha must be in (0, 1), got {alpha}")
+    pix, smp = _pixels(scene, spp)
+    n_pts = pix.shape[0]
+    N = np.zeros(n_pts, np.float64)
+    R2 = np.full(n_pts, radius * radius, np.float64)
+    tau = np.zeros((3, n_pts), np.float64)
+    direct = np.zeros((3, n_pts), np.float64)
+    v = None
+    truncated = False
+    for t in range(passes):
+        if stochastic or v is None:
+            v = visible_points(scene, jnp.uint32(rng.lowbias32(jnp.uint32(seed * 65599 + t)).item()),
+                               pix, smp, 0, max_depth)
+            found = np.asarray(v.found)
+            beta_ = np.stack([np.asarray(c) for c in v.beta])
+            Lv = np.stack([np.asarray(c) for c in v.L])
+        direct += Lv
+        pm = trace_photons(scene, photons, seed=int(rng.lowbias32(jnp.uint32(seed * 7919 + t + 1))),
+                           max_depth=max_depth)
+        grid = PMap.build_grid(pm, float(np.sqrt(R2.max())))
+        cap_t = cap or PMap.auto_cap(grid)
+        chunk = PMap.query_chunk(cap_t)
+        M = np.zeros(n_pts)
+        phi = np.zeros((3, n_pts))
+        for s0 in range(0, n_pts, chunk):
+            sl = slice(s0, s0 + chunk)
+            sub = lambda vv: V3(*(c[sl] for c in vv))
+            m, ph, tr = _ppm_gather(scene, grid, sub(v.p), sub(v.n), v.material[sl],
+                                    jnp.asarray(R2[sl], jnp.float32), cap_t)
+            M[sl] = np.asarray(m)
+            phi[:, sl] = np.stack([np.asarray(c) for c in ph])
+            truncated |= bool(np.any(np.asarray(tr)))
+        M = np.where(found, M, 0.0)
+        phi = np.where(found, beta_ * phi, 0.0)
+        grow = N + alpha * M
+        ratio = np.where(N + M > 0, grow / np.maximum(N + M, 1e-30), 1.0)
+        tau = (tau + phi) * ratio
+        R2 = R2 * ratio
+        N = grow
+    L = direct / passes + tau / (np.pi * R2 * passes)
+    _warn_truncated(truncated, cap_t, radius)
+    if stats is not None:
+        stats.update(radius_final=float(np.sqrt(R2.mean())), truncated=truncated)
+    return _to_image(scene, L, spp)
+
+
+FILTERS = ("box", "cone", "gaussian", "epanechnikov")
+
+register(Estimator("pm", "photon mapping, direct visualisation of the global map",
+                   lambda scene, *, spp, seed, progress=False, **p: render_pm(scene, spp=spp, seed=seed, **p),
+                   (Param("photons", 200_000, "photons emitted", int, minimum=1),
+                    Param("radius", 0.05, "estimate radius (k > 0: the maximum search radius)", float, minimum=1e-6),
+                    Param("k", 0, "k nearest photons (0: fixed radius)", int, minimum=0, maximum=1024),
+                    Param("filter", "box", "density filter", str, FILTERS),
+                    Param("cone_k", 1.1, "cone filter k >= 1", float, minimum=1.0),
+                    Param("alpha", 0.918, "Gaussian filter alpha", float, minimum=1e-3),
+                    Param("beta", 1.953, "Gaussian filter beta", float, minimum=1e-3),
+                    Param("max_depth", 8, "maximum bounces of photons and of specular chains", int, minimum=1))))
+register(Estimator("pm_jensen", "photon mapping with Jensen's split (direct, specular, caustic map, final gathering)",
+                   lambda scene, *, spp, seed, progress=False, **p: render_jensen(scene, spp=spp, seed=seed, **p),
+                   (Param("photons", 200_000, "global photons", int, minimum=1),
+                    Param("caustic_photons", 50_000, "photons shot for the caustic map", int, minimum=1),
+                    Param("k", 50, "photons in the global estimate", int, minimum=1, maximum=1024),
+                    Param("k_caustic", 50, "photons in the caustic estimate", int, minimum=1, maximum=1024),
+                    Param("radius", 0.08, "maximum global search radius", float, minimum=1e-6),
+                    Param("caustic_radius", 0.05, "maximum caustic search radius", float, minimum=1e-6),
+                    Param("final_gather", 32, "final-gather rays per shading point", int, minimum=1),
+                    Param("caustics", True, "use the caustic map", bool),
+                    Param("filter", "box", "density filter", str, FILTERS))))
+for _name, _stoch in (("ppm", False), ("sppm", True)):
+    register(Estimator(_name, ("progressive photon mapping (Hachisuka 2008)" if not _stoch else
+                               "stochastic progressive photon mapping (Hachisuka & Jensen 2009)"),
+                       (lambda st: lambda scene, *, spp, seed, progress=False, **p:
+                        render_progressive(scene, spp=spp, seed=seed, stochastic=st, **p))(_stoch),
+                       (Param("passes", 16, "photon passes", int, minimum=1),
+                        Param("photons", 50_000, "photons per pass", int, minimum=1),
+                        Param("radius", 0.1, "initial radius", float, minimum=1e-6),
+                        Param("alpha", 0.7, "radius reduction alpha in (0, 1)", float, minimum=1e-3, maximum=0.999))))

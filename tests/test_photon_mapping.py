@@ -1,0 +1,166 @@
+"""Photon density estimation and the photon-mapping estimators."""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from scipy.spatial import cKDTree
+
+import jgi
+from jgi import photon_map as PM
+from jgi.photons import PhotonMap
+from jgi.vec import V3
+from tests.conftest import critical_t
+
+
+def plane_photons(rng, n, size=1.0, power=1.0, clustered=False):
+    if clustered:
+        centers = rng.random((8, 2)) * size
+        xy = centers[rng.integers(0, 8, n)] + rng.normal(0, 0.03 * size, (n, 2))
+    else:
+        xy = rng.random((n, 2)) * size
+    z = np.zeros(n)
+    f = lambda a: V3(*(np.asarray(c, np.float32) for c in a))
+    one = np.ones(n)
+    return PhotonMap(f((xy[:, 0], xy[:, 1], z)), f((one * power,) * 3), f((z, z, one)),
+                     f((z, z, one)), np.zeros(n, bool), np.zeros(n, np.int32)), xy
+
+
+def queries(xy):
+    n = len(xy)
+    return (V3(jnp.asarray(xy[:, 0], jnp.float32), jnp.asarray(xy[:, 1], jnp.float32), jnp.zeros(n)),
+            V3(jnp.zeros(n), jnp.zeros(n), jnp.ones(n)))
+
+
+@pytest.mark.parametrize("clustered", [False, True])
+def test_knn_and_ball_queries_agree_with_ckdtree(rng_np, clustered):
+    pm, xy = plane_photons(rng_np, 20000, clustered=clustered)
+    q = rng_np.random((500, 2))
+    grid = PM.build_grid(pm, 0.05, cap=128)
+    x, n = queries(q)
+    g = PM.gather(grid, x, n, cap=128)
+    assert not np.any(np.asarray(g.truncated))
+    tree = cKDTree(xy)
+    k = 20
+    d_ref, _ = tree.query(q, k=k)
+    r2 = np.asarray(PM.knn_radius2(g, k, float(grid.cell)))
+    have = d_ref[:, -1] < float(grid.cell)  # the k-th neighbour lies within the search radius
+    np.testing.assert_allclose(np.sqrt(r2[have] / (1 + 1e-6)), d_ref[have, -1], rtol=1e-4, atol=1e-6)
+    rb = 0.9 * float(grid.cell)  # fixed-radius queries see every photon within one cell
+    counts = np.asarray(jnp.sum(g.d2 < rb**2, axis=-1))
+    ref_counts = np.array([len(c) for c in tree.query_ball_point(q, rb - 1e-6)])
+    ref_counts_hi = np.array([len(c) for c in tree.query_ball_point(q, rb + 1e-6)])
+    assert np.all((counts >= ref_counts) & (counts <= ref_counts_hi))
+
+
+@pytest.mark.parametrize("kind, params", [("box", {}), ("cone", dict(k=1.1)), ("cone", dict(k=3.0)),
+                                          ("gaussian", dict(alpha=0.918, beta=1.953)),
+                                          ("epanechnikov", {})])
+def test_constant_density_is_estimated_without_bias(rng_np, kind, params):
+    n, size, r = 40000, 1.0, 0.04
+    pm, _ = plane_photons(rng_np, n, size)
+    grid = PM.build_grid(pm, r)
+    # independent estimates: query points on a grid spaced > 2r apart, away from the border
+    g1 = np.arange(0.1, 0.9, 0.09)
+    q = np.stack(np.meshgrid(g1, g1), -1).reshape(-1, 2)
+    x, nrm = queries(q)
+    est, _ = PM.estimate(PM.gather(grid, x, nrm, cap=256), jnp.float32(r * r), jnp.float32(1.0), kind, **params)
+    e = np.asarray(est.x)
+    density = n / size**2
+    se = e.std(ddof=1) / np.sqrt(len(e))
+    assert abs(e.mean() - density) < critical_t(len(e) - 1, 1) * se, (kind, e.mean(), density, se)
+
+
+@pytest.mark.parametrize("kind, name", [("gaussian", "alpha"), ("gaussian", "beta"), ("cone", "k"),
+                                        ("epanechnikov", "r"), ("gaussian", "r")])
+def test_gradients_match_central_differences(rng_np, kind, name):
+    pm, _ = plane_photons(rng_np, 5000)
+    grid = PM.build_grid(pm, 0.1)
+    x, n = queries(np.array([[0.5, 0.5], [0.3, 0.6]]))
+    g = PM.gather(grid, x, n, cap=256)
+    base = dict(r=0.08, alpha=0.918, beta=1.953, k=1.5)
+
+    def f(v):
+        p = dict(base, **{name: v})
+        fp = {kk: p[kk] for kk in (("alpha", "beta") if kind == "gaussian" else ("k",) if kind == "cone" else ())}
+        L, _ = PM.estimate(g, p["r"] ** 2, jnp.float32(1.0), kind, **fp)
+        return jnp.sum(L.x)
+
+    # evaluate in float64 so that the finite difference measures the derivative, not rounding
+    from jax import enable_x64
+
+    with enable_x64():
+        g64 = jax.tree_util.tree_map(lambda a: jnp.asarray(a, jnp.float64) if a.dtype == jnp.float32 else a, g)
+
+        def f64(v):
+            p = dict(base, **{name: v})
+            fp = {kk: p[kk] for kk in (("alpha", "beta") if kind == "gaussian" else ("k",) if kind == "cone" else ())}
+            L, _ = PM.estimate(g64, p["r"] ** 2, jnp.float64(1.0), kind, **fp)
+            return jnp.sum(L.x)
+
+        v0 = jnp.float64(base[name])
+        grad = float(jax.grad(f64)(v0))
+        h = 1e-5 * float(v0)
+        fd = float((f64(v0 + h) - f64(v0 - h)) / (2 * h))
+        # radius: the derivative for a fixed photon set; a photon crossing the circle is a jump
+        # only if W(r) != 0 (the Gaussian's W(r) > 0): skip FD intervals that contain a crossing
+        if name == "r":
+            d = np.sqrt(np.asarray(g64.d2))
+            crossing = np.any((d > float(v0) - h) & (d < float(v0) + h))
+            assert not crossing, "choose another radius: a photon lies within the FD step"
+    assert abs(grad - fd) <= 1e-6 * abs(fd) + 1e-6, (grad, fd)
+
+
+def test_truncation_is_reported(rng_np):
+    pm, _ = plane_photons(rng_np, 20000)
+    grid = PM.build_grid(pm, 0.2)
+    x, n = queries(np.array([[0.5, 0.5]]))
+    assert bool(PM.gather(grid, x, n, cap=8).truncated[0])
+
+
+def test_photon_mapping_point_light_converges_to_closed_form():
+    """Irradiance bias shrinks with r and variance with N r^2: error falls along the sweep."""
+    from tests.test_path_tracer import point_light_reference
+
+    scene = jgi.scenes.point_light_plane(resolution=8, intensity=10.0, height=1.0, albedo=0.5)
+    ref = point_light_reference(scene, 0.5, 10.0, 1.0)
+    errs = []
+    for photons, r in ((20_000, 0.3), (80_000, 0.2), (320_000, 0.12)):
+        img = jgi.render(scene, "pm", spp=4, seed=1, photons=photons, radius=r)[..., 0]
+        errs.append(float(np.sqrt(np.mean((img - ref) ** 2)) / ref.mean()))
+    assert errs[0] > errs[1] > errs[2], errs
+    assert errs[-1] < 0.5 * errs[0]  # 16x the photons at least halves the error
+
+
+def test_photon_mapped_cornell_box_converges_to_path_tracing():
+    scene = jgi.scenes.cornell_box(resolution=16)
+    ref = np.mean([jgi.render(scene, "pt", spp=128, seed=s) for s in range(4)], 0)
+    rel = []
+    for photons in (10_000, 40_000, 160_000):
+        r = 0.15 * (photons / 10_000) ** (-1 / 6)  # the MSE-optimal rate in 2D
+        img = jgi.render(scene, "pm", spp=4, seed=2, photons=photons, radius=r)
+        rel.append(float(np.mean((img - ref) ** 2 / (ref**2 + 1e-2))))
+    assert rel[0] > rel[1] > rel[2], rel
+
+
+def test_caustic_appears_only_with_the_caustic_map():
+    scene = jgi.scenes.glass_sphere(resolution=24)
+    kw = dict(spp=1, seed=0, photons=30_000, caustic_photons=60_000, final_gather=4)
+    with_c = jgi.render(scene, "pm_jensen", caustics=True, **kw)
+    without = jgi.render(scene, "pm_jensen", caustics=False, **kw)
+    diff = (with_c - without).mean(-1)
+    assert diff.min() >= -1e-6                      # the caustic map only adds light
+    assert diff.max() > 0.5 * without.mean()        # a bright caustic appears
+    assert (diff > 0.01 * without.mean()).mean() < 0.25  # and only in a small region
+
+
+def test_sppm_is_consistent():
+    scene = jgi.scenes.cornell_box(resolution=16)
+    ref = np.mean([jgi.render(scene, "pt", spp=128, seed=s) for s in range(4)], 0)
+    rel = []
+    for passes in (1, 6, 36):
+        img = jgi.render(scene, "sppm", spp=1, seed=3, passes=passes, photons=10_000, radius=0.15, alpha=0.7)
+        rel.append(float(np.mean((img - ref) ** 2 / (ref**2 + 1e-2))))
+    assert rel[0] > rel[1] > rel[2], rel
