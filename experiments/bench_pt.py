@@ -54,6 +54,10 @@ def bench_mitsuba(resolution: int, spp: int, repeats: int) -> dict | None:
         found = sorted(glob.glob("/usr/lib/*/libLLVM.so.19.1"))
         if found:
             os.environ["DRJIT_LIBLLVM_PATH"] = found[0]
+    if not os.environ.get("DRJIT_LIBLLVM_PATH", "").endswith(".so.19.1"):
+        # An older LLVM aborts the whole process inside Mitsuba (not an exception we can catch).
+        print("mitsuba skipped: libLLVM.so.19.1 not found (apt-get install libllvm19)", file=sys.stderr)
+        return None
     try:
         import mitsuba as mi
         mi.set_variant("llvm_ad_rgb")

@@ -112,7 +112,7 @@ def _render(argv) -> int:
 
 def _run(argv) -> int:
     try:
-        from .experiments import main_run
+        from .experiment import main_run
     except ImportError as e:
         raise SystemExit(f"jgi: experiments are unavailable: {e}") from None
     return main_run(argv) or 0

@@ -113,7 +113,10 @@ def _mitsuba():
         import mitsuba as mi
     except Exception:
         return None
-    for variant in ("llvm_ad_rgb", "scalar_rgb"):
+    # llvm_ad_rgb aborts the process (uncatchable) with LLVM older than 19: use it only when
+    # Debian's libllvm19 is there (./dev installs it), else the scalar variant.
+    llvm = os.environ.get("DRJIT_LIBLLVM_PATH", "").endswith(".so.19.1")
+    for variant in ("llvm_ad_rgb", "scalar_rgb") if llvm else ("scalar_rgb",):
         try:
             mi.set_variant(variant)
             return mi
