@@ -2,8 +2,9 @@
 
 Rays are struct-of-arrays (origin ``o`` and unit direction ``d`` as :class:`V3` of shape [N]).
 Small primitive tables are unrolled at trace time (one fused kernel over all primitives, the
-scene's values still arrays, not constants); larger triangle tables use a loop (or a BVH, see
-:mod:`jgi.bvh`). Every test is written so that parallel rays, zero-area primitives and rays that
+scene's values still arrays, not constants); larger tables use a loop, and a triangle table
+that carries a BVH (``scene.triangles.bvh``, built by the scene builder for large meshes) is
+traversed instead (:mod:`jgi.bvh`), after every other table so that their nearest hit culls it. Every test is written so that parallel rays, zero-area primitives and rays that
 miss produce ``t = inf`` and never NaN.
 """
 
@@ -15,6 +16,7 @@ import jax
 import jax.numpy as jnp
 from jax import Array
 
+from . import bvh as B
 from ._xla import materialize
 from .scene import Boxes, Quads, Rects, Scene, Spheres, Triangles
 from .vec import V3, cross, dot, normalize, where
@@ -234,12 +236,41 @@ def closest_hit(scene: Scene, o: V3, d: V3, t_max: Array | None = None):
             return update(c, t, QUAD, i)
         carry = _scan(q.count, body, carry)
     tr: Triangles = scene.triangles
-    if tr.count:
+    if tr.count and tr.bvh is not None:
+        t, prim = _bvh_closest(tr, o, d, carry[0])
+        carry = update(carry, jnp.where(prim >= 0, t, INF), TRIANGLE, prim)
+    elif tr.count:
         def body(i, c):
             t, _, _ = triangle_t(_take(tr.v0, i), _take(tr.edge1, i), _take(tr.edge2, i), o, d)
             return update(c, t, TRIANGLE, i)
         carry = _scan(tr.count, body, carry)
     return materialize(carry)
+
+
+def _flat(a: Array) -> Array:
+    return jnp.reshape(a, (-1,))
+
+
+def _bvh_closest(tr: Triangles, o: V3, d: V3, t_max: Array) -> tuple[Array, Array]:
+    """(t, triangle) of the nearest BVH triangle with T_MIN < t < t_max (t_max, -1 on a miss).
+
+    The traversal is a while loop, which reverse-mode differentiation cannot enter, so it runs
+    on stopped gradients; t's gradient is that of the hit triangle's own Moller-Trumbore
+    solution (its value is the traversal's, exactly)."""
+    shape = o.x.shape
+    sg = jax.lax.stop_gradient
+    of, df = V3(*(_flat(sg(a)) for a in o)), V3(*(_flat(sg(a)) for a in d))
+    tm = _flat(jnp.broadcast_to(sg(t_max), shape))
+    h = B.intersect_closest(tr.bvh, of, df, T_MIN, tm)
+    prim = jnp.reshape(h.prim, shape)
+    t = jnp.reshape(h.t, shape)
+    # t = e2 . ((o - v0) x e1) / (e1 . (d x e2)) of the hit triangle, for its gradient only
+    i = jnp.maximum(prim, 0)
+    v0, e1, e2 = _take(tr.v0, i), _take(tr.edge1, i), _take(tr.edge2, i)
+    det = dot(e1, cross(d, e2))
+    t_mt = dot(e2, cross(o - v0, e1)) / jnp.where(det != 0, det, 1.0)
+    t = t + (t_mt - sg(t_mt))
+    return jnp.where(prim >= 0, t, t_max), prim
 
 
 def _box_row(bx: Boxes, i):
@@ -304,7 +335,11 @@ def intersect(scene: Scene, o: V3, d: V3) -> Hit:
             return update(c, t < c.t, t, _take(q.normal, i), q.material[i], q.emitter[i])
         carry = _scan(q.count, body, carry)
     tr: Triangles = scene.triangles
-    if tr.count:
+    if tr.count and tr.bvh is not None:
+        t, prim = _bvh_closest(tr, o, d, carry.t)
+        i = jnp.maximum(prim, 0)
+        carry = update(carry, prim >= 0, t, _take(tr.normal, i), tr.material[i], tr.emitter[i])
+    elif tr.count:
         def body(i, c):
             t, _, _ = triangle_t(_take(tr.v0, i), _take(tr.edge1, i), _take(tr.edge2, i), o, d)
             return update(c, t < c.t, t, _take(tr.normal, i), tr.material[i], tr.emitter[i])
@@ -352,7 +387,14 @@ def occluded(scene: Scene, o: V3, d: V3, t_max: Array) -> Array:
                                                       _take(du, i), _take(dv, i), o, d) < t_max),
                     occ)
     tr: Triangles = scene.triangles
-    if tr.count:
+    if tr.count and tr.bvh is not None:
+        # rays already occluded get an empty interval: they leave the traversal at once
+        sg = jax.lax.stop_gradient
+        tm = _flat(jnp.where(occ, 0.0, sg(t_max)))
+        hit = B.intersect_any(tr.bvh, V3(*(_flat(sg(a)) for a in o)),
+                              V3(*(_flat(sg(a)) for a in d)), T_MIN, tm)
+        occ = occ | jnp.reshape(hit, shape)
+    elif tr.count:
         occ = _scan(tr.count, lambda i, a: a | (triangle_t(_take(tr.v0, i), _take(tr.edge1, i),
                                                            _take(tr.edge2, i), o, d)[0] < t_max),
                     occ)

@@ -29,7 +29,12 @@ import numpy as np
 from jax import Array
 
 from . import transform as xf
+from .bvh import BVH, build_bvh
 from .vec import V3
+
+# Triangle tables at least this large get a BVH (measured crossover of brute force and BVH
+# traversal on the CPU backend: see experiments/bench_bvh.py).
+BVH_MIN_TRIANGLES = 64
 
 # Material kinds (jgi.bsdf implements each).
 DIFFUSE, MIRROR, DIELECTRIC, PHONG = 0, 1, 2, 3
@@ -120,7 +125,15 @@ class Boxes(eqx.Module):
 
 
 class Triangles(eqx.Module):
-    """Triangles v0 + b1 * edge1 + b2 * edge2 (Moller-Trumbore layout)."""
+    """Triangles v0 + b1 * edge1 + b2 * edge2 (Moller-Trumbore layout).
+
+    ``bvh`` is a :class:`jgi.bvh.BVH` over the same triangles, built with the scene when there
+    are at least ``BVH_MIN_TRIANGLES`` of them (:mod:`jgi.geometry` then traverses it instead of
+    testing every triangle), or None. Its arrays are pytree leaves like the rest, so the scene's
+    structure, and hence the compiled kernel, depends on their sizes only. It is a copy of the
+    geometry: a scene whose triangles are edited afterwards (``eqx.tree_at``) must rebuild it
+    (:func:`with_bvh`); gradients with respect to vertices flow through the hit triangle's
+    own intersection, not the traversal."""
 
     v0: V3
     edge1: V3
@@ -128,6 +141,7 @@ class Triangles(eqx.Module):
     normal: V3  # unit geometric normal cross(edge1, edge2)
     material: Array
     emitter: Array
+    bvh: BVH | None = None
 
     @property
     def count(self) -> int:
@@ -205,6 +219,19 @@ class Scene(eqx.Module):
         return eqx.tree_at(lambda s: s.camera, self, new)
 
 
+def with_bvh(scene: "Scene", bvh: bool | None = None) -> "Scene":
+    """The scene with its triangles' BVH rebuilt from the current triangles (``bvh`` None: if
+    there are at least BVH_MIN_TRIANGLES of them), or removed (``bvh=False``)."""
+    tr = scene.triangles
+    n = tr.count
+    use = n >= BVH_MIN_TRIANGLES if bvh is None else bool(bvh) and n > 0
+    new = None
+    if use:
+        v0 = np.asarray(tr.v0.stack(), np.float64)
+        new = build_bvh(v0, v0 + np.asarray(tr.edge1.stack()), v0 + np.asarray(tr.edge2.stack()))
+    return eqx.tree_at(lambda s: s.triangles.bvh, scene, new, is_leaf=lambda x: x is None)
+
+
 # ------------------------------------------------------------------------------------------------
 # Builder
 # ------------------------------------------------------------------------------------------------
@@ -235,6 +262,7 @@ class SceneBuilder:
     triangles: list = dc_field(default_factory=list)  # (v0, v1, v2, material, emission|None)
     lights: list = dc_field(default_factory=list)     # dicts for point/spot/directional/env
     camera_args: dict | None = None
+    bvh: bool | None = None   # BVH over the triangles: None = when >= BVH_MIN_TRIANGLES
 
     # --- materials --------------------------------------------------------------------------
     def material(self, name: str, kind: str, *, diffuse=(0.0, 0.0, 0.0), specular=(1.0, 1.0, 1.0),
@@ -510,9 +538,11 @@ class SceneBuilder:
         nrm = np.cross(e1, e2)
         ln = np.linalg.norm(nrm, axis=1, keepdims=True)
         nrm = np.where(ln > 0, nrm / np.where(ln > 0, ln, 1), 0.0)
+        use_bvh = n >= BVH_MIN_TRIANGLES if self.bvh is None else bool(self.bvh) and n > 0
         return Triangles(_v3(a), _v3(e1), _v3(e2), _v3(nrm),
                          jnp.asarray([t[3] for t in self.triangles], jnp.int32),
-                         jnp.asarray(emit, jnp.int32))
+                         jnp.asarray(emit, jnp.int32),
+                         build_bvh(a, b, c) if use_bvh else None)
 
     def _build_materials(self) -> Materials:
         ms = self.materials or [_Material(DIFFUSE, (0.5, 0.5, 0.5))]
