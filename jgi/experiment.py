@@ -11,6 +11,7 @@ repetitions = 4               # independent seeds per configuration
 seed = 0
 reference = { estimator = "pt", spp = 512, params = { strategy = "mis" } }
 # or: reference = { closed_form = 1.5 }   (a constant image, e.g. a furnace)
+# match = ["path_length"]: one reference per value of these swept keys, rendered with it
 
 [[estimator]]
 name = "pt"                   # a registered estimator (jgi render --list)
@@ -86,9 +87,12 @@ def load_config(path) -> dict:
         if set(ref) != {"closed_form"} or not isinstance(ref["closed_form"], (int, float, list)):
             _fail(path, "experiment.reference.closed_form", "a number or [r, g, b], alone")
     else:
-        bad = sorted(set(ref) - {"estimator", "spp", "params"})
+        bad = sorted(set(ref) - {"estimator", "spp", "params", "match"})
         if bad:
-            _fail(path, f"experiment.reference.{bad[0]}", "unknown key; allowed: estimator, spp, params")
+            _fail(path, f"experiment.reference.{bad[0]}", "unknown key; allowed: estimator, spp, params, match")
+        match = ref.get("match", [])
+        if not isinstance(match, list) or not all(isinstance(k, str) for k in match):
+            _fail(path, "experiment.reference.match", "a list of swept parameter names")
         _check_estimator(path, "experiment.reference", ref["estimator"], ref.get("params", {}))
     ests = doc.get("estimator")
     if not isinstance(ests, list) or not ests:
@@ -111,6 +115,12 @@ def load_config(path) -> dict:
         for point in _points(e):
             params = {k: v for k, v in point.items() if k != "spp"}
             _check_estimator(path, key, e["name"], params)
+            if "match" in ref:
+                missing = [k for k in ref["match"] if k not in point]
+                if missing:
+                    _fail(path, "experiment.reference.match", f"{missing[0]!r} is not a parameter of {key}")
+                _check_estimator(path, "experiment.reference.match", ref["estimator"],
+                                 {**ref.get("params", {}), **{k: point[k] for k in ref["match"]}})
             spp = point["spp"]
             if isinstance(spp, bool) or not isinstance(spp, int) or spp < 1:
                 _fail(path, f"{key}.spp", f"must be a positive integer, got {spp!r}")
@@ -238,26 +248,43 @@ def run(config_path, *, out_root="runs", dry_run: bool = False, reduced: bool = 
     (out / "config.toml").write_text(Path(config_path).read_text())
     (out / "config_as_run.json").write_text(json.dumps(doc, indent=2))
     scene, scene_id = _scene(doc, config_path)
-    ref_cfg = exp["reference"]
     t_start = time.perf_counter()
-    if "closed_form" in ref_cfg:
-        ref = np.broadcast_to(np.asarray(ref_cfg["closed_form"], np.float32),
-                              (scene.camera.height, scene.camera.width, 3)).copy()
-        ref_var = 0.0
-    else:
-        key = _hash(dict(scene=scene_id, res=exp.get("resolution"), ref=ref_cfg, v=jgi.__version__))
+    references = {}
+
+    def reference_for(point):
+        """(image, variance) of the reference for a sweep point, rendered once per matched
+        value and cached across runs by content hash (its variance from two independent halves)."""
+        cfg = exp["reference"]
+        matched = {k: point[k] for k in cfg.get("match", [])}
+        rkey = json.dumps(matched, sort_keys=True)
+        if rkey in references:
+            return references[rkey]
+        if "closed_form" in cfg:
+            img = np.broadcast_to(np.asarray(cfg["closed_form"], np.float32),
+                                  (scene.camera.height, scene.camera.width, 3)).copy()
+            references[rkey] = (img, np.zeros_like(img))
+            return references[rkey]
+        params = {**cfg.get("params", {}), **matched}
+        key = _hash(dict(scene=scene_id, res=exp.get("resolution"), est=cfg["estimator"], spp=cfg["spp"],
+                         params=params, v=jgi.__version__))
         cache = Path(out_root) / ".cache" / f"reference-{key}.npz"
         if cache.exists():
             with np.load(cache) as z:
-                ref, ref_var = z["image"], z["variance"]
+                references[rkey] = (z["image"], z["variance"])
         else:
             cache.parent.mkdir(parents=True, exist_ok=True)
-            halves = [render(scene, ref_cfg["estimator"], spp=max(1, ref_cfg["spp"] // 2), seed=900_001 + h,
-                             **ref_cfg.get("params", {})) for h in range(2)]
-            ref = 0.5 * (halves[0] + halves[1])
-            ref_var = 0.25 * (halves[0] - halves[1]) ** 2  # variance of the mean of two halves
-            _atomic_save(cache, image=ref, variance=ref_var)
-        write_exr(out / "reference.exr", ref)
+            halves = [render(scene, cfg["estimator"], spp=max(1, cfg["spp"] // 2), seed=900_001 + h, **params)
+                      for h in range(2)]
+            img = 0.5 * (halves[0] + halves[1])
+            var = 0.25 * (halves[0] - halves[1]) ** 2  # variance of the mean of two halves
+            _atomic_save(cache, image=img, variance=var)
+            references[rkey] = (img, var)
+        suffix = "" if not matched else "_" + "_".join(f"{k}{v}" for k, v in matched.items())
+        write_exr(out / f"reference{suffix}.exr", references[rkey][0])
+        return references[rkey]
+
+    for r in runs:  # references first: a long render should not wait for the sweep
+        reference_for(r["point"])
     done = 0
     t0 = time.perf_counter()
     for r in runs:
@@ -291,6 +318,7 @@ def run(config_path, *, out_root="runs", dry_run: bool = False, reduced: bool = 
                 imgs.append(z["image"])
                 secs.append(float(z["seconds"]))
         render_seconds[rs[0]["label"]] = render_seconds.get(rs[0]["label"], 0.0) + float(np.sum(secs))
+        ref, ref_var = reference_for(rs[0]["point"])
         s = stats.error_stats(np.stack(imgs), ref, ref_var)
         mse = float(s.mse.mean())
         _, lo, hi = stats.image_average(s.mse)
@@ -313,7 +341,7 @@ def run(config_path, *, out_root="runs", dry_run: bool = False, reduced: bool = 
     os.replace(out / "metrics.csv.tmp", out / "metrics.csv")
     (out / "metrics.json").write_text(json.dumps(rows, indent=2))
     slopes = _plots(out, rows, doc)
-    _maps(out, means, ref)
+    _maps(out, means, reference_for(runs[0]["point"])[0])
     (out / "slopes.json").write_text(json.dumps(slopes, indent=2))
     import jax
     prov = dict(jgi_version=jgi.__version__, jax_version=jax.__version__,
@@ -387,7 +415,8 @@ def _plots(out: Path, rows, doc) -> list[dict]:
             ax.loglog(x[b2 > 0], b2[b2 > 0], "--", color=colour, label=f"{name} bias²")
         ax.set_xlabel(key)
         ax.set_ylabel("image-average error")
-        ax.legend(fontsize=5)
+        if ax.get_legend_handles_labels()[0]:
+            ax.legend(fontsize=5)
         fig.tight_layout()
         fig.savefig(out / f"mse_vs_{key}.png", dpi=130)
         plt.close(fig)
@@ -399,7 +428,8 @@ def _plots(out: Path, rows, doc) -> list[dict]:
             ax.loglog([r["seconds"] for r in rs], [r["mse"] for r in rs], "o-", color=f"C{n % 10}", label=label)
     ax.set_xlabel("render time per image (s)")
     ax.set_ylabel("MSE")
-    ax.legend(fontsize=6)
+    if ax.get_legend_handles_labels()[0]:
+        ax.legend(fontsize=6)
     fig.tight_layout()
     fig.savefig(out / "mse_vs_time.png", dpi=130)
     plt.close(fig)
