@@ -1,0 +1,444 @@
+"""Bidirectional path tracing (Veach & Guibas 1994; Veach 1997 ch. 10; pbrt-v4's BDPTIntegrator).
+
+Estimator: for each pixel sample a camera subpath z_0 z_1 ... z_{t-1} (z_0 the pinhole) and a
+light subpath y_0 y_1 ... y_{s-1} (y_0 on a light) are traced, each as fixed-size vertex arrays
+(:class:`~jgi.estimators.light_tracer.Vertices`, struct of arrays, [max_depth + 1, N]) carrying
+their throughput beta and the forward and reverse area densities of every vertex. Every
+strategy (s, t) with s + t - 1 <= max_depth path segments then forms a full path and estimates
+
+    C*_{s,t} = beta^L_s  c_{s,t}  beta^E_t,      C_{s,t} = w_{s,t} C*_{s,t}
+
+(Veach eq. 10.8), with the connection term c_{s,t} of each kind:
+
+* s = 0: the camera subpath hit an emitter, c = L_e(z_{t-1} -> z_{t-2});
+* s = 1: light sampling at z_{t-1} (``lights.sample_li``, as the path tracer's NEE);
+* t = 1: light tracing, y_{s-1} connected to the pinhole and *splatted* into the pixel it
+  projects to (W_e of jgi.camera);
+* s, t >= 2: c = f(y_{s-2} -> y_{s-1} -> z_{t-1}) G(y_{s-1} <-> z_{t-1}) f(y_{s-1} -> z_{t-1}
+  -> z_{t-2}), G = |cos| |cos| V / d^2.
+
+(s, t) = (1, 1) is not used (a light seen directly is the s = 0 strategy), as in pbrt.
+
+MIS (:func:`mis_weight`, one place): w_{s,t} = p_s^b / sum_i p_i^b (balance b = 1, power b =
+``beta``), computed as in pbrt-v4's MISWeight by ratios r_i = p_i / p_s built stepwise from the
+vertices' reverse and forward densities, r_{i-1} = r_i (p_rev / p_fwd)^b, so that no full path
+density (which under/overflows float32) is ever formed; here in log space with the ratio
+clamped, so that weights and their gradients stay finite. The last two vertices of each
+subpath get this strategy's reverse densities first (pbrt's ScopedAssignment).
+
+Dirac vertices (mirror, dielectric) are not connectable; their densities are 0 and count as 1
+in the ratios (remap0), and strategies that would connect at them are left out of the sum.
+Delta lights (point, spot: Dirac position; directional: Dirac direction) cannot be hit (no
+s = 0 strategy). Deliberate simplifications: light subpaths start only at lights with a
+position (area, point, spot); directional and environment lights are reached through the
+camera subpath only, so their paths are weighted between s = 0 and s = 1 alone (directional:
+s = 1, weight 1; environment: the path tracer's two-strategy weight). No Russian roulette:
+subpaths end at ``max_depth`` or at absorption.
+
+Parameters: ``max_depth`` (segments, the path tracer's convention), ``heuristic``
+("balance" | "power"), ``beta`` (power exponent), ``path_length`` (> 0: only paths of exactly
+that many segments), ``strategy_images`` (a folder: also write every strategy's weighted and
+unweighted image there, Veach's pyramid, fig. 10.3). :func:`render_strategies` returns them.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jax import Array
+
+from .. import bsdf as B
+from .. import camera as C
+from .. import geometry as G
+from .. import lights as LT
+from .. import mis
+from .. import rng
+from ..scene import ENVIRONMENT, Scene
+from ..vec import V3, dot, where
+from .light_tracer import (Vertices, Visit, WalkState, _cat, _row, connect_camera,
+                           convert_density, is_infinite, light_key, light_normal, light_subpath,
+                           occluded_many, pdf_emission_dir, pdf_light_origin, random_walk,
+                           render_splats)
+from .path_tracer import _material
+from .registry import Estimator, Param, register
+
+CAMERA_DIMS0 = 2              # dims 0, 1: pixel jitter
+CAMERA_DIMS_PER_STEP = 6      # per vertex: BSDF (3), light sample (3)
+LOG_RATIO_MAX = 80.0          # r_i <= e^80: sums of a few stay below float32's maximum
+
+
+@dataclass(frozen=True)
+class BDPTConfig:
+    """Static settings (hashable: one compile serves every render with them)."""
+
+    max_depth: int = 5          # maximum path segments s + t - 1
+    heuristic: str = "power"    # "balance" | "power"
+    beta: float = 2.0           # power-heuristic exponent
+    path_length: int = 0        # > 0: only strategies with s + t - 1 == path_length
+
+    @property
+    def exponent(self) -> float:
+        return 1.0 if self.heuristic == "balance" else float(self.beta)
+
+    def strategies(self) -> list[tuple[int, int]]:
+        """Every (s, t) this configuration evaluates, in pyramid order (by length, then s)."""
+        out = []
+        for length in range(1, self.max_depth + 1):
+            if self.path_length and length != self.path_length:
+                continue
+            for s in range(0, length + 1):
+                t = length + 1 - s
+                if (s, t) != (1, 1):
+                    out.append((s, t))
+        return out
+
+
+# --- MIS: Veach's ratios of strategy densities -----------------------------------------------------
+
+def _log_remap0(pdf: Array) -> Array:
+    """log of pbrt's remap0 (a zero density, from a Dirac lobe, counts as 1), floored."""
+    safe = jnp.maximum(jnp.where(pdf > 0, pdf, 1.0), 1e-30)
+    return jnp.log(safe)
+
+
+def mis_weight(camera: list[tuple], light: list[tuple], delta_light: Array,
+               exponent: float) -> Array:
+    """w_{s,t} for the strategy with s = len(light), t = len(camera).
+
+    ``camera[i] = (p_fwd, p_rev, delta)`` for z_i, i < t, and ``light[i]`` likewise for y_i,
+    i < s: area densities with *this strategy's* values already put into the last two
+    vertices of each subpath (their reverse densities, and delta = False at the connection).
+
+    Moving the connection one vertex towards the camera turns z_{i} into a light-subpath vertex:
+    the density ratio of the two strategies is p_rev(z_i) / p_fwd(z_i). Walking outwards from
+    the connection, r_i is the running product of these ratios (raised to the heuristic's
+    exponent), and a strategy counts only if both vertices it would connect are not Dirac
+    (and, at y_0, the light is not a delta light). Then w = 1 / (1 + sum_i r_i)."""
+    s, t = len(light), len(camera)
+    if s + t == 2:
+        return jnp.ones_like(camera[0][0])
+    sum_r = jnp.zeros_like(camera[0][0])
+    # hypothetical strategies (s + k, t - k): the camera subpath gives up vertices
+    log_r = jnp.zeros_like(sum_r)
+    for i in range(t - 1, 0, -1):
+        p_fwd, p_rev, delta = camera[i]
+        log_r = log_r + exponent * (_log_remap0(p_rev) - _log_remap0(p_fwd))
+        r_i = jnp.exp(jnp.minimum(log_r, LOG_RATIO_MAX))
+        sum_r = sum_r + jnp.where(~delta & ~camera[i - 1][2], r_i, 0.0)
+    # hypothetical strategies (s - k, t + k): the light subpath gives up vertices
+    log_r = jnp.zeros_like(sum_r)
+    for i in range(s - 1, -1, -1):
+        p_fwd, p_rev, delta = light[i]
+        log_r = log_r + exponent * (_log_remap0(p_rev) - _log_remap0(p_fwd))
+        r_i = jnp.exp(jnp.minimum(log_r, LOG_RATIO_MAX))
+        prev_delta = light[i - 1][2] if i > 0 else delta_light
+        sum_r = sum_r + jnp.where(~delta & ~prev_delta, r_i, 0.0)
+    return 1.0 / (1.0 + sum_r)
+
+
+def _chain(v: Vertices, n: int) -> list[tuple]:
+    return [(v.pdf_fwd[i], v.pdf_rev[i], v.delta[i]) for i in range(n)]
+
+
+def _override(chain: list[tuple], i: int, p_rev: Array, connection: bool = False) -> None:
+    p_fwd, _, delta = chain[i]
+    chain[i] = (p_fwd, p_rev, jnp.zeros_like(delta) if connection else delta)
+
+
+# --- the camera subpath, with s = 0 and s = 1 evaluated at each vertex ----------------------------
+
+def _camera_visit(scene: Scene, exponent: float):
+    lights = scene.lights
+    kinds = scene.materials.kinds
+
+    def visit(v: Visit):
+        hit, mp, wo, s, u = v.hit, v.mp, v.wo, v.state, v.u
+        z = jnp.zeros_like(hit.t)
+        Z = V3(z, z, z)
+        out = {}
+        # ---- s = 0: the camera subpath found an emitter: L_e(z_{t-1} -> z_{t-2}) ----
+        e = jnp.where(v.valid, hit.emitter, -1)
+        out["s0_value"] = s.beta * LT.emitted(lights, e, hit.n, wo)
+        out["s0_rev_pt"] = pdf_light_origin(lights, e)               # as y_0 of a light path
+        out["s0_rev_ptm"] = convert_density(pdf_emission_dir(lights, e, hit.n, wo), v.d2_prev,
+                                            dot(s.prev_n, s.d), s.prev_surface)
+        # ---- s = 0 on the environment: the ray escaped (two-strategy MIS with s = 1) ----
+        if lights.environment >= 0:
+            escaped = s.alive & ~hit.valid
+            L_env = s.beta * LT.environment_radiance(lights, z)
+            p_light = lights.pmf[lights.environment] * jnp.float32(0.25 / np.pi)
+            w = mis.heuristic_weight(1.0, s.pdf_dir, [(1.0, p_light + z)], exponent)
+            w = jnp.where((v.step == 0) | s.prev_delta, 1.0, w)
+            out["env_value"] = where(escaped, L_env, Z)
+            out["env_weight"] = w
+        # ---- s = 1: light sampling at z_{t-1} ----
+        ls = LT.sample_li(lights, hit.p, u(3), u(4), u(5))
+        k = LT.select(lights, u(3))
+        f, pdf_p_fwd = B.evaluate(kinds, mp, hit.n, wo, ls.wi)
+        _, pdf_p_rev = B.evaluate(kinds, mp, hit.n, ls.wi, wo)
+        cos_p = dot(hit.n, ls.wi)
+        ok = v.valid & ~B.is_delta(mp) & ls.valid & (ls.pdf > 0)
+        o_s, d_s, t_s = G.shadow_ray(hit.p, hit.n, ls.wi, ls.dist)
+        ok = ok & ~G.occluded(scene, o_s, d_s, t_s)
+        value = s.beta * f * ls.Li * (jnp.abs(cos_p) / jnp.where(ok, ls.pdf, 1.0))
+        out["s1_value"] = where(ok, value, Z)
+        infinite = is_infinite(lights, k)
+        dist = jnp.where(infinite, 0.0, ls.dist)
+        d2 = dist * dist
+        y = hit.p + ls.wi * dist
+        n_y, y_surface = light_normal(lights, k, y)
+        out["s1_fwd_y"] = pdf_light_origin(lights, k)                        # p_fwd(y_0)
+        out["s1_rev_y"] = convert_density(pdf_p_fwd, d2, dot(n_y, ls.wi), y_surface)
+        out["s1_rev_pt"] = convert_density(pdf_emission_dir(lights, k, n_y, -ls.wi), d2, cos_p, True)
+        out["s1_rev_ptm"] = convert_density(pdf_p_rev, v.d2_prev, dot(s.prev_n, s.d),
+                                            s.prev_surface)
+        out["s1_delta_light"] = ls.delta
+        # infinite lights: directional only by s = 1; environment against BSDF sampling
+        w_inf = jnp.where(ls.delta, 1.0, mis.heuristic_weight(1.0, ls.pdf, [(1.0, pdf_p_fwd)],
+                                                              exponent))
+        out["s1_infinite"] = infinite
+        out["s1_w_infinite"] = w_inf
+        return out
+
+    return visit
+
+
+def camera_subpath(scene: Scene, cfg: BDPTConfig, key: Array, pixel: Array):
+    """z_0 (the pinhole) .. z_max_depth, and the per-vertex s = 0 / s = 1 records."""
+    cam = scene.camera
+    W = cam.width
+    o, d = C.sample_ray(cam, pixel % W, pixel // W, rng.uniform(key, 0), rng.uniform(key, 1))
+    z = jnp.zeros_like(o.x)
+    Z = V3(z, z, z)
+    one = V3(z + 1, z + 1, z + 1)
+    pdf_dir = C.project(cam, o + d).pdf_dir            # 1 / (A cos^3): the film's density
+    z0 = Vertices(o, Z, Z, one, z + 1, z, z > 0, z > 0, z == 0, z.astype(jnp.int32),
+                  z.astype(jnp.int32) - 1)
+    start = WalkState(o, d, one, pdf_dir, o, Z, z > 0, z > 0, z == 0)
+    verts, pdf_rev0, rec = random_walk(scene, key, CAMERA_DIMS0, CAMERA_DIMS_PER_STEP,
+                                       cfg.max_depth, start, B.RADIANCE,
+                                       _camera_visit(scene, cfg.exponent))
+    z0 = jax.tree_util.tree_map(lambda x: x[None], z0._replace(pdf_rev=pdf_rev0))
+    return _cat(z0, verts), rec
+
+
+# --- all strategies of one sample -------------------------------------------------------------------
+
+def _interior(scene: Scene, q: Vertices, qm: Vertices, p: Vertices, pm: Vertices):
+    """Connection y_{s-1} = q <-> z_{t-1} = p (s, t >= 2) for stacked rows of pairs."""
+    kinds = scene.materials.kinds
+    v = p.p - q.p
+    d2 = dot(v, v)
+    dist = jnp.sqrt(d2)
+    w = v / jnp.where(dist > 0, dist, 1.0)            # from y_{s-1} towards z_{t-1}
+    mq, mp = _material(scene.materials, q.material), _material(scene.materials, p.material)
+    f_q, pdf_q_fwd = B.evaluate(kinds, mq, q.n, q.wo, w)     # y_{s-2} -> y_{s-1} -> z_{t-1}
+    _, pdf_q_rev = B.evaluate(kinds, mq, q.n, w, q.wo)
+    f_p, pdf_p_fwd = B.evaluate(kinds, mp, p.n, p.wo, -w)    # z_{t-2} -> z_{t-1} -> y_{s-1}
+    _, pdf_p_rev = B.evaluate(kinds, mp, p.n, -w, p.wo)
+    cos_q, cos_p = dot(q.n, w), dot(p.n, w)
+    ok = q.valid & p.valid & ~q.delta & ~p.delta & (d2 > 0)
+    g = jnp.abs(cos_q * cos_p) / jnp.where(ok, d2, 1.0)    # G without visibility
+    value = where(ok, q.beta * f_q * f_p * p.beta * g, V3.full(0.0, g))
+    vm_p = pm.p - p.p
+    vm_q = qm.p - q.p
+    rev = dict(
+        pt=convert_density(pdf_q_fwd, d2, cos_p, True),
+        ptm=convert_density(pdf_p_rev, dot(vm_p, vm_p), dot(pm.n, p.wo), pm.on_surface),
+        qs=convert_density(pdf_p_fwd, d2, cos_q, True),
+        qsm=convert_density(pdf_q_rev, dot(vm_q, vm_q), dot(qm.n, q.wo), qm.on_surface),
+    )
+    return value, G.shadow_ray(q.p, q.n, w, dist), rev
+
+
+def contributions(scene: Scene, cfg: BDPTConfig, seed, pixel: Array, sample: Array) -> dict:
+    """For every strategy (s, t): (splat pixel or None for the sample's own pixel, MIS-weighted
+    value, unweighted value), each [N]."""
+    D = cfg.max_depth
+    key = rng.path_key(seed, pixel, sample)
+    cam, rec = camera_subpath(scene, cfg, key, pixel)          # z_0 .. z_D
+    lp = light_subpath(scene, light_key(seed, pixel, sample), D)  # y_0 .. y_{D-1}
+    light = lp.vertices
+    strategies = cfg.strategies()
+    out = {}
+
+    def rec_at(name, t):  # the camera-walk record for z_{t-1} (walk step t - 2)
+        x = rec[name]
+        return _row(x, t - 2)
+
+    # ---- s = 0 and s = 1: evaluated during the camera walk ----
+    for (s, t) in strategies:
+        if s == 0:
+            ch = _chain(cam, t)
+            _override(ch, t - 1, rec_at("s0_rev_pt", t), connection=True)
+            _override(ch, t - 2, rec_at("s0_rev_ptm", t))
+            w = mis_weight(ch, [], jnp.zeros_like(ch[0][2]), cfg.exponent)
+            c = rec_at("s0_value", t)
+            weighted, unweighted = c * w, c
+            if "env_value" in rec:
+                ce = rec_at("env_value", t)
+                weighted = weighted + ce * rec_at("env_weight", t)
+                unweighted = unweighted + ce
+            out[(s, t)] = (None, weighted, unweighted)
+        elif s == 1:
+            ch = _chain(cam, t)
+            _override(ch, t - 1, rec_at("s1_rev_pt", t), connection=True)
+            _override(ch, t - 2, rec_at("s1_rev_ptm", t))
+            y0 = [(rec_at("s1_fwd_y", t), rec_at("s1_rev_y", t), jnp.zeros_like(ch[0][2]))]
+            w = mis_weight(ch, y0, rec_at("s1_delta_light", t), cfg.exponent)
+            w = jnp.where(rec_at("s1_infinite", t), rec_at("s1_w_infinite", t), w)
+            c = rec_at("s1_value", t)
+            out[(s, t)] = (None, c * w, c)
+
+    # ---- t = 1 (light tracing) and s, t >= 2 (interior connections): one shadow-ray batch ----
+    t1 = [(s, t) for (s, t) in strategies if t == 1]
+    inner = [(s, t) for (s, t) in strategies if s >= 2 and t >= 2]
+    rays = []
+    if t1:
+        rows = np.array([s - 1 for s, _ in t1])
+        q = _row(light, rows)
+        qm = _row(light, rows - 1)
+        conn = connect_camera(scene, q)
+        vm = qm.p - q.p
+        rev_qsm = convert_density(conn.pdf_q_rev, dot(vm, vm), dot(qm.n, q.wo), qm.on_surface)
+        rays.append(conn.shadow)
+    if inner:
+        ls = np.array([s - 1 for s, _ in inner])
+        ts = np.array([t - 1 for _, t in inner])
+        value_in, shadow_in, rev_in = _interior(scene, _row(light, ls), _row(light, ls - 1),
+                                                _row(cam, ts), _row(cam, ts - 1))
+        rays.append(shadow_in)
+    occ = occluded_many(scene, rays) if rays else []
+    if t1:
+        occ_t1 = occ.pop(0)
+        for j, (s, t) in enumerate(t1):
+            lc = _chain(light, s)
+            _override(lc, s - 1, conn.pdf_cam[j], connection=True)
+            _override(lc, s - 2, rev_qsm[j])
+            z0 = [(cam.pdf_fwd[0], cam.pdf_rev[0], cam.delta[0])]
+            w = mis_weight(z0, lc, lp.delta_light, cfg.exponent)
+            c = where(occ_t1[j], V3.full(0.0, w), _row(conn.value, j))
+            pix = jnp.where(occ_t1[j], -1, conn.pixel[j])
+            out[(s, t)] = (pix, c * w, c)
+    if inner:
+        occ_in = occ.pop(0)
+        for j, (s, t) in enumerate(inner):
+            ch = _chain(cam, t)
+            _override(ch, t - 1, rev_in["pt"][j], connection=True)
+            _override(ch, t - 2, rev_in["ptm"][j])
+            lc = _chain(light, s)
+            _override(lc, s - 1, rev_in["qs"][j], connection=True)
+            _override(lc, s - 2, rev_in["qsm"][j])
+            w = mis_weight(ch, lc, lp.delta_light, cfg.exponent)
+            c = where(occ_in[j], V3.full(0.0, w), _row(value_in, j))
+            out[(s, t)] = (None, c * w, c)
+    return out
+
+
+def _pixel_contribs(scene, cfg, seed, pixel, sample):
+    """The render's splat list: the sum of all t >= 2 strategies at the sample's own pixel,
+    then one splat per t = 1 strategy."""
+    out = contributions(scene, cfg, seed, pixel, sample)
+    own = None
+    splats = []
+    for (s, t), (pix, weighted, _) in out.items():
+        if pix is None:
+            own = weighted if own is None else own + weighted
+        else:
+            splats.append((0, pix, weighted))
+    items = [(0, pixel, own)] if own is not None else []
+    return items + splats
+
+
+def _strategy_contribs(scene, cfg, seed, pixel, sample):
+    out = contributions(scene, cfg, seed, pixel, sample)
+    items = []
+    for k, (st, (pix, weighted, unweighted)) in enumerate(out.items()):
+        assert st == cfg.strategies()[k]
+        p = pixel if pix is None else pix
+        items.append((2 * k, p, unweighted))
+        items.append((2 * k + 1, p, weighted))
+    return items
+
+
+def _blank(scene, n=None):
+    H, W = scene.camera.height, scene.camera.width
+    return np.zeros((H, W, 3) if n is None else (n, H, W, 3), np.float32)
+
+
+def render_strategies(scene: Scene, spp: int = 16, seed: int = 0, max_depth: int = 5,
+                      heuristic: str = "power", beta: float = 2.0, path_length: int = 0,
+                      progress: bool = False) -> dict:
+    """Veach's pyramid: ``{(s, t): (unweighted, weighted)}`` images (H, W, 3) per strategy.
+
+    The weighted images of one render sum to the BDPT image; each unweighted image is an
+    unbiased estimate of the paths of length s + t - 1 that its strategy can sample."""
+    cfg = BDPTConfig(max_depth, heuristic, beta, path_length)
+    strategies = cfg.strategies()
+    if scene.lights.count == 0 or not strategies:
+        return {st: (_blank(scene), _blank(scene)) for st in strategies}
+    fn = lambda sc, sd, px, sm: _strategy_contribs(sc, cfg, sd, px, sm)  # noqa: E731
+    imgs = render_splats(scene, fn, spp=spp, seed=seed, cache_key=("bdpt-strategies", cfg),
+                         n_images=2 * len(strategies), progress=progress)
+    return {st: (imgs[2 * k], imgs[2 * k + 1]) for k, st in enumerate(strategies)}
+
+
+def write_strategy_images(folder, images: dict, exposure: float = 0.0) -> list[Path]:
+    """EXR + PNG per strategy (``s{s}_t{t}_weighted`` / ``_unweighted``) and a PNG pyramid:
+    row L = path length, column s, weighted above unweighted."""
+    from ..imageio import write_exr, write_png
+
+    folder = Path(folder)
+    written = []
+    for (s, t), (unw, wtd) in images.items():
+        for tag, img in (("unweighted", unw), ("weighted", wtd)):
+            path = folder / f"s{s}_t{t}_{tag}.exr"
+            write_exr(path, img)
+            write_png(path.with_suffix(".png"), img, exposure)
+            written.append(path)
+    if images:
+        H, W, _ = next(iter(images.values()))[0].shape
+        lengths = sorted({s + t - 1 for s, t in images})
+        cols = max(lengths) + 1
+        canvas = np.zeros((len(lengths) * (2 * H + 2), cols * (W + 2), 3), np.float32)
+        for (s, t), (unw, wtd) in images.items():
+            r = lengths.index(s + t - 1) * (2 * H + 2)
+            c = s * (W + 2)
+            canvas[r:r + H, c:c + W] = wtd
+            canvas[r + H + 1:r + 2 * H + 1, c:c + W] = unw
+        write_png(folder / "pyramid.png", canvas, exposure)
+        written.append(folder / "pyramid.png")
+    return written
+
+
+def _run(scene: Scene, *, spp: int, seed: int, progress: bool = False, strategy_images: str = "",
+         **params):
+    cfg = BDPTConfig(**params)
+    if strategy_images:
+        imgs = render_strategies(scene, spp, seed, progress=progress, **params)
+        write_strategy_images(strategy_images, imgs)
+        return sum((w for _, w in imgs.values()), _blank(scene))
+    if scene.lights.count == 0 or not cfg.strategies():
+        return _blank(scene)
+    fn = lambda sc, sd, px, sm: _pixel_contribs(sc, cfg, sd, px, sm)  # noqa: E731
+    return render_splats(scene, fn, spp=spp, seed=seed, cache_key=("bdpt", cfg),
+                         progress=progress)[0]
+
+
+PARAMS = (
+    Param("max_depth", 5, "maximum path segments s + t - 1 (1 = emitters only)", int, minimum=1,
+          maximum=16),
+    Param("heuristic", "power", "MIS heuristic over the (s, t) strategies", str, ("balance", "power")),
+    Param("beta", 2.0, "power-heuristic exponent", float, minimum=0.1, maximum=16),
+    Param("path_length", 0, "keep only paths with exactly this many segments (0 = all)", int,
+          minimum=0, maximum=16),
+    Param("strategy_images", "", "folder: also write each (s, t) strategy's weighted and "
+          "unweighted image (EXR, PNG) and pyramid.png there", str),
+)
+
+register(Estimator("bdpt", "bidirectional path tracing, all (s, t) strategies with MIS", _run,
+                   PARAMS))
