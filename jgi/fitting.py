@@ -10,8 +10,8 @@ estimated by the *sample-average approximation*: fix R random streams (common ra
 a deterministic, differentiable function of theta whose minimiser converges to the true
 MSE-optimal theta as R grows. ``jax.grad`` differentiates it; optimistix minimises it.
 
-Functions here are generic: the photon-radius and filter studies in ``experiments/`` and
-``configs/`` plug estimators from :mod:`jgi.density` into them.
+Functions here are generic: the photon-radius and filter study (``experiments/fit_density.py``)
+plug estimators into them; :mod:`jgi.density_fit` is the photon-density test bed.
 """
 
 from __future__ import annotations
