@@ -300,9 +300,10 @@ def run(config_path, *, out_root="runs", dry_run: bool = False, reduced: bool = 
         img = render(scene, r["name"], spp=r["point"]["spp"], seed=r["seed"], **params)
         _atomic_save(path, image=img, seconds=np.float64(time.perf_counter() - ts))
         done += 1
-        if progress:
+        if progress and (sys.stderr.isatty() or done % max(1, len(runs) // 10) == 0 or done == len(runs)):
             el = time.perf_counter() - t0
-            sys.stderr.write(f"\r[{done}/{len(runs)}] {r['label']} {r['point']} ETA "
+            end = "\r" if sys.stderr.isatty() else "\n"
+            sys.stderr.write(f"{end}[{done}/{len(runs)}] {r['label']} {r['point']} ETA "
                              f"{el / done * (len(runs) - done):.0f}s   ")
     if progress:
         sys.stderr.write("\n")
