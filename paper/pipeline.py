@@ -156,11 +156,37 @@ def performance(scale, out: Path):
     _write(out / "performance_macros.tex", text)
 
 
+def density_fit(scale, out: Path):
+    """MSE-optimal photon radius against photon count, and fitted filters (exact irradiance)."""
+    sys.path.insert(0, str(HERE.parent / "experiments"))
+    import fit_density
+
+    args = (["--photons", "2500", "5000", "10000", "--reps", "4"] if scale == "small"
+            else ["--reps", "16"])
+    r = fit_density.main(["--out", str(out / "fit_density_run")] + args)
+    shutil.copy(out / "fit_density_run" / "fit_density.png", out / "density_fit.png")
+    f = r["filters"]
+    macros = dict(dfRExp=f"{r['r_star_exponent']:.3f}", dfRExpSE=f"{r['r_star_exponent_se']:.3f}",
+                  dfMseExp=f"{r['mse_exponent']:.3f}", dfMseExpSE=f"{r['mse_exponent_se']:.3f}",
+                  dfPhotons=str(f["photons"]), dfRadius=f"{f['radius']:.3f}",
+                  dfBox=f"{f['box']:.2e}", dfEpan=f"{f['epanechnikov']:.2e}",
+                  dfConeK=f"{f['cone']['k']:.3f}", dfCone=f"{f['cone']['rel_mse']:.2e}",
+                  dfJensen=f"{f['gaussian_jensen']['rel_mse']:.2e}",
+                  dfJensenIntegral=f"{f['gaussian_jensen']['integral']:.3f}",
+                  dfGaussAlpha=f"{f['gaussian_fitted']['alpha']:.3f}",
+                  dfGaussBeta=f"{f['gaussian_fitted']['beta']:.3f}",
+                  dfGauss=f"{f['gaussian_fitted']['rel_mse']:.2e}",
+                  dfGaussIntegral=f"{f['gaussian_fitted']['integral']:.3f}", dfReps=str(r["repetitions"]))
+    _write(out / "density_fit_macros.tex",
+           "".join(f"\\newcommand{{\\{k}}}{{{v}}}\n" for k, v in macros.items()))
+
+
 STEPS = {
     "furnace": (furnace, ["furnace_table.tex", "furnace_macros.tex"]),
     "pt_convergence": (pt_convergence, ["pt_convergence.pdf", "pt_convergence_macros.tex"]),
     "strategies": (strategies, ["strategies.pdf", "strategies_table.tex"]),
     "performance": (performance, ["performance_macros.tex"]),
+    "density_fit": (density_fit, ["density_fit.png", "density_fit_macros.tex"]),
 }
 
 
