@@ -22,8 +22,10 @@ import trimesh
 from jgi import bvh as B
 from jgi.vec import V3
 
-N_RAYS = 2048          # every traversal call uses this many rays: one compilation per mesh
-LANES = 256
+N_RAYS = 1024          # every traversal call uses this many rays and
+T_TEST = 5120          # every traversed mesh this many triangles, built with pad=True, so all
+                       # share one compilation of each query
+LANES = B.LANES
 EDGE_MARGIN = 1e-4     # barycentric distance to an edge below which a pair is ambiguous
 T_REL = 1e-5           # relative distance to t_min / t_max below which a pair is ambiguous
 MAX_AMBIGUOUS = 0.02   # fraction of rays that may be left out of the exact comparison
@@ -208,20 +210,22 @@ def ray_ranges(rng, n):
 @pytest.fixture(scope="module")
 def soup_case():
     rng = np.random.default_rng(1)
-    tris = soup(rng)
-    return tris, B.build_bvh(*tris)
+    tris = soup(rng, n=T_TEST)
+    return tris, B.build_bvh(*tris, pad=True)
 
 
 @pytest.fixture(scope="module")
 def torus_case():
-    tris = mesh_tris(trimesh.creation.torus(1.0, 0.35, major_sections=120, minor_sections=40))
-    return tris, B.build_bvh(*tris)
+    tris = mesh_tris(trimesh.creation.torus(1.0, 0.35, major_sections=128, minor_sections=20))
+    assert len(tris[0]) == T_TEST
+    return tris, B.build_bvh(*tris, pad=True)
 
 
 @pytest.fixture(scope="module")
 def sphere_case():
     tris = mesh_tris(trimesh.creation.icosphere(subdivisions=4))    # 5120 triangles
-    return tris, B.build_bvh(*tris)
+    assert len(tris[0]) == T_TEST
+    return tris, B.build_bvh(*tris, pad=True)
 
 
 # --- tree invariants ---------------------------------------------------------------------------
@@ -304,11 +308,10 @@ def test_tree_invariants_soup(max_leaf):
 
 def test_tree_invariants_mesh_and_padding(torus_case):
     tris, bvh = torus_case
-    check_tree(bvh, tris)
-    padded = B.build_bvh(*tris, pad=True)
+    check_tree(B.build_bvh(*tris), tris)
     T = len(tris[0])
-    assert padded.count.shape == (2 * T - 1,) and padded.leaves.shape[0] == T
-    check_tree(padded, tris)
+    assert bvh.count.shape == (2 * T - 1,) and bvh.leaves.shape[0] == T   # padded
+    check_tree(bvh, tris)
 
 
 def test_tree_special_cases():
@@ -393,22 +396,26 @@ def test_hit_point_and_lanes_do_not_matter(torus_case):
         np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
 
 
+N_DEGENERATE = 600
+
+
 def test_degenerate_triangles_and_axis_aligned_rays():
     """Zero-area triangles (coincident or exactly collinear vertices), axis-aligned triangles
     on a grid, rays with zero direction components (signed zeros included) that run in the
     planes of triangles and of box faces, rays starting inside boxes, zero directions: no NaN,
     agreement with brute force, and degenerate triangles are never hit."""
     rng = np.random.default_rng(13)
-    sv0, sv1, sv2 = soup(rng, n=600, degenerate=120)
+    half = T_TEST // 2
+    sv0, sv1, sv2 = soup(rng, n=half, degenerate=N_DEGENERATE)
     # axis-aligned right triangles with vertices on a 1/8 grid, in planes x, y or z = const
-    g = rng.integers(-8, 8, (600, 3)).astype(np.float32) / 8
-    axis = rng.integers(0, 3, 600)
+    g = rng.integers(-8, 8, (half, 3)).astype(np.float32) / 8
+    axis = rng.integers(0, 3, half)
     u, w = (axis + 1) % 3, (axis + 2) % 3
     a0 = g.copy()
-    a1 = g.copy(); a1[np.arange(600), u] += 0.25
-    a2 = g.copy(); a2[np.arange(600), w] += 0.25
+    a1 = g.copy(); a1[np.arange(half), u] += 0.25
+    a2 = g.copy(); a2[np.arange(half), w] += 0.25
     tris = tuple(np.concatenate([s, a]) for s, a in ((sv0, a0), (sv1, a1), (sv2, a2)))
-    bvh = B.build_bvh(*tris)
+    bvh = B.build_bvh(*tris, pad=True)
     n = N_RAYS
     # directions: coordinate axes with either sign of zero, plus diagonals in coordinate planes
     dirs = np.array([[1, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0], [0, 0, 1], [0, 0, -1],
@@ -433,7 +440,7 @@ def test_degenerate_triangles_and_axis_aligned_rays():
     prim = np.asarray(res[1])
     assert np.all(prim[:8] == -1), "a zero direction must hit nothing"
     degenerate = np.zeros(len(tris[0]), bool)
-    degenerate[:120] = True
+    degenerate[:N_DEGENERATE] = True
     assert not degenerate[prim[prim >= 0]].any(), "a zero-area triangle was hit"
     occ = run_any(bvh, o, d, t_min, t_max)
     assert not np.asarray(occ)[:8].any()
