@@ -57,6 +57,7 @@ from .. import geometry as G
 from .. import lights as LT
 from .. import mis
 from .. import rng
+from .._xla import materialize
 from ..scene import ENVIRONMENT, Scene
 from ..vec import V3, dot, where
 from .light_tracer import (Vertices, Visit, WalkState, _cat, _row, connect_camera,
@@ -255,44 +256,59 @@ def _interior(scene: Scene, q: Vertices, qm: Vertices, p: Vertices, pm: Vertices
     return value, G.shadow_ray(q.p, q.n, w, dist), rev
 
 
+class _Rows:
+    """Rows ([N] arrays) stacked into one table, so that every strategy's MIS chain is one
+    gather with static indices instead of its own little program (which XLA compiles slowly)."""
+
+    def __init__(self):
+        self.parts, self.n = [], 0
+
+    def add(self, x: Array) -> int:
+        """Append [N] or [K, N] rows; return the index of the first."""
+        x = x[None] if x.ndim == 1 else x
+        self.parts.append(x)
+        self.n += x.shape[0]
+        return self.n - x.shape[0]
+
+    def table(self) -> Array:
+        return jnp.concatenate(self.parts, 0)
+
+
+def mis_weights_batched(log_pdf: Array, delta: Array, chains: list[tuple[list, list]],
+                        exponent: float) -> Array:
+    """:func:`mis_weight` for many strategies at once: [J, N].
+
+    ``log_pdf`` [R, N] holds log remap0 of every density involved, ``delta`` [Rb, N] every
+    Dirac flag (one row all False, one all True). ``chains[j] = (camera_steps, light_steps)``,
+    each step a tuple of rows (p_rev, p_fwd, delta_a, delta_b) in walking order (outwards from
+    the connection): r_i = exp(b * running sum of (log p_rev - log p_fwd)), counted where
+    neither delta_a nor delta_b is set. Padding steps use the zero / True rows."""
+    zero_row = log_pdf.shape[0] - 1
+    true_row = delta.shape[0] - 1
+    total = jnp.zeros((len(chains),) + log_pdf.shape[1:], log_pdf.dtype)
+    for part in (0, 1):
+        M = max([len(c[part]) for c in chains] + [0])
+        if M == 0:
+            continue
+        pad = (zero_row, zero_row, true_row, true_row)
+        idx = np.array([list(c[part]) + [pad] * (M - len(c[part])) for c in chains])  # [J, M, 4]
+        log_ratio = log_pdf[idx[..., 0]] - log_pdf[idx[..., 1]]                       # [J, M, N]
+        log_r = jnp.minimum(exponent * jnp.cumsum(log_ratio, axis=1), LOG_RATIO_MAX)
+        counts = ~delta[idx[..., 2]] & ~delta[idx[..., 3]]
+        total = total + jnp.sum(jnp.where(counts, jnp.exp(log_r), 0.0), axis=1)
+    return 1.0 / (1.0 + total)
+
+
 def contributions(scene: Scene, cfg: BDPTConfig, seed, pixel: Array, sample: Array) -> dict:
     """For every strategy (s, t): (splat pixel or None for the sample's own pixel, MIS-weighted
     value, unweighted value), each [N]."""
     D = cfg.max_depth
     key = rng.path_key(seed, pixel, sample)
-    cam, rec = camera_subpath(scene, cfg, key, pixel)          # z_0 .. z_D
+    cam, rec = camera_subpath(scene, cfg, key, pixel)             # z_0 .. z_D
     lp = light_subpath(scene, light_key(seed, pixel, sample), D)  # y_0 .. y_{D-1}
     light = lp.vertices
     strategies = cfg.strategies()
-    out = {}
-
-    def rec_at(name, t):  # the camera-walk record for z_{t-1} (walk step t - 2)
-        x = rec[name]
-        return _row(x, t - 2)
-
-    # ---- s = 0 and s = 1: evaluated during the camera walk ----
-    for (s, t) in strategies:
-        if s == 0:
-            ch = _chain(cam, t)
-            _override(ch, t - 1, rec_at("s0_rev_pt", t), connection=True)
-            _override(ch, t - 2, rec_at("s0_rev_ptm", t))
-            w = mis_weight(ch, [], jnp.zeros_like(ch[0][2]), cfg.exponent)
-            c = rec_at("s0_value", t)
-            weighted, unweighted = c * w, c
-            if "env_value" in rec:
-                ce = rec_at("env_value", t)
-                weighted = weighted + ce * rec_at("env_weight", t)
-                unweighted = unweighted + ce
-            out[(s, t)] = (None, weighted, unweighted)
-        elif s == 1:
-            ch = _chain(cam, t)
-            _override(ch, t - 1, rec_at("s1_rev_pt", t), connection=True)
-            _override(ch, t - 2, rec_at("s1_rev_ptm", t))
-            y0 = [(rec_at("s1_fwd_y", t), rec_at("s1_rev_y", t), jnp.zeros_like(ch[0][2]))]
-            w = mis_weight(ch, y0, rec_at("s1_delta_light", t), cfg.exponent)
-            w = jnp.where(rec_at("s1_infinite", t), rec_at("s1_w_infinite", t), w)
-            c = rec_at("s1_value", t)
-            out[(s, t)] = (None, c * w, c)
+    z = jnp.zeros_like(cam.pdf_fwd[0])
 
     # ---- t = 1 (light tracing) and s, t >= 2 (interior connections): one shadow-ray batch ----
     t1 = [(s, t) for (s, t) in strategies if t == 1]
@@ -300,42 +316,96 @@ def contributions(scene: Scene, cfg: BDPTConfig, seed, pixel: Array, sample: Arr
     rays = []
     if t1:
         rows = np.array([s - 1 for s, _ in t1])
-        q = _row(light, rows)
-        qm = _row(light, rows - 1)
-        conn = connect_camera(scene, q)
+        q, qm = _row(light, rows), _row(light, rows - 1)
+        conn = materialize(connect_camera(scene, q))
         vm = qm.p - q.p
         rev_qsm = convert_density(conn.pdf_q_rev, dot(vm, vm), dot(qm.n, q.wo), qm.on_surface)
         rays.append(conn.shadow)
     if inner:
         ls = np.array([s - 1 for s, _ in inner])
         ts = np.array([t - 1 for _, t in inner])
-        value_in, shadow_in, rev_in = _interior(scene, _row(light, ls), _row(light, ls - 1),
-                                                _row(cam, ts), _row(cam, ts - 1))
+        value_in, shadow_in, rev_in = materialize(_interior(
+            scene, _row(light, ls), _row(light, ls - 1), _row(cam, ts), _row(cam, ts - 1)))
         rays.append(shadow_in)
     occ = occluded_many(scene, rays) if rays else []
+    occ_t1 = occ.pop(0) if t1 else None
+    occ_in = occ.pop(0) if inner else None
+
+    # ---- the densities of every strategy, as rows of one table (MIS below) ----
+    P, F = _Rows(), _Rows()                     # log densities, Dirac flags
+    cam_fwd, cam_rev = P.add(cam.pdf_fwd), P.add(cam.pdf_rev)
+    light_fwd, light_rev = P.add(light.pdf_fwd), P.add(light.pdf_rev)
+    s0_pt, s0_ptm = P.add(rec["s0_rev_pt"]), P.add(rec["s0_rev_ptm"])
+    s1_pt, s1_ptm = P.add(rec["s1_rev_pt"]), P.add(rec["s1_rev_ptm"])
+    s1_fwd_y, s1_rev_y = P.add(rec["s1_fwd_y"]), P.add(rec["s1_rev_y"])
     if t1:
-        occ_t1 = occ.pop(0)
-        for j, (s, t) in enumerate(t1):
-            lc = _chain(light, s)
-            _override(lc, s - 1, conn.pdf_cam[j], connection=True)
-            _override(lc, s - 2, rev_qsm[j])
-            z0 = [(cam.pdf_fwd[0], cam.pdf_rev[0], cam.delta[0])]
-            w = mis_weight(z0, lc, lp.delta_light, cfg.exponent)
-            c = where(occ_t1[j], V3.full(0.0, w), _row(conn.value, j))
-            pix = jnp.where(occ_t1[j], -1, conn.pixel[j])
-            out[(s, t)] = (pix, c * w, c)
+        t1_qs, t1_qsm = P.add(conn.pdf_cam), P.add(rev_qsm)
     if inner:
-        occ_in = occ.pop(0)
-        for j, (s, t) in enumerate(inner):
-            ch = _chain(cam, t)
-            _override(ch, t - 1, rev_in["pt"][j], connection=True)
-            _override(ch, t - 2, rev_in["ptm"][j])
-            lc = _chain(light, s)
-            _override(lc, s - 1, rev_in["qs"][j], connection=True)
-            _override(lc, s - 2, rev_in["qsm"][j])
-            w = mis_weight(ch, lc, lp.delta_light, cfg.exponent)
-            c = where(occ_in[j], V3.full(0.0, w), _row(value_in, j))
-            out[(s, t)] = (None, c * w, c)
+        in_rows = {k: P.add(rev_in[k]) for k in ("pt", "ptm", "qs", "qsm")}
+    P.add(z)                                    # last row: density 0 (log remap0 = 0)
+    cam_delta, light_delta = F.add(cam.delta), F.add(light.delta)
+    s1_delta_light = F.add(rec["s1_delta_light"])
+    delta_light = F.add(lp.delta_light)
+    false_row = F.add(z > 0)
+    F.add(z == 0)                               # last row: True (padding)
+
+    chains = []
+    for (s, t) in strategies:
+        # this strategy's reverse densities at the last two vertices of each subpath
+        if s == 0:
+            cam_over = {t - 1: s0_pt + t - 2, t - 2: s0_ptm + t - 2}
+            light_over = {}
+        elif s == 1:
+            cam_over = {t - 1: s1_pt + t - 2, t - 2: s1_ptm + t - 2}
+            light_over = {0: s1_rev_y + t - 2}
+        elif t == 1:
+            j = t1.index((s, t))
+            cam_over = {}
+            light_over = {s - 1: t1_qs + j, s - 2: t1_qsm + j}
+        else:
+            j = inner.index((s, t))
+            cam_over = {t - 1: in_rows["pt"] + j, t - 2: in_rows["ptm"] + j}
+            light_over = {s - 1: in_rows["qs"] + j, s - 2: in_rows["qsm"] + j}
+        cam_steps, light_steps = [], []
+        if s + t > 2:
+            for i in range(t - 1, 0, -1):   # z_i becomes a light vertex: (s + t - i, i)
+                a = false_row if i == t - 1 else cam_delta + i
+                cam_steps.append((cam_over.get(i, cam_rev + i), cam_fwd + i, a, cam_delta + i - 1))
+            for i in range(s - 1, -1, -1):  # y_i becomes a camera vertex: (i, s + t - i)
+                fwd = s1_fwd_y + t - 2 if s == 1 else light_fwd + i
+                a = false_row if i == s - 1 else light_delta + i
+                b = light_delta + i - 1 if i > 0 else (s1_delta_light + t - 2 if s == 1 else delta_light)
+                light_steps.append((light_over.get(i, light_rev + i), fwd, a, b))
+        chains.append((cam_steps, light_steps))
+    # (materialize: computed once, not re-derived inside every consumer fusion)
+    weights = mis_weights_batched(materialize(_log_remap0(P.table())), materialize(F.table()),
+                                  chains, cfg.exponent)
+
+    # ---- contributions C* and C = w C* per strategy ----
+    out = {}
+    for j, (s, t) in enumerate(strategies):
+        w = weights[j]
+        pix = None
+        if s == 0:
+            c = _row(rec["s0_value"], t - 2)
+            weighted = c * w
+            if "env_value" in rec:        # camera rays that escaped to the environment
+                ce = _row(rec["env_value"], t - 2)
+                weighted = weighted + ce * _row(rec["env_weight"], t - 2)
+                c = c + ce
+            out[(s, t)] = (None, weighted, c)
+            continue
+        if s == 1:
+            c = _row(rec["s1_value"], t - 2)
+            w = jnp.where(_row(rec["s1_infinite"], t - 2), _row(rec["s1_w_infinite"], t - 2), w)
+        elif t == 1:
+            k = t1.index((s, t))
+            c = where(occ_t1[k], V3.full(0.0, w), _row(conn.value, k))
+            pix = jnp.where(occ_t1[k], -1, conn.pixel[k])
+        else:
+            k = inner.index((s, t))
+            c = where(occ_in[k], V3.full(0.0, w), _row(value_in, k))
+        out[(s, t)] = (pix, c * w, c)
     return out
 
 

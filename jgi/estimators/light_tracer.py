@@ -55,6 +55,7 @@ from .. import warps
 from ..scene import (AREA_QUAD, AREA_SPHERE, AREA_TRIANGLE, DIRECTIONAL, ENVIRONMENT, POINT, SPOT,
                      Scene)
 from ..vec import V3, dot, max_component, normalize, where
+from .._xla import materialize
 from .path_tracer import _material
 from .registry import Estimator, Param, register
 
@@ -144,7 +145,7 @@ def random_walk(scene: Scene, key: Array, dim0: int, dims_per_step: int, n_steps
         delta = B.is_delta(mp)
         extra = visit(Visit(j, hit, mp, wo, s, valid, d2, u)) if visit is not None else None
         # ---- BSDF sampling: the next direction, and the reverse density of the previous vertex
-        bs = B.sample(kinds, mp, hit.n, wo, u(0), u(1), u(2), mode=mode)
+        bs = materialize(B.sample(kinds, mp, hit.n, wo, u(0), u(1), u(2), mode=mode))
         _, pdf_back = B.evaluate(kinds, mp, hit.n, bs.wi, wo)
         pdf_rev_prev = jnp.where(valid & ~delta,
                                  convert_density(pdf_back, d2, dot(s.prev_n, s.d), s.prev_surface),
@@ -294,6 +295,7 @@ def occluded_many(scene: Scene, rays: list[tuple]) -> list[Array]:
     o = V3(*(jnp.concatenate([flat(r[0][c]) for r in rays]) for c in range(3)))
     d = V3(*(jnp.concatenate([flat(r[1][c]) for r in rays]) for c in range(3)))
     t = jnp.concatenate([flat(jnp.broadcast_to(r[2], s)) for r, s in zip(rays, shapes)])
+    o, d, t = materialize((o, d, t))   # one buffer, read by every primitive test
     occ = G.occluded(scene, o, d, t)
     out, i = [], 0
     for s in shapes:
@@ -322,15 +324,15 @@ def _accumulate(scene: Scene, seed, sample0, pixel0, total_left, *, path_fn, chu
         sample = sample0 + flat // P
         valid = local < total_left
         contribs = path_fn(scene, seed, pixel, sample)   # [(image, pixel [N] or -1, V3 [N])]
-        idx, pix, vals = [], [], []
-        for image, px, L in contribs:
-            finite = jnp.isfinite(L.x) & jnp.isfinite(L.y) & jnp.isfinite(L.z)
-            bad = bad + jnp.sum(valid & (px >= 0) & ~finite)
-            keep = valid & (px >= 0) & finite
-            idx.append(jnp.full(px.shape, image, jnp.int32))
-            pix.append(jnp.where(keep, px, 0))
-            vals.append(jnp.stack([jnp.where(keep, c_, 0.0) for c_ in L], -1))
-        img = img.at[jnp.concatenate(idx), jnp.concatenate(pix)].add(jnp.concatenate(vals))
+        # stacked to [M, N] first: one finiteness test and one scatter for all of them
+        image = jnp.asarray(np.repeat([c[0] for c in contribs], chunk).reshape(-1, chunk))
+        px = jnp.stack([jnp.broadcast_to(c[1], (chunk,)) for c in contribs])
+        L = V3(*(jnp.stack([c[2][k] for c in contribs]) for k in range(3)))
+        finite = jnp.isfinite(L.x) & jnp.isfinite(L.y) & jnp.isfinite(L.z)
+        bad = bad + jnp.sum(valid & (px >= 0) & ~finite)
+        keep = valid & (px >= 0) & finite
+        vals = jnp.stack([jnp.where(keep, c_, 0.0) for c_ in L], -1)
+        img = img.at[image.reshape(-1), jnp.where(keep, px, 0).reshape(-1)].add(vals.reshape(-1, 3))
         return img, bad
 
     init = (jnp.zeros((n_images, P, 3), jnp.float32), jnp.int32(0))
