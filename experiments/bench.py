@@ -7,8 +7,10 @@ Measures, each after a warm-up call so compile time is reported separately:
     (``llvm_ad_rgb``, its own ``cornell_box()``) measured in the same run;
   * scaling of path tracing with resolution and spp;
   * photon tracing throughput (photons/s) and its scaling with the photon count;
-  * triangle-count scaling (a subdivided sphere, brute force or BVH as the geometry module
+  * triangle-count scaling (a subdivided sphere, brute force or BVH as the scene builder
     chooses);
+  * the BVH (``experiments/bench_bvh.py``): build time, traversal rays/s up to 10^6 triangles
+    (10^5 with --quick), the brute-force crossover, path tracing a 10^5 / 10^6-triangle mesh;
   * BDPT samples/s and hash-grid density queries/s where those modules are present;
   * compile times and the process's peak resident memory.
 """
@@ -96,6 +98,13 @@ def bench_triangles(quick: bool) -> list[dict]:
     return rows
 
 
+def bench_bvh(quick: bool) -> list[dict]:
+    """experiments/bench_bvh.py: BVH build, traversal rays/s, brute-force crossover, mesh renders."""
+    import bench_bvh as bb
+
+    return bb.run(quick)
+
+
 def bench_optional(quick: bool) -> list[dict]:
     """Estimators and structures that live in optional modules (measured when present)."""
     import jgi
@@ -124,7 +133,7 @@ def main(argv=None) -> dict:
     out = {"cornell_vs_mitsuba": bench_pt.main(
         ["--spp", "8" if a.quick else "64", "--repeats", "2"] + (["--no-mitsuba"] if a.no_mitsuba else []))}
     rows = []
-    for fn in (bench_pt_scaling, bench_photons, bench_triangles, bench_optional):
+    for fn in (bench_pt_scaling, bench_photons, bench_triangles, bench_bvh, bench_optional):
         rows += fn(a.quick)
     out["rows"] = rows
     out["peak_rss_mb"] = peak_rss_mb()
