@@ -106,11 +106,9 @@ def _gather_dirs(cfg: CacheConfig, u1, u2):
     return sin_t, cos_t, phi
 
 
-@partial(jax.jit, static_argnames=("cfg",))
-def gather(scene: Scene, cfg: CacheConfig, seed, ids, p: V3, n: V3):
-    """Final gathering at points p (normals n facing the viewer): E, R and gradients."""
+def _gather_rays(scene: Scene, cfg: CacheConfig, seed, ids, p: V3, n: V3):
+    """The M x N stratified gather rays at points p: (origins, directions, key, angles, frame)."""
     M, N = cfg.gather_m, cfg.gather_n
-    K = p.x.shape[0]
     key = rng.derive(rng.path_key(seed, ids[:, None, None] * (M * N) +
                                   jnp.arange(M * N, dtype=jnp.int32).reshape(1, M, N), 0), _SALT)
     u1, u2 = rng.uniform(key, 0), rng.uniform(key, 1)
@@ -118,18 +116,64 @@ def gather(scene: Scene, cfg: CacheConfig, seed, ids, p: V3, n: V3):
     s, t = coordinate_system(n)
     ex = lambda v: V3(*(c[:, None, None] for c in v))
     s3, t3, n3 = ex(s), ex(t), ex(n)
-    cp, sp = jnp.cos(phi), jnp.sin(phi)
-    d = s3 * (sin_t * cp) + t3 * (sin_t * sp) + n3 * cos_t
+    d = s3 * (sin_t * jnp.cos(phi)) + t3 * (sin_t * jnp.sin(phi)) + n3 * cos_t
     o = G.offset_origin(ex(p), n3, d)
     flat = lambda v: V3(*(c.reshape(-1) for c in jnp.broadcast_arrays(*v)))
-    of, df = flat(o), flat(d)
+    return flat(o), flat(d), key.reshape(-1), (sin_t, cos_t, phi), (s, t)
+
+
+@partial(jax.jit, static_argnames=("cfg",))
+def gather(scene: Scene, cfg: CacheConfig, seed, ids, p: V3, n: V3):
+    """Final gathering at points p (normals n facing the viewer): E, R and gradients, with the
+    radiance of each gather ray estimated by the path tracer."""
+    K = p.x.shape[0]
+    of, df, kf, angles, frame = _gather_rays(scene, cfg, seed, ids, p, n)
     hit = G.intersect(scene, of, df)
     Le = LT.emitted(scene.lights, hit.emitter, hit.n, -df) if scene.lights.count else V3(*(0 * of.x,) * 3)
-    kf = key.reshape(-1)
     L = radiance(scene, cfg.pt, lambda dim: rng.uniform(kf, dim + 2), of, df)
     L = V3(*(jnp.maximum(jnp.where(jnp.isfinite(a), a - b, 0.0), 0.0) for a, b in zip(L, Le)))
+    r = jnp.where(hit.valid, hit.t, jnp.inf)
+    return _record(scene, cfg, K, L, r, angles, frame)
+
+
+@partial(jax.jit, static_argnames=("cfg",))
+def _gather_hits(scene: Scene, cfg: CacheConfig, seed, ids, p: V3, n: V3):
+    """Gather rays followed through specular chains to the diffuse surfaces they reach."""
+    of, df, kf, angles, frame = _gather_rays(scene, cfg, seed, ids, p, n)
+    hit = G.intersect(scene, of, df)
+    v = trace_to_diffuse(scene, WhittedConfig(max_depth=cfg.max_depth, light_samples=0),
+                         lambda k: rng.uniform(kf, k + 2), of, df)
+    n_face = where(dot(v.n, v.wo) < 0, -v.n, v.n)
+    return v._replace(n=n_face), jnp.where(hit.valid, hit.t, jnp.inf), angles, frame
+
+
+_record_jit = jax.jit(lambda scene, cfg, K, L, r, angles, frame: _record(scene, cfg, K, L, r, angles, frame),
+                      static_argnames=("cfg", "K"))
+
+
+def gather_photons(scene: Scene, cfg: CacheConfig, seed, ids, p: V3, n: V3, grid, *, k: int,
+                   radius: float, cap: int | None = None):
+    """Final gathering against a global photon map (Jensen's split): each gather ray's radiance
+    is the photon estimate of the light reflected at the diffuse surface it reaches."""
+    from .estimators.photon_mapping import _estimate_chunked
+
+    K = p.x.shape[0]
+    v, r, angles, frame = _gather_hits(scene, cfg, seed, ids, p, n)
+    Lp, _ = _estimate_chunked(scene, grid, v.p, v.n, v.material, radius, cap=cap, k=k, kind="box",
+                              thickness=None, filter_params={})
+    found = np.asarray(v.found)
+    L = V3(*(jnp.asarray(np.where(found, np.asarray(b) * c, 0.0)) for b, c in zip(v.beta, Lp)))
+    return _record_jit(scene, cfg, K, L, r, angles, frame)
+
+
+def _record(scene: Scene, cfg: CacheConfig, K: int, L: V3, r, angles, frame):
+    """E, R and Ward-Heckbert gradients from the gather rays' radiance L and hit distances r."""
+    M, N = cfg.gather_m, cfg.gather_n
+    sin_t, cos_t, phi = angles
+    s, t = frame
+    cp, sp = jnp.cos(phi), jnp.sin(phi)
     L = V3(*(c.reshape(K, M, N) for c in L))
-    r = jnp.where(hit.valid, hit.t, jnp.inf).reshape(K, M, N)
+    r = r.reshape(K, M, N)
     E = V3(*(jnp.pi / (M * N) * jnp.sum(c, axis=(1, 2)) for c in L))
     inv_r = jnp.sum(jnp.where(jnp.isfinite(r), 1.0 / jnp.maximum(r, 1e-9), 0.0), axis=(1, 2))
     scale = scene.lights.bound_radius
@@ -244,13 +288,31 @@ class ShadingPoints(NamedTuple):
     found: np.ndarray    # [n] a non-specular vertex was reached
 
 
+class PhotonSource(NamedTuple):
+    """Gather rays read radiance from this global photon map instead of the path tracer."""
+    grid: object        # jgi.photon_map.HashGrid
+    k: int = 50         # photons in the estimate
+    radius: float = 0.08  # maximum search radius
+
+
+def photon_source(scene: Scene, photons: int, seed: int, *, k: int = 50, radius: float = 0.08,
+                  max_depth: int = 8) -> PhotonSource:
+    from . import photon_map as PMap
+    from .photons import trace_photons
+
+    grid = PMap.build_grid(trace_photons(scene, photons, seed=seed, max_depth=max_depth), radius, cap=128)
+    return PhotonSource(grid, k, float(grid.cell))
+
+
 def irradiance(scene: Scene, pts: ShadingPoints, *, cfg: CacheConfig, cached: bool, seed: int = 0,
-               stats: CacheStats | None = None, raster: tuple | None = None
-               ) -> tuple[np.ndarray, np.ndarray]:
+               stats: CacheStats | None = None, raster: tuple | None = None,
+               source: PhotonSource | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Indirect irradiance [3, n] at shading points, and the indices of the records made.
 
     Every gather at point i uses random stream (seed, i), so a record made at point i equals
     the uncached gather there: as a -> 0 the cache reproduces plain final gathering exactly.
+    With a photon ``source`` the gather rays' radiance comes from the global photon map
+    (Jensen's final gathering) instead of the path tracer.
     ``raster = (px, py)`` (pixel coordinates of the points) makes the passes hierarchical:
     pass k considers uncovered points on a pixel grid of spacing ``cfg.spacing / 2^k``, so
     records appear where the criterion fails, coarse to fine (Ward's lazy creation, in
@@ -267,8 +329,11 @@ def irradiance(scene: Scene, pts: ShadingPoints, *, cfg: CacheConfig, cached: bo
             sel = idx[s0:s0 + batch]
             pad = np.pad(sel, (0, batch - len(sel)), mode="edge")
             take = lambda a: V3(*(jnp.asarray(c[pad]) for c in a))
-            E, R, gr, gt = gather(scene, gather_cfg, jnp.uint32(seed), jnp.asarray(pad, jnp.int32),
-                                  take(pts.p), take(pts.n))
+            args = (scene, gather_cfg, jnp.uint32(seed), jnp.asarray(pad, jnp.int32), take(pts.p), take(pts.n))
+            if source is None:
+                E, R, gr, gt = gather(*args)
+            else:
+                E, R, gr, gt = gather_photons(*args, source.grid, k=source.k, radius=source.radius)
             k = len(sel)
             cut = lambda t: jax.tree_util.tree_map(lambda a: np.asarray(a)[:k], t)
             out.append((V3(*pts.p[:, sel]), V3(*pts.n[:, sel]), cut(E), cut(R), cut(gr), cut(gt)))
@@ -329,16 +394,19 @@ def shade(scene: Scene, cfg: CacheConfig, seed: int, spp: int):
 
 
 def render(scene: Scene, *, spp: int = 1, seed: int = 0, cfg: CacheConfig = CacheConfig(),
-           cached: bool = True, stats: CacheStats | None = None) -> np.ndarray:
+           cached: bool = True, stats: CacheStats | None = None, photons: int = 0,
+           photon_k: int = 50) -> np.ndarray:
     """Direct light + specular chains exactly, indirect diffuse light from the irradiance cache
-    (``cached=False``: plain final gathering at every shading point, for comparison)."""
+    (``cached=False``: plain final gathering at every shading point, for comparison); with
+    ``photons > 0`` the gather rays read a global photon map of that many photons."""
     W, H = scene.camera.width, scene.camera.height
     v = shade(scene, cfg, seed, spp)
     pts = ShadingPoints(np.stack([np.asarray(c) for c in v.p]),
                         np.stack([np.asarray(c) for c in v.n]), np.asarray(v.found))
     pix = np.arange(len(pts.found)) % (W * H)
+    source = photon_source(scene, photons, seed, k=photon_k) if photons else None
     E, _ = irradiance(scene, pts, cfg=cfg, cached=cached, seed=seed, stats=stats,
-                      raster=(pix % W, pix // W))
+                      raster=(pix % W, pix // W), source=source)
     kd = scene.materials.diffuse
     m = np.asarray(v.material)
     albedo = np.stack([np.asarray(kd.x)[m], np.asarray(kd.y)[m], np.asarray(kd.z)[m]])
@@ -348,10 +416,10 @@ def render(scene: Scene, *, spp: int = 1, seed: int = 0, cfg: CacheConfig = Cach
 
 
 def _run(scene: Scene, *, spp: int, seed: int, progress: bool = False, a=0.2, gather_m=8,
-         gather_n=24, spacing=8, passes=4, cached=True, gradients=True):
+         gather_n=24, spacing=8, passes=4, cached=True, gradients=True, photons=0, photon_k=50):
     cfg = CacheConfig(a=a, gather_m=gather_m, gather_n=gather_n, spacing=spacing, passes=passes,
                       gradients=gradients)
-    return render(scene, spp=spp, seed=seed, cfg=cfg, cached=cached)
+    return render(scene, spp=spp, seed=seed, cfg=cfg, cached=cached, photons=photons, photon_k=photon_k)
 
 
 def _register():
@@ -367,7 +435,10 @@ def _register():
          Param("spacing", 8, "first-pass record spacing in pixels", int, minimum=1),
          Param("passes", 4, "refinement passes (spacing halves each pass)", int, minimum=0, maximum=16),
          Param("cached", True, "false: plain final gathering at every shading point", bool),
-         Param("gradients", True, "use rotation and translation gradients", bool))))
+         Param("gradients", True, "use rotation and translation gradients", bool),
+         Param("photons", 0, "> 0: gather rays read a global photon map of this many photons "
+               "(Jensen); 0: the path tracer", int, minimum=0),
+         Param("photon_k", 50, "photons in each gather estimate", int, minimum=1, maximum=1024))))
 
 
 _register()

@@ -158,7 +158,7 @@ def render_jensen(scene: Scene, *, spp: int = 1, seed: int = 0, photons: int = 2
                   caustic_photons: int = 50_000, k: int = 50, k_caustic: int = 50,
                   radius: float = 0.08, caustic_radius: float = 0.05, final_gather: int = 32,
                   caustics: bool = True, cap: int | None = None, max_depth: int = 8, filter: str = "box",
-                  stats: dict | None = None):
+                  irradiance_cache: bool = False, cache_a: float = 0.2, stats: dict | None = None):
     """Jensen's two-pass method with the four-way split (see the module docstring)."""
     pm = trace_photons(scene, photons, seed=seed, max_depth=max_depth)
     grid = PMap.build_grid(pm, radius, cap=cap or 128)
@@ -177,21 +177,34 @@ def render_jensen(scene: Scene, *, spp: int = 1, seed: int = 0, photons: int = 2
             Lc, _ = _estimate_chunked(scene, cgrid, v.p, v.n, v.material, float(cgrid.cell), cap=cap,
                                       k=k_caustic, kind=filter, thickness=None, filter_params={})
             total = total + np.where(found, beta_ * Lc, 0.0)
-    # indirect diffuse by final gathering on the global map
-    idx = np.nonzero(found)[0]
-    ind = np.zeros((3, len(found)), np.float32)
-    batch = max(1, 1024 // final_gather)
-    for s0 in range(0, len(idx), batch):
-        sel = idx[s0:s0 + batch]
-        pad = np.pad(sel, (0, batch - len(sel)), mode="edge")
-        take = lambda vv: V3(*(jnp.asarray(np.asarray(c)[pad]) for c in vv))
-        g = _gather_points(scene, jnp.uint32(seed), jnp.asarray(pad, jnp.int32), take(v.p), take(v.n),
-                           final_gather, max_depth)
-        Lg, _ = _estimate_chunked(scene, grid, g.p, g.n, g.material, radius, cap=cap, k=k,
-                                  kind=filter, thickness=None, filter_params={})
-        gb = np.stack([np.asarray(c) for c in g.beta])
-        Lg = np.where(np.asarray(g.found), gb * Lg, 0.0).reshape(3, batch, final_gather).mean(-1)
-        ind[:, sel] = Lg[:, : len(sel)]
+    # indirect diffuse by final gathering on the global map (at every point, or cached)
+    if irradiance_cache:
+        from .. import irradiance_cache as IC
+
+        m = max(1, int(round(np.sqrt(final_gather / 3))))  # Ward's strata: N ~ 3 M (phi vs theta)
+        cfg = IC.CacheConfig(a=cache_a, gather_m=m, gather_n=max(1, final_gather // m), max_depth=max_depth)
+        pts = IC.ShadingPoints(np.stack([np.asarray(c) for c in v.p]), np.stack([np.asarray(c) for c in v.n]),
+                               found)
+        W = scene.camera.width
+        pix = np.arange(len(found)) % (W * scene.camera.height)
+        E, _ = IC.irradiance(scene, pts, cfg=cfg, cached=True, seed=seed, raster=(pix % W, pix // W),
+                             source=IC.PhotonSource(grid, k, radius))
+        ind = E / np.pi  # cosine-weighted gathering: the mean gathered radiance is E / pi
+    else:
+        idx = np.nonzero(found)[0]
+        ind = np.zeros((3, len(found)), np.float32)
+        batch = max(1, 1024 // final_gather)
+        for s0 in range(0, len(idx), batch):
+            sel = idx[s0:s0 + batch]
+            pad = np.pad(sel, (0, batch - len(sel)), mode="edge")
+            take = lambda vv: V3(*(jnp.asarray(np.asarray(c)[pad]) for c in vv))
+            g = _gather_points(scene, jnp.uint32(seed), jnp.asarray(pad, jnp.int32), take(v.p), take(v.n),
+                               final_gather, max_depth)
+            Lg, _ = _estimate_chunked(scene, grid, g.p, g.n, g.material, radius, cap=cap, k=k,
+                                      kind=filter, thickness=None, filter_params={})
+            gb = np.stack([np.asarray(c) for c in g.beta])
+            Lg = np.where(np.asarray(g.found), gb * Lg, 0.0).reshape(3, batch, final_gather).mean(-1)
+            ind[:, sel] = Lg[:, : len(sel)]
     total = total + np.where(found, beta_ * kdx * ind, 0.0)
     if stats is not None:
         stats.update(stored=pm.count)
@@ -282,7 +295,10 @@ register(Estimator("pm_jensen", "photon mapping with Jensen's split (direct, spe
                     Param("caustic_radius", 0.05, "maximum caustic search radius", float, minimum=1e-6),
                     Param("final_gather", 32, "final-gather rays per shading point", int, minimum=1),
                     Param("caustics", True, "use the caustic map", bool),
-                    Param("filter", "box", "density filter", str, FILTERS))))
+                    Param("filter", "box", "density filter", str, FILTERS),
+                    Param("irradiance_cache", False, "indirect diffuse term from an irradiance cache "
+                          "of final gathers (Ward), not a gather per shading point", bool),
+                    Param("cache_a", 0.2, "the cache's error threshold a", float, minimum=1e-4, maximum=10.0))))
 for _name, _stoch in (("ppm", False), ("sppm", True)):
     register(Estimator(_name, ("progressive photon mapping (Hachisuka 2008)" if not _stoch else
                                "stochastic progressive photon mapping (Hachisuka & Jensen 2009)"),
