@@ -520,14 +520,11 @@ def test_scene_builds_bvh_by_size_and_geometry_agrees(torus_case, monkeypatch):
 
     @jax.jit
     def probe(scene):
-        hit = G.intersect(scene, o, d)
-        t, kind, idx = G.closest_hit(scene, o, d)
-
         def total_t(v0):
-            s = eqx.tree_at(lambda s: s.triangles.v0, scene, v0)
-            h = G.intersect(s, o, d)
-            return jnp.sum(jnp.where(h.valid, h.t, 0.0))
-        grad = jax.grad(total_t)(scene.triangles.v0)
+            h = G.intersect(eqx.tree_at(lambda s: s.triangles.v0, scene, v0), o, d)
+            return jnp.sum(jnp.where(h.valid, h.t, 0.0)), h
+        grad, hit = jax.grad(total_t, has_aux=True)(scene.triangles.v0)
+        t, kind, idx = G.closest_hit(scene, o, d)
         return hit.t, hit.n.stack(), t, idx, G.occluded(scene, o, d, t_max), grad.stack()
 
     a, b = (tuple(np.asarray(x) for x in probe(s)) for s in (fast, slow))
