@@ -138,6 +138,9 @@ def render(scene: Scene, *, spp: int, seed: int, chains: int = 4096, bootstrap_s
     u = jnp.asarray(np.asarray(u_b)[:, pick])
     total = spp * W * H
     n_steps_total = max(1, -(-total // chains))
+    # whole blocks of steps_per_call: one compiled kernel for every spp (a few extra mutations;
+    # ``scale`` counts them, so the image stays unbiased)
+    n_steps_total = -(-n_steps_total // steps_per_call) * steps_per_call
     scale = jnp.float32(b * W * H / (n_steps_total * chains))
     img = np.zeros((W * H, 3), np.float64)
     accepted = 0
@@ -154,12 +157,18 @@ def render(scene: Scene, *, spp: int, seed: int, chains: int = 4096, bootstrap_s
     return img.reshape(H, W, 3).astype(np.float32)
 
 
-def _run(scene: Scene, *, spp: int, seed: int, progress: bool = False, p_large=0.3, chains=4096,
-         bootstrap_samples=65536, max_depth=8, rr_depth=5, strategy="mis"):
+def render_with_stats(scene: Scene, *, spp: int, seed: int, stats: dict | None = None, progress: bool = False,
+                      p_large=0.3, chains=4096, bootstrap_samples=65536, max_depth=8, rr_depth=5,
+                      strategy="mis") -> np.ndarray:
+    """The registered estimator's render, also filling ``stats`` (b, acceptance, mutations)."""
     cfg = PSSMLTConfig(pt=PathTracerConfig(strategy=strategy, max_depth=max_depth, rr_depth=rr_depth),
                        p_large=p_large)
     return render(scene, spp=spp, seed=seed, chains=chains, bootstrap_samples=bootstrap_samples,
-                  progress=progress, cfg=cfg)
+                  progress=progress, cfg=cfg, stats=stats)
+
+
+def _run(scene: Scene, *, spp: int, seed: int, progress: bool = False, **params):
+    return render_with_stats(scene, spp=spp, seed=seed, progress=progress, **params)
 
 
 register(Estimator(
