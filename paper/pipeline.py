@@ -181,12 +181,34 @@ def density_fit(scale, out: Path):
            "".join(f"\\newcommand{{\\{k}}}{{{v}}}\n" for k, v in macros.items()))
 
 
+def equal_time(scale, out: Path):
+    """Path tracing, BDPT and MLT at equal render time on the caustic Cornell box."""
+    sys.path.insert(0, str(HERE.parent / "experiments"))
+    import equal_time as et
+
+    args = (["--res", "16", "--budget", "2", "--reps", "2", "--ref-spp", "1024"] if scale == "small"
+            else ["--res", "64", "--budget", "30", "--reps", "4", "--ref-spp", "16384"])
+    r = et.main(["--out", str(out / "equal_time_run")] + args)
+    shutil.copy(out / "equal_time_run" / "equal_time.png", out / "equal_time.png")
+    lines = [r"\begin{tabular}{lrrrr}", r"\toprule",
+             r"estimator & spp & time (s) & relative MSE & acceptance \\", r"\midrule"]
+    for row in r["rows"]:
+        acc = "--" if row["acceptance"] is None else f"{row['acceptance']:.3f}"
+        lines.append(f"{row['label']} & {row['spp']} & {row['seconds']:.1f} & {row['rel_mse']:.3g} & {acc} \\\\")
+    lines += [r"\bottomrule", r"\end{tabular}"]
+    _write(out / "equal_time_table.tex", "\n".join(lines) + "\n")
+    _write(out / "equal_time_macros.tex",
+           f"\\newcommand{{\\etBudget}}{{{r['budget_s']:g}}}\n\\newcommand{{\\etRes}}{{{r['resolution']}}}\n"
+           f"\\newcommand{{\\etRefSpp}}{{{r['reference_spp']}}}\n")
+
+
 STEPS = {
     "furnace": (furnace, ["furnace_table.tex", "furnace_macros.tex"]),
     "pt_convergence": (pt_convergence, ["pt_convergence.pdf", "pt_convergence_macros.tex"]),
     "strategies": (strategies, ["strategies.pdf", "strategies_table.tex"]),
     "performance": (performance, ["performance_macros.tex"]),
     "density_fit": (density_fit, ["density_fit.png", "density_fit_macros.tex"]),
+    "equal_time": (equal_time, ["equal_time.png", "equal_time_table.tex", "equal_time_macros.tex"]),
 }
 
 
