@@ -4,8 +4,9 @@ Rays are struct-of-arrays (origin ``o`` and unit direction ``d`` as :class:`V3` 
 Small primitive tables are unrolled at trace time (one fused kernel over all primitives, the
 scene's values still arrays, not constants); larger tables use a loop, and a triangle table
 that carries a BVH (``scene.triangles.bvh``, built by the scene builder for large meshes) is
-traversed instead (:mod:`jgi.bvh`), after every other table so that their nearest hit culls it. Every test is written so that parallel rays, zero-area primitives and rays that
-miss produce ``t = inf`` and never NaN.
+traversed instead (:mod:`jgi.bvh`), after every other table so that their nearest hit culls
+it. Every test is written so that parallel rays, zero-area primitives and rays that miss
+produce ``t = inf`` and never NaN.
 """
 
 from __future__ import annotations
@@ -268,9 +269,10 @@ def _bvh_closest(tr: Triangles, o: V3, d: V3, t_max: Array) -> tuple[Array, Arra
     i = jnp.maximum(prim, 0)
     v0, e1, e2 = _take(tr.v0, i), _take(tr.edge1, i), _take(tr.edge2, i)
     det = dot(e1, cross(d, e2))
-    t_mt = dot(e2, cross(o - v0, e1)) / jnp.where(det != 0, det, 1.0)
+    hit = prim >= 0           # misses divide by 1: no inf or NaN, not even in the gradient
+    t_mt = dot(e2, cross(o - v0, e1)) / jnp.where(hit & (det != 0), det, 1.0)
     t = t + (t_mt - sg(t_mt))
-    return jnp.where(prim >= 0, t, t_max), prim
+    return jnp.where(hit, t, t_max), prim
 
 
 def _box_row(bx: Boxes, i):
