@@ -28,7 +28,8 @@ the crossover is from interleaved best-of-5 timings):
        1000000   12.9         0.22           0.17          0.0069 Mpaths/s (compile 27 s)
 
     intersect + occluded, BVH / brute force: 0.27 at 64 triangles, 0.54 at 100, 0.83 at 196,
-    1.05 at 256, 1.46 at 400, 2.0 at 576, 3.1 at 1024 -> jgi.scene.BVH_MIN_TRIANGLES = 256.
+    0.92-1.05 at 256, 1.43-1.46 at 400, 2.0-2.1 at 576, 3.1 at 1024 (two runs): crossover at
+    250-280 triangles -> jgi.scene.BVH_MIN_TRIANGLES = 320 (the BVH adds 6-10 s of compile).
 """
 
 from __future__ import annotations

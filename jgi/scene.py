@@ -33,10 +33,12 @@ from .bvh import BVH, build_bvh
 from .vec import V3
 
 # Triangle tables at least this large get a BVH. Measured (experiments/bench_bvh.py, CPU, one
-# closest-hit and one shadow ray per ray, 2^16 rays): brute force 1.4 Mrays/s at 100 triangles,
-# 0.55 at 256, 0.21 at 1024; the BVH 0.6-0.9 at any of these sizes, equal at about 256. Below,
-# brute force also compiles faster (about 1 s against 7 s).
-BVH_MIN_TRIANGLES = 256
+# closest-hit and one shadow ray per ray, 2^16 rays, interleaved best-of-5/7 timings): brute
+# force falls as 1/T (1.4 Mrays/s at 100 triangles, 0.55-0.61 at 256, 0.21 at 1024) while the
+# BVH stays at 0.6-0.9; BVH/brute is 0.83 at 196, 0.92-1.05 at 256, 1.43-1.46 at 400, 2.0 at
+# 576, 3.1 at 1024: the crossover is at 250-280. The threshold sits a little above it, since
+# the BVH traversal also adds 6-10 s of compile time.
+BVH_MIN_TRIANGLES = 320
 
 # Material kinds (jgi.bsdf implements each).
 DIFFUSE, MIRROR, DIELECTRIC, PHONG = 0, 1, 2, 3
