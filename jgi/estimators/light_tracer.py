@@ -86,8 +86,12 @@ def _cat(a: Vertices, b: Vertices) -> Vertices:
     return jax.tree_util.tree_map(lambda x, y: jnp.concatenate([x, y], 0), a, b)
 
 
-def _row(v: Vertices, i) -> Vertices:
-    return jax.tree_util.tree_map(lambda x: x[i], v)
+def _row(v, i):
+    """Row i (an int) or rows i (a static index list) of every leaf. Rows are taken by static
+    slices, not a gather (which XLA's CPU backend runs as a slow, unfused loop)."""
+    if isinstance(i, (int, np.integer, slice)):
+        return jax.tree_util.tree_map(lambda x: x[i], v)
+    return jax.tree_util.tree_map(lambda x: jnp.stack([x[int(k)] for k in i]), v)
 
 
 def convert_density(pdf_solid: Array, d2: Array, cos_at: Array, on_surface: Array) -> Array:
