@@ -272,8 +272,8 @@ class _Rows:
         return first
 
 
-def mis_weights_batched(log_pdf: Array, delta: Array, chains: list[tuple[list, list]],
-                        exponent: float) -> Array:
+def mis_weights_batched(log_pdf: list[Array], delta: list[Array],
+                        chains: list[tuple[list, list]], exponent: float) -> Array:
     """:func:`mis_weight` for many strategies at once: [J, N].
 
     ``log_pdf`` (R rows of [N]) holds log remap0 of every density involved, ``delta`` every
@@ -327,7 +327,7 @@ def contributions(scene: Scene, cfg: BDPTConfig, seed, pixel: Array, sample: Arr
     occ_t1 = occ.pop(0) if t1 else None
     occ_in = occ.pop(0) if inner else None
 
-    # ---- the densities of every strategy, as rows of one table (MIS below) ----
+    # ---- the densities every strategy's MIS chain reads, as numbered rows ----
     P, F = _Rows(), _Rows()                     # log densities, Dirac flags
     cam_fwd, cam_rev = P.add(cam.pdf_fwd), P.add(cam.pdf_rev)
     light_fwd, light_rev = P.add(light.pdf_fwd), P.add(light.pdf_rev)
