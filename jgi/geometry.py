@@ -17,6 +17,7 @@ import jax
 import jax.numpy as jnp
 from jax import Array
 
+from . import _xla as X
 from . import bvh as B
 from ._xla import materialize
 from .scene import Boxes, Quads, Rects, Scene, Spheres, Triangles
@@ -48,7 +49,7 @@ def sphere_t(center: V3, radius, o: V3, d: V3) -> Array:
     closest = oc - d * b
     disc = radius * radius - dot(closest, closest)
     hit = disc >= 0
-    s = jnp.sqrt(jnp.where(hit, disc, 0.0))
+    s = X.sqrt(jnp.where(hit, disc, 0.0))
     t0, t1 = -b - s, -b + s
     t = jnp.where(t0 > T_MIN, t0, t1)
     return jnp.where(hit & (t > T_MIN), t, INF)
@@ -59,7 +60,7 @@ def quad_t(origin: V3, normal: V3, dual_u: V3, dual_v: V3, o: V3, d: V3) -> Arra
     in [0, 1]; the duals are precomputed so the test needs no cross product."""
     denom = dot(normal, d)
     ok = jnp.abs(denom) > 1e-12
-    t = dot(normal, origin - o) / jnp.where(ok, denom, 1.0)
+    t = X.div(dot(normal, origin - o), jnp.where(ok, denom, 1.0))
     rel = o + d * t - origin
     a, b = dot(rel, dual_u), dot(rel, dual_v)
     hit = ok & (t > T_MIN) & (a >= 0) & (a <= 1) & (b >= 0) & (b <= 1)
@@ -71,7 +72,7 @@ def triangle_t(v0: V3, e1: V3, e2: V3, o: V3, d: V3) -> tuple[Array, Array, Arra
     pvec = cross(d, e2)
     det = dot(e1, pvec)
     ok = jnp.abs(det) > 1e-14
-    inv = 1.0 / jnp.where(ok, det, 1.0)
+    inv = X.recip(jnp.where(ok, det, 1.0))
     tvec = o - v0
     b1 = dot(tvec, pvec) * inv
     qvec = cross(tvec, e1)
@@ -85,7 +86,7 @@ def safe_reciprocal(d: V3) -> V3:
     """1/d per component, with components below 1e-20 in magnitude replaced by 1e-20 (so slab
     and plane tests never form 0 * inf; the sign of such a component does not matter: the ray
     is parallel to that slab for any finite distance)."""
-    return d.map(lambda x: 1.0 / jnp.where(jnp.abs(x) < 1e-20, jnp.float32(1e-20), x))
+    return d.map(lambda x: X.recip(jnp.where(jnp.abs(x) < 1e-20, jnp.float32(1e-20), x)))
 
 
 def rect_t(axis: int, plane, lo_a, hi_a, lo_b, hi_b, o: V3, d: V3, inv_d: V3) -> Array:
@@ -371,8 +372,8 @@ def occluded(scene: Scene, o: V3, d: V3, t_max: Array) -> Array:
     if sp.count:
         # the sphere test needs a unit direction: t scales by the length
         n2 = dot(d, d)
-        length = jnp.sqrt(jnp.where(n2 > 0, n2, 1.0))
-        du, t_max_u = d * (1.0 / length), t_max * length
+        inv_length = X.rsqrt(jnp.where(n2 > 0, n2, 1.0))
+        du, t_max_u = d * inv_length, X.div(t_max, inv_length)
         occ = _scan(sp.count, lambda i, a: a | (sphere_t(_take(sp.center, i), sp.radius[i], o,
                                                          du) < t_max_u), occ)
     r: Rects = scene.rects

@@ -29,6 +29,7 @@ from typing import NamedTuple
 import jax.numpy as jnp
 from jax import Array
 
+from . import _xla as X
 from . import warps
 from .scene import (AREA_QUAD, AREA_SPHERE, AREA_TRIANGLE, DIRECTIONAL, ENVIRONMENT, POINT, SPOT,
                     Lights)
@@ -77,7 +78,7 @@ def spot_falloff(cos_theta, cos_total, cos_falloff) -> Array:
 
 def _area_to_solid_angle(pdf_area, dist2, cos_light):
     ok = (cos_light > 1e-7) & (pdf_area > 0)
-    return jnp.where(ok, pdf_area * dist2 / jnp.where(ok, cos_light, 1.0), 0.0)
+    return jnp.where(ok, X.div(pdf_area * dist2, jnp.where(ok, cos_light, 1.0)), 0.0)
 
 
 def _sphere_cone(center: V3, radius, x: V3):
@@ -110,8 +111,9 @@ def sample_li(lights: Lights, x: V3, u_sel: Array, u1: Array, u2: Array) -> Ligh
     def towards(y: V3, n_light: V3, pdf_area, one_sided=True):
         v = y - x
         d2 = dot(v, v)
-        dist = jnp.sqrt(d2)
-        wi = v / jnp.where(dist > 0, dist, 1.0)
+        inv = jnp.where(d2 > 0, X.rsqrt(jnp.where(d2 > 0, d2, 1.0)), 1.0)
+        dist = d2 * inv
+        wi = v * inv
         cos_l = -dot(wi, n_light)
         pdf = _area_to_solid_angle(pdf_area, d2, cos_l) * pmf
         ok = (pdf > 0) & (dist > 0)
@@ -119,7 +121,7 @@ def sample_li(lights: Lights, x: V3, u_sel: Array, u1: Array, u2: Array) -> Ligh
 
     if AREA_QUAD in kinds or AREA_TRIANGLE in kinds:
         area = lights.area[k]
-        inv_area = jnp.where(area > 0, 1.0 / jnp.where(area > 0, area, 1.0), 0.0)
+        inv_area = jnp.where(area > 0, X.recip(jnp.where(area > 0, area, 1.0)), 0.0)
         n_l = _take(lights.normal, k)
         if AREA_QUAD in kinds:
             s = towards(p0 + e1 * u1 + e2 * u2, n_l, inv_area)
@@ -185,10 +187,9 @@ def pdf_li(lights: Lights, k: Array, x: V3, y: V3, n_y: V3) -> Array:
     pmf = lights.pmf[kk]
     v = y - x
     d2 = dot(v, v)
-    dist = jnp.sqrt(d2)
-    cos_l = -dot(v, n_y) / jnp.where(dist > 0, dist, 1.0)
+    cos_l = -dot(v, n_y) * jnp.where(d2 > 0, X.rsqrt(jnp.where(d2 > 0, d2, 1.0)), 1.0)
     area = lights.area[kk]
-    inv_area = jnp.where(area > 0, 1.0 / jnp.where(area > 0, area, 1.0), 0.0)
+    inv_area = jnp.where(area > 0, X.recip(jnp.where(area > 0, area, 1.0)), 0.0)
     pdf = _area_to_solid_angle(inv_area, d2, cos_l)
     kinds = lights.kinds
     if AREA_SPHERE in kinds:

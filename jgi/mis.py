@@ -16,6 +16,8 @@ from __future__ import annotations
 import jax.numpy as jnp
 from jax import Array
 
+from . import _xla as X
+
 
 def heuristic_weight(n_s, p_s: Array, others: list[tuple], beta: float = 1.0) -> Array:
     """w_s for the strategy with (n_s, p_s) against ``others = [(n_i, p_i), ...]``.
@@ -26,9 +28,9 @@ def heuristic_weight(n_s, p_s: Array, others: list[tuple], beta: float = 1.0) ->
     a_safe = jnp.where(ok, a, 1.0)
     denom = jnp.ones_like(a_safe)
     for n_i, p_i in others:
-        r = (n_i * p_i) / a_safe
+        r = X.div(n_i * p_i, a_safe)
         denom = denom + (r if beta == 1.0 else (r * r if beta == 2.0 else r ** beta))
-    return jnp.where(ok, 1.0 / denom, 0.0)
+    return jnp.where(ok, X.recip(denom), 0.0)
 
 
 def balance(n_s, p_s, n_o, p_o) -> Array:

@@ -13,6 +13,8 @@ from typing import NamedTuple
 import jax.numpy as jnp
 from jax import Array
 
+from ._xla import rsqrt as _rsqrt  # fusion-friendly 1/sqrt (jgi._xla, item 5)
+
 
 class V3(NamedTuple):
     x: Array
@@ -87,7 +89,7 @@ def length(a: V3) -> Array:
 def normalize(a: V3) -> V3:
     """Unit vector; the zero vector maps to zero rather than NaN."""
     n2 = dot(a, a)
-    inv = jnp.where(n2 > 0, 1.0 / jnp.sqrt(jnp.where(n2 > 0, n2, 1.0)), 0.0)
+    inv = jnp.where(n2 > 0, _rsqrt(jnp.where(n2 > 0, n2, 1.0)), 0.0)
     return a * inv
 
 

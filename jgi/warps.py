@@ -11,6 +11,7 @@ from __future__ import annotations
 import jax.numpy as jnp
 from jax import Array
 
+from . import _xla as X
 from ._xla import sincos
 from .vec import V3
 
@@ -20,7 +21,7 @@ INV_4PI = jnp.float32(0.25 / jnp.pi)
 
 
 def _safe_sqrt(x: Array) -> Array:
-    return jnp.sqrt(jnp.maximum(x, 0.0))
+    return X.sqrt(jnp.maximum(x, 0.0))
 
 
 # --- disc -------------------------------------------------------------------------------------
@@ -32,7 +33,7 @@ def sample_concentric_disc(u1: Array, u2: Array) -> tuple[Array, Array]:
     r = jnp.where(first, a, b)
     safe_a = jnp.where(a == 0, 1.0, a)
     safe_b = jnp.where(b == 0, 1.0, b)
-    phi = jnp.where(first, (PI / 4) * (b / safe_a), (PI / 2) - (PI / 4) * (a / safe_b))
+    phi = jnp.where(first, (PI / 4) * X.div(b, safe_a), (PI / 2) - (PI / 4) * X.div(a, safe_b))
     zero = (a == 0) & (b == 0)
     sin_phi, cos_phi = sincos(phi)
     return jnp.where(zero, 0.0, r * cos_phi), jnp.where(zero, 0.0, r * sin_phi)
