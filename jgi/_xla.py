@@ -66,6 +66,11 @@ def materialize(tree):
     shapes = {x.shape for x in leaves}
     if len(shapes) != 1 or leaves[0].ndim == 0:
         return tree
+    return jax.tree_util.tree_unflatten(treedef, list(_stored(*leaves)))
+
+
+@jax.custom_jvp
+def _stored(*leaves):
     ops = [jnp.stack([x, jnp.zeros_like(x)]) for x in leaves]
     inits = [jnp.zeros((), x.dtype) for x in leaves]
     kinds = [x.dtype == jnp.bool_ for x in leaves]
@@ -73,8 +78,14 @@ def materialize(tree):
     def combine(a, b):
         return tuple((ai | bi) if k else (ai + bi) for ai, bi, k in zip(a, b, kinds))
 
-    out = jax.lax.reduce(ops, inits, combine, (0,))
-    return jax.tree_util.tree_unflatten(treedef, list(out))
+    return tuple(jax.lax.reduce(ops, inits, combine, (0,)))
+
+
+@_stored.defjvp
+def _stored_jvp(primals, tangents):
+    # The value is the identity, so is its derivative. JAX has no derivative rule for a reduce
+    # with a custom combiner; the tangents need no materialising trick.
+    return _stored(*primals), tuple(tangents)
 
 
 SMALL_TABLE = 8  # tables up to this many rows are read with selects

@@ -485,18 +485,12 @@ def _mesh_scene(tris, bvh=None, **camera):
     return b.build()
 
 
-def test_scene_builds_bvh_by_size_and_geometry_agrees(torus_case, monkeypatch):
+def test_scene_builds_bvh_by_size_and_geometry_agrees(torus_case):
     """SceneBuilder adds a BVH from BVH_MIN_TRIANGLES triangles on; geometry.intersect,
     closest_hit and occluded then agree with the brute-force scan (t, triangle, normal, shadow
-    rays), and so does the gradient of t with respect to the vertices.
-
-    ``jgi._xla.materialize`` is switched off here (values are unchanged): its ``lax.reduce``
-    has no JVP when some leaves carry symbolic-zero tangents (the Hit's integer material),
-    which breaks ``jax.grad`` of any intersection, with or without a BVH."""
+    rays), and so does the gradient of t with respect to the vertices (through
+    ``jgi._xla.materialize``, whose derivative is the identity)."""
     import equinox as eqx
-
-    import jgi._xla
-    monkeypatch.setattr(jgi._xla, "ENABLED", False)
 
     from jgi import geometry as G
     from jgi.scene import BVH_MIN_TRIANGLES, with_bvh
