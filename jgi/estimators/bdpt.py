@@ -208,11 +208,13 @@ def _camera_visit(scene: Scene, exponent: float):
     return visit
 
 
-def camera_subpath(scene: Scene, cfg: BDPTConfig, key: Array, pixel: Array):
-    """z_0 (the pinhole) .. z_max_depth, and the per-vertex s = 0 / s = 1 records."""
+def camera_subpath(scene: Scene, cfg: BDPTConfig, key: Array, pixel: Array, uniform=None):
+    """z_0 (the pinhole) .. z_max_depth, and the per-vertex s = 0 / s = 1 records.
+    ``uniform(dim)``, if given, replaces the hashed stream ``key`` (dims 0, 1: pixel jitter)."""
     cam = scene.camera
     W = cam.width
-    o, d = C.sample_ray(cam, pixel % W, pixel // W, rng.uniform(key, 0), rng.uniform(key, 1))
+    u = (lambda k: rng.uniform(key, k)) if uniform is None else uniform  # noqa: E731
+    o, d = C.sample_ray(cam, pixel % W, pixel // W, u(0), u(1))
     z = jnp.zeros_like(o.x)
     Z = V3(z, z, z)
     one = V3(z + 1, z + 1, z + 1)
@@ -222,7 +224,7 @@ def camera_subpath(scene: Scene, cfg: BDPTConfig, key: Array, pixel: Array):
     start = WalkState(o, d, one, pdf_dir, o, Z, z > 0, z > 0, z == 0)
     verts, pdf_rev0, rec = random_walk(scene, key, CAMERA_DIMS0, CAMERA_DIMS_PER_STEP,
                                        cfg.max_depth, start, B.RADIANCE,
-                                       _camera_visit(scene, cfg.exponent))
+                                       _camera_visit(scene, cfg.exponent), uniform=uniform)
     z0 = jax.tree_util.tree_map(lambda x: x[None], z0._replace(pdf_rev=pdf_rev0))
     return _cat(z0, verts), rec
 
@@ -295,13 +297,17 @@ def mis_weights_batched(log_pdf: list[Array], delta: list[Array],
     return jnp.stack(weights)
 
 
-def contributions(scene: Scene, cfg: BDPTConfig, seed, pixel: Array, sample: Array) -> dict:
+def contributions(scene: Scene, cfg: BDPTConfig, seed, pixel: Array, sample: Array,
+                  uniforms=None) -> dict:
     """For every strategy (s, t): (splat pixel or None for the sample's own pixel, MIS-weighted
-    value, unweighted value), each [N]."""
+    value, unweighted value), each [N]. ``uniforms = (camera, light)``, two ``uniform(dim)``
+    callables, replaces the hashed streams of (seed, pixel, sample) (Metropolis: MMLT)."""
     D = cfg.max_depth
-    key = rng.path_key(seed, pixel, sample)
-    cam, rec = camera_subpath(scene, cfg, key, pixel)             # z_0 .. z_D
-    lp = light_subpath(scene, light_key(seed, pixel, sample), D)  # y_0 .. y_{D-1}
+    u_cam, u_light = uniforms if uniforms is not None else (None, None)
+    key = rng.path_key(seed, pixel, sample) if u_cam is None else None
+    cam, rec = camera_subpath(scene, cfg, key, pixel, u_cam)      # z_0 .. z_D
+    lkey = light_key(seed, pixel, sample) if u_light is None else None
+    lp = light_subpath(scene, lkey, D, uniform=u_light)           # y_0 .. y_{D-1}
     light = lp.vertices
     strategies = cfg.strategies()
     z = jnp.zeros_like(cam.pdf_fwd[0])

@@ -127,8 +127,12 @@ class Visit(NamedTuple):
 
 
 def random_walk(scene: Scene, key: Array, dim0: int, dims_per_step: int, n_steps: int,
-                start: WalkState, mode: int, visit: Callable[[Visit], object] | None = None):
+                start: WalkState, mode: int, visit: Callable[[Visit], object] | None = None,
+                uniform: Callable | None = None):
     """Extend a subpath by ``n_steps`` BSDF-sampled segments (pbrt-v4's RandomWalk).
+
+    Random numbers come from the hashed stream ``key``, or, if ``uniform`` is given, from
+    ``uniform(dim)`` (explicit primary samples, e.g. Metropolis; ``key`` is then unused).
 
     Returns (vertices 1..n_steps as :class:`Vertices` [n_steps, N], pdf_rev of vertex 0 [N],
     the stacked outputs of ``visit``). Each vertex's ``pdf_rev`` is filled in by the next step
@@ -138,7 +142,8 @@ def random_walk(scene: Scene, key: Array, dim0: int, dims_per_step: int, n_steps
 
     def step(s: WalkState, j):
         base = dim0 + j * dims_per_step
-        u = lambda k: rng.uniform(key, base + k)  # noqa: E731
+        u = ((lambda k: rng.uniform(key, base + k)) if uniform is None  # noqa: E731
+             else (lambda k: uniform(base + k)))
         hit = G.intersect(scene, s.o, s.d)
         valid = s.alive & hit.valid
         v = hit.p - s.prev_p
@@ -225,14 +230,17 @@ class LightPath(NamedTuple):
     element: Array       # the light element
 
 
-def light_subpath(scene: Scene, key: Array, max_depth: int, infinite: bool = False) -> LightPath:
+def light_subpath(scene: Scene, key: Array, max_depth: int, infinite: bool = False,
+                  uniform: Callable | None = None) -> LightPath:
     """Light subpath y_0 .. y_{max_depth-1} (enough for every strategy with t >= 1).
+
+    ``uniform(dim)``, if given, replaces the hashed stream ``key`` (explicit primary samples).
 
     ``infinite=False`` drops subpaths that start on directional or environment lights (their
     y_0 is a point of a bounding disc, not of the scene); BDPT reaches those lights through the
     camera subpath only. Light tracing keeps them (``infinite=True``)."""
     lights = scene.lights
-    u = lambda k: rng.uniform(key, k)  # noqa: E731
+    u = (lambda k: rng.uniform(key, k)) if uniform is None else uniform  # noqa: E731
     em = LT.sample_emission(lights, u(0), u(1), u(2), u(3), u(4))
     inf = is_infinite(lights, em.element)
     ok = (em.pdf_pos > 0) & (max_component(em.weight) > 0)
@@ -250,7 +258,7 @@ def light_subpath(scene: Scene, key: Array, max_depth: int, infinite: bool = Fal
     start = WalkState(G.offset_origin(em.p, em.n, em.d), em.d, em.weight,
                       em.pdf_dir, em.p, em.n, on_surface, z > 0, ok)
     verts, pdf_rev0, _ = random_walk(scene, key, LIGHT_DIMS0, LIGHT_DIMS_PER_STEP, max_depth - 1,
-                                     start, B.IMPORTANCE)
+                                     start, B.IMPORTANCE, uniform=uniform)
     v0 = v0._replace(pdf_rev=pdf_rev0[None])
     return LightPath(_cat(v0, verts), delta_light, em.element)
 
