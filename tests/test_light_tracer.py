@@ -39,8 +39,8 @@ def test_point_light_over_plane_matches_closed_form():
 
 def test_agrees_with_path_tracer_on_cornell_box():
     scene = scenes.cornell_box(resolution=16)
-    lt = renders(scene, spp=64, max_depth=4)
-    pt = renders(scene, "pt", spp=64, max_depth=4, rr_depth=-1)
+    lt = renders(scene, spp=64, max_depth=3)
+    pt = renders(scene, "pt", spp=64, max_depth=3, rr_depth=-1)
     assert_agree(lt, pt, regions=4, label="lt vs pt, cornell_box")
 
 
