@@ -163,7 +163,7 @@ def plan(doc: dict):
 # Reduced sizes for smoke runs (the test suite runs every bundled config this way).
 SMOKE_RESOLUTION = 8
 SMOKE_MAX = dict(spp=4, photons=20_000, caustic_photons=5_000, passes=2, chains=256,
-                 bootstrap_samples=4096, final_gather=4, k=50, k_caustic=50)
+                 bootstrap_samples=4096, final_gather=4, k=50, k_caustic=50, max_depth=3)
 
 
 def smoke(doc: dict) -> dict:
