@@ -69,32 +69,36 @@ def test_strategy_choice_integrates_to_bdpt(rng_np):
     n = len(sts)
     assert sts == [(0, 4), (1, 3), (2, 2), (3, 1)] and mmlt.n_strategies(cfg, L) == n
     N = 512
-    u = rng_np.random((mmlt.dims(L), N)).astype(np.float32)
-    u_all = np.tile(u, (1, n))
-    u_all[0] = np.repeat((np.arange(n) + 0.5) / n, N)          # strategy j in block j
+    u = jnp.asarray(rng_np.random((mmlt.dims(L), N)).astype(np.float32))
 
     @jax.jit
-    def both(u_all, u):
-        value, f, pix = mmlt.evaluate(scene, cfg, L, u_all)
+    def both(u):
+        # one BDPT evaluation per lane (the strategy sample u[0] does not enter it) ...
         _, pixel, uc, ul = mmlt.primary_streams(scene, L, u)
         out = BD.contributions(scene, cfg.bdpt(L), 0, pixel, 0, uniforms=(uc, ul))
-        return value, f, pix, pixel, out
+        # ... and MMLT's choice of each strategy in turn, as the strategy sample selects it
+        chosen = [mmlt.select(out, sts, pixel, jnp.full((N,), (j + 0.5) / n)) for j in range(n)]
+        return out, pixel, chosen
 
-    value, f, pix, pixel, out = jax.device_get(both(jnp.asarray(u_all), jnp.asarray(u)))
+    out, pixel, chosen = jax.device_get(both(u))
     P = scene.camera.width * scene.camera.height
     img_mmlt = np.zeros((N, P, 3))
     img_bdpt = np.zeros((N, P, 3))
     lane = np.arange(N)
     for j, st in enumerate(sts):
-        blk = slice(j * N, (j + 1) * N)
-        vals = np.stack([np.asarray(c)[blk] for c in value], -1) / n
-        np.add.at(img_mmlt, (lane, pix[blk]), vals)
+        value, f, pix = chosen[j]
+        vals = np.stack(value, -1) / n                 # n w C, chosen with probability 1 / n
+        assert np.all(np.isfinite(vals)) and np.all(f >= 0)
+        np.testing.assert_allclose(f, np.maximum(vals @ [0.2126, 0.7152, 0.0722], 0) * n,
+                                   rtol=1e-4, atol=1e-9)
+        np.add.at(img_mmlt, (lane, pix), vals)
         p, weighted, _ = out[st]
         p = pixel if p is None else p
-        w = np.stack([np.asarray(c) for c in weighted], -1)
+        w = np.stack(weighted, -1)
         keep = p >= 0
         np.add.at(img_bdpt, (lane[keep], p[keep]), w[keep])
-        assert np.all(np.isfinite(vals)) and np.all(f[blk] >= 0)
+        if st[1] == 1:                                  # t = 1 splats away from the own pixel
+            assert np.any(keep & (p != pixel))
     assert img_bdpt.sum() > 0 and np.count_nonzero(img_bdpt.sum(-1)) > N // 4
     np.testing.assert_allclose(img_mmlt, img_bdpt, rtol=1e-5, atol=1e-7)
 

@@ -113,15 +113,11 @@ def primary_streams(scene: Scene, length: int, u):
     return u[0], py * W + px, _callable(cam), _callable(light)
 
 
-def evaluate(scene: Scene, cfg: MMLTConfig, length: int, u):
-    """(value V3, f, pixel) of primary samples u [dims(length), N]: the chosen strategy's
-    n_L w_{s,t} C*_{s,t}, its luminance (the target, >= 0) and the film pixel it lands on
-    (value 0 and pixel 0 where it lands nowhere)."""
-    bcfg = cfg.bdpt(length)
-    sts = bcfg.strategies()
+def select(out: dict, sts: list, pixel, u_strat):
+    """From BDPT's per-strategy results ``out`` (:func:`~jgi.estimators.bdpt.contributions`)
+    pick the strategy numbered floor(u_strat n) of ``sts``: (n w C, f = its luminance >= 0,
+    film pixel; value 0 and pixel 0 where it lands nowhere)."""
     n = len(sts)
-    u_strat, pixel, uc, ul = primary_streams(scene, length, u)
-    out = contributions(scene, bcfg, 0, pixel, 0, uniforms=(uc, ul))
     k = jnp.clip(jnp.floor(u_strat * n).astype(jnp.int32), 0, n - 1)
     z = jnp.zeros_like(u_strat)
     value = V3(z, z, z)
@@ -136,6 +132,15 @@ def evaluate(scene: Scene, cfg: MMLTConfig, length: int, u):
     value = V3(*(jnp.where(ok & jnp.isfinite(c), c * n, 0.0) for c in value))
     f = jnp.maximum(luminance(value), 0.0)
     return value, f, jnp.where(ok, pix, 0)
+
+
+def evaluate(scene: Scene, cfg: MMLTConfig, length: int, u):
+    """(value V3, f, pixel) of primary samples u [dims(length), N]: the chosen strategy's
+    n_L w_{s,t} C*_{s,t}, its luminance (the target) and the film pixel it lands on."""
+    bcfg = cfg.bdpt(length)
+    u_strat, pixel, uc, ul = primary_streams(scene, length, u)
+    out = contributions(scene, bcfg, 0, pixel, 0, uniforms=(uc, ul))
+    return select(out, bcfg.strategies(), pixel, u_strat)
 
 
 @partial(jax.jit, static_argnames=("cfg", "length", "n_steps"))
