@@ -8,7 +8,13 @@
    about 25,000 instead of 3,000 operations per bounce). Routing the values through one
    multi-output ``lax.reduce`` over a size-2 axis makes XLA compute them once and store them;
    ``lax.optimization_barrier`` does not do this on the CPU backend. The reduce adds zero (or
-   ORs False), so results are bit-identical.
+   ORs False), so results are bit-identical. Limits found in XLA's fusion pass (jax 0.10):
+   a value that reaches more than 15 of the outputs is still split off into a kernel of its
+   own ("code duplication too high": each output's reshape counts as one more emission), so a
+   flag that selects every leaf of a wide state (the wavefront's path restart) is computed
+   separately; and the outputs of the reduce cannot be written in place into while-loop
+   buffers, which costs one copy per loop-carried leaf unless the loop body runs two steps
+   (jgi.render.WAVEFRONT_UNROLL).
 
 3. :func:`take`: rows of small tables (materials, a handful of primitives) read with a chain of
    selects rather than a gather, which XLA's CPU backend emits as a separate, unfused loop.
