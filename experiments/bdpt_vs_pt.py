@@ -1,6 +1,7 @@
-"""Equal-time comparison of path tracing, BDPT and light tracing on the caustic Cornell box.
+"""Equal-time comparison of path tracing, BDPT and light tracing on the caustic Cornell box
+(or ``--scene``).
 
-    python experiments/bdpt_vs_pt.py [--resolution 32] [--budget 2 8] [--repetitions 3]
+    python experiments/bdpt_vs_pt.py [--scene cornell_box_caustics] [--resolution 32] [--budget 2 8] [--repetitions 3]
                                      [--reference-spp 4096] [--out out/bdpt_vs_pt]
 
 A long path-tracing render (max depth 5, no Russian roulette, ``--reference-spp``; cached in
@@ -35,7 +36,7 @@ ESTIMATORS = {
 def reference(scene, spp: int, out: Path):
     import jgi
 
-    path = out / f"reference_{scene.camera.width}_{spp}.npz"
+    path = out / f"reference_{scene.name}_{scene.camera.width}_{spp}.npz"
     if path.exists():
         z = np.load(path)
         return z["mean"], z["variance"]
@@ -71,6 +72,8 @@ def _timed(scene, name, spp, params) -> float:
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--scene", default="cornell_box_caustics",
+                    help="e.g. glass_sphere: a caustic under a small light")
     ap.add_argument("--resolution", type=int, default=32)
     ap.add_argument("--budget", type=float, nargs="+", default=[2.0, 8.0])
     ap.add_argument("--repetitions", type=int, default=3)
@@ -83,7 +86,7 @@ def main(argv=None) -> int:
     from jgi.imageio import write_exr, write_png
 
     out = Path(a.out)
-    scene = jgi.load_scene("cornell_box_caustics").with_resolution(a.resolution, a.resolution)
+    scene = jgi.load_scene(a.scene).with_resolution(a.resolution, a.resolution)
     t0 = time.perf_counter()
     ref, ref_var = reference(scene, a.reference_spp, out)
     print(f"reference: pt {a.reference_spp} spp in {time.perf_counter() - t0:.0f} s "
@@ -118,7 +121,7 @@ def main(argv=None) -> int:
         print(f"{r['budget_s']:7.1f} {r['estimator']:>9} {r['spp']:6d} {r['seconds']:8.2f} "
               f"{r['rel_mse']:9.5f} {r['rel_mse_at_budget']:9.5f} {r['rel_mse_floor']:12.5f} "
               f"{r['bias2_rel']:10.5f}")
-    result = dict(scene="cornell_box_caustics", resolution=a.resolution,
+    result = dict(scene=a.scene, resolution=a.resolution,
                   reference_spp=a.reference_spp, seconds_per_spp=cost, rows=rows,
                   load_average=os.getloadavg()[0], cpus=os.cpu_count())
     out.mkdir(parents=True, exist_ok=True)

@@ -1,7 +1,7 @@
 """Differentiable fitting of photon-density parameters on the point light over a plane (exact
 irradiance, see jgi.density_fit): the MSE-optimal radius as a function of photon count and its
-scaling exponent (theory: -1/6), the optimal cone k, and a Gaussian filter fitted by gradient
-beside Jensen's alpha = 0.918, beta = 1.953.
+scaling exponent (theory: -1/6), the optimal cone k, a Gaussian filter fitted by gradient
+beside Jensen's alpha = 0.918, beta = 1.953, and progressive photon mapping's alpha.
 
     python experiments/fit_density.py [--out runs/fit_density] [--reps 8] [--photons 2500 5000 ...]
 
@@ -27,9 +27,12 @@ def problem_for(photons: int, reps: int, seed: int):
     from jgi import density_fit as D
 
     r_max = 2.0 * radius_guess(photons)
+    return D.point_light_problem(photons, reps, r_max=r_max, candidates=_candidates(photons, r_max), seed=seed)
+
+
+def _candidates(photons: int, r_max: float) -> int:
     expected = 0.375 * photons * r_max * r_max  # photons within r_max of the brightest point
-    candidates = int(2 ** np.ceil(np.log2(max(64, 1.3 * expected))))
-    return D.point_light_problem(photons, reps, r_max=r_max, candidates=candidates, seed=seed)
+    return int(2 ** np.ceil(np.log2(max(64, 1.3 * expected))))
 
 
 def main(argv=None) -> dict:
@@ -84,6 +87,17 @@ def main(argv=None) -> dict:
 
     g = F.minimise(gauss, jnp.array([0.918, np.log(1.953)], jnp.float32))
     alpha, beta = float(g.theta[0]), float(np.exp(g.theta[1]))
+    # Progressive photon mapping's alpha, fitted by gradient for 8 passes from r0 = 2 r*(N).
+    passes = 8
+    r0 = min(2 * r, 1.2)
+    pp = D.point_light_problem(mid["photons"], passes * max(2, a.reps // 2), r_max=r0,
+                               candidates=_candidates(mid["photons"], r0), seed=4242)
+    ploss = jax.jit(lambda al: D.progressive_relative_mse(pp, passes, r0, al))
+    pfit = F.minimise(lambda y: ploss(jax.nn.sigmoid(y)), jnp.float32(0.0))
+    alpha_star = float(jax.nn.sigmoid(pfit.theta))
+    alphas = np.linspace(0.05, 0.95, 19)
+    progressive = dict(passes=passes, r0=r0, alpha=alpha_star, rel_mse=float(pfit.value),
+                       curve=[(float(al), float(ploss(jnp.float32(al)))) for al in alphas])
     filters = dict(radius=r, photons=mid["photons"], box=box, epanechnikov=mid["rel_mse"],
                    cone=dict(k=cone_k, rel_mse=float(cone.value)),
                    gaussian_jensen=dict(alpha=0.918, beta=1.953, rel_mse=jensen,
@@ -92,7 +106,8 @@ def main(argv=None) -> dict:
                                         integral=float(gaussian_normaliser(alpha, beta))))
     summary = dict(rows=rows, r_star_exponent=slope_r, r_star_exponent_se=se_r, theory_r_exponent=-1 / 6,
                    mse_exponent=slope_m, mse_exponent_se=se_m, theory_mse_exponent=-2 / 3,
-                   filters=filters, repetitions=a.reps, seconds=time.perf_counter() - t0)
+                   filters=filters, progressive=progressive, repetitions=a.reps,
+                   seconds=time.perf_counter() - t0)
     (out / "fit_density.json").write_text(json.dumps(summary, indent=2))
 
     fig, ax = plt.subplots(1, 2, figsize=(9, 3.5))
@@ -113,6 +128,9 @@ def main(argv=None) -> dict:
     print(f"at N={mid['photons']}, r={r:.3f}: box {box:.3e}, Epanechnikov {mid['rel_mse']:.3e}, "
           f"cone k={cone_k:.3f} {float(cone.value):.3e}, Gaussian Jensen {jensen:.3e}, "
           f"Gaussian fitted alpha={alpha:.3f} beta={beta:.3f} {float(g.value):.3e}")
+    print(f"progressive photon mapping, {passes} passes from r0={progressive['r0']:.3f}: "
+          f"MSE-optimal alpha {alpha_star:.3f} (relMSE {progressive['rel_mse']:.3e}); "
+          + ", ".join(f"alpha {al:.2f}: {v:.2e}" for al, v in progressive["curve"][::6]))
     return summary
 
 

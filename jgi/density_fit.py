@@ -100,3 +100,39 @@ def mse_terms(problem: DensityProblem, r, kind: str = "epanechnikov", **filter_p
     """(bias^2, variance) of the relative error averaged over query points, from the R maps."""
     e = estimate(problem, r, kind, **filter_params) / problem.exact - 1.0
     return jnp.mean(jnp.mean(e, 0) ** 2), jnp.mean(jnp.var(e, 0, ddof=1))
+
+
+def progressive_estimate(problem: DensityProblem, passes: int, r0, alpha):
+    """Progressive photon mapping's estimate after ``passes`` passes (Hachisuka et al. 2008),
+    with the R photon maps of ``problem`` split into R / passes independent sequences. Each pass
+    i adds M_i photons of flux Phi_i found within r_i and shrinks the radius:
+
+        N_{i+1} = N_i + alpha M_i,   r_{i+1}^2 = r_i^2 (N_i + alpha M_i) / (N_i + M_i),
+        tau_{i+1} = (tau_i + Phi_i) r_{i+1}^2 / r_i^2,   E = tau / (pi r^2 passes).
+
+    M_i and Phi_i use the Epanechnikov kernel (M_i = sum_p W(d_p) / 0.5, the kernel integrating
+    to half the disc), so the estimate is smooth in alpha and r0 and ``jax.grad`` gives the
+    derivative of the sample-average MSE. Returns [R / passes, J]. Candidates must cover r0."""
+    R, J, Cn = problem.d2.shape
+    seqs = R // passes
+    d2 = problem.d2[: seqs * passes].reshape(seqs, passes, J, Cn)
+    pw = problem.power[: seqs * passes].reshape(seqs, passes, J, Cn)
+    r2 = jnp.full((seqs, J), r0 * r0, jnp.float32)
+    n = jnp.zeros((seqs, J), jnp.float32)
+    tau = jnp.zeros((seqs, J), jnp.float32)
+    for i in range(passes):
+        inside = d2[:, i] < r2[..., None]
+        # the padded candidates are at infinity: keep them out of the division (NaN gradients)
+        w = jnp.where(inside, 1.0 - jnp.where(inside, d2[:, i], 0.0) / r2[..., None], 0.0) / 0.5
+        m = jnp.sum(w, -1)
+        phi = jnp.sum(w * pw[:, i], -1)
+        shrink = jnp.where(n + m > 0, (n + alpha * m) / jnp.maximum(n + m, 1e-30), 1.0)
+        tau = (tau + phi) * shrink
+        r2 = r2 * shrink
+        n = n + alpha * m
+    return tau / (jnp.pi * r2 * passes)
+
+
+def progressive_relative_mse(problem: DensityProblem, passes: int, r0, alpha) -> Array:
+    e = progressive_estimate(problem, passes, r0, alpha) / problem.exact - 1.0
+    return jnp.mean(e * e)

@@ -176,7 +176,10 @@ def density_fit(scale, out: Path):
                   dfGaussAlpha=f"{f['gaussian_fitted']['alpha']:.3f}",
                   dfGaussBeta=f"{f['gaussian_fitted']['beta']:.3f}",
                   dfGauss=f"{f['gaussian_fitted']['rel_mse']:.2e}",
-                  dfGaussIntegral=f"{f['gaussian_fitted']['integral']:.3f}", dfReps=str(r["repetitions"]))
+                  dfGaussIntegral=f"{f['gaussian_fitted']['integral']:.3f}", dfReps=str(r["repetitions"]),
+                  dfPpmPasses=str(r["progressive"]["passes"]), dfPpmAlpha=f"{r['progressive']['alpha']:.3f}",
+                  dfPpmMse=f"{r['progressive']['rel_mse']:.2e}",
+                  dfPpmCurve=", ".join(f"{v:.2e} ($\\alpha={al:.2f}$)" for al, v in r["progressive"]["curve"][::6]))
     _write(out / "density_fit_macros.tex",
            "".join(f"\\newcommand{{\\{k}}}{{{v}}}\n" for k, v in macros.items()))
 
