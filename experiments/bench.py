@@ -11,7 +11,7 @@ Measures, each after a warm-up call so compile time is reported separately:
     chooses);
   * the BVH (``experiments/bench_bvh.py``): build time, traversal rays/s up to 10^6 triangles
     (10^5 with --quick), the brute-force crossover, path tracing a 10^5 / 10^6-triangle mesh;
-  * BDPT samples/s and hash-grid density queries/s where those modules are present;
+  * BDPT samples/s, and hash-grid density queries/s beside scipy's cKDTree;
   * compile times and the process's peak resident memory.
 """
 
@@ -114,11 +114,20 @@ def bench_optional(quick: bool) -> list[dict]:
     if "bdpt" in jgi.REGISTRY:
         first, best = _timed(lambda: jgi.render(scene, "bdpt", spp=4, seed=1), repeats=1)
         rows.append(dict(bench="bdpt", msamples_per_s=64 * 64 * 4 / best / 1e6, first_call_s=first))
-    try:
-        import bench_density  # noqa: F401  (jgi.density's own benchmark)
-        rows.append(dict(bench="density", note="run experiments/bench_density.py for grid figures"))
-    except ImportError:
-        pass
+    return rows
+
+
+def bench_density(quick: bool) -> list[dict]:
+    """experiments/bench_density.py: hash-grid build and density queries/s beside scipy's
+    cKDTree in the same run (10^5, 10^6 and, unless quick, 10^7 uniform photons)."""
+    import bench_density as bd
+
+    sizes = ["100000", "1000000"] + ([] if quick else ["10000000"])
+    rows = []
+    for r in bd.main(["--sizes", *sizes, "--kinds", "uniform", "--queries", "16384" if quick else "65536"]):
+        rows.append(dict(bench="density", photons=r["photons"], grid_build_s=r["jgi"]["build_s"],
+                         mqueries_per_s=r["jgi"]["queries_per_s"] / 1e6,
+                         ckdtree_mqueries_per_s=r["ckdtree"]["queries_per_s"] / 1e6, ratio=r["ratio"]))
     return rows
 
 
@@ -133,7 +142,7 @@ def main(argv=None) -> dict:
     out = {"cornell_vs_mitsuba": bench_pt.main(
         ["--spp", "8" if a.quick else "64", "--repeats", "2"] + (["--no-mitsuba"] if a.no_mitsuba else []))}
     rows = []
-    for fn in (bench_pt_scaling, bench_photons, bench_triangles, bench_bvh, bench_optional):
+    for fn in (bench_pt_scaling, bench_photons, bench_triangles, bench_bvh, bench_optional, bench_density):
         rows += fn(a.quick)
     out["rows"] = rows
     out["peak_rss_mb"] = peak_rss_mb()
