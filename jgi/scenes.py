@@ -4,6 +4,8 @@
   ``cornell_box()`` (so benchmarks compare like with like).
 * ``cornell_box_caustics``: the same room with a mirror sphere and a glass sphere (caustics).
 * ``glass_sphere``: a glass sphere on a diffuse plane under a small area light.
+* ``mirror_caustic``: a small lamp facing up at a mirror ceiling, so the floor is lit only by
+  paths E D S L (a mirror caustic): the test scene for Veach's caustic perturbation.
 * ``metal_ring``: a mirror ring (open cylinder, a trimesh mesh) on a plane: the cardioid caustic.
 * ``veach_plates``: Veach's MIS scene, four Phong plates of decreasing roughness lit by four
   spherical lights of decreasing size and increasing radiance (equal power).
@@ -71,6 +73,20 @@ def glass_sphere(resolution: int = 256) -> Scene:
     s = 0.25  # a small square light, facing down
     b.quad((-s + 1.0, 4.0, -s), (2 * s, 0, 0), (0, 0, 2 * s), "lamp", emission=(200.0, 200.0, 200.0))
     b.camera(position=(0, 4.5, 7.5), look_at=(0, 0.6, 0), fov=35, width=resolution,
+             height=resolution)
+    return b.build()
+
+
+def mirror_caustic(resolution: int = 256) -> Scene:
+    b = SceneBuilder("mirror_caustic")
+    b.material("floor", "diffuse", diffuse=(0.8, 0.8, 0.8))
+    b.material("mirror", "mirror", specular=(0.9, 0.9, 0.9))
+    b.material("lamp", "diffuse", diffuse=(0.0, 0.0, 0.0))
+    b.quad((-2, 0, -2), (0, 0, 4), (4, 0, 0), "floor")              # normal +y
+    b.quad((-2, 2, -2), (4, 0, 0), (0, 0, 4), "mirror")             # normal -y, facing the floor
+    s = 0.5  # a square lamp facing up: its light reaches the floor only by the mirror
+    b.quad((-s, 0.6, -s), (0, 0, 2 * s), (2 * s, 0, 0), "lamp", emission=(8.0, 8.0, 8.0))
+    b.camera(position=(0, 1.2, 4.5), look_at=(0, 0, 0), fov=40, width=resolution,
              height=resolution)
     return b.build()
 
@@ -174,6 +190,7 @@ BUILTINS = {
     "veach_plates": veach_plates,
     "furnace": furnace,
     "point_light_plane": point_light_plane,
+    "mirror_caustic": mirror_caustic,
 }
 
 

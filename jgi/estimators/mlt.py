@@ -1,0 +1,634 @@
+"""Metropolis light transport in path space (Veach & Guibas 1997; Veach 1997, ch. 11).
+
+The chain's state is a *path* x = (x_0, x_1, ..., x_k): x_0 the pinhole, x_k a point on an area
+emitter, k <= ``max_depth`` segments. The target is f*(x) = luminance of the measurement
+contribution f(x), and three mutations move the chain:
+
+* **large step** (independence sampler, keeps the chain ergodic): a fresh path from the
+  unidirectional sampler p: length k uniform in 1..K, a film point, k - 1 BSDF samples, and the
+  last direction from the mixture q = (1 - c) p_bsdf + c p_light (c = 1/2 after a non-specular
+  vertex), so every path with f > 0 has p > 0. Acceptance min(1, C*(y) / C*(x)) with
+  C* = f* / p (the Kelemen large step, written in path space);
+* **lens perturbation** (paths E S* D (D|L) ...): move the film point by a radius
+  r2 exp(-log(r2/r1) xi) in a uniform direction, retrace the specular chain from the pinhole
+  with the same reflect/refract choices to a new first non-specular vertex x'_m, and reconnect it
+  to the unchanged x_{m+1};
+* **caustic perturbation** (paths E D S+ (D|L) ...): turn the direction leaving x_j (the first
+  non-specular vertex after the chain) towards the specular chain by an angle
+  theta2 exp(-log(theta2/theta1) xi) about its old direction, retrace the chain towards the eye
+  to a new x'_1, and connect x'_1 to the pinhole (a new film point).
+
+Both perturbations are symmetric in their natural coordinates (film area for the lens
+perturbation, solid angle at x_j for the caustic one), so T(x->y) = T(y->x) there, and the
+acceptance is the ratio of the target written in those coordinates:
+
+    lens:     f*(y) / f*(x) = [lum P(y) G(y_m, x_{m+1})] / [lum P(x) G(x_m, x_{m+1})]
+    caustic:  f*(y) / f*(x) = [lum P(y) W(y_1) |cos theta_j(y)|] / [same for x]
+
+where P(x) = L_e(x_k -> x_{k-1}) prod_i rho(x_i) is the path's colour (BSDF values at
+non-specular vertices, the Dirac coefficient - k_s, F k_s or (1 - F) k_s / eta^2 - at specular
+ones), G the geometry term, and W(x_1) = W_e G(x_0, x_1) = |cos theta_1| / (A cos^3 theta_c
+d^2) the pinhole's importance in area measure. Factors of the unchanged part of the path are
+common to both and cancel except through the colour, which is why P is carried whole. A mutation
+that finds a different kind of vertex (a diffuse surface where the chain had a specular one, a
+different reflect/refract choice), leaves the film, or is occluded proposes f = 0 and is
+rejected; those rules are the same from x and from y, so detailed balance holds.
+
+The image follows Kelemen's expected-value splatting: each step records the current path with
+weight 1 - a and the proposal with a, each as b P / lum P at its film point, with
+b = E_p[C*] estimated from ``bootstrap_samples`` independent large-step paths, from which the
+chains also start (resampled in proportion to C*, so there is no start-up bias). Each step
+applies one mutation kind to all chains, chosen at random with probabilities
+(p_large, p_lens, p_caustic): a random mixture of kernels that each preserve f*, so the mixture
+does too, and only the chosen kind's code runs.
+
+Only area emitters (quads, triangles, spheres) are supported: a point or directional light has no
+area measure for x_k. Where two emitters lie along one ray the large step's light-sampling
+density counts only the nearer one (harmless in the bundled scenes, which have one emitter).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import partial
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jax import Array
+
+from .. import bsdf as B
+from .. import camera as CAM
+from .. import geometry as G
+from .. import lights as LT
+from .. import rng
+from ..lights import AREA_KINDS
+from ..scene import DIELECTRIC, MIRROR, Scene
+from ..vec import V3, coordinate_system, dot, luminance, normalize, reflect, where
+from .registry import Estimator, Param, ParameterError, register
+
+_SALT = 0x1B873593
+LARGE, LENS, CAUSTIC = 0, 1, 2
+KERNELS = ("large", "lens", "caustic")
+
+
+@dataclass(frozen=True)
+class MLTConfig:
+    """Static settings (one compilation each): only the path length."""
+
+    max_depth: int = 5            # K: path segments
+
+
+class Mutations(NamedTuple):
+    """The mutation mixture and perturbation sizes: traced values, so changing them does not
+    recompile."""
+
+    p_large: float = 0.2
+    p_lens: float = 0.4
+    p_caustic: float = 0.4
+    lens_r1: float = 0.1          # smallest film displacement, pixels
+    lens_r2: float = 0.1          # largest film displacement, fraction of the image's larger side
+    caustic_theta1: float = 1e-4  # smallest turn of the caustic direction, radians
+    caustic_theta2: float = 0.1   # largest, radians
+
+    def arrays(self) -> "Mutations":
+        return Mutations(*(jnp.float32(v) for v in self))
+
+
+class Path(NamedTuple):
+    """Vertex rows 0..K (row 0 the pinhole) for every chain: arrays [K + 1, chains]."""
+
+    p: V3
+    n: V3             # geometric normal (row 0 unused)
+    material: Array   # int32
+    emitter: Array    # int32 light element, -1 if none
+    length: Array     # [chains] segments k; vertex k is on an emitter; 0: no path (f = 0)
+    fx: Array         # [chains] raster position of x_1 (column, float)
+    fy: Array         # [chains] (row, float; 0 at the top)
+
+
+class PathValue(NamedTuple):
+    color: V3         # P(x): L_e times the BSDF values / Dirac coefficients (no geometry)
+    lum: Array        # luminance of P(x)
+    inv_pdf: Array    # the large step's |cos| / pdf product: C(x) = P(x) * inv_pdf = f(x) / p(x)
+
+
+# --- helpers on vertex rows -------------------------------------------------------------------
+
+def _row(a: Array, i: Array) -> Array:
+    """a[i[c], c] for an index per chain."""
+    return jnp.take_along_axis(a, i[None, :].astype(jnp.int32), axis=0)[0]
+
+
+def _row3(v: V3, i: Array) -> V3:
+    return V3(*(_row(c, i) for c in v))
+
+
+def _set(a: Array, i: Array, value: Array, where_: Array) -> Array:
+    """a with a[i[c], c] = value[c] where where_[c]."""
+    rows = jnp.arange(a.shape[0])[:, None]
+    i = jnp.broadcast_to(i, a.shape[1:])
+    return jnp.where((rows == i[None, :]) & where_[None, :], value[None, :].astype(a.dtype), a)
+
+
+def _set3(v: V3, i, value: V3, where_) -> V3:
+    return V3(*(_set(c, i, x, where_) for c, x in zip(v, value)))
+
+
+def _rows(v: V3, lo, hi) -> V3:
+    return V3(*(c[lo:hi] for c in v))
+
+
+def _first(mask: Array, fallback: Array) -> Array:
+    """Index of the first True row of ``mask`` [R, C] per chain, or ``fallback``."""
+    rows = jnp.arange(mask.shape[0])[:, None]
+    idx = jnp.min(jnp.where(mask, rows, mask.shape[0]), axis=0)
+    return jnp.where(idx < mask.shape[0], idx, fallback)
+
+
+def specular_coefficient(mp: B.MaterialParams, n: V3, wo: V3, wi: V3):
+    """The Dirac coefficient of a specular vertex (f |cos| without the delta) for the pair
+    (wo, wi), and the probability with which ``bsdf.sample`` picks that lobe. Mirror: k_s, 1.
+    Dielectric: F k_s with probability F (reflection), (1 - F) k_s / eta^2 with 1 - F
+    (transmission, radiance scaling as in jgi.bsdf)."""
+    cos_o = dot(wo, n)
+    transmit = cos_o * dot(wi, n) < 0
+    eta = jnp.where(cos_o > 0, mp.ior, 1.0 / mp.ior)
+    F = B.fresnel_dielectric(jnp.abs(cos_o), eta)
+    diel = jnp.where(transmit, (1.0 - F) / (eta * eta), F)
+    prob = jnp.where(mp.kind == DIELECTRIC, jnp.where(transmit, 1.0 - F, F), 1.0)
+    coeff = jnp.where(mp.kind == DIELECTRIC, diel, jnp.where(transmit, 0.0, 1.0))
+    return mp.ks * coeff, prob
+
+
+def specular_continue(mp: B.MaterialParams, n: V3, w_from: V3, transmit: Array):
+    """The direction leaving a specular vertex when the path arrives from ``w_from`` (pointing
+    back along the path), reflecting or refracting as ``transmit`` says; (direction, valid).
+    Specular scattering is reversible, so the same rule serves chains traced from the eye and
+    from the light."""
+    cos_f = dot(w_from, n)
+    nside = n * jnp.where(cos_f > 0, 1.0, -1.0)
+    eta = jnp.where(cos_f > 0, mp.ior, 1.0 / mp.ior)
+    wt, can_refract = B.refract(w_from, nside, eta)
+    d = where(transmit, wt, reflect(w_from, nside))
+    ok = jnp.where(transmit, (mp.kind == DIELECTRIC) & can_refract, (mp.kind == MIRROR) | (mp.kind == DIELECTRIC))
+    return d, ok
+
+
+def transmits(path: Path) -> Array:
+    """[K + 1, C]: the path refracts through vertex i (its neighbours on opposite sides)."""
+    prev, cur, nxt = _rows(path.p, 0, -2), _rows(path.p, 1, -1), _rows(path.p, 2, None)
+    n = _rows(path.n, 1, -1)
+    t = dot(prev - cur, n) * dot(nxt - cur, n) < 0
+    f = jnp.zeros_like(t[:1])
+    return jnp.concatenate([f, t, f], 0)
+
+
+def is_specular(scene: Scene, path: Path) -> Array:
+    """[K + 1, C]: vertex i is a Dirac (mirror/dielectric) vertex; rows 0 and k are never."""
+    mp = B.lookup(scene.materials, path.material)
+    rows = jnp.arange(path.material.shape[0])[:, None]
+    return B.is_delta(mp) & (rows >= 1) & (rows < path.length[None, :])
+
+
+# --- the path's value: P(x) and the large step's density ----------------------------------------
+
+def evaluate(scene: Scene, cfg: MLTConfig, path: Path) -> PathValue:
+    """P(x) = L_e prod rho(x_i) and 1 / p(x) relative to the area measure (|cos| / pdf per
+    sampled direction, times K for the uniform choice of length), from the vertices alone, so
+    perturbed paths are valued exactly like sampled ones."""
+    K = cfg.max_depth
+    k = path.length
+    mats, lights = scene.materials, scene.lights
+    kk = jnp.maximum(k, 1)
+    x_k, n_k, e_k = _row3(path.p, kk), _row3(path.n, kk), _row(path.emitter, kk)
+    x_km1 = _row3(path.p, kk - 1)
+    Le = LT.emitted(lights, e_k, n_k, normalize(x_km1 - x_k))
+    one = jnp.ones_like(path.fx)
+    color, inv_pdf = V3(Le.x, Le.y, Le.z), one * K
+    if K > 1:
+        prev, cur, nxt = _rows(path.p, 0, K - 1), _rows(path.p, 1, K), _rows(path.p, 2, K + 1)
+        n = _rows(path.n, 1, K)
+        wo, wi = normalize(prev - cur), normalize(nxt - cur)
+        mp = B.lookup(mats, path.material[1:K])
+        delta = B.is_delta(mp)
+        f, pdf_bsdf = B.evaluate(mats.kinds, mp, n, wo, wi)
+        coeff, prob = specular_coefficient(mp, n, wo, wi)
+        rows = jnp.arange(1, K)[:, None]
+        last = rows == (k - 1)[None, :]
+        # the last direction came from the mixture (1/2) p_bsdf + (1/2) p_light
+        pdf_light = LT.pdf_li(lights, e_k[None, :], cur, V3(*(c[None, :] for c in x_k)),
+                              V3(*(c[None, :] for c in n_k)))
+        pdf = jnp.where(last, 0.5 * pdf_bsdf + 0.5 * pdf_light, pdf_bsdf)
+        cos_i = jnp.abs(dot(wi, n))
+        s = jnp.where(delta, 1.0 / jnp.maximum(prob, 1e-30),
+                      jnp.where(pdf > 0, cos_i / jnp.where(pdf > 0, pdf, 1.0), 0.0))
+        rho = where(delta, coeff, f)
+        inside = rows < k[None, :]
+        rho = V3(*(jnp.where(inside, c, 1.0) for c in rho))
+        s = jnp.where(inside, s, 1.0)
+        color = V3(*(c * jnp.prod(r, axis=0) for c, r in zip(color, rho)))
+        inv_pdf = inv_pdf * jnp.prod(s, axis=0)
+    ok = (k >= 1) & (e_k >= 0)
+    color = V3(*(jnp.where(ok & jnp.isfinite(c), c, 0.0) for c in color))
+    lum = jnp.maximum(luminance(color), 0.0)
+    inv_pdf = jnp.where(ok & jnp.isfinite(inv_pdf), inv_pdf, 0.0)
+    return PathValue(color, lum, inv_pdf)
+
+
+# --- large step: a fresh path from the unidirectional sampler ------------------------------------
+
+def _empty(scene: Scene, cfg: MLTConfig, C: int) -> Path:
+    K = cfg.max_depth
+    z = jnp.zeros((K + 1, C), jnp.float32)
+    cam = scene.camera.position
+    p = V3(z + cam.x, z + cam.y, z + cam.z)
+    zi = jnp.zeros((K + 1, C), jnp.int32)
+    return Path(p, V3(z, z, z + 1.0), zi, zi - 1, jnp.zeros(C, jnp.int32), z[0], z[0])
+
+
+def sample_path(scene: Scene, cfg: MLTConfig, key: Array) -> Path:
+    """One path per lane of ``key`` from the large step's density p (see module docstring)."""
+    K = cfg.max_depth
+    cam, lights, kinds = scene.camera, scene.lights, scene.materials.kinds
+    C = key.shape[0]
+    u = lambda d: rng.uniform(key, d)  # noqa: E731
+    k = jnp.minimum(1 + jnp.floor(u(0) * K).astype(jnp.int32), K)
+    fx, fy = u(1) * cam.width, u(2) * cam.height
+    px = jnp.clip(jnp.floor(fx), 0, cam.width - 1).astype(jnp.int32)
+    py = jnp.clip(jnp.floor(fy), 0, cam.height - 1).astype(jnp.int32)
+    o, d = CAM.sample_ray(cam, px, py, fx - px, fy - py)
+    path = _empty(scene, cfg, C)._replace(length=k, fx=fx, fy=fy)
+
+    def body(i, carry):
+        path, o, d, alive = carry
+        hit = G.intersect(scene, o, d)
+        here = alive & (i <= k)
+        alive = alive & (~here | hit.valid)
+        path = path._replace(p=_set3(path.p, i, hit.p, here), n=_set3(path.n, i, hit.n, here),
+                             material=_set(path.material, i, hit.material, here),
+                             emitter=_set(path.emitter, i, hit.emitter, here))
+        mp = B.lookup(scene.materials, hit.material)
+        base = 3 + 7 * i
+        bs = B.sample(kinds, mp, hit.n, -d, u(base), u(base + 1), u(base + 2))
+        ls = LT.sample_li(lights, hit.p, u(base + 3), u(base + 4), u(base + 5))
+        nee = (i == k - 1) & ~B.is_delta(mp) & (u(base + 6) < 0.5)
+        wi = where(nee, ls.wi, bs.wi)
+        alive = alive & (~(i < k) | jnp.where(nee, ls.valid, bs.valid))
+        return path, G.offset_origin(hit.p, hit.n, wi), wi, alive
+
+    path, _, _, alive = jax.lax.fori_loop(1, K + 1, body, (path, o, d, jnp.ones(C, bool)))
+    ok = alive & (_row(path.emitter, k) >= 0)
+    return path._replace(length=jnp.where(ok, k, 0))
+
+
+# --- lens perturbation --------------------------------------------------------------------------
+
+def lens_radius_range(scene: Scene, mu: Mutations):
+    r2 = mu.lens_r2 * max(scene.camera.width, scene.camera.height)
+    return mu.lens_r1, jnp.maximum(r2, 2.0 * mu.lens_r1)
+
+
+def log_uniform(xi: Array, lo, hi) -> Array:
+    """hi exp(-log(hi/lo) xi): the perturbation size, density 1 / (s log(hi/lo)) on [lo, hi]."""
+    return hi * jnp.exp(-jnp.log(hi / lo) * xi)
+
+
+def lens_log_density(scene: Scene, mu: Mutations, x: Path, y: Path) -> Array:
+    """log T(x -> y) of the lens perturbation in film-area measure (pixels^2): the displacement's
+    radius density over the circumference, 1 / (2 pi r^2 log(r2/r1)). Depends on |y - x| only."""
+    r1, r2 = lens_radius_range(scene, mu)
+    r = jnp.hypot(y.fx - x.fx, y.fy - x.fy)
+    ok = (r >= r1 * (1 - 1e-4)) & (r <= r2 * (1 + 1e-4))
+    return jnp.where(ok, -jnp.log(2 * np.pi * r * r * jnp.log(r2 / r1)), -jnp.inf)
+
+
+def _geometry(a: V3, na: V3, b: V3, nb: V3) -> Array:
+    v = b - a
+    d2 = dot(v, v)
+    w = v * jax.lax.rsqrt(jnp.maximum(d2, 1e-30))
+    return jnp.abs(dot(w, na)) * jnp.abs(dot(w, nb)) / jnp.maximum(d2, 1e-30)
+
+
+def lens_vertex(scene: Scene, x: Path) -> tuple[Array, Array]:
+    """(m, applicable): x_m is the first non-specular vertex from the eye, for paths
+    E S* D (D|L) ...: the lens perturbation needs x_{m+1} non-specular (or m = k)."""
+    K = x.material.shape[0] - 1
+    k = x.length
+    spec = is_specular(scene, x)
+    rows = jnp.arange(K + 1)[:, None]
+    m = jnp.minimum(_first(~spec & (rows >= 1), k), jnp.maximum(k, 1))
+    after = jnp.minimum(m + 1, K)
+    return m, (k >= 1) & ((m == k) | ~_row(spec, after))
+
+
+def retrace_lens(scene: Scene, cfg: MLTConfig, x: Path, fx: Array, fy: Array):
+    """The path through film point (fx, fy) with x's specular chain (same reflect/refract
+    choices) up to a new x'_m, reconnected to x_{m+1}; (y, valid). The map is its own inverse:
+    retracing y through x's film point gives x back."""
+    K = cfg.max_depth
+    cam = scene.camera
+    C = x.length.shape[0]
+    k = x.length
+    m, applicable = lens_vertex(scene, x)
+    modes = transmits(x)
+    inside = (fx >= 0) & (fx < cam.width) & (fy >= 0) & (fy < cam.height)
+    px = jnp.clip(jnp.floor(fx), 0, cam.width - 1).astype(jnp.int32)
+    py = jnp.clip(jnp.floor(fy), 0, cam.height - 1).astype(jnp.int32)
+    o, d = CAM.sample_ray(cam, px, py, fx - px, fy - py)
+
+    def body(i, carry):
+        y, o, d, ok = carry
+        hit = G.intersect(scene, o, d)
+        here = i <= m
+        mp = B.lookup(scene.materials, hit.material)
+        good = hit.valid & (B.is_delta(mp) == (i < m))
+        good = good & ((i < k) | (hit.emitter >= 0))  # a light vertex must stay on a light
+        ok = ok & (~here | good)
+        y = y._replace(p=_set3(y.p, i, hit.p, here), n=_set3(y.n, i, hit.n, here),
+                       material=_set(y.material, i, hit.material, here),
+                       emitter=_set(y.emitter, i, hit.emitter, here))
+        w, valid = specular_continue(mp, hit.n, -d, _row(modes, jnp.full((C,), i)))
+        ok = ok & (~(i < m) | valid)
+        return y, G.offset_origin(hit.p, hit.n, w), w, ok
+
+    y, _, _, ok = jax.lax.fori_loop(1, K + 1, body, (x._replace(fx=fx, fy=fy), o, d,
+                                                      applicable & inside))
+    # reconnect x'_m to the unchanged x_{m+1}
+    ym, nm = _row3(y.p, m), _row3(y.n, m)
+    nxt = _row3(x.p, jnp.minimum(m + 1, K))
+    o_s, d_s, t_s = G.shadow_ray(ym, nm, normalize(nxt - ym), jnp.sqrt(dot(nxt - ym, nxt - ym)))
+    ok = ok & ~((m < k) & G.occluded(scene, o_s, d_s, t_s))
+    return y._replace(length=jnp.where(ok, k, 0)), ok
+
+
+def lens_target(scene: Scene, x: Path, xv: PathValue) -> Array:
+    """f* in the lens perturbation's coordinates (film area, x_{m+1}, ... in area measure), up
+    to factors shared by x and y: lum P(x) G(x_m, x_{m+1})."""
+    K = x.material.shape[0] - 1
+    m, _ = lens_vertex(scene, x)
+    nxt = jnp.minimum(m + 1, K)
+    g = _geometry(_row3(x.p, m), _row3(x.n, m), _row3(x.p, nxt), _row3(x.n, nxt))
+    return xv.lum * jnp.where(m < x.length, g, 1.0)
+
+
+def lens_perturbation(scene: Scene, cfg: MLTConfig, mu: Mutations, x: Path, xv: PathValue,
+                      key: Array):
+    """(y, its value, target ratio numerator, denominator, applicable): move the film point by
+    r2 exp(-log(r2/r1) xi) pixels in a uniform direction and retrace (symmetric in film area)."""
+    _, applicable = lens_vertex(scene, x)
+    r1, r2 = lens_radius_range(scene, mu)
+    r = log_uniform(rng.uniform(key, 0), r1, r2)
+    phi = 2 * np.pi * rng.uniform(key, 1)
+    y, _ = retrace_lens(scene, cfg, x, x.fx + r * jnp.cos(phi), x.fy + r * jnp.sin(phi))
+    yv = evaluate(scene, cfg, y)
+    return y, yv, lens_target(scene, y, yv), lens_target(scene, x, xv), applicable
+
+
+# --- caustic perturbation -----------------------------------------------------------------------
+
+def rotate_about(w: V3, theta: Array, phi: Array) -> V3:
+    """The unit direction at angle theta from w, azimuth phi about it."""
+    s, t = coordinate_system(w)
+    st = jnp.sin(theta)
+    return normalize(w * jnp.cos(theta) + s * (st * jnp.cos(phi)) + t * (st * jnp.sin(phi)))
+
+
+def caustic_vertex(scene: Scene, x: Path) -> tuple[Array, Array]:
+    """(j, applicable): x_j is the first non-specular vertex after x_1, for paths E D S+ (D|L)."""
+    K = x.material.shape[0] - 1
+    k = x.length
+    spec = is_specular(scene, x)
+    rows = jnp.arange(K + 1)[:, None]
+    j = _first(~spec & (rows >= 2), k)
+    j = jnp.minimum(j, jnp.maximum(k, 1))
+    applicable = (k >= 3) & ~spec[1] & spec[min(2, K)] & (j >= 3)
+    return j, applicable
+
+
+def caustic_log_density(scene: Scene, mu: Mutations, x: Path, y: Path) -> Array:
+    """log T(x -> y) of the caustic perturbation in solid angle at x_j: the angle's density over
+    the circle of directions at that angle, 1 / (2 pi theta sin(theta) log(theta2/theta1))."""
+    j, _ = caustic_vertex(scene, x)
+    xj = _row3(x.p, j)
+    a = normalize(_row3(x.p, j - 1) - xj)
+    b = normalize(_row3(y.p, j - 1) - xj)
+    c = jnp.clip(dot(a, b), -1.0, 1.0)
+    theta = jnp.arctan2(jnp.sqrt(jnp.maximum(dot(a - b * c, a - b * c), 0.0)), c)
+    t1, t2 = mu.caustic_theta1, mu.caustic_theta2
+    ok = (theta >= t1 * (1 - 1e-3)) & (theta <= t2 * (1 + 1e-3))
+    return jnp.where(ok, -jnp.log(2 * np.pi * theta * jnp.sin(theta) * jnp.log(t2 / t1)), -jnp.inf)
+
+
+def _camera_weight(cam, p: V3, n: V3):
+    """W(x_1) = W_e G(x_0, x_1) up to the film-area constant, the film position, visibility."""
+    pr = CAM.project(cam, p)
+    cos_c = -dot(pr.wi, cam.forward)
+    w = pr.importance * cos_c * jnp.abs(dot(pr.wi, n)) / jnp.maximum(pr.dist * pr.dist, 1e-30)
+    return jnp.where(pr.visible, w, 0.0), pr
+
+
+def retrace_caustic(scene: Scene, cfg: MLTConfig, x: Path, w_new: V3):
+    """The path leaving x_j in direction ``w_new`` through x's specular chain (same choices)
+    to a new x'_1, connected to the pinhole (a new film point); (y, valid). Retracing y with
+    x's old direction gives x back."""
+    K = cfg.max_depth
+    cam = scene.camera
+    k = x.length
+    j, applicable = caustic_vertex(scene, x)
+    modes = transmits(x)
+    xj, nj = _row3(x.p, j), _row3(x.n, j)
+
+    def body(s, carry):
+        y, o, d, ok = carry
+        i = j - 1 - s  # the vertex this step finds, walking from x_j towards the eye
+        here = i >= 1
+        hit = G.intersect(scene, o, d)
+        mp = B.lookup(scene.materials, hit.material)
+        good = hit.valid & (B.is_delta(mp) == (i >= 2))
+        ok = ok & (~here | good)
+        y = y._replace(p=_set3(y.p, i, hit.p, here), n=_set3(y.n, i, hit.n, here),
+                       material=_set(y.material, i, hit.material, here),
+                       emitter=_set(y.emitter, i, hit.emitter, here))
+        dn, valid = specular_continue(mp, hit.n, -d, _row(modes, jnp.maximum(i, 0)))
+        ok = ok & (~(i >= 2) | valid)
+        return y, G.offset_origin(hit.p, hit.n, dn), dn, ok
+
+    o = G.offset_origin(xj, nj, w_new)
+    y, _, _, ok = jax.lax.fori_loop(0, K - 1, body, (x, o, w_new, applicable))
+    one = jnp.ones_like(k)
+    y1, n1 = _row3(y.p, one), _row3(y.n, one)
+    pr = CAM.project(cam, y1)
+    o_s, d_s, t_s = G.shadow_ray(y1, n1, pr.wi, pr.dist)
+    ok = ok & pr.visible & ~G.occluded(scene, o_s, d_s, t_s)
+    return y._replace(length=jnp.where(ok, k, 0), fx=jnp.where(ok, pr.px, x.fx),
+                      fy=jnp.where(ok, pr.py, x.fy)), ok
+
+
+def caustic_target(scene: Scene, x: Path, xv: PathValue) -> Array:
+    """f* in the caustic perturbation's coordinates (solid angle at x_j, x_j, x_{j+1}, ... in
+    area measure), up to shared factors: lum P(x) W(x_1) |cos theta_j|."""
+    j, _ = caustic_vertex(scene, x)
+    one = jnp.ones_like(x.length)
+    w1, _ = _camera_weight(scene.camera, _row3(x.p, one), _row3(x.n, one))
+    xj = _row3(x.p, j)
+    cos_j = jnp.abs(dot(_row3(x.n, j), normalize(_row3(x.p, j - 1) - xj)))
+    return xv.lum * w1 * cos_j
+
+
+def caustic_perturbation(scene: Scene, cfg: MLTConfig, mu: Mutations, x: Path, xv: PathValue,
+                         key: Array):
+    """(y, its value, target ratio numerator, denominator, applicable): turn the direction
+    leaving x_j by theta2 exp(-log(theta2/theta1) xi) about the old one (symmetric in solid
+    angle) and retrace towards the eye."""
+    j, applicable = caustic_vertex(scene, x)
+    w = normalize(_row3(x.p, j - 1) - _row3(x.p, j))
+    theta = log_uniform(rng.uniform(key, 0), mu.caustic_theta1, mu.caustic_theta2)
+    y, _ = retrace_caustic(scene, cfg, x, rotate_about(w, theta, 2 * np.pi * rng.uniform(key, 1)))
+    yv = evaluate(scene, cfg, y)
+    return y, yv, caustic_target(scene, y, yv), caustic_target(scene, x, xv), applicable
+
+
+# --- the chains ---------------------------------------------------------------------------------
+
+def _large_step(scene, cfg, mu, x, xv, key):
+    y = sample_path(scene, cfg, key)
+    yv = evaluate(scene, cfg, y)
+    return y, yv, yv.lum * yv.inv_pdf, xv.lum * xv.inv_pdf, jnp.ones_like(x.length) > 0
+
+
+def _pixel(scene: Scene, path: Path) -> Array:
+    W, H = scene.camera.width, scene.camera.height
+    px = jnp.clip(jnp.floor(path.fx), 0, W - 1).astype(jnp.int32)
+    py = jnp.clip(jnp.floor(path.fy), 0, H - 1).astype(jnp.int32)
+    return py * W + px
+
+
+def acceptance(num: Array, den: Array) -> Array:
+    """min(1, num / den) with the conventions of :func:`jgi.mcmc.acceptance_probability`."""
+    r = jnp.where(den > 0, num / jnp.where(den > 0, den, 1.0), 1.0)
+    return jnp.clip(jnp.where(jnp.isfinite(r), r, 0.0), 0.0, 1.0)
+
+
+@partial(jax.jit, static_argnames=("cfg", "n"))
+def bootstrap(scene: Scene, cfg: MLTConfig, seed, n: int):
+    key = rng.derive(rng.path_key(seed, jnp.arange(n, dtype=jnp.int32), 0), _SALT)
+    path = sample_path(scene, cfg, key)
+    v = evaluate(scene, cfg, path)
+    return path, v.lum * v.inv_pdf, v
+
+
+@partial(jax.jit, static_argnames=("cfg", "n_steps"))
+def run_chains(scene: Scene, cfg: MLTConfig, mu: Mutations, seed, x: Path, step0, n_steps: int,
+               scale):
+    """Advance the chains by n_steps mutations; returns (state, image sums times ``scale``,
+    per-kind counts [3, 3]: proposed, applicable, accepted)."""
+    W, H = scene.camera.width, scene.camera.height
+    C = x.length.shape[0]
+    chain = jnp.arange(C, dtype=jnp.int32)
+    probs = jnp.stack([mu.p_large, mu.p_lens, mu.p_caustic])
+    cdf = jnp.cumsum(probs / jnp.sum(probs))[:-1]
+    kernels = [partial(_large_step, scene, cfg, mu), partial(lens_perturbation, scene, cfg, mu),
+               partial(caustic_perturbation, scene, cfg, mu)]
+
+    def step(carry, t):
+        x, xv, img, counts = carry
+        # one mutation kind per step for all chains (a random mixture of f*-preserving kernels)
+        which = jnp.sum(rng.uniform(rng.path_key(seed, -1, step0 + t), 0) >= cdf).astype(jnp.int32)
+        key = rng.derive(rng.path_key(seed, chain, step0 + t), _SALT + 1)
+        y, yv, num, den, applicable = jax.lax.switch(
+            which, kernels, x, xv, rng.derive(key, 3))
+        a = jnp.where(applicable & (y.length > 0), acceptance(num, den), 0.0)
+        # expected-value splatting: current path with 1 - a, proposal with a, each b P / lum P
+        w_x = jnp.where(xv.lum > 0, (1.0 - a) / jnp.where(xv.lum > 0, xv.lum, 1.0), 0.0) * scale
+        w_y = jnp.where(yv.lum > 0, a / jnp.where(yv.lum > 0, yv.lum, 1.0), 0.0) * scale
+        vals = jnp.stack([c * w_x for c in xv.color], -1)
+        vals_y = jnp.stack([c * w_y for c in yv.color], -1)
+        img = img.at[_pixel(scene, x)].add(vals).at[_pixel(scene, y)].add(vals_y)
+        take = rng.uniform(key, 1) < a
+        x = jax.tree_util.tree_map(lambda b, c: jnp.where(take if c.ndim == 1 else take[None], b, c), y, x)
+        xv = jax.tree_util.tree_map(lambda b, c: jnp.where(take, b, c), yv, xv)
+        row = jnp.stack([jnp.int32(C), jnp.sum(applicable).astype(jnp.int32), jnp.sum(take).astype(jnp.int32)])
+        counts = counts.at[which].add(row)
+        return (x, xv, img, counts), None
+
+    xv = evaluate(scene, cfg, x)
+    img0 = jnp.zeros((W * H, 3), jnp.float32)
+    (x, _, img, counts), _ = jax.lax.scan(step, (x, xv, img0, jnp.zeros((3, 3), jnp.int32)),
+                                          jnp.arange(n_steps, dtype=jnp.int32))
+    return x, img, counts
+
+
+def check_scene(scene: Scene) -> None:
+    if scene.lights.count == 0 or any(k not in AREA_KINDS for k in scene.lights.kinds):
+        raise ParameterError("estimator 'mlt': path-space MLT needs area emitters only (quads, "
+                             "triangles, spheres); this scene has point, spot, directional or "
+                             "environment lights, or none")
+
+
+def render(scene: Scene, *, spp: int, seed: int, chains: int = 4096, bootstrap_samples: int = 65536,
+           steps_per_call: int = 16, progress: bool = False, cfg: MLTConfig = MLTConfig(),
+           mutations: Mutations = Mutations(), stats: dict | None = None) -> np.ndarray:
+    """Path-space MLT image with spp * W * H mutations in total (the path tracer's path count)."""
+    check_scene(scene)
+    W, H = scene.camera.width, scene.camera.height
+    paths, c_star, _ = bootstrap(scene, cfg, jnp.uint32(seed), bootstrap_samples)
+    c_np = np.asarray(c_star, np.float64)
+    b = c_np.mean()
+    if not b > 0:
+        return np.zeros((H, W, 3), np.float32)
+    cdf = np.cumsum(c_np) / c_np.sum()
+    r = (np.arange(chains) + 0.5) / chains
+    pick = jnp.asarray(np.minimum(np.searchsorted(cdf, r), bootstrap_samples - 1))
+    x = jax.tree_util.tree_map(lambda a: jnp.take(a, pick, axis=a.ndim - 1), paths)
+    n_steps_total = max(1, -(-spp * W * H // chains))
+    n_steps_total = -(-n_steps_total // steps_per_call) * steps_per_call
+    scale = jnp.float32(b * W * H / (n_steps_total * chains))
+    img = np.zeros((W * H, 3), np.float64)
+    counts = np.zeros((3, 3), np.int64)
+    mu = mutations.arrays()
+    for done in range(0, n_steps_total, steps_per_call):
+        x, part, c = run_chains(scene, cfg, mu, jnp.uint32(seed), x, jnp.int32(done), steps_per_call,
+                                scale)
+        img += np.asarray(part, np.float64)
+        counts += np.asarray(c, np.int64)
+    if stats is not None:
+        stats.update(b=b, mutations=n_steps_total * chains,
+                     acceptance=counts[:, 2].sum() / max(counts[:, 0].sum(), 1))
+        for i, name in enumerate(KERNELS):
+            stats[f"{name}_proposed"] = int(counts[i, 0])
+            stats[f"{name}_applicable"] = int(counts[i, 1])
+            stats[f"{name}_acceptance"] = counts[i, 2] / max(counts[i, 1], 1)
+    return img.reshape(H, W, 3).astype(np.float32)
+
+
+def render_with_stats(scene: Scene, *, spp: int, seed: int, stats: dict | None = None,
+                      progress: bool = False, chains=4096, bootstrap_samples=65536, max_depth=5,
+                      p_large=0.2, p_lens=0.4, p_caustic=0.4, lens_r2=0.1, caustic_theta2=0.1):
+    mu = Mutations(p_large=p_large, p_lens=p_lens, p_caustic=p_caustic, lens_r2=lens_r2,
+                    caustic_theta2=caustic_theta2)
+    return render(scene, spp=spp, seed=seed, chains=chains, bootstrap_samples=bootstrap_samples,
+                  progress=progress, cfg=MLTConfig(max_depth), mutations=mu, stats=stats)
+
+
+def _run(scene: Scene, *, spp: int, seed: int, progress: bool = False, **params):
+    if params["p_large"] + params["p_lens"] + params["p_caustic"] <= 0:
+        raise ParameterError("estimator 'mlt': p_large + p_lens + p_caustic must be positive")
+    if params["p_large"] <= 0:
+        raise ParameterError("estimator 'mlt', parameter 'p_large': must be > 0 (the large step "
+                             "keeps the chain ergodic)")
+    return render_with_stats(scene, spp=spp, seed=seed, progress=progress, **params)
+
+
+register(Estimator(
+    "mlt", "Veach's path-space MLT: lens and caustic perturbations mixed with large steps", _run,
+    (Param("chains", 4096, "Markov chains run in parallel", int, minimum=1),
+     Param("bootstrap_samples", 65536, "independent paths to estimate b and start the chains", int, minimum=16),
+     Param("max_depth", 5, "maximum path segments", int, minimum=1, maximum=32),
+     Param("p_large", 0.2, "probability of a large step (fresh path)", float, minimum=0.0, maximum=1.0),
+     Param("p_lens", 0.4, "probability of a lens perturbation", float, minimum=0.0, maximum=1.0),
+     Param("p_caustic", 0.4, "probability of a caustic perturbation", float, minimum=0.0, maximum=1.0),
+     Param("lens_r2", 0.1, "largest lens perturbation, fraction of the image size", float, minimum=1e-3, maximum=1.0),
+     Param("caustic_theta2", 0.1, "largest caustic perturbation angle, radians", float, minimum=1e-3, maximum=1.0)),
+))
