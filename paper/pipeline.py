@@ -33,6 +33,14 @@ def _tex_num(x, digits=3):
     return f"{x:.{digits}g}"
 
 
+def _tex_sci(x, digits=2):
+    """x in LaTeX scientific notation (math mode), e.g. $3.3\times10^{-4}$."""
+    if x == 0:
+        return "$0$"
+    m, e = f"{x:.{digits - 1}e}".split("e")
+    return f"${m}\\times10^{{{int(e)}}}$"
+
+
 def _write(path: Path, text: str):
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_suffix(path.suffix + ".tmp")
@@ -205,6 +213,149 @@ def equal_time(scale, out: Path):
            f"\\newcommand{{\\etRefSpp}}{{{r['reference_spp']}}}\n")
 
 
+def chi2(scale, out: Path):
+    """Chi-square goodness of fit of every sampling routine (the test suite's cases), tabulated."""
+    sys.path.insert(0, str(HERE.parent / "experiments"))
+    import chi2_table
+
+    n = 1 << 18 if scale == "small" else 1 << 20
+    r = chi2_table.main(["--samples", str(n), "--out", str(out / "chi2_run")])
+    lines = [r"\begin{tabular}{llrrrrrl}", r"\toprule",
+             r"& routine & samples & bins & $\chi^2$ & dof & $p$ & \\", r"\midrule"]
+    group = None
+    for row in r["rows"]:
+        if group is not None and row["group"] != group:
+            lines.append(r"\midrule")
+        g = row["group"] if row["group"] != group else ""
+        group = row["group"]
+        lines.append(f"{g} & {row['routine']} & {row['samples']} & {row['cells']} & "
+                     f"{row['statistic']:.1f} & {row['dof']} & {row['p_value']:.3g} & "
+                     f"{'pass' if row['passed'] else 'FAIL'} \\\\")
+    lines += [r"\bottomrule", r"\end{tabular}"]
+    _write(out / "chi2_table.tex", "\n".join(lines) + "\n")
+    p = r["worst_p"]
+    macros = dict(chiRoutines=str(len(r["rows"])), chiSamples=str(r["samples"]),
+                  chiAlpha=f"{r['alpha']:g}", chiLevel=_tex_sci(r["level"]),
+                  chiWorstP=f"{p:.2g}" if p >= 1e-3 else _tex_sci(p), chiFailures=str(r["failures"]),
+                  chiMirrorAngle=_tex_sci(r["mirror_max_angle"]), chiSeconds=f"{r['seconds']:.0f}")
+    _write(out / "chi2_macros.tex", "".join(f"\\newcommand{{\\{k}}}{{{v}}}\n" for k, v in macros.items()))
+
+
+AGREEMENT = [  # label, registry name, parameters, unbiased?  (every path has <= 5 segments)
+    ("PT, BSDF", "pt", dict(strategy="bsdf", max_depth=5), True),
+    ("PT, light", "pt", dict(strategy="light", max_depth=5), True),
+    ("PT, MIS balance", "pt", dict(strategy="mis", heuristic="balance", max_depth=5), True),
+    ("PT, MIS power", "pt", dict(strategy="mis", heuristic="power", max_depth=5), True),
+    ("light tracing", "lt", dict(max_depth=5), True),
+    ("BDPT, power", "bdpt", dict(max_depth=5), True),
+    ("PSSMLT", "pssmlt", dict(max_depth=5), True),
+    # photon bounces 0..3 before storage, plus the camera segment: paths of <= 5 segments
+    ("photon mapping", "pm", dict(max_depth=4, photons=50_000, radius=0.05), False),
+]
+AGREEMENT_SPP = {"pm": 0.25}  # fraction of the common spp (pm's cost is its photon queries)
+AGREEMENT_REFERENCE = "PT, MIS balance"
+
+
+def agreement(scale, out: Path):
+    """Cornell box: image-mean luminance of each estimator over independent repetitions, and its
+    z-score against PT with MIS (balance heuristic)."""
+    import jgi
+
+    s = SCALES[scale]
+    reps = 2 * s["reps"]
+    spp = 64 if scale == "small" else 256
+    scene = jgi.scenes.cornell_box(resolution=s["res"])
+    lum = np.array([0.2126, 0.7152, 0.0722])
+    stats = {}
+    for k, (label, name, params, _) in enumerate(AGREEMENT):
+        t0 = time.perf_counter()
+        # independent seeds per estimator (equal seeds share camera streams: correlated means)
+        n = max(1, int(spp * AGREEMENT_SPP.get(name, 1)))
+        rgb = np.stack([jgi.render(scene, name, spp=n, seed=1000 * (k + 1) + r, **params)
+                        .astype(np.float64).mean((0, 1)) for r in range(reps)])
+        stats[label] = dict(mean=rgb.mean(0), se=rgb.std(0, ddof=1) / np.sqrt(reps),
+                            lum=rgb @ lum, seconds=time.perf_counter() - t0)
+        stats[label]["lum_mean"] = stats[label]["lum"].mean()
+        stats[label]["lum_se"] = stats[label]["lum"].std(ddof=1) / np.sqrt(reps)
+        print(f"[agreement] {label}: {stats[label]['lum_mean']:.5f} +- {stats[label]['lum_se']:.5f} "
+              f"({stats[label]['seconds']:.1f} s)", file=sys.stderr, flush=True)
+    ref = stats[AGREEMENT_REFERENCE]
+    lines = [r"\begin{tabular}{lrrrr}", r"\toprule",
+             r"estimator & $\bar Y$ & s.e. & $z$ & $\max|z_c|$ \\", r"\midrule"]
+    worst, worst_biased, worst_label = 0.0, 0.0, ""
+    for label, _, _, unbiased in AGREEMENT:
+        st = stats[label]
+        if label == AGREEMENT_REFERENCE:
+            z, zc = "--", "--"
+        else:
+            zl = (st["lum_mean"] - ref["lum_mean"]) / np.hypot(st["lum_se"], ref["lum_se"])
+            zrgb = np.max(np.abs((st["mean"] - ref["mean"]) / np.hypot(st["se"], ref["se"])))
+            z, zc = f"{zl:+.2f}", f"{zrgb:.2f}"
+            m = max(abs(zl), zrgb)
+            if unbiased and m > worst:
+                worst, worst_label = m, label
+            else:
+                worst_biased = max(worst_biased, m)
+        mark = "" if unbiased else r"$^\dagger$"
+        lines.append(f"{label}{mark} & {st['lum_mean']:.4f} & {st['lum_se']:.1e} & {z} & {zc} \\\\")
+    lines += [r"\bottomrule", r"\end{tabular}"]
+    _write(out / "agreement_table.tex", "\n".join(lines) + "\n")
+    _write(out / "agreement_macros.tex",
+           f"\\newcommand{{\\agRes}}{{{s['res']}}}\n\\newcommand{{\\agReps}}{{{reps}}}\n"
+           f"\\newcommand{{\\agSpp}}{{{spp}}}\n\\newcommand{{\\agWorstZ}}{{{worst:.2f}}}\n"
+           f"\\newcommand{{\\agBiasedZ}}{{{worst_biased:.2f}}}\n"
+           f"\\newcommand{{\\agWorstLabel}}{{{worst_label}}}\n"
+           f"\\newcommand{{\\agEstimators}}{{{sum(u for *_, u in AGREEMENT) - 1}}}\n")
+
+
+def bdpt_pyramid(scale, out: Path):
+    """Veach's pyramid (thesis fig. 10.3): BDPT's MIS-weighted image of every (s, t) strategy,
+    one row per path length, on the Cornell box with a mirror and a glass sphere."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    import jgi
+    from jgi.estimators.bdpt import render_strategies
+    from jgi.imageio import tonemap
+
+    res, spp = (48, 64) if scale == "small" else (128, 1024)
+    max_depth = 4
+    scene = jgi.scenes.cornell_box_caustics(resolution=res)
+    imgs = render_strategies(scene, spp=spp, seed=5, max_depth=max_depth, heuristic="power")
+    full = sum(w for _, w in imgs.values())
+    cols = max_depth + 1                       # row L holds s = 0 .. L (t = L + 1 - s)
+    size, pad, top, left = 1.0, 0.08, 0.22, 0.25   # inches
+    fig = plt.figure(figsize=(left + cols * (size + pad) + pad, max_depth * (size + top) + top + size + 0.1))
+    W_in, H_in = fig.get_size_inches()
+    for L in range(1, max_depth + 1):
+        y = H_in - L * (size + top)
+        x0 = left + pad + 0.5 * (cols - (L + 1)) * (size + pad)   # rows centred: a pyramid
+        for s_ in range(L + 1):
+            t = L + 1 - s_
+            ax = fig.add_axes([(x0 + s_ * (size + pad)) / W_in, y / H_in, size / W_in, size / H_in])
+            ax.set_xticks([])
+            ax.set_yticks([])
+            if (s_, t) in imgs:
+                ax.imshow(tonemap(imgs[(s_, t)][1]), interpolation="nearest")
+            else:                              # (1, 1): a light seen directly is s = 0's
+                ax.set_facecolor("0.85")
+                ax.text(0.5, 0.5, "unused", ha="center", va="center", fontsize=6)
+            ax.set_title(f"$s={s_},\\ t={t}$", fontsize=6, pad=2)
+        fig.text(0.05 / W_in, (y + 0.5 * size) / H_in, f"$L={L}$", fontsize=7, rotation=90,
+                 va="center")
+    ax = fig.add_axes([(left + pad + 0.5 * (cols - 1) * (size + pad)) / W_in, 0.05 / H_in, size / W_in, size / H_in])
+    ax.imshow(tonemap(full), interpolation="nearest")
+    ax.set_xticks([])
+    ax.set_yticks([])
+    ax.set_title("sum (BDPT)", fontsize=6, pad=2)
+    fig.savefig(out / "bdpt_pyramid.png", dpi=200)
+    plt.close(fig)
+    _write(out / "bdpt_pyramid_macros.tex",
+           f"\\newcommand{{\\pyrRes}}{{{res}}}\n\\newcommand{{\\pyrSpp}}{{{spp}}}\n"
+           f"\\newcommand{{\\pyrDepth}}{{{max_depth}}}\n")
+
+
 STEPS = {
     "furnace": (furnace, ["furnace_table.tex", "furnace_macros.tex"]),
     "pt_convergence": (pt_convergence, ["pt_convergence.pdf", "pt_convergence_macros.tex"]),
@@ -212,6 +363,9 @@ STEPS = {
     "performance": (performance, ["performance_macros.tex"]),
     "density_fit": (density_fit, ["density_fit.png", "density_fit_macros.tex"]),
     "equal_time": (equal_time, ["equal_time.png", "equal_time_table.tex", "equal_time_macros.tex"]),
+    "chi2": (chi2, ["chi2_table.tex", "chi2_macros.tex"]),
+    "agreement": (agreement, ["agreement_table.tex", "agreement_macros.tex"]),
+    "bdpt_pyramid": (bdpt_pyramid, ["bdpt_pyramid.png", "bdpt_pyramid_macros.tex"]),
 }
 
 
@@ -247,7 +401,12 @@ def main(argv=None):
         if missing:
             raise RuntimeError(f"step {name} did not write {missing}")
         log[name] = round(time.perf_counter() - t0, 2)
-    _write(GEN / "provenance.json", json.dumps({"scale": a.scale, "seconds": log}, indent=2))
+    prov = GEN / "provenance.json"
+    if a.only and prov.exists():  # --only: keep the other steps' record from the same scale
+        old = json.loads(prov.read_text())
+        if old.get("scale") == a.scale:
+            log = {**old.get("seconds", {}), **log}
+    _write(prov, json.dumps({"scale": a.scale, "seconds": log}, indent=2))
     if not a.no_pdf:
         pdf = build_pdf()
         if pdf:
