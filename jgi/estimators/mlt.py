@@ -583,6 +583,7 @@ def render(scene: Scene, *, spp: int, seed: int, chains: int = 4096, bootstrap_s
     pick = jnp.asarray(np.minimum(np.searchsorted(cdf, r), bootstrap_samples - 1))
     x = jax.tree_util.tree_map(lambda a: jnp.take(a, pick, axis=a.ndim - 1), paths)
     n_steps_total = max(1, -(-spp * W * H // chains))
+    steps_per_call = min(steps_per_call, n_steps_total)  # spp keeps its meaning on small images
     n_steps_total = -(-n_steps_total // steps_per_call) * steps_per_call
     scale = jnp.float32(b * W * H / (n_steps_total * chains))
     img = np.zeros((W * H, 3), np.float64)

@@ -307,4 +307,5 @@ for _name, _stoch in (("ppm", False), ("sppm", True)):
                        (Param("passes", 16, "photon passes", int, minimum=1),
                         Param("photons", 50_000, "photons per pass", int, minimum=1),
                         Param("radius", 0.1, "initial radius", float, minimum=1e-6),
-                        Param("alpha", 0.7, "radius reduction alpha in (0, 1)", float, minimum=1e-3, maximum=0.999))))
+                        Param("alpha", 0.7, "radius reduction alpha in (0, 1)", float, minimum=1e-3, maximum=0.999),
+                        Param("max_depth", 8, "maximum bounces of photons and of specular chains", int, minimum=1))))

@@ -140,6 +140,8 @@ def render(scene: Scene, *, spp: int, seed: int, chains: int = 4096, bootstrap_s
     n_steps_total = max(1, -(-total // chains))
     # whole blocks of steps_per_call: one compiled kernel for every spp (a few extra mutations;
     # ``scale`` counts them, so the image stays unbiased)
+    # (fewer steps than one block: one smaller block, so spp keeps its meaning on small images)
+    steps_per_call = min(steps_per_call, n_steps_total)
     n_steps_total = -(-n_steps_total // steps_per_call) * steps_per_call
     scale = jnp.float32(b * W * H / (n_steps_total * chains))
     img = np.zeros((W * H, 3), np.float64)
