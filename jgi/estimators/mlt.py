@@ -521,9 +521,10 @@ def bootstrap(scene: Scene, cfg: MLTConfig, seed, n: int):
 
 @partial(jax.jit, static_argnames=("cfg", "n_steps"))
 def run_chains(scene: Scene, cfg: MLTConfig, mu: Mutations, seed, x: Path, step0, n_steps: int,
-               scale):
-    """Advance the chains by n_steps mutations; returns (state, image sums times ``scale``,
-    per-kind counts [3, 3]: proposed, applicable, accepted)."""
+               scale, n_live):
+    """Advance the chains by n_steps mutations, of which the first ``n_live`` (traced) count:
+    a render's last block runs masked instead of compiling a shorter one. Returns (state, image
+    sums times ``scale``, per-kind counts [3, 3]: proposed, applicable, accepted)."""
     W, H = scene.camera.width, scene.camera.height
     C = x.length.shape[0]
     chain = jnp.arange(C, dtype=jnp.int32)
@@ -539,17 +540,19 @@ def run_chains(scene: Scene, cfg: MLTConfig, mu: Mutations, seed, x: Path, step0
         key = rng.derive(rng.path_key(seed, chain, step0 + t), _SALT + 1)
         y, yv, num, den, applicable = jax.lax.switch(
             which, kernels, x, xv, rng.derive(key, 3))
+        live = t < n_live
         a = jnp.where(applicable & (y.length > 0), acceptance(num, den), 0.0)
         # expected-value splatting: current path with 1 - a, proposal with a, each b P / lum P
-        w_x = jnp.where(xv.lum > 0, (1.0 - a) / jnp.where(xv.lum > 0, xv.lum, 1.0), 0.0) * scale
-        w_y = jnp.where(yv.lum > 0, a / jnp.where(yv.lum > 0, yv.lum, 1.0), 0.0) * scale
+        w_x = jnp.where(live & (xv.lum > 0), (1.0 - a) / jnp.where(xv.lum > 0, xv.lum, 1.0), 0.0) * scale
+        w_y = jnp.where(live & (yv.lum > 0), a / jnp.where(yv.lum > 0, yv.lum, 1.0), 0.0) * scale
         vals = jnp.stack([c * w_x for c in xv.color], -1)
         vals_y = jnp.stack([c * w_y for c in yv.color], -1)
         img = img.at[_pixel(scene, x)].add(vals).at[_pixel(scene, y)].add(vals_y)
-        take = rng.uniform(key, 1) < a
+        take = (rng.uniform(key, 1) < a) & live
         x = jax.tree_util.tree_map(lambda b, c: jnp.where(take if c.ndim == 1 else take[None], b, c), y, x)
         xv = jax.tree_util.tree_map(lambda b, c: jnp.where(take, b, c), yv, xv)
-        row = jnp.stack([jnp.int32(C), jnp.sum(applicable).astype(jnp.int32), jnp.sum(take).astype(jnp.int32)])
+        row = jnp.stack([jnp.int32(C), jnp.sum(applicable).astype(jnp.int32),
+                         jnp.sum(take).astype(jnp.int32)]) * live.astype(jnp.int32)
         counts = counts.at[which].add(row)
         return (x, xv, img, counts), None
 
@@ -583,15 +586,14 @@ def render(scene: Scene, *, spp: int, seed: int, chains: int = 4096, bootstrap_s
     pick = jnp.asarray(np.minimum(np.searchsorted(cdf, r), bootstrap_samples - 1))
     x = jax.tree_util.tree_map(lambda a: jnp.take(a, pick, axis=a.ndim - 1), paths)
     n_steps_total = max(1, -(-spp * W * H // chains))
-    steps_per_call = min(steps_per_call, n_steps_total)  # spp keeps its meaning on small images
-    n_steps_total = -(-n_steps_total // steps_per_call) * steps_per_call
     scale = jnp.float32(b * W * H / (n_steps_total * chains))
     img = np.zeros((W * H, 3), np.float64)
     counts = np.zeros((3, 3), np.int64)
     mu = mutations.arrays()
     for done in range(0, n_steps_total, steps_per_call):
+        n = min(steps_per_call, n_steps_total - done)  # the last block runs masked
         x, part, c = run_chains(scene, cfg, mu, jnp.uint32(seed), x, jnp.int32(done), steps_per_call,
-                                scale)
+                                scale, jnp.int32(n))
         img += np.asarray(part, np.float64)
         counts += np.asarray(c, np.int64)
     if stats is not None:

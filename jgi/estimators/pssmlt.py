@@ -84,9 +84,12 @@ def bootstrap(scene: Scene, cfg: PSSMLTConfig, seed, n: int):
 
 
 @partial(jax.jit, static_argnames=("cfg", "n_steps"))
-def run_chains(scene: Scene, cfg: PSSMLTConfig, seed, u0, step0, n_steps: int, scale):
-    """Advance chains (state u0 [dims, C]) by n_steps mutations; return the new state, the
-    splatted image sums (times ``scale``) and the number of accepted proposals."""
+def run_chains(scene: Scene, cfg: PSSMLTConfig, seed, u0, step0, n_steps: int, scale, n_live=None):
+    """Advance chains (state u0 [dims, C]) by n_steps mutations, of which only the first
+    ``n_live`` (traced; default all) count: the last block of a render runs masked instead of
+    compiling a shorter one. Returns the new state, the splatted image sums (times ``scale``)
+    and the number of accepted proposals."""
+    n_live = n_steps if n_live is None else n_live
     W, H = scene.camera.width, scene.camera.height
     C_ = u0.shape[1]
     chain = jnp.arange(C_, dtype=jnp.int32)
@@ -102,13 +105,14 @@ def run_chains(scene: Scene, cfg: PSSMLTConfig, seed, u0, step0, n_steps: int, s
         u_new = jnp.where(large[None, :], _uniforms(rng.derive(key, 11), 0, cfg.dims), small)
         L_new, f_new, pix_new = contribution(scene, cfg, u_new)
         a = jnp.where(f > 0, jnp.minimum(1.0, f_new / jnp.where(f > 0, f, 1.0)), 1.0)
+        live = t < n_live
         # expected-value splatting of the current and the proposed sample
-        w_cur = jnp.where(f > 0, (1.0 - a) / jnp.where(f > 0, f, 1.0), 0.0) * scale
-        w_new = jnp.where(f_new > 0, a / jnp.where(f_new > 0, f_new, 1.0), 0.0) * scale
+        w_cur = jnp.where(live & (f > 0), (1.0 - a) / jnp.where(f > 0, f, 1.0), 0.0) * scale
+        w_new = jnp.where(live & (f_new > 0), a / jnp.where(f_new > 0, f_new, 1.0), 0.0) * scale
         vals = jnp.stack([L.x * w_cur, L.y * w_cur, L.z * w_cur], -1)
         vals_new = jnp.stack([L_new.x * w_new, L_new.y * w_new, L_new.z * w_new], -1)
         img = img.at[pix].add(vals).at[pix_new].add(vals_new)
-        take = rng.uniform(key, 1) < a
+        take = (rng.uniform(key, 1) < a) & live
         u = jnp.where(take[None, :], u_new, u)
         L = V3(*(jnp.where(take, n, o) for n, o in zip(L_new, L)))
         f = jnp.where(take, f_new, f)
@@ -138,18 +142,15 @@ def render(scene: Scene, *, spp: int, seed: int, chains: int = 4096, bootstrap_s
     u = jnp.asarray(np.asarray(u_b)[:, pick])
     total = spp * W * H
     n_steps_total = max(1, -(-total // chains))
-    # whole blocks of steps_per_call: one compiled kernel for every spp (a few extra mutations;
-    # ``scale`` counts them, so the image stays unbiased)
-    # (fewer steps than one block: one smaller block, so spp keeps its meaning on small images)
-    steps_per_call = min(steps_per_call, n_steps_total)
-    n_steps_total = -(-n_steps_total // steps_per_call) * steps_per_call
+    # blocks of steps_per_call, the last one masked: one compiled kernel for every spp
     scale = jnp.float32(b * W * H / (n_steps_total * chains))
     img = np.zeros((W * H, 3), np.float64)
     accepted = 0
     done = 0
     while done < n_steps_total:
-        n = steps_per_call if n_steps_total - done >= steps_per_call else n_steps_total - done
-        u, part, acc = run_chains(scene, cfg, jnp.uint32(seed), u, jnp.int32(done), n, scale)
+        n = min(steps_per_call, n_steps_total - done)
+        u, part, acc = run_chains(scene, cfg, jnp.uint32(seed), u, jnp.int32(done), steps_per_call,
+                                  scale, jnp.int32(n))
         img += np.asarray(part, np.float64)
         accepted += int(acc)
         done += n
