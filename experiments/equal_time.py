@@ -3,7 +3,11 @@ scene where light arrives through a glass caustic, reporting relative MSE agains
 reference and the MLT chains' acceptance rates.
 
     python experiments/equal_time.py [--scene cornell_box_caustics] [--res 64] [--budget 20]
-                                     [--reps 3] [--out runs/equal_time]
+                                     [--reps 3] [--max-depth 5] [--only LABEL ...]
+                                     [--out runs/equal_time]
+
+Every estimator, and the reference, uses the same maximum path length (``--max-depth``), so
+they estimate the same image.
 
 Each estimator's cost per sample per pixel is measured after a warm-up (compilation excluded),
 then its spp is set so that one render takes about ``--budget`` seconds. Writes
@@ -25,7 +29,9 @@ ESTIMATORS = {  # label: (registry name, parameters)
     "BDPT": ("bdpt", {}),
     "PSSMLT": ("pssmlt", {"p_large": 0.3}),
     "MMLT": ("mmlt", {}),
+    "Veach MLT": ("mlt", {}),
 }
+MLT_NAMES = ("pssmlt", "mmlt", "mlt")
 
 
 def main(argv=None) -> dict:
@@ -35,6 +41,8 @@ def main(argv=None) -> dict:
     ap.add_argument("--budget", type=float, default=20.0, help="seconds per render")
     ap.add_argument("--reps", type=int, default=3)
     ap.add_argument("--ref-spp", type=int, default=4096)
+    ap.add_argument("--max-depth", type=int, default=5)
+    ap.add_argument("--only", nargs="*", default=None, help="labels or estimator names to run")
     ap.add_argument("--out", default="runs/equal_time")
     a = ap.parse_args(argv)
 
@@ -50,12 +58,16 @@ def main(argv=None) -> dict:
     out.mkdir(parents=True, exist_ok=True)
     scene = jgi.load_scene(a.scene).with_resolution(a.res, a.res)
     print(f"[equal_time] reference: pt, {a.ref_spp} spp", file=sys.stderr)
-    halves = [jgi.render(scene, "pt", spp=a.ref_spp // 2, seed=777_000 + h) for h in range(2)]
+    halves = [jgi.render(scene, "pt", spp=a.ref_spp // 2, seed=777_000 + h, max_depth=a.max_depth)
+              for h in range(2)]
     ref = 0.5 * (halves[0] + halves[1])
     ref_var = 0.25 * (halves[0] - halves[1]) ** 2
     write_exr(out / "reference.exr", ref)
     rows, images = [], {}
     for label, (name, params) in ESTIMATORS.items():
+        if a.only is not None and label not in a.only and name not in a.only:
+            continue
+        params = dict(params, max_depth=a.max_depth)
         if name not in jgi.REGISTRY:
             print(f"[equal_time] {label}: estimator '{name}' not available, skipped", file=sys.stderr)
             continue
@@ -79,23 +91,32 @@ def main(argv=None) -> dict:
         for r in range(a.reps):
             st = {}
             t0 = time.perf_counter()
-            if name in ("pssmlt", "mmlt"):
+            if name in MLT_NAMES:
                 img = _render_with_stats(name, scene, spp, 100 + r, st, params)
             else:
                 img = jgi.render(scene, name, spp=spp, seed=100 + r, **params)
             secs.append(time.perf_counter() - t0)
             imgs.append(img)
             if "acceptance" in st:
-                acc.append(st["acceptance"])
+                acc.append(st)
         s = stats.error_stats(np.stack(imgs), ref, ref_var)
         row = dict(label=label, estimator=name, spp=spp, seconds=float(np.mean(secs)),
                    rel_mse=float(s.rel_mse.mean()), mse=float(s.mse.mean()),
-                   acceptance=float(np.mean(acc)) if acc else None)
+                   acceptance=float(np.mean([st["acceptance"] for st in acc])) if acc else None)
+        for kind in ("large", "lens", "caustic"):  # Veach MLT: per mutation kind
+            if acc and f"{kind}_acceptance" in acc[0]:
+                row[f"{kind}_acceptance"] = float(np.mean([st[f"{kind}_acceptance"] for st in acc]))
+                row[f"{kind}_applicable"] = float(np.mean([st[f"{kind}_applicable"] /
+                                                           max(st[f"{kind}_proposed"], 1) for st in acc]))
         rows.append(row)
         images[label] = (imgs[0], s)
         print(f"[equal_time] {label:14s} spp {spp:5d}  {row['seconds']:.1f}s  relMSE {row['rel_mse']:.4g}"
-              + (f"  acceptance {row['acceptance']:.3f}" if acc else ""), file=sys.stderr)
+              + (f"  acceptance {row['acceptance']:.3f}" if acc else "")
+              + "".join(f"  {k} {row[k + '_acceptance']:.3f} (applicable {row[k + '_applicable']:.2f})"
+                        for k in ("large", "lens", "caustic") if k + "_acceptance" in row),
+              file=sys.stderr)
     summary = dict(scene=a.scene, resolution=a.res, budget_s=a.budget, reference_spp=a.ref_spp,
+                   max_depth=a.max_depth,
                    repetitions=a.reps, rows=rows)
     (out / "equal_time.json").write_text(json.dumps(summary, indent=2))
     fig, axes = plt.subplots(2, len(images) + 1, figsize=(2.6 * (len(images) + 1), 5.2), squeeze=False)
