@@ -201,11 +201,15 @@ def equal_time(scale, out: Path):
             else ["--res", "64", "--budget", "30", "--reps", "4", "--ref-spp", "16384"])
     r = et.main(["--out", str(out / "equal_time_run")] + args)
     shutil.copy(out / "equal_time_run" / "equal_time.png", out / "equal_time.png")
-    lines = [r"\begin{tabular}{lrrrr}", r"\toprule",
-             r"estimator & spp & time (s) & relative MSE & acceptance \\", r"\midrule"]
+    lines = [r"\begin{tabular}{lrrrrr}", r"\toprule",
+             r"estimator & spp & time (s) & relative MSE & acceptance & lens / caustic \\",
+             r"\midrule"]
     for row in r["rows"]:
         acc = "--" if row["acceptance"] is None else f"{row['acceptance']:.3f}"
-        lines.append(f"{row['label']} & {row['spp']} & {row['seconds']:.1f} & {row['rel_mse']:.3g} & {acc} \\\\")
+        per_kind = (f"{row['lens_acceptance']:.2f} / {row['caustic_acceptance']:.2f}"
+                    if "lens_acceptance" in row else "--")
+        lines.append(f"{row['label']} & {row['spp']} & {row['seconds']:.1f} & {row['rel_mse']:.3g} & {acc}"
+                     f" & {per_kind} \\\\")
     lines += [r"\bottomrule", r"\end{tabular}"]
     _write(out / "equal_time_table.tex", "\n".join(lines) + "\n")
     _write(out / "equal_time_macros.tex",
