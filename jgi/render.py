@@ -191,15 +191,21 @@ def _wavefront_call(scene: Scene, seed, slot0, spp, per_slot, *, start_fn, step_
         finite = jnp.isfinite(L.x) & jnp.isfinite(L.y) & jnp.isfinite(L.z)
         bad = c.bad + (finished & ~finite).astype(jnp.int32)
         take = finished & finite
-        acc = tuple(V3(*(a + jnp.where(take & (c.slot == j), l, 0.0) for a, l in zip(acc_j, L)))
-                    for j, acc_j in enumerate(c.acc))
         sample = c.sample + finished.astype(jnp.int32)
         next_slot = finished & (sample >= work(c.slot)[2])
         slot = c.slot + next_slot.astype(jnp.int32)
         sample = jnp.where(next_slot, 0, sample)
         alive = jnp.where(finished, (slot < slots) & (work(jnp.minimum(slot, slots - 1))[2] > 0),
                           c.alive)
-        state = fresh(slot, sample, ~(finished & alive), state)
+        keep = ~(finished & alive)
+        # the lane's fate stored first, in one small kernel: each flag reaches more than 15 of
+        # the state leaves, so XLA would otherwise compute them in kernels of their own (and
+        # recompute them in the bookkeeping kernel): 4 kernels per segment instead of 5,
+        # 1.04-1.07x fewer CPU-seconds
+        keep, take, slot, sample, alive = materialize((keep, take, slot, sample, alive))
+        acc = tuple(V3(*(a + jnp.where(take & (c.slot == j), l, 0.0) for a, l in zip(acc_j, L)))
+                    for j, acc_j in enumerate(c.acc))
+        state = fresh(slot, sample, keep, state)
         # the new lane state computed in one pass and stored: otherwise XLA copies the step into
         # every consumer (each accumulator, each state leaf): 1.6x fewer CPU-seconds than
         # without, 4% fewer than materialising only the step
