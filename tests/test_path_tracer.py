@@ -182,13 +182,17 @@ def test_image_does_not_depend_on_chunking(cornell):
 
 
 def test_one_compilation_serves_every_spp_and_seed(cornell):
+    def compiled():
+        # (other tests in this process may have rendered other scenes with this config)
+        return {key: fn._cache_size() for key, fn in R._COMPILED.items()
+                if key[0][0] == "pt" and key[0][1].max_depth == 5}
+
     jgi.render(cornell, "pt", spp=3, seed=1, max_depth=5)
-    fns = [fn for key, fn in R._COMPILED.items() if key[0][0] == "pt" and key[0][1].max_depth == 5]
-    assert len(fns) == 1
-    before = fns[0]._cache_size()
+    before = compiled()
+    assert sum(before.values()) >= 1
     jgi.render(cornell, "pt", spp=5, seed=2, max_depth=5)
     jgi.render(cornell, "pt", spp=17, seed=3, max_depth=5)
-    assert fns[0]._cache_size() == before == 1
+    assert compiled() == before  # no new kernel and no new compilation of an existing one
 
 
 def test_scene_values_are_arguments_not_constants(cornell):
