@@ -255,6 +255,7 @@ AGREEMENT = [  # label, registry name, parameters, unbiased?  (every path has <=
     ("light tracing", "lt", dict(max_depth=5), True),
     ("BDPT, power", "bdpt", dict(max_depth=5), True),
     ("PSSMLT", "pssmlt", dict(max_depth=5), True),
+    ("Veach MLT", "mlt", dict(max_depth=5), True),
     # photon bounces 0..3 before storage, plus the camera segment: paths of <= 5 segments
     ("photon mapping", "pm", dict(max_depth=4, photons=50_000, radius=0.05), False),
 ]
