@@ -66,6 +66,7 @@ from .. import bsdf as B
 from .. import camera as CAM
 from .. import geometry as G
 from .. import lights as LT
+from .. import mcmc
 from .. import rng
 from ..lights import AREA_KINDS
 from ..scene import DIELECTRIC, MIRROR, Scene
@@ -510,12 +511,6 @@ def _pixel(scene: Scene, path: Path) -> Array:
     return py * W + px
 
 
-def acceptance(num: Array, den: Array) -> Array:
-    """min(1, num / den) with the conventions of :func:`jgi.mcmc.acceptance_probability`."""
-    r = jnp.where(den > 0, num / jnp.where(den > 0, den, 1.0), 1.0)
-    return jnp.clip(jnp.where(jnp.isfinite(r), r, 0.0), 0.0, 1.0)
-
-
 @partial(jax.jit, static_argnames=("cfg", "n"))
 def bootstrap(scene: Scene, cfg: MLTConfig, seed, n: int):
     key = rng.derive(rng.path_key(seed, jnp.arange(n, dtype=jnp.int32), 0), _SALT)
@@ -546,7 +541,9 @@ def run_chains(scene: Scene, cfg: MLTConfig, mu: Mutations, seed, x: Path, step0
         y, yv, num, den, applicable = jax.lax.switch(
             which, kernels, x, xv, rng.derive(key, 3))
         live = t < n_live
-        a = jnp.where(applicable & (y.length > 0), acceptance(num, den), 0.0)
+        # every kind is symmetric in its own coordinates: log T cancels
+        a = jnp.where(applicable & (y.length > 0),
+                      mcmc.acceptance_probability(den, num, 0.0, 0.0), 0.0)
         # expected-value splatting: current path with 1 - a, proposal with a, each b P / lum P
         w_x = jnp.where(live & (xv.lum > 0), (1.0 - a) / jnp.where(xv.lum > 0, xv.lum, 1.0), 0.0) * scale
         w_y = jnp.where(live & (yv.lum > 0), a / jnp.where(yv.lum > 0, yv.lum, 1.0), 0.0) * scale
