@@ -133,7 +133,11 @@ WAVEFRONT_SLOTS = 4         # work slots per lane and call (pixels one after ano
 WAVEFRONT_UNROLL = 2         # segments per while-loop iteration: with 1, each iteration ends in
                             # ~20 copies of the state into the loop buffers (the materialised
                             # state cannot be written in place); with 2 the second segment writes
-                            # into the buffers the first one has finished reading (1.09x)
+                            # into the buffers the first one has finished reading (1.09x). Only
+                            # for images of at least WAVEFRONT_LANES pixels: two segments take
+                            # 2-2.5x as long to compile (8^2 Cornell box: 4.2 s against 2.7 s;
+                            # Veach's plates: 9.0 s against 3.7 s), which small renders never
+                            # win back
 WAVEFRONT_SAMPLES = 64      # samples per slot and call: lanes run up to 256 paths per call, so
                             # the last paths of a call leave few lanes idle (about 10%)
 
@@ -235,15 +239,15 @@ def render_wavefront(scene: Scene, start_fn: Callable, step_fn: Callable, *, spp
     says which paths are still going; when a lane's ``alive`` turns False its ``L`` (a V3) is
     that path's final estimate. Work is split into slots of (pixel, up to ``per_slot`` samples);
     a call traces ``lanes x slots`` slots. Each loop iteration advances every lane by ``unroll``
-    segments (default ``WAVEFRONT_UNROLL``; a lane with no work left just stays idle, so the
-    image does not depend on it). Non-finite path values are dropped with a warning, as in
+    segments (default ``WAVEFRONT_UNROLL`` for images of at least ``WAVEFRONT_LANES`` pixels,
+    else 1; a lane with no work left just stays idle, so the image does not depend on it). Non-finite path values are dropped with a warning, as in
     :func:`render_paths`."""
     W, H = scene.camera.width, scene.camera.height
     P = W * H
     lanes = lanes or min(WAVEFRONT_LANES, 1 << max(int(np.ceil(np.log2(P))), 8))
     devices = list(devices if devices is not None else jax.devices())
     D = len(devices)
-    unroll = unroll or WAVEFRONT_UNROLL
+    unroll = unroll or (WAVEFRONT_UNROLL if lanes >= WAVEFRONT_LANES else 1)
     key = (cache_key, ("wavefront", lanes, slots, unroll, tuple(devices)))
     fn = _COMPILED.get(key)
     if fn is None:

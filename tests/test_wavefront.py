@@ -57,7 +57,7 @@ def test_wavefront_equals_per_path_render(name, params):
         np.testing.assert_allclose(a, b, rtol=1e-5, atol=1e-6 * np.abs(b).max())
 
 
-def test_wavefront_lane_and_slot_counts_do_not_change_the_image():
+def test_wavefront_lane_slot_and_unroll_counts_do_not_change_the_image():
     scene = scenes.cornell_box(resolution=8)
     cfg = PT.PathTracerConfig()
 
@@ -68,8 +68,10 @@ def test_wavefront_lane_and_slot_counts_do_not_change_the_image():
     a = render(lanes=256, slots=4)
     b = render(lanes=64, slots=1)
     c = render(lanes=256, slots=2, per_slot=2)
+    d = render(lanes=256, slots=4, unroll=2)  # small images trace one segment per iteration
     np.testing.assert_allclose(a, b, rtol=1e-5, atol=1e-7)
     np.testing.assert_allclose(a, c, rtol=1e-5, atol=1e-7)
+    np.testing.assert_array_equal(a, d)
 
 
 def test_wavefront_on_two_devices_matches_one():
