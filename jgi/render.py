@@ -8,9 +8,11 @@ the stream (seed, p, s): the image does not depend on chunk sizes.
 
 ``render_wavefront`` is the driver for estimators written as a per-segment *step* (the path
 tracer): a fixed set of lanes advances one path segment per iteration, and a lane whose path has
-ended starts the next path of its work list at once (path regeneration, Novak et al. 2010), so
-no lane idles while the longest path of a batch finishes. Which (pixel, sample) a lane traces
-never depends on the others, so the image is still a function of the seed alone.
+ended starts the next path of its work slot at once (path regeneration, Novak et al. 2010);
+lanes that finish their slot take the next one from a queue shared by all lanes, so no lane
+idles while the longest paths of a batch finish. Which lane traces a path depends on timing
+within the loop, but each path's random numbers come from (seed, pixel, sample), so the image
+is still a function of the seed alone.
 """
 
 from __future__ import annotations
@@ -126,11 +128,12 @@ def _progress(done: int, total: int, elapsed: float) -> None:
     sys.stderr.flush()
 
 
-# --- wavefront driver with path regeneration --------------------------------------------------
+# --- wavefront driver with path regeneration and a shared work queue ---------------------------
 
 WAVEFRONT_LANES = 1 << 14   # lanes per loop (fastest of 2^11..2^15 measured on the Cornell box)
-WAVEFRONT_SLOTS = 4         # work slots per lane and call (pixels one after another)
-WAVEFRONT_UNROLL = 2         # segments per while-loop iteration: with 1, each iteration ends in
+WAVEFRONT_SAMPLES = 16      # samples per work slot (one pixel's paths traced by one lane in a row)
+WAVEFRONT_CALL_SLOTS = 64   # work slots per lane and call (on average): bounds a call's length
+WAVEFRONT_UNROLL = 2        # segments per inner-loop iteration: with 1, each iteration ends in
                             # ~20 copies of the state into the loop buffers (the materialised
                             # state cannot be written in place); with 2 the second segment writes
                             # into the buffers the first one has finished reading (1.09x). Only
@@ -138,16 +141,14 @@ WAVEFRONT_UNROLL = 2         # segments per while-loop iteration: with 1, each i
                             # 2-2.5x as long to compile (8^2 Cornell box: 4.2 s against 2.7 s;
                             # Veach's plates: 9.0 s against 3.7 s), which small renders never
                             # win back
-WAVEFRONT_SAMPLES = 64      # samples per slot and call: lanes run up to 256 paths per call, so
-                            # the last paths of a call leave few lanes idle (about 10%)
 
 
 class _Lanes(NamedTuple):
     state: object        # the estimator's per-lane path state (a pytree of [lanes] arrays)
-    slot: jax.Array      # index (0..slots-1) of the work slot the lane is tracing
-    sample: jax.Array    # sample within that slot
+    slot: jax.Array      # the lane's work slot, counted from the call's first; n_call: none
+    sample: jax.Array    # which of the slot's samples the path in flight is
     alive: jax.Array     # the lane has a path in flight
-    acc: tuple           # per slot, the V3 sum of the radiance of its finished paths
+    acc: V3              # radiance summed over the slot's finished paths
     bad: jax.Array       # finished paths with a non-finite value (dropped)
 
 
@@ -160,135 +161,161 @@ def _slot_work(slot_id, P, spp, per_slot):
     return pixel, first, jnp.clip(spp - first, 0, per_slot)
 
 
-def _wavefront_call(scene: Scene, seed, slot0, spp, per_slot, *, start_fn, step_fn, lanes,
-                    slots, unroll=1):
-    """Trace every path of work slots slot0 + j * lanes + lane (j < slots) and return the
-    (P, 3) sum of their radiance. ``start_fn(scene, seed, pixel, sample) -> state`` and
-    ``step_fn(scene, state) -> (state, alive, L)`` define the estimator."""
+def _wavefront_call(scene: Scene, seed, slot0, n_call, spp, per_slot, n_inner, *, start_fn,
+                    step_fn, lanes, unroll=1):
+    """Trace every path of work slots slot0 .. slot0 + n_call - 1 and return the (P, 3) sum of
+    their radiance, and how many paths were dropped as non-finite.
+
+    ``start_fn(scene, seed, pixel, sample) -> state`` and ``step_fn(scene, state) -> (state,
+    alive, L)`` define the estimator. Each lane traces the paths of one slot one after another
+    (a finished path is replaced by the slot's next at once), then idles; every ``n_inner *
+    unroll`` segments the idle lanes add their slot's sum to the image and take the next slots
+    of the call in lane order (an exclusive prefix sum of the idle flags numbers them). Which
+    lane traces a path depends on the others, but every path draws its random numbers from
+    (seed, pixel, sample), so the image does not."""
     W, H = scene.camera.width, scene.camera.height
     P = W * H
     lane = jnp.arange(lanes, dtype=jnp.int32)
-    n_slots = P * ((spp + per_slot - 1) // per_slot)
 
     def work(slot):
-        sid = slot0 + slot * lanes + lane
-        pixel, first, count = _slot_work(sid, P, spp, per_slot)
-        return pixel, first, jnp.where(sid < n_slots, count, 0)
+        pixel, first, count = _slot_work(slot0 + slot, P, spp, per_slot)
+        return pixel, first, jnp.where(slot < n_call, count, 0)
 
-    def fresh(slot, sample, keep, state):
-        """Start path (pixel, first + sample) of slot ``slot`` in lanes where ``keep`` is False."""
+    def restart(state, keep, slot, sample):
+        """Start path ``sample`` of ``slot`` in lanes where ``keep`` is False."""
         pixel, first, _ = work(slot)
         new = start_fn(scene, seed, pixel, first + sample)
-        if state is None:
-            return new
         return jax.tree_util.tree_map(lambda a, b: jnp.where(keep, a, b), state, new)
+
+    def stored(c: _Lanes) -> _Lanes:
+        # the new lane state computed in one pass and stored: otherwise XLA copies the step into
+        # every consumer (each state leaf): 1.6x fewer CPU-seconds than without
+        return materialize(c)
 
     zero = jnp.zeros((lanes,), jnp.int32)
     z = jnp.zeros((lanes,), jnp.float32)
-    acc0 = tuple(V3(z, z, z) for _ in range(slots))
-    alive0 = work(zero)[2] > 0
-    init = _Lanes(fresh(zero, zero, None, None), zero, zero, alive0, acc0, zero)
+    pixel0, first0, count0 = work(lane)
+    init = _Lanes(start_fn(scene, seed, pixel0, first0), jnp.minimum(lane, n_call), zero,
+                  count0 > 0, V3(z, z, z), zero)
+    next0 = jnp.minimum(jnp.int32(lanes), n_call)
 
-    def body(c: _Lanes) -> _Lanes:
+    def segment(c: _Lanes) -> _Lanes:
         state, alive_path, L = step_fn(scene, c.state)
         finished = c.alive & ~alive_path
         finite = jnp.isfinite(L.x) & jnp.isfinite(L.y) & jnp.isfinite(L.z)
         bad = c.bad + (finished & ~finite).astype(jnp.int32)
-        take = finished & finite
+        acc = V3(*(a + jnp.where(finished & finite, l, 0.0) for a, l in zip(c.acc, L)))
         sample = c.sample + finished.astype(jnp.int32)
-        next_slot = finished & (sample >= work(c.slot)[2])
-        slot = c.slot + next_slot.astype(jnp.int32)
-        sample = jnp.where(next_slot, 0, sample)
-        alive = jnp.where(finished, (slot < slots) & (work(jnp.minimum(slot, slots - 1))[2] > 0),
-                          c.alive)
-        keep = ~(finished & alive)
+        more = sample < work(c.slot)[2]
+        alive = jnp.where(finished, more, c.alive)
+        keep = ~(finished & more)
         # the lane's fate stored first, in one small kernel: each flag reaches more than 15 of
         # the state leaves, so XLA would otherwise compute them in kernels of their own (and
-        # recompute them in the bookkeeping kernel): 4 kernels per segment instead of 5,
-        # 1.04-1.07x fewer CPU-seconds
-        keep, take, slot, sample, alive = materialize((keep, take, slot, sample, alive))
-        acc = tuple(V3(*(a + jnp.where(take & (c.slot == j), l, 0.0) for a, l in zip(acc_j, L)))
-                    for j, acc_j in enumerate(c.acc))
-        state = fresh(slot, sample, keep, state)
-        # the new lane state computed in one pass and stored: otherwise XLA copies the step into
-        # every consumer (each accumulator, each state leaf): 1.6x fewer CPU-seconds than
-        # without, 4% fewer than materialising only the step
-        return materialize(_Lanes(state, slot, sample, alive, acc, bad))
+        # recompute them in the bookkeeping kernel)
+        keep, sample, alive, acc = materialize((keep, sample, alive, acc))
+        state = restart(state, keep, c.slot, sample)
+        return stored(_Lanes(state, c.slot, sample, alive, acc, bad))
 
-    def body_n(c: _Lanes) -> _Lanes:
+    def refill(c: _Lanes, img, nxt):
+        idle = ~c.alive
+        done = idle & (c.slot < n_call)          # finished its slot: add the slot to the image
+        img = img.at[jnp.where(done, work(c.slot)[0], P)].add(c.acc.stack(), mode="drop")
+        i = idle.astype(jnp.int32)
+        new = nxt + jnp.cumsum(i) - i
+        gets = idle & (new < n_call)
+        slot = jnp.where(idle, jnp.where(gets, new, n_call), c.slot)
+        sample = jnp.where(idle, 0, c.sample)
+        acc = V3(*(jnp.where(idle, 0.0, a) for a in c.acc))
+        state = restart(c.state, ~gets, slot, sample)
+        lanes_ = stored(_Lanes(state, slot, sample, jnp.where(idle, gets, c.alive), acc, c.bad))
+        return lanes_, img, jnp.minimum(nxt + jnp.sum(i), n_call)
+
+    def inner(_, c):
         for _ in range(unroll):
-            c = body(c)
+            c = segment(c)
         return c
 
-    out = jax.lax.while_loop(lambda c: jnp.any(c.alive), body_n, init)
-    img = jnp.zeros((P, 3), jnp.float32)
-    for j, acc_j in enumerate(out.acc):
-        pixel = work(jnp.full((lanes,), j, jnp.int32))[0]
-        img = img.at[pixel].add(acc_j.stack())
+    def outer(carry):
+        c, img, nxt = carry
+        # segments between refills run in a loop of their own: the refill (a prefix sum and a
+        # scatter, about 0.25 ms for 2^14 lanes) then costs a few percent
+        return refill(jax.lax.fori_loop(0, n_inner, inner, c), img, nxt)
+
+    out, img, _ = jax.lax.while_loop(lambda c: jnp.any(c[0].alive) | (c[2] < n_call), outer,
+                                     (init, jnp.zeros((P, 3), jnp.float32), next0))
     return img, jnp.sum(out.bad)
 
 
 def render_wavefront(scene: Scene, start_fn: Callable, step_fn: Callable, *, spp: int, seed: int,
                      cache_key, progress: bool = False, lanes: int | None = None,
-                     slots: int = WAVEFRONT_SLOTS, per_slot: int | None = None,
-                     devices=None, unroll: int | None = None) -> np.ndarray:
+                     per_slot: int | None = None, devices=None,
+                     unroll: int | None = None) -> np.ndarray:
     """Average over ``spp`` samples per pixel of paths traced segment by segment.
 
     ``start_fn(scene, seed, pixel, sample) -> state`` starts the paths for (pixel, sample) index
     arrays; ``step_fn(scene, state) -> (state, alive, L)`` advances every lane by one segment and
     says which paths are still going; when a lane's ``alive`` turns False its ``L`` (a V3) is
-    that path's final estimate. Work is split into slots of (pixel, up to ``per_slot`` samples);
-    a call traces ``lanes x slots`` slots. Each loop iteration advances every lane by ``unroll``
-    segments (default ``WAVEFRONT_UNROLL`` for images of at least ``WAVEFRONT_LANES`` pixels,
-    else 1; a lane with no work left just stays idle, so the image does not depend on it). Non-finite path values are dropped with a warning, as in
-    :func:`render_paths`."""
+    that path's final estimate. Work is split into slots of (pixel, up to ``per_slot`` samples,
+    default ``WAVEFRONT_SAMPLES``) that lanes take from a queue as they finish (see
+    :func:`_wavefront_call`): lanes stay busy whatever the spread of path lengths over the
+    image (Cornell box, 256^2, 64 spp: 91% of lane-segments trace a path, against 78% when each
+    lane had a fixed list of four pixels; 1.07x fewer CPU-seconds, 1.26x on the glass sphere).
+    Each inner-loop iteration advances every lane by ``unroll`` segments (default
+    ``WAVEFRONT_UNROLL`` for images of at least ``WAVEFRONT_LANES`` pixels, else 1). Neither
+    setting changes the image beyond float rounding of the sums. Non-finite path values are
+    dropped with a warning, as in :func:`render_paths`."""
     W, H = scene.camera.width, scene.camera.height
     P = W * H
     lanes = lanes or min(WAVEFRONT_LANES, 1 << max(int(np.ceil(np.log2(P))), 8))
     devices = list(devices if devices is not None else jax.devices())
     D = len(devices)
     unroll = unroll or (WAVEFRONT_UNROLL if lanes >= WAVEFRONT_LANES else 1)
-    key = (cache_key, ("wavefront", lanes, slots, unroll, tuple(devices)))
+    per_slot = max(1, min(per_slot or WAVEFRONT_SAMPLES, spp))
+    n_slots = P * -(-spp // per_slot)
+    per_call = lanes * WAVEFRONT_CALL_SLOTS
+    if n_slots + per_call * D >= 2**31:
+        raise registry.ParameterError(
+            f"{P} pixels x {spp} spp is too many work slots for int32 indices; render several "
+            f"seeds and average the images")
+    # refill every ~8 segments, or sooner when slots are short (paths average ~4 segments)
+    n_inner = max(1, min(8, 2 * per_slot) // unroll)
+    key = (cache_key, ("wavefront", lanes, unroll, tuple(devices)))
     fn = _COMPILED.get(key)
     if fn is None:
         call = partial(_wavefront_call, start_fn=start_fn, step_fn=step_fn, lanes=lanes,
-                       slots=slots, unroll=unroll)
+                       unroll=unroll)
         if D == 1:
             fn = jax.jit(call)
         else:
             from jax.sharding import Mesh, PartitionSpec as Ps
 
-            def per_device(sc, sd, s0, n, ps):
-                img, nbad = call(sc, sd, s0[0], n, ps)
+            def per_device(sc, sd, s0, n, sp, ps, ni):
+                img, nbad = call(sc, sd, s0[0], n[0], sp, ps, ni)
                 return img[None], nbad[None]
 
             mesh = Mesh(np.array(devices), ("d",))
             fn = jax.jit(jax.shard_map(per_device, mesh=mesh,
-                                       in_specs=(Ps(), Ps(), Ps("d"), Ps(), Ps()),
+                                       in_specs=(Ps(), Ps(), Ps("d"), Ps("d"), Ps(), Ps(), Ps()),
                                        out_specs=Ps("d"), check_vma=False))
         _COMPILED[key] = fn
-    # enough samples per slot to give every lane work, at most WAVEFRONT_SAMPLES per call
-    per_slot = per_slot or -(-spp * P // (lanes * slots * D))
-    per_slot = max(1, min(per_slot, spp, WAVEFRONT_SAMPLES))
-    n_slots = P * -(-spp // per_slot)
-    per_call = lanes * slots * D
     img, bad = None, 0
     t0 = time.perf_counter()
-    for slot0 in range(0, n_slots, per_call):
+    args = (jnp.int32(spp), jnp.int32(per_slot), jnp.int32(n_inner))
+    for s0 in range(0, n_slots, per_call * D):
+        starts = [s0 + k * per_call for k in range(D)]
+        counts = [max(0, min(per_call, n_slots - s)) for s in starts]
         if D == 1:
-            part, nbad = fn(scene, jnp.uint32(seed), jnp.int32(slot0), jnp.int32(spp),
-                            jnp.int32(per_slot))
+            part, nbad = fn(scene, jnp.uint32(seed), jnp.int32(s0), jnp.int32(counts[0]), *args)
         else:
-            starts = jnp.asarray([slot0 + k * lanes * slots for k in range(D)], jnp.int32)
-            parts, nbads = fn(scene, jnp.uint32(seed), starts, jnp.int32(spp),
-                              jnp.int32(per_slot))
+            parts, nbads = fn(scene, jnp.uint32(seed), jnp.asarray(starts, jnp.int32),
+                              jnp.asarray(counts, jnp.int32), *args)
             part, nbad = parts[0], nbads[0]
             for k in range(1, D):  # in device order: the image does not depend on timing
                 part, nbad = part + parts[k], nbad + nbads[k]
         img = part if img is None else img + part
         bad = bad + nbad
         if progress:
-            done = min(slot0 + per_call, n_slots) / n_slots
+            done = min(s0 + per_call * D, n_slots) / n_slots
             _progress(int(done * P * spp), P * spp, time.perf_counter() - t0)
     out = np.asarray(img, np.float32).reshape(H, W, 3) / np.float32(spp)
     if progress:

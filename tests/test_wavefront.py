@@ -50,7 +50,7 @@ def test_wavefront_equals_per_path_render(name, params):
     scene = scenes.cornell_box(resolution=12) if name == "cornell_box" else \
         scenes.cornell_box_caustics(resolution=12)
     cfg = PT.PathTracerConfig(**params)
-    for spp in (1, 7):
+    for spp in (1, 7, 20):
         a = jgi.render(scene, "pt", spp=spp, seed=5, **params)
         b = per_path_image(scene, cfg, spp, 5)
         assert np.abs(a).max() > 0
@@ -58,6 +58,8 @@ def test_wavefront_equals_per_path_render(name, params):
 
 
 def test_wavefront_lane_slot_and_unroll_counts_do_not_change_the_image():
+    """Lane count, slot size and unrolling change which lane traces a path and when, never the
+    path: images agree to float rounding of the sums."""
     scene = scenes.cornell_box(resolution=8)
     cfg = PT.PathTracerConfig()
 
@@ -65,13 +67,13 @@ def test_wavefront_lane_slot_and_unroll_counts_do_not_change_the_image():
         return R.render_wavefront(scene, PT._start, lambda sc, lane: PT._step(sc, cfg, lane),
                                   spp=5, seed=2, cache_key=("test-wavefront-lanes", cfg), **kw)
 
-    a = render(lanes=256, slots=4)
-    b = render(lanes=64, slots=1)
-    c = render(lanes=256, slots=2, per_slot=2)
-    d = render(lanes=256, slots=4, unroll=2)  # small images trace one segment per iteration
+    a = render(lanes=256)
+    b = render(lanes=16, per_slot=2)       # 16 lanes take 192 slots from the queue
+    c = render(lanes=256, per_slot=2)
+    d = render(lanes=256, unroll=2)        # small images trace one segment per iteration
     np.testing.assert_allclose(a, b, rtol=1e-5, atol=1e-7)
     np.testing.assert_allclose(a, c, rtol=1e-5, atol=1e-7)
-    np.testing.assert_array_equal(a, d)
+    np.testing.assert_allclose(a, d, rtol=1e-5, atol=1e-7)
 
 
 def test_wavefront_on_two_devices_matches_one():
