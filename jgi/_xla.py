@@ -35,7 +35,13 @@
    arguments and results are flushed to zero (like the CPU backend's fast-math mode).
    ``JGI_NO_FAST_DIVISION=1`` turns them back into the plain operations.
 
-None of these changes results beyond float rounding (sincos: within 1e-7 absolute).
+6. :func:`pow_positive`: ``x ** y`` with a traced exponent lowers to the C library's ``powf``,
+   called once per element, like ``sincosf`` (Veach's plates, four Phong materials: the bounce
+   kernel took 4.2 ms per 2^14 lanes against 0.18 ms on the Cornell box); ``exp(y log x)`` uses
+   XLA's own vectorised exp and log.
+
+None of these changes results beyond float rounding (sincos: within 1e-7 absolute; pow: see
+:func:`pow_positive`).
 """
 
 from __future__ import annotations
@@ -190,3 +196,12 @@ def sqrt(x):
     r = jnp.where(x < _F32_MIN_NORMAL, 0.0, r)
     r = jnp.where(x == jnp.inf, x, r)
     return jnp.where(x < 0, jnp.float32(jnp.nan), r)
+
+
+def pow_positive(x, y):
+    """x ** y for x > 0 (callers mask other x), as exp(y log x) (see the module docstring,
+    item 6). The relative error is about |y log x| times float32's, at most 2e-6 wherever the
+    result exceeds e^-20; ``JGI_NO_FAST_DIVISION=1`` restores ``x ** y``."""
+    if not FAST_DIVISION:
+        return jnp.asarray(x, jnp.float32) ** y
+    return jnp.exp(y * jnp.log(x))

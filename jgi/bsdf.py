@@ -26,6 +26,7 @@ import jax.numpy as jnp
 from jax import Array
 
 from . import warps
+from ._xla import pow_positive
 from .scene import DIELECTRIC, DIFFUSE, MIRROR, PHONG, Materials
 from .vec import V3, dot, luminance, reflect, to_world, where
 
@@ -130,7 +131,7 @@ def evaluate(kinds, mp: MaterialParams, n: V3, wo: V3, wi: V3) -> tuple[V3, Arra
         # the lobe is the hemisphere about the mirror direction (0^0 = 1 would let an exponent
         # of 0 reflect into the opposite hemisphere too, which sample_phong_lobe never reaches)
         # (the inner where keeps gradients finite: d/dn 0^n = 0 * log 0)
-        lobe = jnp.where(cos_a > 0, jnp.where(cos_a > 0, cos_a, 1.0) ** mp.exponent, 0.0)
+        lobe = jnp.where(cos_a > 0, pow_positive(jnp.where(cos_a > 0, cos_a, 1.0), mp.exponent), 0.0)
         spec_f = mp.ks * ((mp.exponent + 2.0) * jnp.float32(0.5 / jnp.pi) * lobe)
         ps = specular_probability(mp)
         phong_pdf = (1.0 - ps) * diffuse_pdf + ps * warps.pdf_phong_lobe(cos_a, mp.exponent)

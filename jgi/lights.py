@@ -30,6 +30,7 @@ import jax.numpy as jnp
 from jax import Array
 
 from . import _xla as X
+from ._xla import SMALL_TABLE, take
 from . import warps
 from .scene import (AREA_QUAD, AREA_SPHERE, AREA_TRIANGLE, DIRECTIONAL, ENVIRONMENT, POINT, SPOT,
                     Lights)
@@ -60,11 +61,20 @@ class EmissionSample(NamedTuple):
 
 
 def _take(v: V3, i) -> V3:
-    return V3(v.x[i], v.y[i], v.z[i])
+    """Row i of a V3 table (selects for small tables: a gather would split the caller's kernel
+    and keep it from vectorising)."""
+    return V3(take(v.x, i), take(v.y, i), take(v.z, i))
 
 
 def select(lights: Lights, u: Array) -> Array:
-    """Element index by inverting the power CDF."""
+    """Element index by inverting the power CDF: the number of CDF entries <= u. Small tables
+    count with compares (they fuse into the caller's kernel; ``searchsorted`` is a loop of
+    kernels of its own)."""
+    if lights.count <= SMALL_TABLE:
+        i = jnp.zeros(jnp.shape(u), jnp.int32)
+        for k in range(lights.count - 1):   # the last entry is 1 > u
+            i = i + (take(lights.cdf, k) <= u).astype(jnp.int32)
+        return i
     i = jnp.searchsorted(lights.cdf, u, side="right")
     return jnp.clip(i, 0, lights.count - 1).astype(jnp.int32)
 
@@ -94,8 +104,8 @@ def _sphere_cone(center: V3, radius, x: V3):
 def sample_li(lights: Lights, x: V3, u_sel: Array, u1: Array, u2: Array) -> LightSample:
     """Sample a direction from x towards a light (next-event estimation)."""
     k = select(lights, u_sel)
-    kind = lights.kind[k]
-    pmf = lights.pmf[k]
+    kind = take(lights.kind, k)
+    pmf = take(lights.pmf, k)
     p0, e1, e2 = _take(lights.p0, k), _take(lights.e1, k), _take(lights.e2, k)
     emission = _take(lights.emission, k)
     zero = jnp.zeros_like(u1)
@@ -120,7 +130,7 @@ def sample_li(lights: Lights, x: V3, u_sel: Array, u1: Array, u2: Array) -> Ligh
         return LightSample(wi, dist, where(ok, emission, V3(zero, zero, zero)), pdf, zero > 0, ok)
 
     if AREA_QUAD in kinds or AREA_TRIANGLE in kinds:
-        area = lights.area[k]
+        area = take(lights.area, k)
         inv_area = jnp.where(area > 0, X.recip(jnp.where(area > 0, area, 1.0)), 0.0)
         n_l = _take(lights.normal, k)
         if AREA_QUAD in kinds:
@@ -131,7 +141,7 @@ def sample_li(lights: Lights, x: V3, u_sel: Array, u1: Array, u2: Array) -> Ligh
             s = towards(p0 + e1 * b1 + e2 * b2, n_l, inv_area)
             out = choose(kind == AREA_TRIANGLE, s, out)
     if AREA_SPHERE in kinds:
-        r = lights.radius[k]
+        r = take(lights.radius, k)
         axis, cos_max, one_minus, outside = _sphere_cone(p0, r, x)
         # one_minus = sin^2 / (1 + cos) keeps small (distant) cones their true width in float32
         d_cone = to_world(warps.sample_uniform_cone(u1, u2, cos_max, one_minus), axis)
@@ -159,8 +169,8 @@ def sample_li(lights: Lights, x: V3, u_sel: Array, u1: Array, u2: Array) -> Ligh
             s = LightSample(wi, dist, emission * inv_d2, pmf, ok, ok)
             out = choose(kind == POINT, s, out)
         if SPOT in kinds:
-            fall = spot_falloff(-dot(wi, _take(lights.direction, k)), lights.cos_total[k],
-                                lights.cos_falloff[k])
+            fall = spot_falloff(-dot(wi, _take(lights.direction, k)), take(lights.cos_total, k),
+                                take(lights.cos_falloff, k))
             s = LightSample(wi, dist, emission * (inv_d2 * fall), pmf, ok, ok & (fall > 0))
             out = choose(kind == SPOT, s, out)
     if DIRECTIONAL in kinds:
@@ -183,17 +193,17 @@ def pdf_li(lights: Lights, k: Array, x: V3, y: V3, n_y: V3) -> Array:
     the density is one-sided: zero when x is behind a quad or triangle emitter or inside (or on)
     a sphere emitter, where ``sample_li`` never produces y."""
     kk = jnp.maximum(k, 0)
-    kind = lights.kind[kk]
-    pmf = lights.pmf[kk]
+    kind = take(lights.kind, kk)
+    pmf = take(lights.pmf, kk)
     v = y - x
     d2 = dot(v, v)
     cos_l = -dot(v, n_y) * jnp.where(d2 > 0, X.rsqrt(jnp.where(d2 > 0, d2, 1.0)), 1.0)
-    area = lights.area[kk]
+    area = take(lights.area, kk)
     inv_area = jnp.where(area > 0, X.recip(jnp.where(area > 0, area, 1.0)), 0.0)
     pdf = _area_to_solid_angle(inv_area, d2, cos_l)
     kinds = lights.kinds
     if AREA_SPHERE in kinds:
-        _, _, one_minus, outside = _sphere_cone(_take(lights.p0, kk), lights.radius[kk], x)
+        _, _, one_minus, outside = _sphere_cone(_take(lights.p0, kk), take(lights.radius, kk), x)
         pdf_cone = jnp.where(one_minus > 0, 1.0 / (2.0 * jnp.pi * jnp.where(one_minus > 0, one_minus, 1.0)), 0.0)
         pdf = jnp.where(kind == AREA_SPHERE, jnp.where(outside, pdf_cone, 0.0), pdf)
     if ENVIRONMENT in kinds:
@@ -221,8 +231,8 @@ def environment_radiance(lights: Lights, like: Array) -> V3:
 def sample_emission(lights: Lights, u_sel, u1, u2, u3, u4) -> EmissionSample:
     """Sample a light path's first vertex and direction (photon emission, lecture rules)."""
     k = select(lights, u_sel)
-    kind = lights.kind[k]
-    pmf = lights.pmf[k]
+    kind = take(lights.kind, k)
+    pmf = take(lights.pmf, k)
     p0, e1, e2 = _take(lights.p0, k), _take(lights.e1, k), _take(lights.e2, k)
     emission = _take(lights.emission, k)
     kinds = lights.kinds
@@ -236,7 +246,7 @@ def sample_emission(lights: Lights, u_sel, u1, u2, u3, u4) -> EmissionSample:
                                 for a, b in zip(s, acc)))
 
     if any(kd in kinds for kd in AREA_KINDS):
-        area = lights.area[k]
+        area = take(lights.area, k)
         inv_area = jnp.where(area > 0, 1.0 / jnp.where(area > 0, area, 1.0), 0.0)
         local = warps.sample_cosine_hemisphere(u3, u4)
         pdf_dir = warps.pdf_cosine_hemisphere(local.z)
@@ -256,7 +266,7 @@ def sample_emission(lights: Lights, u_sel, u1, u2, u3, u4) -> EmissionSample:
             out = choose(kind == AREA_TRIANGLE, s, out)
         if AREA_SPHERE in kinds:
             n = warps.sample_uniform_sphere(u1, u2)
-            s = area_sample(p0 + n * lights.radius[k], n)
+            s = area_sample(p0 + n * take(lights.radius, k), n)
             out = choose(kind == AREA_SPHERE, s, out)
     if POINT in kinds:
         d = warps.sample_uniform_sphere(u3, u4)
@@ -265,7 +275,7 @@ def sample_emission(lights: Lights, u_sel, u1, u2, u3, u4) -> EmissionSample:
         out = choose(kind == POINT, s, out)
     if SPOT in kinds:
         axis = _take(lights.direction, k)
-        ct, cf = lights.cos_total[k], lights.cos_falloff[k]
+        ct, cf = take(lights.cos_total, k), take(lights.cos_falloff, k)
         d = to_world(warps.sample_uniform_cone(u3, u4, ct), axis)
         pdf_dir = warps.pdf_uniform_cone(ct)
         fall = spot_falloff(dot(d, axis), ct, cf)

@@ -12,7 +12,7 @@ import jax.numpy as jnp
 from jax import Array
 
 from . import _xla as X
-from ._xla import sincos
+from ._xla import pow_positive, sincos
 from .vec import V3
 
 PI = jnp.float32(jnp.pi)
@@ -110,7 +110,7 @@ def pdf_phong_lobe(cos_alpha: Array, exponent: Array) -> Array:
     """(n + 1) / (2 pi) cos^n(alpha) on the lobe's hemisphere, 0 outside (also for n = 0)."""
     inside = cos_alpha > 0
     c = jnp.where(inside, cos_alpha, 1.0)  # finite gradients outside the lobe
-    return jnp.where(inside, (exponent + 1.0) * (0.5 * INV_PI) * c ** exponent, 0.0)
+    return jnp.where(inside, (exponent + 1.0) * (0.5 * INV_PI) * pow_positive(c, exponent), 0.0)
 
 
 # --- triangle -----------------------------------------------------------------------------------
