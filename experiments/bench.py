@@ -5,7 +5,7 @@
 Measures, each after a warm-up call so compile time is reported separately:
   * path tracing throughput (Mpaths/s) on the Cornell box, and the ratio against Mitsuba 3
     (``llvm_ad_rgb``, its own ``cornell_box()``) measured in the same run;
-  * scaling of path tracing with resolution and spp;
+  * scaling of path tracing with resolution and spp; path tracing on every built-in scene;
   * photon tracing throughput (photons/s) and its scaling with the photon count;
   * triangle-count scaling (a subdivided sphere, brute force or BVH as the scene builder
     chooses);
@@ -55,6 +55,31 @@ def bench_pt_scaling(quick: bool) -> list[dict]:
         first, best = _timed(lambda: jgi.render(scene, "pt", spp=spp, seed=1))
         rows.append(dict(bench="pt_scaling", resolution=res, spp=spp,
                          mpaths_per_s=res * res * spp / best / 1e6, first_call_s=first))
+    return rows
+
+
+def bench_pt_scenes(quick: bool) -> list[dict]:
+    """Path tracing throughput (Mpaths per CPU-second, less sensitive to other jobs than wall
+    time) on every built-in scene: a scene far below the Cornell box points at a kernel XLA left
+    unvectorised or split into many launches (Veach's plates ran at a sixth of the Cornell box's
+    rate before the shadow rays were stored separately; the metal ring at a twenty-fifth before the
+    brute-force loop took blocks of rows)."""
+    import jgi
+
+    rows = []
+    res, spp = (64, 4) if quick else (128, 16)
+    for name in sorted(jgi.scenes.BUILTINS):
+        scene = jgi.load_scene(name, resolution=res)
+        t0 = time.perf_counter()
+        jgi.render(scene, "pt", spp=1, seed=0)
+        first = time.perf_counter() - t0
+        best = float("inf")
+        for r in range(2):
+            c0 = time.process_time()
+            jgi.render(scene, "pt", spp=spp, seed=1 + r)
+            best = min(best, time.process_time() - c0)
+        rows.append(dict(bench="pt_scenes", scene=name, resolution=res, spp=spp,
+                         mpaths_per_cpu_s=res * res * spp / best / 1e6, first_call_s=first))
     return rows
 
 
@@ -142,7 +167,7 @@ def main(argv=None) -> dict:
     out = {"cornell_vs_mitsuba": bench_pt.main(
         ["--spp", "8" if a.quick else "64", "--repeats", "2"] + (["--no-mitsuba"] if a.no_mitsuba else []))}
     rows = []
-    for fn in (bench_pt_scaling, bench_photons, bench_triangles, bench_bvh, bench_optional, bench_density):
+    for fn in (bench_pt_scaling, bench_pt_scenes, bench_photons, bench_triangles, bench_bvh, bench_optional, bench_density):
         rows += fn(a.quick)
     out["rows"] = rows
     out["peak_rss_mb"] = peak_rss_mb()
