@@ -29,7 +29,10 @@ the crossover is from interleaved best-of-5 timings):
 
     intersect + occluded, BVH / brute force: 0.27 at 64 triangles, 0.54 at 100, 0.83 at 196,
     0.92-1.05 at 256, 1.43-1.46 at 400, 2.0-2.1 at 576, 3.1 at 1024 (two runs): crossover at
-    250-280 triangles -> jgi.scene.BVH_MIN_TRIANGLES = 320 (the BVH adds 6-10 s of compile).
+    250-280 triangles. Since the brute-force scan takes blocks of 8 rows per loop iteration
+    (2026-12-02, best of 3): 0.22 at 196, 0.24 at 256, 0.40 at 400, 0.55 at 576, 0.79 at 1024,
+    1.16 at 1600, 1.71 at 2304, 2.67 at 4096: crossover at about 1400 triangles ->
+    jgi.scene.BVH_MIN_TRIANGLES = 1400.
 """
 
 from __future__ import annotations
@@ -44,7 +47,7 @@ import jax.numpy as jnp
 import numpy as np
 
 RAYS = 1 << 16
-CROSSOVER_SIZES = [16, 36, 64, 100, 144, 196, 256, 400, 576, 1024]
+CROSSOVER_SIZES = [16, 64, 196, 400, 1024, 1600, 2304, 4096]
 
 
 def torus(n: int):

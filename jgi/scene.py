@@ -33,12 +33,13 @@ from .bvh import BVH, build_bvh
 from .vec import V3
 
 # Triangle tables at least this large get a BVH. Measured (experiments/bench_bvh.py, CPU, one
-# closest-hit and one shadow ray per ray, 2^16 rays, interleaved best-of-5/7 timings): brute
-# force falls as 1/T (1.4 Mrays/s at 100 triangles, 0.55-0.61 at 256, 0.21 at 1024) while the
-# BVH stays at 0.6-0.9; BVH/brute is 0.83 at 196, 0.92-1.05 at 256, 1.43-1.46 at 400, 2.0 at
-# 576, 3.1 at 1024: the crossover is at 250-280. The threshold sits a little above it, since
-# the BVH traversal also adds 6-10 s of compile time.
-BVH_MIN_TRIANGLES = 320
+# closest-hit and one shadow ray per ray, 2^16 rays, interleaved best-of-3 timings) since the
+# brute-force scan takes blocks of rows per loop iteration (jgi.geometry._scan): brute force
+# falls as 1/T (4.2 Mrays/s at 196 triangles, 2.2 at 400, 0.92 at 1024, 0.22 at 4096) while
+# the BVH stays at 0.6-0.9; BVH/brute is 0.22 at 196, 0.40 at 400, 0.79 at 1024, 1.16 at 1600,
+# 1.7 at 2304, 2.7 at 4096: the crossover is at about 1400. (With one row per iteration it was
+# at 250-280.) The BVH traversal also adds compile time.
+BVH_MIN_TRIANGLES = 1400
 
 # Material kinds (jgi.bsdf implements each).
 DIFFUSE, MIRROR, DIELECTRIC, PHONG = 0, 1, 2, 3
