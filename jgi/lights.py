@@ -73,7 +73,7 @@ def select(lights: Lights, u: Array) -> Array:
     if lights.count <= SMALL_TABLE:
         i = jnp.zeros(jnp.shape(u), jnp.int32)
         for k in range(lights.count - 1):   # the last entry is 1 > u
-            i = i + (take(lights.cdf, k) <= u).astype(jnp.int32)
+            i = i + (lights.cdf[k] <= u).astype(jnp.int32)
         return i
     i = jnp.searchsorted(lights.cdf, u, side="right")
     return jnp.clip(i, 0, lights.count - 1).astype(jnp.int32)

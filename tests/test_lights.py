@@ -578,3 +578,27 @@ def test_reference_point_on_the_light():
     s = sample_li(lights, np.zeros(3), seed=24, n=16)
     all_finite(s)
     assert not s["valid"].any() and np.all(s["Li"] == 0)
+
+
+@pytest.mark.parametrize("count", [1, 2, 5, 8, 9, 12])
+def test_light_selection_inverts_the_power_cdf(count):
+    """Small tables count CDF entries with compares, larger ones use searchsorted: both give
+    numpy's searchsorted(cdf, u, 'right'), also at the CDF's own values and for lights of zero
+    power (never chosen)."""
+    rng = np.random.default_rng(count)
+    b = SceneBuilder("lights")
+    b.material("m", "diffuse", diffuse=(0.5, 0.5, 0.5))
+    for i in range(count):
+        power = 0.0 if (i == 1 and count > 2) else float(rng.uniform(0.5, 4.0))
+        b.quad((3.0 * i, 2, 0), (1, 0, 0), (0, 0, 1), "m", emission=(power, power, power))
+    b.quad((-5, 0, -5), (0, 0, 10), (40, 0, 0), "m")
+    b.camera(position=(0, 1, 5), look_at=(0, 0, 0), width=4, height=4)
+    lights = b.build().lights
+    assert lights.count == count
+    cdf = np.asarray(lights.cdf)
+    u = np.concatenate([rng.uniform(0, 1, 4096), cdf[:-1], [0.0, 0.99999994]]).astype(np.float32)
+    got = np.asarray(jax.jit(lambda uu: LT.select(lights, uu))(u))
+    want = np.clip(np.searchsorted(cdf, u, side="right"), 0, count - 1)
+    np.testing.assert_array_equal(got, want)
+    if count > 2:
+        assert not np.any(got == 1)  # the light of zero power
