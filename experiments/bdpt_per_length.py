@@ -22,14 +22,15 @@ import time
 
 import numpy as np
 
-LUMINANCE = np.array([0.2126, 0.7152, 0.0722])
-
-
 def image_means(scene, estimator: str, spp: int, seeds, **params) -> np.ndarray:
     import jgi
+    from jgi.vec import V3, luminance
 
-    return np.array([float((jgi.render(scene, estimator, spp=spp, seed=s, **params) @ LUMINANCE)
-                           .mean()) for s in seeds])
+    def mean_luminance(img):
+        return float(luminance(V3(*np.moveaxis(img, -1, 0))).mean())
+
+    return np.array([mean_luminance(jgi.render(scene, estimator, spp=spp, seed=s, **params))
+                     for s in seeds])
 
 
 def main(argv=None) -> list[dict]:
