@@ -127,10 +127,7 @@ def sincos(x):
     x = jnp.asarray(x, jnp.float32)
     q = jnp.round(x * jnp.float32(2.0 / 3.141592653589793))
     r = ((x - q * _PIO2_1) - q * _PIO2_2) - q * _PIO2_3
-    z = r * r
-    sin_r = r + r * z * (-1.6666654611e-1 + z * (8.3321608736e-3 + z * -1.9515295891e-4))
-    cos_r = 1.0 - 0.5 * z + z * z * (4.166664568298827e-2 + z * (-1.388731625493765e-3
-                                                                   + z * 2.443315711809948e-5))
+    sin_r, cos_r = sincos_quarter(r)
     k = q.astype(jnp.int32)
     swap = (k & 1) == 1
     s = jnp.where(swap, cos_r, sin_r)
@@ -138,6 +135,17 @@ def sincos(x):
     s = jnp.where((k & 2) == 2, -s, s)
     c = jnp.where(((k + 1) & 2) == 2, -c, c)
     return s, c
+
+
+def sincos_quarter(r):
+    """(sin r, cos r) for |r| <= pi/4, no range reduction: :func:`sincos`'s polynomials alone
+    (for callers whose angle is already in range, such as the concentric disc map)."""
+    r = jnp.asarray(r, jnp.float32)
+    z = r * r
+    sin_r = r + r * z * (-1.6666654611e-1 + z * (8.3321608736e-3 + z * -1.9515295891e-4))
+    cos_r = 1.0 - 0.5 * z + z * z * (4.166664568298827e-2 + z * (-1.388731625493765e-3
+                                                                   + z * 2.443315711809948e-5))
+    return sin_r, cos_r
 
 
 _F32_MIN_NORMAL = 1.1754944e-38   # 2^-126
@@ -164,6 +172,22 @@ def recip(x):
     y = jnp.where(a < _F32_MIN_NORMAL, jnp.float32(jnp.inf), y)
     y = jnp.where(a > _F32_RECIP_MAX, 0.0, y)      # also a = inf
     return jnp.where(jnp.signbit(x), -y, y)
+
+
+def recip_normal(x):
+    """1 / x for finite x with 2^-126 <= |x| <= 2^126 (normal x with a normal reciprocal; callers
+    guarantee the range, which lets this skip :func:`recip`'s special cases: about half the
+    operations). The seed takes x's sign, so the Newton steps run on x itself. Same accuracy as
+    :func:`recip` within that range."""
+    x = jnp.asarray(x, jnp.float32)
+    if not FAST_DIVISION:
+        return 1.0 / x
+    b = _bits(x)
+    magnitude = b & jnp.int32(0x7FFFFFFF)
+    y = _float((jnp.int32(0x7EF311C3) - magnitude) | (b ^ magnitude))
+    for _ in range(3):
+        y = y * (2.0 - x * y)
+    return y
 
 
 def div(a, b):

@@ -82,11 +82,23 @@ def triangle_t(v0: V3, e1: V3, e2: V3, o: V3, d: V3) -> tuple[Array, Array, Arra
     return jnp.where(hit, t, INF), b1, b2
 
 
+SLAB_MIN, SLAB_MAX = 1e-12, 1e12   # |direction component| range for safe_reciprocal
+
+
 def safe_reciprocal(d: V3) -> V3:
-    """1/d per component, with components below 1e-20 in magnitude replaced by 1e-20 (so slab
-    and plane tests never form 0 * inf; the sign of such a component does not matter: the ray
-    is parallel to that slab for any finite distance)."""
-    return d.map(lambda x: X.recip(jnp.where(jnp.abs(x) < 1e-20, jnp.float32(1e-20), x)))
+    """1/d per component, for slab and plane tests.
+
+    Components are first clamped to SLAB_MIN <= |x| <= SLAB_MAX: smaller ones become +SLAB_MIN
+    (the ray is parallel to that slab at any distance that matters, and no test forms 0 * inf;
+    the sign does not matter), larger ones (a shadow ray over 10^12 units) keep their sign. In
+    that range the product of the three lies within float32's normal range, so one reciprocal
+    serves all three: 1/x = (y z) / (x y z). That is a third of the work of three reciprocals,
+    for a relative error of a few float32 roundings (about 3e-7) instead of one."""
+    c = d.map(lambda x: jnp.where(jnp.abs(x) < SLAB_MIN, jnp.float32(SLAB_MIN),
+                                  jnp.clip(x, -SLAB_MAX, SLAB_MAX)))
+    yz, xz, xy = c.y * c.z, c.x * c.z, c.x * c.y
+    r = X.recip_normal(xy * c.z)
+    return V3(yz * r, xz * r, xy * r)
 
 
 def rect_t(axis: int, plane, lo_a, hi_a, lo_b, hi_b, o: V3, d: V3, inv_d: V3) -> Array:
@@ -198,6 +210,15 @@ def _scan(count: int, body, carry):
     return carry
 
 
+def traversal_loops(scene: Scene) -> bool:
+    """Whether a closest-hit query on ``scene`` runs loops (a BVH, or a table of more than
+    UNROLL_LIMIT rows) rather than one unrolled kernel: a value the rays are computed from is
+    then best stored before the query, or each loop iteration's kernel recomputes it."""
+    tables = (scene.spheres.count, *scene.rects.axis_counts, scene.boxes.count,
+              scene.quads.count, scene.triangles.count)
+    return scene.triangles.bvh is not None or max(tables) > UNROLL_LIMIT
+
+
 def _rect_axes(r: Rects):
     """(axis, first row, row count) for each axis that has rectangles."""
     out, start = [], 0
@@ -307,8 +328,11 @@ class _Nearest(NamedTuple):
     sphere: Array      # bool, only carried when the scene has spheres
 
 
-def intersect(scene: Scene, o: V3, d: V3) -> Hit:
+def intersect(scene: Scene, o: V3, d: V3, stored: bool = True) -> Hit:
     """Closest hit with its position, geometric normal, material and emitter.
+
+    The hit is computed once and stored (jgi._xla.materialize); with ``stored=False`` the caller
+    stores it, together with values of its own, in the same kernel.
 
     One pass over the primitives keeps the nearest hit's attributes (normal, material, emitter)
     as it goes: cheaper than recording (kind, index) and gathering from every table afterwards."""
@@ -371,7 +395,8 @@ def intersect(scene: Scene, o: V3, d: V3) -> Hit:
     if has_spheres:
         ns = normalize(p - n)
         n = V3(*(jnp.where(carry.sphere, a, b) for a, b in zip(ns, n)))
-    return materialize(Hit(carry.t, valid, p, n, carry.material, carry.emitter))
+    hit = Hit(carry.t, valid, p, n, carry.material, carry.emitter)
+    return materialize(hit) if stored else hit
 
 
 def occluded(scene: Scene, o: V3, d: V3, t_max: Array) -> Array:

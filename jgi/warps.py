@@ -12,7 +12,7 @@ import jax.numpy as jnp
 from jax import Array
 
 from . import _xla as X
-from ._xla import pow_positive, sincos
+from ._xla import pow_positive, sincos, sincos_quarter
 from .vec import V3
 
 PI = jnp.float32(jnp.pi)
@@ -27,16 +27,19 @@ def _safe_sqrt(x: Array) -> Array:
 # --- disc -------------------------------------------------------------------------------------
 
 def sample_concentric_disc(u1: Array, u2: Array) -> tuple[Array, Array]:
-    """Shirley-Chiu concentric map of the square onto the unit disc (area-preserving)."""
+    """Shirley-Chiu concentric map of the square onto the unit disc (area-preserving).
+
+    The square point (a, b) goes to radius r = a at angle phi = (pi/4) b/a where |a| > |b|, else
+    to r = b at phi = pi/2 - (pi/4) a/b. Both angles are pi/4 t with |t| <= 1 (in the second
+    case cos and sin swap), so one division and the sin/cos polynomials without range reduction
+    suffice. At the centre r = 0 and the point is (0, 0) whatever t is."""
     a, b = 2.0 * u1 - 1.0, 2.0 * u2 - 1.0
     first = jnp.abs(a) > jnp.abs(b)
     r = jnp.where(first, a, b)
-    safe_a = jnp.where(a == 0, 1.0, a)
-    safe_b = jnp.where(b == 0, 1.0, b)
-    phi = jnp.where(first, (PI / 4) * X.div(b, safe_a), (PI / 2) - (PI / 4) * X.div(a, safe_b))
-    zero = (a == 0) & (b == 0)
-    sin_phi, cos_phi = sincos(phi)
-    return jnp.where(zero, 0.0, r * cos_phi), jnp.where(zero, 0.0, r * sin_phi)
+    # |r| >= 2^-23 unless r = 0 (u1, u2 are multiples of 2^-24), within recip_normal's range
+    t = jnp.where(first, b, a) * X.recip_normal(jnp.where(r == 0, 1.0, r))
+    s, c = sincos_quarter((PI / 4) * t)
+    return r * jnp.where(first, c, s), r * jnp.where(first, s, c)
 
 
 def pdf_disc() -> Array:
