@@ -11,7 +11,7 @@
    ORs False), so results are bit-identical. Limits found in XLA's fusion pass (jax 0.10):
    a value that reaches more than 15 of the outputs is still split off into a kernel of its
    own ("code duplication too high": each output's reshape counts as one more emission), so a
-   flag that selects every leaf of a wide state (the wavefront's path restart) is computed
+   flag that selects every leaf of a wide state (such as a path restart) is computed
    separately; and the outputs of the reduce cannot be written in place into while-loop
    buffers, which costs one copy per loop-carried leaf unless the loop body runs two steps
    (jgi.render.WAVEFRONT_UNROLL).
@@ -22,7 +22,7 @@
 4. :func:`sincos`: XLA's CPU backend calls the C library's ``sincosf`` once per *element* (a
    scalar call that also splits the vectorised kernel); a polynomial is a dozen vector ops.
 
-5. :func:`recip`, :func:`div`, :func:`rsqrt`, :func:`sqrt`: float division, square root and
+5. :func:`recip` (and :func:`recip_normal`), :func:`div`, :func:`rsqrt`, :func:`sqrt`: float division, square root and
    reciprocal square root are "expensive" to XLA's fusion pass: one whose value is used in more
    than one place, or whose operand is also used directly (v / |v|), is never duplicated and
    usually never fused either, so each splits the bounce into separate kernels that store and
