@@ -230,11 +230,11 @@ def _rect_axes(r: Rects):
 
 
 def _scan_rects(r: Rects, o: V3, d: V3, inv_d: V3, body, carry):
-    """``body(i, carry, t, hit)`` over the rectangles, axis by axis (:func:`_scan`)."""
+    """``body(i, carry, t, hit, axis)`` over the rectangles, axis by axis (:func:`_scan`)."""
     for axis, start, n_axis in _rect_axes(r):
         def one(i, c, axis=axis):
             return body(i, c, *_rect_hit(axis, r.plane[i], r.lo_a[i], r.hi_a[i], r.lo_b[i],
-                                         r.hi_b[i], o, d, inv_d))
+                                         r.hi_b[i], o, d, inv_d), axis)
         carry = _scan(n_axis, lambda k, c, one=one, start=start: one(start + k, c), carry)
     return carry
 
@@ -260,7 +260,8 @@ def closest_hit(scene: Scene, o: V3, d: V3, t_max: Array | None = None):
     r: Rects = scene.rects
     if r.count:
         carry = _scan_rects(r, o, d, safe_reciprocal(d),
-                            lambda i, c, t, hit: update(c, jnp.where(hit, t, INF), RECT, i), carry)
+                            lambda i, c, t, hit, _: update(c, jnp.where(hit, t, INF), RECT, i),
+                            carry)
     bx: Boxes = scene.boxes
     if bx.count:
         def body(i, c):
@@ -359,9 +360,12 @@ def intersect(scene: Scene, o: V3, d: V3, stored: bool = True) -> Hit:
     if r.count:
         inv_d = safe_reciprocal(d)
 
-        def rect_body(i, c, t, hit):
-            return update(c, hit & (t < c.t), t, _take(r.normal, i), r.material[i],
-                          r.emitter[i])
+        def rect_body(i, c, t, hit, axis):
+            # the normal is +-1 along the axis: one table value per row, not three (the scene's
+            # values are kept in registers or reloaded in the kernel's loop, and there are many)
+            n = [jnp.float32(0.0)] * 3
+            n[axis] = r.normal[axis][i]
+            return update(c, hit & (t < c.t), t, V3(*n), r.material[i], r.emitter[i])
         carry = _scan_rects(r, o, d, inv_d, rect_body, carry)
     bx: Boxes = scene.boxes
     if bx.count:
@@ -420,7 +424,7 @@ def occluded(scene: Scene, o: V3, d: V3, t_max: Array) -> Array:
     r: Rects = scene.rects
     if r.count:
         occ = _scan_rects(r, o, d, safe_reciprocal(d),
-                          lambda i, a, t, hit: a | (hit & (t < t_max)), occ)
+                          lambda i, a, t, hit, _: a | (hit & (t < t_max)), occ)
     bx: Boxes = scene.boxes
     if bx.count:
         occ = _scan(bx.count, lambda i, a: a | (box_t(*_box_row(bx, i), o, d)[0] < t_max), occ)
