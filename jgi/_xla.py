@@ -22,8 +22,8 @@
 4. :func:`sincos`: XLA's CPU backend calls the C library's ``sincosf`` once per *element* (a
    scalar call that also splits the vectorised kernel); a polynomial is a dozen vector ops.
 
-5. :func:`recip` (and :func:`recip_normal`), :func:`div`, :func:`rsqrt`, :func:`sqrt`: float division, square root and
-   reciprocal square root are "expensive" to XLA's fusion pass: one whose value is used in more
+5. :func:`recip` (and :func:`recip_normal`), :func:`div`, :func:`rsqrt`, :func:`sqrt`: float
+   division, square root and reciprocal square root are "expensive" to XLA's fusion pass: one whose value is used in more
    than one place, or whose operand is also used directly (v / |v|), is never duplicated and
    usually never fused either, so each splits the bounce into separate kernels that store and
    reload their inputs (the light-sampling code alone was 10 kernels). Written as a bit-trick

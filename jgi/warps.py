@@ -36,7 +36,7 @@ def sample_concentric_disc(u1: Array, u2: Array) -> tuple[Array, Array]:
     a, b = 2.0 * u1 - 1.0, 2.0 * u2 - 1.0
     first = jnp.abs(a) > jnp.abs(b)
     r = jnp.where(first, a, b)
-    # |r| >= 2^-23 unless r = 0 (u1, u2 are multiples of 2^-24), within recip_normal's range
+    # for float32 u in [0, 1), 2u - 1 is 0 or at least 2^-24 in magnitude (recip_normal's range)
     t = jnp.where(first, b, a) * X.recip_normal(jnp.where(r == 0, 1.0, r))
     s, c = sincos_quarter((PI / 4) * t)
     return r * jnp.where(first, c, s), r * jnp.where(first, s, c)

@@ -186,8 +186,9 @@ def test_newton_reciprocals_match_float64():
 
 
 def test_safe_reciprocal_shares_one_reciprocal_accurately():
-    """1/d for directions (unit and shadow-ray lengths) via one reciprocal of d_x d_y d_z:
-    within 8 float32 roundings; components below SLAB_MIN are finite and positive."""
+    """1/d for directions (unit and shadow-ray lengths) via one reciprocal of d_x d_y d_z: six
+    roundings at most (x y, then z, the reciprocal's two, y z, the final product; measured 4.4);
+    components below SLAB_MIN are finite and positive."""
     rng = np.random.default_rng(1)
     v = rng.normal(size=(3, 200_000)) * np.exp2(rng.uniform(-20, 12, (1, 200_000)))
     v[:, :10] = [[0.0] * 10, [1e-30] * 10, [-1.0] * 10]
@@ -196,7 +197,7 @@ def test_safe_reciprocal_shares_one_reciprocal_accurately():
     for c, got in zip(v.astype(np.float32).astype(np.float64), inv):
         got = np.asarray(got, np.float64)
         big = np.abs(c) >= G.SLAB_MIN
-        assert np.abs(got[big] * c[big] - 1).max() < 8 * 2.0 ** -24
+        assert np.abs(got[big] * c[big] - 1).max() < 6 * 2.0 ** -24
         assert np.all(np.isfinite(got)) and np.all(got[~big] == np.float32(1 / np.float32(G.SLAB_MIN)))
 
 
@@ -205,7 +206,8 @@ def test_concentric_disc_matches_the_float64_map():
     pi/2 - pi/4 a/b) to float32 rounding, centre and square edges included."""
     rng = np.random.default_rng(2)
     u = (rng.integers(0, 2**24, (2, 200_000)) / 2.0**24).astype(np.float32)
-    u[:, :4] = [[0.5, 0.0, 0.5, 0.0], [0.5, 0.5, 0.0, 0.0]]
+    # the centre, square edges, and the smallest nonzero |2u - 1| (2^-24, just below 0.5)
+    u[:, :6] = [[0.5, 0.0, 0.5, 0.0, 0.5 - 2**-25, 0.5], [0.5, 0.5, 0.0, 0.0, 0.5, 0.5 - 2**-25]]
     x, y = jax.jit(warps.sample_concentric_disc)(u[0], u[1])
     a, b = 2.0 * u[0].astype(np.float64) - 1, 2.0 * u[1].astype(np.float64) - 1
     first = np.abs(a) > np.abs(b)
