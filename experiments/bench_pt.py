@@ -10,9 +10,10 @@ other jobs on a shared machine), their ratio, and the image means (to check both
 same thing). Mitsuba uses its ``llvm_ad_rgb`` variant (needs ``DRJIT_LIBLLVM_PATH`` pointing
 at LLVM 19's ``libLLVM.so.19.1``; set automatically when Debian's ``libllvm19`` is installed).
 
-``--devices N`` splits jgi's lanes over N virtual CPU devices
-(``--xla_force_host_platform_device_count``, set before JAX starts), each running its own
-loop; by default XLA splits every kernel over the cores instead.
+By default jgi traces the image with two concurrent loops on one CPU device (see
+``jgi.render.WAVEFRONT_STREAMS``), and XLA splits each of their large kernels over the cores.
+``--devices N`` splits the work over N virtual CPU devices instead
+(``--xla_force_host_platform_device_count``, set before JAX starts), each compiling its own copy.
 """
 
 from __future__ import annotations

@@ -78,6 +78,43 @@ def test_wavefront_lane_slot_and_unroll_counts_do_not_change_the_image():
     np.testing.assert_allclose(a, d, rtol=1e-5, atol=1e-7)
 
 
+def test_concurrent_streams_trace_the_same_paths(monkeypatch):
+    """Work split over concurrent loops (threads sharing one compiled function) gives the image
+    of one loop to float rounding, the same image on every run, and is actually split."""
+    scene = scenes.cornell_box(resolution=8)
+    cfg = PT.PathTracerConfig()
+    monkeypatch.setattr(R, "WAVEFRONT_STREAM_SLOTS", 1)
+    calls = []
+    real = R._wavefront_call
+
+    def counting(*a, **kw):       # runs when the loop is traced, once per compile
+        calls.append(1)
+        return real(*a, **kw)
+
+    monkeypatch.setattr(R, "_wavefront_call", counting)
+    pools = []
+    real_pool = R.ThreadPoolExecutor
+
+    def pool(n):
+        pools.append(n)
+        return real_pool(n)
+
+    monkeypatch.setattr(R, "ThreadPoolExecutor", pool)
+
+    def render(streams):
+        return R.render_wavefront(scene, PT._start, lambda sc, lane: PT._step(sc, cfg, lane),
+                                  spp=5, seed=2, cache_key=("test-wavefront-streams", cfg),
+                                  lanes=16, per_slot=1, streams=streams)
+
+    one = render(1)
+    assert len(calls) == 1        # one compile serves every stream count
+    for streams in (2, 3):
+        many = render(streams)
+        np.testing.assert_allclose(many, one, rtol=1e-5, atol=1e-7)
+        assert np.array_equal(many, render(streams))
+    assert len(calls) == 1 and pools == [2, 2, 3, 3]
+
+
 def test_wavefront_on_two_devices_matches_one():
     """Runs in a subprocess: the CPU device count is fixed when JAX starts."""
     script = textwrap.dedent("""
@@ -89,9 +126,13 @@ def test_wavefront_on_two_devices_matches_one():
         sc = jgi.scenes.cornell_box(resolution=8)
         cfg = PT.PathTracerConfig()
         step = lambda s, l: PT._step(s, cfg, l)
-        one = R.render_wavefront(sc, PT._start, step, spp=5, seed=4, cache_key=("t", cfg),
-                                 devices=jax.devices()[:1])
-        two = R.render_wavefront(sc, PT._start, step, spp=5, seed=4, cache_key=("t", cfg))
+        R.WAVEFRONT_STREAM_SLOTS = 1   # split this small render: 320 slots over 16 lanes
+        kw = dict(spp=5, seed=4, cache_key=("t", cfg), lanes=16, per_slot=1)
+        one = R.render_wavefront(sc, PT._start, step, devices=jax.devices()[:1], streams=1, **kw)
+        pools, Pool = [], R.ThreadPoolExecutor
+        R.ThreadPoolExecutor = lambda n: (pools.append(n), Pool(n))[1]
+        two = R.render_wavefront(sc, PT._start, step, **kw)   # two devices, two loops each
+        assert pools == [4], pools
         err = np.abs(one - two).max() / np.abs(one).max()
         assert err < 1e-6, err
         print("TWO-DEVICES-OK")
