@@ -282,3 +282,44 @@ def test_pow_positive_matches_float64_where_it_matters():
     assert big.sum() > 100_000
     assert np.abs(got[big] / want[big] - 1).max() < 4e-6
     assert np.all(np.isfinite(got)) and np.all(got >= 0) and np.all(got[~big] < 3e-9)
+
+
+def test_sum_calls_adds_parts_in_call_order_whatever_finishes_first():
+    """Float addition is not associative: parts whose sum depends on the order (1e8 + 1 = 1e8)
+    finish in reverse order (later calls sleep less), and the sum must still be the one of the
+    sequential loop, for any number of calls in flight."""
+    import time
+
+    values = np.float32([1e8, 1.0, 1.0, 1.0, 1.0, -1e8, 0.25, 3.0])  # in order: 3.25; reversed: 0
+    n = len(values)
+
+    def call(i):
+        time.sleep(0.002 * (n - i))
+        return np.full((2, 3), values[i], np.float32), i % 2
+
+    expected = np.zeros((2, 3), np.float32)
+    for v in values:
+        expected = expected + v
+    for streams in (1, 2, 3, 8):
+        done = []
+        img, bad = R.sum_calls(call, n, streams=streams, on_done=done.append)
+        assert np.array_equal(img, expected) and bad == n // 2
+        assert done == list(range(n))
+    shuffled = np.zeros((2, 3), np.float32)
+    for v in values[::-1]:
+        shuffled = shuffled + v
+    assert not np.array_equal(shuffled, expected)   # the order does matter for these values
+
+
+def test_render_paths_with_concurrent_calls_is_bit_identical(monkeypatch):
+    """Several jitted calls in flight (CALL_STREAMS) give exactly the image of one at a time."""
+    scene = scenes.cornell_box(resolution=8)
+    cfg = PT.PathTracerConfig()
+    fn = lambda sc, pix, smp, sd: PT.trace_pixels(sc, cfg, sd, pix, smp)  # noqa: E731
+
+    def render(streams):
+        monkeypatch.setattr(R, "CALL_STREAMS", streams)
+        # 64 pixels x 9 spp in calls of 4 chunks of 32 paths: 5 calls
+        return R.render_paths(scene, fn, spp=9, seed=3, cache_key=("test-streams", cfg), chunk=32)
+
+    assert np.array_equal(render(1), render(3))

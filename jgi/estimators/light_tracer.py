@@ -360,7 +360,7 @@ def render_splats(scene: Scene, path_fn: Callable, *, spp: int, seed: int, cache
     sample) whatever the chunking; the scatter-add is sequential, so results are reproducible."""
     import warnings
 
-    from ..render import _progress
+    from ..render import _progress, sum_calls
 
     W, H = scene.camera.width, scene.camera.height
     P = W * H
@@ -372,17 +372,18 @@ def render_splats(scene: Scene, path_fn: Callable, *, spp: int, seed: int, cache
         fn = jax.jit(partial(_accumulate, path_fn=path_fn, chunk=chunk, n_images=n_images))
         _COMPILED[key] = fn
     per_call = chunk * 4
-    img, bad, done = None, 0, 0
     t0 = time.perf_counter()
-    while done < total:
-        sample0, pixel0 = divmod(done, P)
-        part, nbad = fn(scene, jnp.uint32(seed), jnp.int32(sample0), jnp.int32(pixel0),
-                        jnp.int32(min(per_call, total - done)))
-        img = part if img is None else img + part
-        bad = bad + nbad
-        done += per_call
+
+    def call(i):
+        sample0, pixel0 = divmod(i * per_call, P)
+        return fn(scene, jnp.uint32(seed), jnp.int32(sample0), jnp.int32(pixel0),
+                  jnp.int32(min(per_call, total - i * per_call)))
+
+    def report(i):
         if progress:
-            _progress(min(done, total), total, time.perf_counter() - t0)
+            _progress(min((i + 1) * per_call, total), total, time.perf_counter() - t0)
+
+    img, bad = sum_calls(call, -(-total // per_call), on_done=report)
     bad = int(bad)
     if bad:
         warnings.warn(f"{bad} path contributions were not finite and were dropped", RuntimeWarning)
