@@ -34,6 +34,7 @@ from . import bsdf as B
 from . import geometry as G
 from . import lights as LT
 from . import rng
+from .calls import ordered_calls
 from .scene import DIFFUSE, PHONG, Scene
 from .vec import V3, max_component, where
 
@@ -125,9 +126,13 @@ def trace_photons(scene: Scene, n_photons: int, seed: int = 0, max_depth: int = 
         parts.append(jax.tree_util.tree_map(lambda a: np.asarray(a).ravel()[mask], pm))
 
     if len(devices) == 1:
-        for start in starts:
-            keep(*_trace_chunk(scene, jnp.uint32(seed), jnp.int32(start), jnp.int32(n_photons),
-                               chunk=chunk, max_depth=max_depth))
+        def call(i):
+            pm, valid = _trace_chunk(scene, jnp.uint32(seed), jnp.int32(starts[i]),
+                                     jnp.int32(n_photons), chunk=chunk, max_depth=max_depth)
+            return jax.tree_util.tree_map(np.asarray, pm), np.asarray(valid)
+
+        for pm, valid in ordered_calls(call, len(starts)):
+            keep(pm, valid)
     else:
         from .sharding import device_mesh, sharded_calls
 

@@ -20,8 +20,6 @@ from __future__ import annotations
 import sys
 import time
 import warnings
-from collections import deque
-from concurrent.futures import ThreadPoolExecutor
 from functools import partial
 from typing import Callable, NamedTuple
 
@@ -32,57 +30,13 @@ import numpy as np
 from .estimators import registry
 from .scene import Scene
 from ._xla import materialize
+from . import calls
 from .vec import V3
 
 DEFAULT_CHUNK = 1 << 16
 CHUNKS_PER_CALL = 4
 
 _COMPILED: dict = {}  # compile cache: (estimator key, chunk size) -> jitted fn
-
-CALL_STREAMS = 2  # jitted calls in flight at once, each from its own thread. XLA splits each
-                  # large kernel over the cores and joins them at its end, so one call at a time
-                  # leaves cores idle at every join and in the small kernels; a second call fills
-                  # those gaps (two cores, Cornell box at 128^2: BDPT 1.55x, light tracing 1.12x)
-
-
-def sum_calls(call: Callable[[int], tuple], n_calls: int, *, streams: int | None = None,
-              on_done: Callable[[int], None] | None = None) -> tuple[np.ndarray, int]:
-    """Sum over i < ``n_calls`` of ``call(i) -> (image part, count of dropped paths)``, as a
-    float32 numpy array and an int.
-
-    Up to ``streams`` calls run at once, each from its own thread (a call's device work runs
-    while its thread waits for it). The parts are added in call order, whichever finishes
-    first, so the sum does not depend on timing or on ``streams``. ``on_done(i)`` runs in the
-    caller's thread after part i is added (progress bars). ``streams`` defaults to
-    ``CALL_STREAMS``."""
-    def run(i):
-        part, bad = call(i)
-        return np.asarray(part, np.float32), int(bad)
-
-    img, bad = None, 0
-
-    def add(i, result):
-        nonlocal img, bad
-        part, nbad = result
-        img = part if img is None else img + part
-        bad += nbad
-        if on_done is not None:
-            on_done(i)
-
-    streams = max(1, min(streams or CALL_STREAMS, n_calls))
-    if streams == 1:
-        for i in range(n_calls):
-            add(i, run(i))
-        return img, bad
-    with ThreadPoolExecutor(streams) as pool:
-        pending = deque(pool.submit(run, i) for i in range(streams))
-        for i in range(n_calls):
-            result = pending.popleft().result()
-            if i + streams < n_calls:
-                pending.append(pool.submit(run, i + streams))
-            add(i, result)
-    return img, bad
-
 
 def render(scene: Scene | str, estimator: str = "pt", spp: int = 16, seed: int = 0,
            progress: bool = False, **params) -> np.ndarray:
@@ -154,7 +108,7 @@ def render_paths(scene: Scene, path_fn: Callable[..., V3], *, spp: int, seed: in
         if progress:
             _progress(min((i + 1) * per_call, total), total, time.perf_counter() - t0)
 
-    img, bad = sum_calls(call, -(-total // per_call), on_done=report)
+    img, bad = calls.sum_calls(call, -(-total // per_call), on_done=report)
     out = np.asarray(img, np.float32).reshape(H, W, 3) / np.float32(spp)
     if progress:
         sys.stderr.write("\n")
@@ -178,7 +132,7 @@ WAVEFRONT_LANES = 1 << 14   # lanes per loop (fastest of 2^11..2^15 measured on 
 WAVEFRONT_SAMPLES = 16      # samples per work slot (one pixel's paths traced by one lane in a row)
 WAVEFRONT_CALL_SLOTS = 64   # work slots per lane and call (on average): bounds a call's length
 WAVEFRONT_STREAM_SLOTS = 8  # least work slots per lane for a call of its own, so that loops
-                            # run concurrently (CALL_STREAMS; Cornell box, 256^2, 64 spp, two
+                            # run concurrently (jgi.calls; Cornell box, 256^2, 64 spp, two
                             # cores: 1.1x; with 1-4 slots per lane it gained nothing)
 WAVEFRONT_UNROLL = 2        # segments per inner-loop iteration: with 1, each iteration ends in
                             # ~20 copies of the state into the loop buffers (the materialised
@@ -311,9 +265,10 @@ def render_wavefront(scene: Scene, start_fn: Callable, step_fn: Callable, *, spp
     Each inner-loop iteration advances every lane by ``unroll`` segments (default
     ``WAVEFRONT_UNROLL`` for images of at least ``WAVEFRONT_LANES`` pixels, else 1). Renders
     of at least ``WAVEFRONT_STREAM_SLOTS`` slots per lane are split into calls enough for
-    ``streams`` (default ``CALL_STREAMS``) loops per device to run at once, sharing one compiled
-    function (:func:`sum_calls`). None of these settings changes the image beyond float rounding
-    of the sums, and none depends on the machine's core count. Non-finite path values are dropped with a warning, as in :func:`render_paths`."""
+    ``streams`` (default ``jgi.calls.CALL_STREAMS``) loops per device to run at once, sharing
+    one compiled function (:func:`jgi.calls.sum_calls`). None of these settings changes the
+    image beyond float rounding of the sums, and none depends on the machine's core count.
+    Non-finite path values are dropped with a warning, as in :func:`render_paths`."""
     W, H = scene.camera.width, scene.camera.height
     P = W * H
     lanes = lanes or min(WAVEFRONT_LANES, 1 << max(int(np.ceil(np.log2(P))), 8))
@@ -337,8 +292,9 @@ def render_wavefront(scene: Scene, start_fn: Callable, step_fn: Callable, *, spp
         _COMPILED[key] = fn
     # calls of at most per_call slots; a render of at least WAVEFRONT_STREAM_SLOTS slots per
     # lane and call is split into enough calls for ``streams`` loops per device to run at once
-    streams = D * (streams or CALL_STREAMS)
-    n_calls = max(-(-n_slots // per_call), min(streams, n_slots // (lanes * WAVEFRONT_STREAM_SLOTS)))
+    streams = D * (streams or calls.CALL_STREAMS)
+    n_calls = max(-(-n_slots // per_call),
+                  min(streams, n_slots // (lanes * WAVEFRONT_STREAM_SLOTS)))
     bounds = [n_slots * i // n_calls for i in range(n_calls + 1)]
     args = (jnp.int32(spp), jnp.int32(per_slot), jnp.int32(n_inner))
     scenes = [jax.device_put(scene, d) for d in devices]   # call i runs on device i mod D
@@ -352,7 +308,7 @@ def render_wavefront(scene: Scene, start_fn: Callable, step_fn: Callable, *, spp
         if progress:
             _progress(int(bounds[i + 1] / n_slots * P * spp), P * spp, time.perf_counter() - t0)
 
-    img, bad = sum_calls(call, n_calls, streams=streams, on_done=report)
+    img, bad = calls.sum_calls(call, n_calls, streams=streams, on_done=report)
     out = np.asarray(img, np.float32).reshape(H, W, 3) / np.float32(spp)
     if progress:
         sys.stderr.write("\n")

@@ -82,6 +82,22 @@ def test_photon_map_is_deterministic_and_chunk_independent():
     assert not np.array_equal(np.sort(a.position.x), np.sort(c.position.x))
 
 
+def test_photon_map_order_does_not_depend_on_calls_in_flight(monkeypatch):
+    """Chunks traced concurrently (jgi.calls) are stored in chunk order: the same arrays, in
+    the same order, as one chunk at a time."""
+    import jax
+
+    from jgi import calls
+
+    scene = scenes.cornell_box(resolution=8)
+    maps = []
+    for streams in (1, 3):
+        monkeypatch.setattr(calls, "CALL_STREAMS", streams)
+        maps.append(trace_photons(scene, 5000, seed=2, chunk=1024, devices=jax.devices()[:1]))
+    for x, y in zip(jax.tree_util.tree_leaves(maps[0]), jax.tree_util.tree_leaves(maps[1])):
+        np.testing.assert_array_equal(x, y)
+
+
 def test_no_lights_is_an_error():
     b = SceneBuilder("dark")
     b.material("m", "diffuse", diffuse=0.5)

@@ -27,6 +27,7 @@ from jgi import lights as LT
 from jgi import scenes
 from jgi import warps
 from jgi import _xla as X
+from jgi import calls as C
 from jgi._xla import pow_positive, sincos, take
 from jgi.estimators import path_tracer as PT
 from jgi.scene import SceneBuilder
@@ -93,13 +94,13 @@ def test_concurrent_streams_trace_the_same_paths(monkeypatch):
 
     monkeypatch.setattr(R, "_wavefront_call", counting)
     pools = []
-    real_pool = R.ThreadPoolExecutor
+    real_pool = C.ThreadPoolExecutor
 
     def pool(n):
         pools.append(n)
         return real_pool(n)
 
-    monkeypatch.setattr(R, "ThreadPoolExecutor", pool)
+    monkeypatch.setattr(C, "ThreadPoolExecutor", pool)
 
     def render(streams):
         return R.render_wavefront(scene, PT._start, lambda sc, lane: PT._step(sc, cfg, lane),
@@ -122,6 +123,7 @@ def test_wavefront_on_two_devices_matches_one():
         assert len(jax.devices()) == 2
         from jgi.estimators import path_tracer as PT
         import sys, jgi.render
+        import jgi.calls as C
         R = sys.modules["jgi.render"]
         sc = jgi.scenes.cornell_box(resolution=8)
         cfg = PT.PathTracerConfig()
@@ -129,8 +131,8 @@ def test_wavefront_on_two_devices_matches_one():
         R.WAVEFRONT_STREAM_SLOTS = 1   # split this small render: 320 slots over 16 lanes
         kw = dict(spp=5, seed=4, cache_key=("t", cfg), lanes=16, per_slot=1)
         one = R.render_wavefront(sc, PT._start, step, devices=jax.devices()[:1], streams=1, **kw)
-        pools, Pool = [], R.ThreadPoolExecutor
-        R.ThreadPoolExecutor = lambda n: (pools.append(n), Pool(n))[1]
+        pools, Pool = [], C.ThreadPoolExecutor
+        C.ThreadPoolExecutor = lambda n: (pools.append(n), Pool(n))[1]
         two = R.render_wavefront(sc, PT._start, step, **kw)   # two devices, two loops each
         assert pools == [4], pools
         err = np.abs(one - two).max() / np.abs(one).max()
@@ -302,7 +304,7 @@ def test_sum_calls_adds_parts_in_call_order_whatever_finishes_first():
         expected = expected + v
     for streams in (1, 2, 3, 8):
         done = []
-        img, bad = R.sum_calls(call, n, streams=streams, on_done=done.append)
+        img, bad = C.sum_calls(call, n, streams=streams, on_done=done.append)
         assert np.array_equal(img, expected) and bad == n // 2
         assert done == list(range(n))
     shuffled = np.zeros((2, 3), np.float32)
@@ -318,7 +320,7 @@ def test_render_paths_with_concurrent_calls_is_bit_identical(monkeypatch):
     fn = lambda sc, pix, smp, sd: PT.trace_pixels(sc, cfg, sd, pix, smp)  # noqa: E731
 
     def render(streams):
-        monkeypatch.setattr(R, "CALL_STREAMS", streams)
+        monkeypatch.setattr(C, "CALL_STREAMS", streams)
         # 64 pixels x 9 spp in calls of 4 chunks of 32 paths: 5 calls
         return R.render_paths(scene, fn, spp=9, seed=3, cache_key=("test-streams", cfg), chunk=32)
 

@@ -360,7 +360,8 @@ def render_splats(scene: Scene, path_fn: Callable, *, spp: int, seed: int, cache
     sample) whatever the chunking; the scatter-add is sequential, so results are reproducible."""
     import warnings
 
-    from ..render import _progress, sum_calls
+    from ..calls import sum_calls
+    from ..render import _progress
 
     W, H = scene.camera.width, scene.camera.height
     P = W * H
