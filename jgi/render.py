@@ -128,20 +128,25 @@ def _progress(done: int, total: int, elapsed: float) -> None:
 
 # --- wavefront driver with path regeneration and a shared work queue ---------------------------
 
-WAVEFRONT_LANES = 1 << 14   # lanes per loop (fastest of 2^11..2^15 measured on the Cornell box)
+WAVEFRONT_LANES = 1 << 12   # lanes per loop. With two loops in flight (jgi.calls), 2^12 was
+                            # fastest of 2^10..2^14 at 128^2, 16 spp (Cornell box 1.2x, its
+                            # caustic variant 1.5x, the glass sphere 1.9x, the metal ring 1.7x
+                            # against one loop of 2^14, the best single loop: a loop's last
+                            # paths leave its lanes idle, and the other loop fills the cores
+                            # meanwhile) and as fast as 2^13 and 2^14 at 256^2, 64 spp
 WAVEFRONT_SAMPLES = 16      # samples per work slot (one pixel's paths traced by one lane in a row)
 WAVEFRONT_CALL_SLOTS = 64   # work slots per lane and call (on average): bounds a call's length
-WAVEFRONT_STREAM_SLOTS = 8  # least work slots per lane for a call of its own, so that loops
-                            # run concurrently (jgi.calls; Cornell box, 256^2, 64 spp, two
-                            # cores: 1.1x; with 1-4 slots per lane it gained nothing)
+WAVEFRONT_STREAM_SLOTS = 1  # least work slots per lane for a call of its own: any render with
+                            # at least twice as many slots as lanes runs as concurrent loops
 WAVEFRONT_UNROLL = 2        # segments per inner-loop iteration: with 1, each iteration ends in
                             # ~20 copies of the state into the loop buffers (the materialised
                             # state cannot be written in place); with 2 the second segment writes
                             # into the buffers the first one has finished reading (1.09x). Only
-                            # for images of at least WAVEFRONT_LANES pixels: two segments take
+                            # for images of at least WAVEFRONT_UNROLL_PIXELS: two segments take
                             # 2-2.5x as long to compile (8^2 Cornell box: 4.2 s against 2.7 s;
                             # Veach's plates: 9.0 s against 3.7 s), which small renders never
                             # win back
+WAVEFRONT_UNROLL_PIXELS = 1 << 14
 
 
 class _Lanes(NamedTuple):
@@ -263,7 +268,7 @@ def render_wavefront(scene: Scene, start_fn: Callable, step_fn: Callable, *, spp
     image (Cornell box, 256^2, 64 spp: 91% of lane-segments trace a path, against 78% when each
     lane had a fixed list of four pixels; 1.07x fewer CPU-seconds, 1.26x on the glass sphere).
     Each inner-loop iteration advances every lane by ``unroll`` segments (default
-    ``WAVEFRONT_UNROLL`` for images of at least ``WAVEFRONT_LANES`` pixels, else 1). Renders
+    ``WAVEFRONT_UNROLL`` for images of at least ``WAVEFRONT_UNROLL_PIXELS``, else 1). Renders
     of at least ``WAVEFRONT_STREAM_SLOTS`` slots per lane are split into calls enough for
     ``streams`` (default ``jgi.calls.CALL_STREAMS``) loops per device to run at once, sharing
     one compiled function (:func:`jgi.calls.sum_calls`). None of these settings changes the
@@ -274,7 +279,7 @@ def render_wavefront(scene: Scene, start_fn: Callable, step_fn: Callable, *, spp
     lanes = lanes or min(WAVEFRONT_LANES, 1 << max(int(np.ceil(np.log2(P))), 8))
     devices = list(devices if devices is not None else jax.devices())
     D = len(devices)
-    unroll = unroll or (WAVEFRONT_UNROLL if lanes >= WAVEFRONT_LANES else 1)
+    unroll = unroll or (WAVEFRONT_UNROLL if P >= WAVEFRONT_UNROLL_PIXELS else 1)
     per_slot = max(1, min(per_slot or WAVEFRONT_SAMPLES, spp))
     n_slots = P * -(-spp // per_slot)
     per_call = lanes * WAVEFRONT_CALL_SLOTS
