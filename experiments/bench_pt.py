@@ -11,7 +11,7 @@ same thing). Mitsuba uses its ``llvm_ad_rgb`` variant (needs ``DRJIT_LIBLLVM_PAT
 at LLVM 19's ``libLLVM.so.19.1``; set automatically when Debian's ``libllvm19`` is installed).
 
 By default jgi traces the image with two concurrent loops on one CPU device (see
-``jgi.render.WAVEFRONT_STREAMS``), and XLA splits each of their large kernels over the cores.
+``jgi.calls``), and XLA splits each of their large kernels over the cores.
 ``--devices N`` splits the work over N virtual CPU devices instead
 (``--xla_force_host_platform_device_count``, set before JAX starts), each compiling its own copy.
 """

@@ -10,15 +10,17 @@ depends on timing or on the number of calls in flight.
 
 from __future__ import annotations
 
+import os
 from collections import deque
 from concurrent.futures import ThreadPoolExecutor
 from typing import Callable, Iterator
 
 import numpy as np
 
-CALL_STREAMS = 2  # calls in flight at once (two cores, Cornell box at 128^2: BDPT 1.4x, light
-                  # tracing 1.3x, photon tracing 1.5x, the wavefront path tracer at 256^2,
-                  # 64 spp 1.1x; more streams than cores measured slower)
+# calls in flight at once (two cores, Cornell box at 128^2: BDPT 1.4x, light tracing 1.3x,
+# photon tracing 1.5x, the wavefront path tracer 1.2x; more streams than cores measured slower);
+# the environment variable JGI_CALL_STREAMS overrides it (1: one call at a time)
+CALL_STREAMS = max(1, int(os.environ.get("JGI_CALL_STREAMS", "2")))
 
 
 def ordered_calls(call: Callable[[int], object], n_calls: int, *,

@@ -27,16 +27,17 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from . import calls
 from .estimators import registry
 from .scene import Scene
 from ._xla import materialize
-from . import calls
 from .vec import V3
 
 DEFAULT_CHUNK = 1 << 16
 CHUNKS_PER_CALL = 4
 
 _COMPILED: dict = {}  # compile cache: (estimator key, chunk size) -> jitted fn
+
 
 def render(scene: Scene | str, estimator: str = "pt", spp: int = 16, seed: int = 0,
            progress: bool = False, **params) -> np.ndarray:

@@ -68,6 +68,9 @@ def assert_agree(a: np.ndarray, b: np.ndarray, regions: int = 4, label: str = ""
     return t
 
 
-@pytest.fixture(scope="session")
+@pytest.fixture
 def rng_np():
+    """A fresh generator per test: each test's data is fixed whatever ran before it (a
+    session-wide generator handed each test the draws the previous tests left, so the data
+    depended on test order and on how pytest-xdist shared the tests out)."""
     return np.random.default_rng(12345)

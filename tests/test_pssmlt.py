@@ -20,8 +20,10 @@ def test_kelemen_small_step_is_symmetric_and_stays_on_the_torus(rng_np):
     d = (v - u + 0.5) % 1.0 - 0.5
     assert abs(np.mean(d > 0) - 0.5) < 5 * np.sqrt(0.25 / d.size)
     assert np.all(np.abs(d) <= 1 / 64 + 1e-6) and np.all(np.abs(d) >= 1 / 1024 - 1e-6)
-    # reverse move with the same (xi, opposite sign) returns to u: T(u->v) = T(v->u)
-    back = np.asarray(pssmlt.kelemen_small_step(v, xi, 1.0 - sign + 1e-7, 1 / 1024, 1 / 64))
+    # reverse move with the same xi and the opposite direction returns to u: T(u->v) = T(v->u)
+    # (the direction is sign < 0.5; 1 - sign would keep the direction of sign = 0.5)
+    opposite = np.where(sign < 0.5, 0.75, 0.25).astype(np.float32)
+    back = np.asarray(pssmlt.kelemen_small_step(v, xi, opposite, 1 / 1024, 1 / 64))
     err = (back - u + 0.5) % 1.0 - 0.5
     assert np.abs(err).max() < 1e-5
 
