@@ -319,9 +319,14 @@ def test_render_paths_with_concurrent_calls_is_bit_identical(monkeypatch):
     cfg = PT.PathTracerConfig()
     fn = lambda sc, pix, smp, sd: PT.trace_pixels(sc, cfg, sd, pix, smp)  # noqa: E731
 
+    pools = []
+    real_pool = C.ThreadPoolExecutor
+    monkeypatch.setattr(C, "ThreadPoolExecutor", lambda n: (pools.append(n), real_pool(n))[1])
+
     def render(streams):
         monkeypatch.setattr(C, "CALL_STREAMS", streams)
         # 64 pixels x 9 spp in calls of 4 chunks of 32 paths: 5 calls
         return R.render_paths(scene, fn, spp=9, seed=3, cache_key=("test-streams", cfg), chunk=32)
 
     assert np.array_equal(render(1), render(3))
+    assert pools == [3]           # one call at a time, then three in flight
