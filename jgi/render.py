@@ -97,7 +97,21 @@ def render_paths(scene: Scene, path_fn: Callable[..., V3], *, spp: int, seed: in
     if fn is None:
         fn = jax.jit(partial(_accumulate, path_fn=path_fn, chunk=chunk))
         _COMPILED[key] = fn
-    per_call = chunk * CHUNKS_PER_CALL
+    img, bad = sum_path_chunks(fn, scene, seed, total, chunk * CHUNKS_PER_CALL, progress)
+    out = img.reshape(H, W, 3) / np.float32(spp)
+    if progress:
+        sys.stderr.write("\n")
+    if bad:
+        warnings.warn(f"{bad} path samples were not finite and were dropped", RuntimeWarning)
+    return out
+
+
+def sum_path_chunks(fn, scene: Scene, seed: int, total: int, per_call: int,
+                    progress: bool) -> tuple[np.ndarray, int]:
+    """Sum of ``fn(scene, seed, sample0, pixel0, count) -> (part, dropped)`` over calls of
+    ``per_call`` consecutive paths (flat index sample * P + pixel) until ``total``, with
+    calls in flight as :func:`jgi.calls.sum_calls` runs them (render_paths, render_splats)."""
+    P = scene.camera.width * scene.camera.height
     t0 = time.perf_counter()
 
     def call(i):
@@ -109,13 +123,7 @@ def render_paths(scene: Scene, path_fn: Callable[..., V3], *, spp: int, seed: in
         if progress:
             _progress(min((i + 1) * per_call, total), total, time.perf_counter() - t0)
 
-    img, bad = calls.sum_calls(call, -(-total // per_call), on_done=report)
-    out = np.asarray(img, np.float32).reshape(H, W, 3) / np.float32(spp)
-    if progress:
-        sys.stderr.write("\n")
-    if bad:
-        warnings.warn(f"{bad} path samples were not finite and were dropped", RuntimeWarning)
-    return out
+    return calls.sum_calls(call, -(-total // per_call), on_done=report)
 
 
 def _progress(done: int, total: int, elapsed: float) -> None:

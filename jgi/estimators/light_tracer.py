@@ -36,7 +36,6 @@ The subpath machinery (:class:`Vertices`, :func:`random_walk`, :func:`light_subp
 
 from __future__ import annotations
 
-import time
 from dataclasses import dataclass
 from functools import partial
 from typing import Callable, NamedTuple
@@ -360,8 +359,7 @@ def render_splats(scene: Scene, path_fn: Callable, *, spp: int, seed: int, cache
     sample) whatever the chunking; the scatter-add is sequential, so results are reproducible."""
     import warnings
 
-    from ..calls import sum_calls
-    from ..render import _progress
+    from ..render import sum_path_chunks
 
     W, H = scene.camera.width, scene.camera.height
     P = W * H
@@ -372,23 +370,10 @@ def render_splats(scene: Scene, path_fn: Callable, *, spp: int, seed: int, cache
     if fn is None:
         fn = jax.jit(partial(_accumulate, path_fn=path_fn, chunk=chunk, n_images=n_images))
         _COMPILED[key] = fn
-    per_call = chunk * 4
-    t0 = time.perf_counter()
-
-    def call(i):
-        sample0, pixel0 = divmod(i * per_call, P)
-        return fn(scene, jnp.uint32(seed), jnp.int32(sample0), jnp.int32(pixel0),
-                  jnp.int32(min(per_call, total - i * per_call)))
-
-    def report(i):
-        if progress:
-            _progress(min((i + 1) * per_call, total), total, time.perf_counter() - t0)
-
-    img, bad = sum_calls(call, -(-total // per_call), on_done=report)
-    bad = int(bad)
+    img, bad = sum_path_chunks(fn, scene, seed, total, chunk * 4, progress)
     if bad:
         warnings.warn(f"{bad} path contributions were not finite and were dropped", RuntimeWarning)
-    return np.asarray(img, np.float32).reshape(n_images, H, W, 3) / np.float32(spp)
+    return img.reshape(n_images, H, W, 3) / np.float32(spp)
 
 
 # --- the light tracer ----------------------------------------------------------------------------
