@@ -2,7 +2,8 @@
 
 1. ``XLA_FLAGS`` set before JAX starts its backend (importing jgi first is enough; flags already
    present in the environment are kept, and ``JGI_NO_XLA_FLAGS=1`` disables them): let LLVM
-   unroll and vectorise the large fused bounce kernels.
+   unroll and vectorise the large fused bounce kernels (``JGI_UNROLL_THRESHOLD`` trades that
+   speed for compile time, see ``UNROLL_THRESHOLD``).
 2. :func:`materialize`: XLA's fusion pass duplicates a producer into every consumer fusion, so
    an intersection or a sample used by a dozen consumers is recomputed a dozen times (measured:
    about 25,000 instead of 3,000 operations per bounce). Routing the values through one
@@ -50,9 +51,18 @@ import os
 import jax
 import jax.numpy as jnp
 
+# LLVM's unroll threshold: the bounce kernels' 2-iteration loops (the size-2 reduce of
+# materialize, below) must be unrolled whole for the loop over lanes to vectorise, and that
+# costs more than a large kernel's size (Cornell box path tracing, 256^2: 13-15 Mpaths/s at 2000,
+# 4000 and 8000; 2.5 at 1000). Veach's plates need more than 2000 (6.1 against 1.3 Mpaths/s at
+# 128^2) and BDPT runs 1.5x faster at 4000, but compiles 3-4x slower (Cornell box: 25-32 s
+# against 7-9 s). JGI_UNROLL_THRESHOLD sets it; the test suite, which is compile-bound, uses
+# 1000 (tests/conftest.py). Unrolling changes no result (test_xla checks a render bit for bit).
+UNROLL_THRESHOLD = int(os.environ.get("JGI_UNROLL_THRESHOLD", "4000"))
+
 _FLAGS: list[str] = [
-    "--xla_backend_extra_options=-unroll-threshold=4000,-runtime-memory-check-threshold=10000,"
-    "-vectorize-memory-check-threshold=10000",
+    f"--xla_backend_extra_options=-unroll-threshold={UNROLL_THRESHOLD},"
+    "-runtime-memory-check-threshold=10000,-vectorize-memory-check-threshold=10000",
     "--xla_cpu_prefer_vector_width=512",
 ]
 
