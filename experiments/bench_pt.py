@@ -1,7 +1,7 @@
 """Path-tracing throughput on the Cornell box: jgi against Mitsuba 3 measured in the same run.
 
     python experiments/bench_pt.py [--spp 64] [--resolution 256] [--devices N] [--no-mitsuba]
-                                   [--json out.json]
+                                   [--objects blocks|spheres] [--json out.json]
 
 Both render the same scene (jgi's ``cornell_box`` replicates Mitsuba's ``cornell_box()``) at
 max depth 8 with Russian roulette from depth 5, NEE + MIS. Prints compile time, million paths
@@ -9,6 +9,10 @@ per second for each (wall clock, and per CPU-second of the process, which is les
 other jobs on a shared machine), their ratio, and the image means (to check both compute the
 same thing). Mitsuba uses its ``llvm_ad_rgb`` variant (needs ``DRJIT_LIBLLVM_PATH`` pointing
 at LLVM 19's ``libLLVM.so.19.1``; set automatically when Debian's ``libllvm19`` is installed).
+
+``--objects spheres`` replaces the two blocks, in both renderers, by two diffuse spheres of
+radius 0.35 (five walls, two spheres and an area light: the scene of the prototype that issue 2's
+5x target was derived from).
 
 By default jgi traces the image with two concurrent loops on one CPU device (see
 ``jgi.calls``), and XLA splits each of their large kernels over the cores.
@@ -28,12 +32,25 @@ import time
 import numpy as np
 
 
-def bench_jgi(resolution: int, spp: int, repeats: int) -> dict:
+SPHERES = [((-0.45, -0.65, -0.3), 0.35), ((0.45, -0.65, 0.3), 0.35)]   # (centre, radius)
+
+
+def bench_jgi(resolution: int, spp: int, repeats: int, objects: str = "blocks") -> dict:
     import jax
 
     import jgi
 
-    scene = jgi.load_scene("cornell_box", resolution=resolution)
+    if objects == "spheres":
+        from jgi.scene import SceneBuilder
+        from jgi.scenes import cornell_room
+
+        b = SceneBuilder("cornell_spheres")
+        cornell_room(b, resolution)
+        for centre, radius in SPHERES:
+            b.sphere(centre, radius, "white")
+        scene = b.build()
+    else:
+        scene = jgi.load_scene("cornell_box", resolution=resolution)
     t0 = time.perf_counter()
     jgi.render(scene, "pt", spp=1, seed=0, max_depth=8, rr_depth=5)
     compile_s = time.perf_counter() - t0
@@ -50,7 +67,7 @@ def bench_jgi(resolution: int, spp: int, repeats: int) -> dict:
                 devices=[str(d) for d in jax.devices()])
 
 
-def bench_mitsuba(resolution: int, spp: int, repeats: int) -> dict | None:
+def bench_mitsuba(resolution: int, spp: int, repeats: int, objects: str = "blocks") -> dict | None:
     if "DRJIT_LIBLLVM_PATH" not in os.environ:
         found = sorted(glob.glob("/usr/lib/*/libLLVM.so.19.1"))
         if found:
@@ -66,6 +83,11 @@ def bench_mitsuba(resolution: int, spp: int, repeats: int) -> dict | None:
         print(f"mitsuba unavailable: {e}", file=sys.stderr)
         return None
     desc = mi.cornell_box()
+    if objects == "spheres":
+        del desc["small-box"], desc["large-box"]
+        for i, (centre, radius) in enumerate(SPHERES):
+            desc[f"sphere-{i}"] = {"type": "sphere", "center": list(centre), "radius": radius,
+                                   "bsdf": {"type": "ref", "id": "white"}}
     desc["sensor"]["film"]["width"] = desc["sensor"]["film"]["height"] = resolution
     desc["sensor"]["film"]["rfilter"] = {"type": "box"}
     desc["integrator"] = {"type": "path", "max_depth": 8, "rr_depth": 5}
@@ -94,6 +116,8 @@ def main(argv=None) -> dict:
     ap.add_argument("--devices", type=int, default=1,
                     help="split jgi's lanes over this many virtual CPU devices")
     ap.add_argument("--no-mitsuba", action="store_true")
+    ap.add_argument("--objects", choices=("blocks", "spheres"), default="blocks",
+                    help="what stands in the room: the two blocks, or two diffuse spheres")
     ap.add_argument("--json", default=None)
     a = ap.parse_args(argv)
     if a.devices > 1:
@@ -102,9 +126,9 @@ def main(argv=None) -> dict:
         os.environ["XLA_FLAGS"] = (os.environ.get("XLA_FLAGS", "") +
                                    f" --xla_force_host_platform_device_count={a.devices}").strip()
     print(f"load average {os.getloadavg()[0]:.2f} on {os.cpu_count()} CPUs", file=sys.stderr)
-    out = {"jgi": bench_jgi(a.resolution, a.spp, a.repeats)}
+    out = {"jgi": bench_jgi(a.resolution, a.spp, a.repeats, a.objects)}
     if not a.no_mitsuba:
-        out["mitsuba"] = bench_mitsuba(a.resolution, a.spp, a.repeats)
+        out["mitsuba"] = bench_mitsuba(a.resolution, a.spp, a.repeats, a.objects)
     for r in out.values():
         if r:
             print(f"{r['name']:24s} {r['mpaths_per_s']:8.2f} Mpaths/s  "

@@ -28,7 +28,9 @@ RED = (0.570068, 0.0430135, 0.0443706)
 CORNELL_LIGHT = (18.387, 13.9873, 6.75357)
 
 
-def _cornell_room(b: SceneBuilder, resolution: int) -> None:
+def cornell_room(b: SceneBuilder, resolution: int) -> None:
+    """Add the room of Mitsuba 3's ``cornell_box()`` to ``b``: its three materials ("white",
+    "green", "red"), five walls, the ceiling light and the camera, without the two blocks."""
     b.material("white", "diffuse", diffuse=WHITE)
     b.material("green", "diffuse", diffuse=GREEN)
     b.material("red", "diffuse", diffuse=RED)
@@ -46,7 +48,7 @@ def _cornell_room(b: SceneBuilder, resolution: int) -> None:
 
 def cornell_box(resolution: int = 256) -> Scene:
     b = SceneBuilder("cornell_box")
-    _cornell_room(b, resolution)
+    cornell_room(b, resolution)
     T, R, S = xf.translate, xf.rotate, xf.scale
     b.cube(T([0.335, -0.7, 0.38]) @ R([0, 1, 0], -17) @ S(0.3), "white")
     b.cube(T([-0.33, -0.4, -0.28]) @ R([0, 1, 0], 18.25) @ S([0.3, 0.61, 0.3]), "white")
@@ -55,7 +57,7 @@ def cornell_box(resolution: int = 256) -> Scene:
 
 def cornell_box_caustics(resolution: int = 256) -> Scene:
     b = SceneBuilder("cornell_box_caustics")
-    _cornell_room(b, resolution)
+    cornell_room(b, resolution)
     b.material("mirror", "mirror", specular=(0.95, 0.95, 0.95))
     b.material("glass", "dielectric", ior=1.5)
     b.sphere((-0.45, -0.65, -0.3), 0.35, "mirror")
