@@ -58,7 +58,8 @@ import jax.numpy as jnp
 # 128^2) and BDPT runs 1.5x faster at 4000, but compiles 3-4x slower (Cornell box: 25-32 s
 # against 7-9 s). JGI_UNROLL_THRESHOLD sets it; the test suite, which is compile-bound, uses
 # 1000 (tests/conftest.py). Unrolling changes no result (test_xla checks a render bit for bit).
-UNROLL_THRESHOLD = int(os.environ.get("JGI_UNROLL_THRESHOLD", "4000"))
+DEFAULT_UNROLL_THRESHOLD = 4000
+UNROLL_THRESHOLD = int(os.environ.get("JGI_UNROLL_THRESHOLD", DEFAULT_UNROLL_THRESHOLD))
 
 _FLAGS: list[str] = [
     f"--xla_backend_extra_options=-unroll-threshold={UNROLL_THRESHOLD},"

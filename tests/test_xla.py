@@ -15,7 +15,7 @@ from jgi import _xla
 
 ROOT = Path(__file__).resolve().parents[1]
 CASES = [("cornell_box_caustics", dict(strategy="mis")), ("veach_plates", dict(strategy="mis"))]
-PRODUCTION_THRESHOLD = 4000
+PRODUCTION_THRESHOLD = _xla.DEFAULT_UNROLL_THRESHOLD
 
 
 def _render(name, params):
@@ -27,16 +27,22 @@ def test_unroll_threshold_changes_no_result(tmp_path):
     a render under the shipped threshold, in a process of its own (LLVM options are fixed when
     JAX starts), must be the same bits."""
     assert _xla.UNROLL_THRESHOLD != PRODUCTION_THRESHOLD, "the suite runs jgi's own threshold"
+    assert f"-unroll-threshold={_xla.UNROLL_THRESHOLD}," in os.environ["XLA_FLAGS"]
     out = tmp_path / "images.npz"
     script = textwrap.dedent(f"""
-        import numpy as np, jgi
+        import os, numpy as np, jgi
         from jgi import _xla
         assert _xla.UNROLL_THRESHOLD == {PRODUCTION_THRESHOLD}
+        assert "-unroll-threshold={PRODUCTION_THRESHOLD}," in os.environ["XLA_FLAGS"]
         from tests.test_xla import CASES, _render
         np.savez({str(out)!r}, *[_render(n, p) for n, p in CASES])
     """)
-    # (the persistent compile cache keys on XLA_FLAGS, which carry the threshold)
-    env = dict(os.environ, JGI_UNROLL_THRESHOLD=str(PRODUCTION_THRESHOLD), PYTHONPATH=str(ROOT))
+    # this process's XLA_FLAGS carry its own threshold, and jgi keeps flags it finds set: drop
+    # them so the child sets its own (the persistent compile cache keys on XLA_FLAGS too)
+    flags = [f for f in os.environ.get("XLA_FLAGS", "").split()
+             if not f.startswith("--xla_backend_extra_options=")]
+    env = dict(os.environ, JGI_UNROLL_THRESHOLD=str(PRODUCTION_THRESHOLD), PYTHONPATH=str(ROOT),
+               XLA_FLAGS=" ".join(flags))
     r = subprocess.run([sys.executable, "-c", script], env=env, capture_output=True, text=True,
                        timeout=600, cwd=ROOT)
     assert r.returncode == 0, r.stdout + r.stderr
