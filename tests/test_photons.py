@@ -90,10 +90,13 @@ def test_photon_map_order_does_not_depend_on_calls_in_flight(monkeypatch):
     from jgi import calls
 
     scene = scenes.cornell_box(resolution=8)
+    pools, real_pool = [], calls.ThreadPoolExecutor
+    monkeypatch.setattr(calls, "ThreadPoolExecutor", lambda n: (pools.append(n), real_pool(n))[1])
     maps = []
     for streams in (1, 3):
         monkeypatch.setattr(calls, "CALL_STREAMS", streams)
         maps.append(trace_photons(scene, 5000, seed=2, chunk=1024, devices=jax.devices()[:1]))
+    assert pools == [3]   # one chunk at a time, then three in flight (5 chunks)
     for x, y in zip(jax.tree_util.tree_leaves(maps[0]), jax.tree_util.tree_leaves(maps[1])):
         np.testing.assert_array_equal(x, y)
 
