@@ -6,7 +6,9 @@ geometric normal. :func:`evaluate` returns the BSDF value f(wo, wi) *without* th
 solid-angle pdf; :func:`sample` returns a direction and the weight f |cos theta_i| / pdf.
 Dirac (specular) lobes have no value and no pdf: ``evaluate`` gives 0 for them and ``sample``
 flags them with ``delta``. Opaque materials are two-sided (the normal is flipped to ``wo``'s
-side); the dielectric uses the normal's orientation to tell entering from leaving.
+side); the dielectric uses the normal's orientation to tell entering from leaving. A surface
+seen edge-on (|cos theta_o| <= ``vec.EDGE_ON_COS``) scatters nothing, and directions within
+that band of the surface have f = 0 and pdf = 0, on every CPU (see ``vec.EDGE_ON_COS``).
 
 * Diffuse:   f = k_d / pi,                pdf = cos(theta_i) / pi.
 * Phong:     f = k_d / pi + k_s (n + 2) / (2 pi) cos^n(alpha), alpha the angle between wi and
@@ -28,7 +30,7 @@ from jax import Array
 from . import warps
 from ._xla import pow_positive
 from .scene import DIELECTRIC, DIFFUSE, MIRROR, PHONG, Materials
-from .vec import V3, dot, luminance, reflect, to_world, where
+from .vec import EDGE_ON_COS, V3, dot, luminance, reflect, to_world, where
 
 RADIANCE, IMPORTANCE = 0, 1
 
@@ -65,14 +67,20 @@ def facing(n: V3, w: V3) -> V3:
     return _side(n, w)[0]
 
 
-def _side(n: V3, wo: V3) -> tuple[V3, Array]:
-    """(n flipped onto wo's side, |cos theta_o|). Every side test of an opaque BSDF derives from
-    this one dot product: recomputing dot(wo, n_flipped) instead can round (XLA contracts it into
+def _side(n: V3, wo: V3) -> tuple[V3, Array, Array]:
+    """(n flipped onto wo's side, |cos theta_o|, whether it was flipped). Every side test of a BSDF derives from this
+    one dot product: recomputing dot(wo, n_flipped) instead can round (XLA contracts it into
     FMAs differently per fusion) to the other sign when wo grazes the surface, making ``valid``
     and ``weight`` disagree."""
     cos_o = dot(n, wo)
     flip = cos_o < 0
-    return n * jnp.where(flip, -1.0, 1.0), jnp.abs(cos_o)
+    return n * jnp.where(flip, -1.0, 1.0), jnp.abs(cos_o), flip
+
+
+def _lit(cos: Array) -> Array:
+    """A cosine (>= 0 by construction, or signed) counts as above the surface: outside the
+    edge-on band, so that an edge-on direction is decided alike on every CPU."""
+    return cos > EDGE_ON_COS
 
 
 def specular_probability(mp: MaterialParams) -> Array:
@@ -112,9 +120,9 @@ def refract(wo: V3, n: V3, eta: Array) -> tuple[V3, Array]:
 
 def evaluate(kinds, mp: MaterialParams, n: V3, wo: V3, wi: V3) -> tuple[V3, Array]:
     """(f(wo, wi), pdf(wo -> wi)) for the non-Dirac part of the material."""
-    nf, cos_o = _side(n, wo)
+    nf, cos_o, _ = _side(n, wo)
     cos_i = dot(wi, nf)
-    above = (cos_i > 0) & (cos_o > 0)
+    above = _lit(cos_i) & _lit(cos_o)
     zero = jnp.zeros_like(cos_i)
     f = V3(zero, zero, zero)
     pdf = zero
@@ -154,13 +162,13 @@ def sample(kinds, mp: MaterialParams, n: V3, wo: V3, u_lobe: Array, u1: Array, u
                           jnp.where(sel, s.pdf, acc.pdf), jnp.where(sel, s.delta, acc.delta),
                           jnp.where(sel, s.valid, acc.valid))
 
-    nf, cos_o = _side(n, wo)
+    nf, cos_o, leaving = _side(n, wo)
     if DIFFUSE in kinds or PHONG in kinds:
         wi_d = to_world(warps.sample_cosine_hemisphere(u1, u2), nf)
     if DIFFUSE in kinds:
-        ok = (cos_o > 0) & (dot(wi_d, nf) > 0)
+        ok = _lit(cos_o) & _lit(dot(wi_d, nf))
         s = BSDFSample(wi_d, where(ok, mp.kd, V3(zero, zero, zero)),
-                       warps.pdf_cosine_hemisphere(dot(wi_d, nf)), zero > 0, ok)
+                       jnp.where(ok, warps.pdf_cosine_hemisphere(dot(wi_d, nf)), 0.0), zero > 0, ok)
         out = choose(mp.kind == DIFFUSE, s, out)
     if PHONG in kinds:
         ps = specular_probability(mp)
@@ -172,21 +180,18 @@ def sample(kinds, mp: MaterialParams, n: V3, wo: V3, u_lobe: Array, u1: Array, u
         s = BSDFSample(wi, where(ok, w, V3(zero, zero, zero)), pdf, zero > 0, ok)
         out = choose(mp.kind == PHONG, s, out)
     if MIRROR in kinds:
-        ok = cos_o > 0
+        ok = _lit(cos_o)
         s = BSDFSample(reflect(wo, nf), where(ok, mp.ks, V3(zero, zero, zero)), zero, ok, ok)
         out = choose(mp.kind == MIRROR, s, out)
     if DIELECTRIC in kinds:
-        entering = dot(wo, n) > 0
-        eta = jnp.where(entering, mp.ior, 1.0 / mp.ior)  # eta_t / eta_i
-        nd = jnp.where(entering, 1.0, -1.0)
-        nside = n * nd
-        cos_i = jnp.abs(dot(wo, n))
-        F = fresnel_dielectric(cos_i, eta)
-        wt, can_refract = refract(wo, nside, eta)
+        eta = jnp.where(leaving, 1.0 / mp.ior, mp.ior)  # eta_t / eta_i; wo inside if flipped
+        F = fresnel_dielectric(cos_o, eta)
+        wt, can_refract = refract(wo, nf, eta)
         reflect_it = (u_lobe < F) | ~can_refract
-        wi = where(reflect_it, reflect(wo, nside), wt)
+        wi = where(reflect_it, reflect(wo, nf), wt)
         scale = 1.0 if mode == IMPORTANCE else 1.0 / (eta * eta)
-        w = jnp.where(reflect_it, 1.0, scale)
-        s = BSDFSample(wi, mp.ks * w, zero, one > 0, one > 0)
+        ok = _lit(cos_o)
+        w = jnp.where(ok, jnp.where(reflect_it, 1.0, scale), 0.0)
+        s = BSDFSample(wi, mp.ks * w, zero, one > 0, ok)
         out = choose(mp.kind == DIELECTRIC, s, out)
     return out

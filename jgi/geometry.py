@@ -21,7 +21,7 @@ from . import _xla as X
 from . import bvh as B
 from ._xla import materialize
 from .scene import Boxes, Quads, Rects, Scene, Spheres, Triangles
-from .vec import V3, cross, dot, normalize, where
+from .vec import EDGE_ON_COS, V3, cross, dot, normalize, where
 
 INF = jnp.float32(jnp.inf)
 T_MIN = 1e-6          # reject hits this close to the origin (origins are also offset, see spawn)
@@ -55,11 +55,18 @@ def sphere_t(center: V3, radius, o: V3, d: V3) -> Array:
     return jnp.where(hit & (t > T_MIN), t, INF)
 
 
+def _crosses_plane(normal: V3, d: V3) -> tuple[Array, Array]:
+    """(n . d, whether the ray crosses the plane of unit normal n): a ray within EDGE_ON_COS of
+    the plane (|cos| <= EDGE_ON_COS, d of any length) lies in it to float32 precision and
+    misses, on every CPU (see ``vec.EDGE_ON_COS``)."""
+    denom = dot(normal, d)
+    return denom, denom * denom > (EDGE_ON_COS * EDGE_ON_COS) * dot(d, d)
+
+
 def quad_t(origin: V3, normal: V3, dual_u: V3, dual_v: V3, o: V3, d: V3) -> Array:
     """Plane hit, then parallelogram coordinates a = (p - origin).dual_u, b = (p - origin).dual_v
     in [0, 1]; the duals are precomputed so the test needs no cross product."""
-    denom = dot(normal, d)
-    ok = jnp.abs(denom) > 1e-12
+    denom, ok = _crosses_plane(normal, d)
     t = X.div(dot(normal, origin - o), jnp.where(ok, denom, 1.0))
     rel = o + d * t - origin
     a, b = dot(rel, dual_u), dot(rel, dual_v)
@@ -67,18 +74,21 @@ def quad_t(origin: V3, normal: V3, dual_u: V3, dual_v: V3, o: V3, d: V3) -> Arra
     return jnp.where(hit, t, INF)
 
 
-def triangle_t(v0: V3, e1: V3, e2: V3, o: V3, d: V3) -> tuple[Array, Array, Array]:
-    """Moller-Trumbore; returns (t, b1, b2)."""
+def triangle_t(v0: V3, e1: V3, e2: V3, normal: V3, o: V3, d: V3) -> tuple[Array, Array, Array]:
+    """Moller-Trumbore; returns (t, b1, b2). Rays in the triangle's plane miss it (as for
+    quads), and the barycentric test is widened by ``bvh.BARY_EPS`` as the BVH's is, so a ray
+    through an edge shared by two triangles hits one of them whatever the rounding."""
     pvec = cross(d, e2)
     det = dot(e1, pvec)
-    ok = jnp.abs(det) > 1e-14
+    ok = (jnp.abs(det) > 1e-14) & _crosses_plane(normal, d)[1]
     inv = X.recip(jnp.where(ok, det, 1.0))
     tvec = o - v0
     b1 = dot(tvec, pvec) * inv
     qvec = cross(tvec, e1)
     b2 = dot(d, qvec) * inv
     t = dot(e2, qvec) * inv
-    hit = ok & (b1 >= 0) & (b2 >= 0) & (b1 + b2 <= 1) & (t > T_MIN)
+    hit = (ok & (b1 >= -B.BARY_EPS) & (b2 >= -B.BARY_EPS) & (b1 + b2 <= 1.0 + B.BARY_EPS)
+           & (t > T_MIN))
     return jnp.where(hit, t, INF), b1, b2
 
 
@@ -281,7 +291,8 @@ def closest_hit(scene: Scene, o: V3, d: V3, t_max: Array | None = None):
         carry = update(carry, jnp.where(prim >= 0, t, INF), TRIANGLE, prim)
     elif tr.count:
         def body(i, c):
-            t, _, _ = triangle_t(_take(tr.v0, i), _take(tr.edge1, i), _take(tr.edge2, i), o, d)
+            t, _, _ = triangle_t(_take(tr.v0, i), _take(tr.edge1, i), _take(tr.edge2, i),
+                                 _take(tr.normal, i), o, d)
             return update(c, t, TRIANGLE, i)
         carry = _scan(tr.count, body, carry)
     return materialize(carry)
@@ -388,7 +399,8 @@ def intersect(scene: Scene, o: V3, d: V3, stored: bool = True) -> Hit:
         carry = update(carry, prim >= 0, t, _take(tr.normal, i), tr.material[i], tr.emitter[i])
     elif tr.count:
         def body(i, c):
-            t, _, _ = triangle_t(_take(tr.v0, i), _take(tr.edge1, i), _take(tr.edge2, i), o, d)
+            t, _, _ = triangle_t(_take(tr.v0, i), _take(tr.edge1, i), _take(tr.edge2, i),
+                                 _take(tr.normal, i), o, d)
             return update(c, t < c.t, t, _take(tr.normal, i), tr.material[i], tr.emitter[i])
         carry = _scan(tr.count, body, carry)
 
@@ -444,7 +456,8 @@ def occluded(scene: Scene, o: V3, d: V3, t_max: Array) -> Array:
         occ = occ | jnp.reshape(hit, shape)
     elif tr.count:
         occ = _scan(tr.count, lambda i, a: a | (triangle_t(_take(tr.v0, i), _take(tr.edge1, i),
-                                                           _take(tr.edge2, i), o, d)[0] < t_max),
+                                                           _take(tr.edge2, i), _take(tr.normal, i),
+                                                           o, d)[0] < t_max),
                     occ)
     return occ
 

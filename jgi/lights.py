@@ -34,7 +34,7 @@ from ._xla import SMALL_TABLE, take
 from . import warps
 from .scene import (AREA_QUAD, AREA_SPHERE, AREA_TRIANGLE, DIRECTIONAL, ENVIRONMENT, POINT, SPOT,
                     Lights)
-from .vec import V3, coordinate_system, dot, length, normalize, to_world, where
+from .vec import EDGE_ON_COS, V3, coordinate_system, dot, length, normalize, to_world, where
 
 AREA_KINDS = (AREA_QUAD, AREA_TRIANGLE, AREA_SPHERE)
 
@@ -87,7 +87,7 @@ def spot_falloff(cos_theta, cos_total, cos_falloff) -> Array:
 
 
 def _area_to_solid_angle(pdf_area, dist2, cos_light):
-    ok = (cos_light > 1e-7) & (pdf_area > 0)
+    ok = (cos_light > EDGE_ON_COS) & (pdf_area > 0)
     return jnp.where(ok, X.div(pdf_area * dist2, jnp.where(ok, cos_light, 1.0)), 0.0)
 
 
@@ -215,7 +215,7 @@ def emitted(lights: Lights, k: Array, n_y: V3, wo: V3) -> V3:
     """Radiance leaving emitter element k towards wo (zero behind one-sided emitters)."""
     kk = jnp.maximum(k, 0)
     e = _take(lights.emission, kk)
-    front = (k >= 0) & (dot(n_y, wo) > 0)
+    front = (k >= 0) & (dot(n_y, wo) > EDGE_ON_COS)
     z = jnp.zeros_like(e.x)
     return where(front, e, V3(z, z, z))
 
@@ -254,7 +254,7 @@ def sample_emission(lights: Lights, u_sel, u1, u2, u3, u4) -> EmissionSample:
         w = emission * (jnp.pi * area * inv_pmf)
 
         def area_sample(y, n):
-            ok = (area > 0) & (pdf_dir > 0)
+            ok = (area > 0) & (local.z > EDGE_ON_COS)   # as emitted() and pdf_emission_dir
             return EmissionSample(y, n, to_world(local, n), where(ok, w, Z), inv_area * pmf,
                                   pdf_dir, zero > 0, zero > 0, k)
         if AREA_QUAD in kinds:

@@ -15,6 +15,17 @@ from jax import Array
 
 from ._xla import rsqrt as _rsqrt  # fusion-friendly 1/sqrt (jgi._xla, item 5)
 
+# A cosine within EDGE_ON_COS of zero counts as zero: the direction is edge-on to the surface,
+# or the ray lies in the primitive's plane. A float32 dot product of unit vectors is off by up
+# to 3 roundings (3 * 2^-24 = 1.8e-7), and by how much depends on the processor: XLA contracts
+# a * b + c into one fused multiply-add wherever the CPU has FMA, so an exactly perpendicular
+# pair gives 0 on a CPU without FMA and +-7e-9 on one with it (measured; tests/test_cpu.py).
+# Every sidedness decision that can meet an exactly edge-on input (a BSDF's, an emitter's, a
+# ray against a plane) compares against this band, 5x wider than that error, so it is decided
+# alike on every x86-64 CPU. What the band drops is a set of directions of projected solid
+# angle about EDGE_ON_COS^2 = 1e-12 of the hemisphere's.
+EDGE_ON_COS = 1e-6
+
 
 class V3(NamedTuple):
     x: Array

@@ -27,19 +27,26 @@ def _safe_sqrt(x: Array) -> Array:
 # --- disc -------------------------------------------------------------------------------------
 
 def sample_concentric_disc(u1: Array, u2: Array) -> tuple[Array, Array]:
+    """Shirley-Chiu concentric map; see :func:`concentric_disc_polar` (which also returns r)."""
+    x, y, _ = concentric_disc_polar(u1, u2)
+    return x, y
+
+
+def concentric_disc_polar(u1: Array, u2: Array) -> tuple[Array, Array, Array]:
     """Shirley-Chiu concentric map of the square onto the unit disc (area-preserving).
 
     The square point (a, b) goes to radius r = a at angle phi = (pi/4) b/a where |a| > |b|, else
     to r = b at phi = pi/2 - (pi/4) a/b. Both angles are pi/4 t with |t| <= 1 (in the second
     case cos and sin swap), so one division and the sin/cos polynomials without range reduction
-    suffice. At the centre r = 0 and the point is (0, 0) whatever t is."""
+    suffice. At the centre r = 0 and the point is (0, 0) whatever t is. Returns (x, y, r), r = |a|
+    or |b| exactly."""
     a, b = 2.0 * u1 - 1.0, 2.0 * u2 - 1.0
     first = jnp.abs(a) > jnp.abs(b)
     r = jnp.where(first, a, b)
     # for float32 u in [0, 1), 2u - 1 is 0 or at least 2^-24 in magnitude (recip_normal's range)
     t = jnp.where(first, b, a) * X.recip_normal(jnp.where(r == 0, 1.0, r))
     s, c = sincos_quarter((PI / 4) * t)
-    return r * jnp.where(first, c, s), r * jnp.where(first, s, c)
+    return r * jnp.where(first, c, s), r * jnp.where(first, s, c), jnp.abs(r)
 
 
 def pdf_disc() -> Array:
@@ -49,9 +56,15 @@ def pdf_disc() -> Array:
 # --- hemisphere and sphere ----------------------------------------------------------------------
 
 def sample_cosine_hemisphere(u1: Array, u2: Array) -> V3:
-    """Malley's method: disc sample lifted to the hemisphere; pdf = cos(theta) / pi."""
-    x, y = sample_concentric_disc(u1, u2)
-    return V3(x, y, _safe_sqrt(1.0 - x * x - y * y))
+    """Malley's method: disc sample lifted to the hemisphere; pdf = cos(theta) / pi.
+
+    cos(theta) = sqrt((1 - r)(1 + r)) from the disc radius r, which the concentric map gives
+    exactly: 1 - x^2 - y^2 carries the rounding of the sin/cos polynomials (and of FMA
+    contraction, which differs by CPU), so on the rim, r = 1, it gave 0 on one CPU and 3e-4
+    on another. The product form is 0 there on every CPU, and exact to a few roundings
+    elsewhere."""
+    x, y, r = concentric_disc_polar(u1, u2)
+    return V3(x, y, _safe_sqrt((1.0 - r) * (1.0 + r)))
 
 
 def pdf_cosine_hemisphere(cos_theta: Array) -> Array:

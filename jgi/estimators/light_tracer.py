@@ -53,7 +53,7 @@ from .. import rng
 from .. import warps
 from ..scene import (AREA_QUAD, AREA_SPHERE, AREA_TRIANGLE, DIRECTIONAL, ENVIRONMENT, POINT, SPOT,
                      Scene)
-from ..vec import V3, dot, max_component, normalize, where
+from ..vec import EDGE_ON_COS, V3, dot, max_component, normalize, where
 from .._xla import materialize
 from .path_tracer import _material
 from .registry import Estimator, Param, register
@@ -193,7 +193,7 @@ def pdf_emission_dir(lights, k: Array, n_y: V3, w: V3) -> Array:
     kk = jnp.maximum(k, 0)
     kind = lights.kind[kk]
     cos_y = dot(n_y, w)
-    pdf = jnp.where(cos_y > 0, cos_y * jnp.float32(1.0 / np.pi), 0.0)
+    pdf = jnp.where(cos_y > EDGE_ON_COS, cos_y * jnp.float32(1.0 / np.pi), 0.0)
     kinds = lights.kinds
     if POINT in kinds:
         pdf = jnp.where(kind == POINT, warps.INV_4PI, pdf)

@@ -70,7 +70,7 @@ from .. import mcmc
 from .. import rng
 from ..lights import AREA_KINDS
 from ..scene import DIELECTRIC, MIRROR, Scene
-from ..vec import V3, coordinate_system, dot, luminance, normalize, reflect, where
+from ..vec import EDGE_ON_COS, V3, coordinate_system, dot, luminance, normalize, reflect, where
 from .registry import Estimator, Param, ParameterError, register
 
 _SALT = 0x1B873593
@@ -179,7 +179,7 @@ def specular_continue(mp: B.MaterialParams, n: V3, w_from: V3, transmit: Array):
     wt, can_refract = B.refract(w_from, nside, eta)
     d = where(transmit, wt, reflect(w_from, nside))
     ok = jnp.where(transmit, (mp.kind == DIELECTRIC) & can_refract, (mp.kind == MIRROR) | (mp.kind == DIELECTRIC))
-    return d, ok
+    return d, ok & (jnp.abs(cos_f) > EDGE_ON_COS)   # edge-on: nothing scattered, as in jgi.bsdf
 
 
 def transmits(path: Path) -> Array:
