@@ -22,9 +22,10 @@ import time
 
 import numpy as np
 
+
 def image_means(scene, estimator: str, spp: int, seeds, **params) -> np.ndarray:
     import jgi
-    from jgi.vec import V3, luminance
+    from jgi.core.vec import V3, luminance
 
     def mean_luminance(img):
         return float(luminance(V3(*np.moveaxis(img, -1, 0))).mean())

@@ -8,7 +8,7 @@ A long path-tracing render (max depth 5, no Russian roulette, ``--reference-spp`
 ``OUT/reference.npy`` with its per-pixel variance) is the reference. For every time budget T
 (seconds per render), each estimator's cost per sample is measured after compilation and the
 spp that fits T chosen; ``--repetitions`` independent renders then give the relative MSE
-(jgi.stats: (bias^2 + variance) / (ref^2 + 0.01), the reference's own variance removed, image
+(jgi.analysis.stats: (bias^2 + variance) / (ref^2 + 0.01), the reference's own variance removed, image
 average) of one render of T seconds, for the whole image and for the floor below the spheres
 (where the caustics are); ``relMSE@T`` rescales it by measured seconds / T (variance ~ 1 /
 time), which corrects for renders that did not take exactly T on a shared machine. Output: a table on stdout, ``OUT/results.json``, EXR/PNG of one
@@ -82,8 +82,8 @@ def main(argv=None) -> int:
     a = ap.parse_args(argv)
 
     import jgi
-    from jgi import stats
-    from jgi.imageio import write_exr, write_png
+    from jgi.analysis import stats
+    from jgi.core.imageio import write_exr, write_png
 
     out = Path(a.out)
     scene = jgi.load_scene(a.scene).with_resolution(a.resolution, a.resolution)

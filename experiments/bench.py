@@ -87,7 +87,7 @@ def bench_photons(quick: bool) -> list[dict]:
     import jax
 
     import jgi
-    from jgi.photons import trace_photons
+    from jgi.transport.photons import trace_photons
 
     scene = jgi.scenes.cornell_box_caustics(resolution=64)
     rows = []

@@ -17,8 +17,6 @@ import os
 import sys
 import time
 
-import numpy as np
-
 
 def bench(scene, estimator: str, spp: int, repeats: int, **params) -> dict:
     import jgi

@@ -8,11 +8,11 @@ Rays start on a sphere of radius 3 around the mesh and aim at uniform points of 
 box (about half hit it), in batches of ``RAYS``; every figure is the best of a few timed calls
 after a warm-up call (compile time is reported separately).
 
-  * build: :func:`jgi.bvh.build_bvh` wall time (numpy, one thread), nodes and leaves;
-  * traversal: closest-hit and any-hit rays/s of :func:`jgi.bvh.intersect_closest` and
-    :func:`jgi.bvh.intersect_any`;
-  * crossover: rays/s of :func:`jgi.geometry.intersect` followed by
-    :func:`jgi.geometry.occluded` (the path tracer's two queries per segment) for small meshes
+  * build: :func:`jgi.core.bvh.build_bvh` wall time (numpy, one thread), nodes and leaves;
+  * traversal: closest-hit and any-hit rays/s of :func:`jgi.core.bvh.intersect_closest` and
+    :func:`jgi.core.bvh.intersect_any`;
+  * crossover: rays/s of :func:`jgi.physics.geometry.intersect` followed by
+    :func:`jgi.physics.geometry.occluded` (the path tracer's two queries per segment) for small meshes
     with and without a BVH, which is what ``jgi.scene.BVH_MIN_TRIANGLES`` is chosen from;
   * render: path tracing Mpaths/s of the mesh above a floor under an area light, 128 x 128 at
     4 spp (the wavefront renderer's full 2^14 lanes; a 32 x 32 image has only 1024, and then
@@ -70,7 +70,7 @@ def rays(n: int, seed: int = 0):
     target = rng.uniform([-1.35, -1.35, -0.35], [1.35, 1.35, 0.35], (n, 3))
     d = target - o
     d /= np.linalg.norm(d, axis=1, keepdims=True)
-    from jgi.vec import V3
+    from jgi.core.vec import V3
     return V3.of(jnp.asarray(o, jnp.float32)), V3.of(jnp.asarray(d, jnp.float32))
 
 
@@ -87,7 +87,7 @@ def _time(fn, repeats: int):
 
 
 def bench_build_and_traversal(sizes, repeats: int) -> list[dict]:
-    from jgi import bvh as B
+    from jgi.core import bvh as B
 
     closest = jax.jit(lambda b, o, d: B.intersect_closest(b, o, d).t)
     anyhit = jax.jit(lambda b, o, d: B.intersect_any(b, o, d))
@@ -128,7 +128,7 @@ def _mesh_scene(tris, use_bvh: bool, resolution: int = 32):
 def bench_crossover(sizes, repeats: int) -> list[dict]:
     """intersect + occluded rays/s with brute force and with a BVH: the torus, a floor and a
     light quad (best of ``repeats`` calls, the two variants interleaved)."""
-    from jgi import geometry as G
+    from jgi.physics import geometry as G
 
     @jax.jit
     def segment(scene, o, d):
@@ -136,7 +136,7 @@ def bench_crossover(sizes, repeats: int) -> list[dict]:
         # shadow rays from the hit points (or the origins on a miss) towards a fixed point
         p = G.offset_origin(hit.p, hit.n, d * -1.0)
         target = jnp.asarray([0.0, 2.0, 0.0])
-        from jgi.vec import V3
+        from jgi.core.vec import V3
         to = V3(target[0] - p.x, target[1] - p.y, target[2] - p.z)
         return hit.t, G.occluded(scene, p, to, jnp.full(p.x.shape, 1.0 - 1e-4))
 

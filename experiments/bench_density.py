@@ -33,9 +33,9 @@ def bench_jgi(p: np.ndarray, q: np.ndarray, radius: float) -> dict:
     import jax
     import jax.numpy as jnp
 
-    from jgi import photon_map as PM
-    from jgi.photons import PhotonMap
-    from jgi.vec import V3
+    from jgi.core.vec import V3
+    from jgi.transport import photon_map as PM
+    from jgi.transport.photons import PhotonMap
 
     n = len(p)
     col = lambda a: V3(a[:, 0], a[:, 1], a[:, 2])  # noqa: E731

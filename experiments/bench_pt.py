@@ -15,7 +15,7 @@ radius 0.35 (five walls, two spheres and an area light: the scene of the prototy
 5x target was derived from).
 
 By default jgi traces the image with two concurrent loops on one CPU device (see
-``jgi.calls``), and XLA splits each of their large kernels over the cores.
+``jgi.core.calls``), and XLA splits each of their large kernels over the cores.
 ``--devices N`` splits the work over N virtual CPU devices instead
 (``--xla_force_host_platform_device_count``, set before JAX starts), each compiling its own copy.
 """
@@ -31,7 +31,6 @@ import time
 
 import numpy as np
 
-
 SPHERES = [((-0.45, -0.65, -0.3), 0.35), ((0.45, -0.65, 0.3), 0.35)]   # (centre, radius)
 
 
@@ -42,7 +41,7 @@ def bench_jgi(resolution: int, spp: int, repeats: int, objects: str = "blocks") 
 
     if objects == "spheres":
         from jgi.scene import SceneBuilder
-        from jgi.scenes import cornell_room
+        from jgi.scene.builtin import cornell_room
 
         b = SceneBuilder("cornell_spheres")
         cornell_room(b, resolution)

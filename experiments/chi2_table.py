@@ -3,7 +3,7 @@
     python experiments/chi2_table.py [--samples 262144] [--alpha 0.01] [--out runs/chi2]
 
 The cases are the test suite's: this script reuses the tests' samplers, reference densities
-(float64 ray casts for the lights) and grids, and :mod:`jgi.chi2` for the statistic, but
+(float64 ray casts for the lights) and grids, and :mod:`jgi.analysis.chi2` for the statistic, but
 reports the statistic and p-value of each routine instead of asserting. Each routine is one
 hypothesis; the family is judged at ``--alpha`` with Bonferroni's correction (each p-value
 against alpha / m for m routines). Discrete choices (the dielectric's Fresnel split, light
@@ -30,11 +30,11 @@ def _cells(domain) -> int:
     return (len(domain.a_edges) - 1) * (len(domain.b_edges) - 1)
 
 
-# --- cases: each returns (jgi.chi2.Result, number of grid cells or categories) ----------------------
+# --- cases: each returns (jgi.analysis.chi2.Result, number of grid cells or categories) ----------------------
 
 def warp_cases(n):
-    from jgi import warps
-    from jgi.chi2 import PlaneDomain, SphereDomain, chi2_test
+    from jgi.analysis.chi2 import PlaneDomain, SphereDomain, chi2_test
+    from jgi.core import warps
     from tests import test_warps as T
 
     def cosine():
@@ -89,8 +89,8 @@ def warp_cases(n):
 
 
 def bsdf_cases(n):
-    from jgi import bsdf as B
-    from jgi.chi2 import SphereDomain, chi2_test, pearson
+    from jgi.analysis.chi2 import SphereDomain, chi2_test, pearson
+    from jgi.physics import bsdf as B
     from jgi.scene import DIELECTRIC, DIFFUSE, PHONG
     from tests import test_bsdf as T
 
@@ -161,8 +161,8 @@ def light_cases(n):
     import jax
     import jax.numpy as jnp
 
-    from jgi import lights as LT
-    from jgi.chi2 import PlaneDomain, SphereDomain, chi2_test, pearson
+    from jgi.analysis.chi2 import PlaneDomain, SphereDomain, chi2_test, pearson
+    from jgi.physics import lights as LT
     from tests import test_lights as T
 
     x = T.X_REF
@@ -279,7 +279,7 @@ def light_cases(n):
 
 
 def camera_cases(n):
-    from jgi.chi2 import SphereDomain, chi2_test
+    from jgi.analysis.chi2 import SphereDomain, chi2_test
     from tests import test_camera as T
 
     def primary(name):

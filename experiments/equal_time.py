@@ -51,8 +51,8 @@ def main(argv=None) -> dict:
     import matplotlib.pyplot as plt
 
     import jgi
-    from jgi import stats
-    from jgi.imageio import tonemap, write_exr
+    from jgi.analysis import stats
+    from jgi.core.imageio import tonemap, write_exr
 
     out = Path(a.out)
     out.mkdir(parents=True, exist_ok=True)

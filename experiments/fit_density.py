@@ -1,5 +1,5 @@
 """Differentiable fitting of photon-density parameters on the point light over a plane (exact
-irradiance, see jgi.density_fit): the MSE-optimal radius as a function of photon count and its
+irradiance, see jgi.analysis.density_fit): the MSE-optimal radius as a function of photon count and its
 scaling exponent (theory: -1/6), the optimal cone k, a Gaussian filter fitted by gradient
 beside Jensen's alpha = 0.918, beta = 1.953, and progressive photon mapping's alpha.
 
@@ -24,7 +24,7 @@ def radius_guess(photons: int) -> float:
 
 
 def problem_for(photons: int, reps: int, seed: int):
-    from jgi import density_fit as D
+    from jgi.analysis import density_fit as D
 
     r_max = 2.0 * radius_guess(photons)
     return D.point_light_problem(photons, reps, r_max=r_max, candidates=_candidates(photons, r_max), seed=seed)
@@ -48,9 +48,9 @@ def main(argv=None) -> dict:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from jgi import density_fit as D
-    from jgi import fitting as F
-    from jgi.photon_map import gaussian_normaliser
+    from jgi.analysis import density_fit as D
+    from jgi.analysis import fitting as F
+    from jgi.transport.photon_map import gaussian_normaliser
 
     out = Path(a.out)
     out.mkdir(parents=True, exist_ok=True)

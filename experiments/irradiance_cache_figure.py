@@ -11,13 +11,14 @@ import json
 from pathlib import Path
 
 import matplotlib
+
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
 
 import jgi
-from jgi import irradiance_cache as ic
-from jgi.imageio import tonemap
+from jgi.core.imageio import tonemap
+from jgi.estimators import irradiance_cache as ic
 
 
 def main(argv=None):

@@ -12,11 +12,12 @@ from pathlib import Path
 import jax
 import jax.numpy as jnp
 import matplotlib
+
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
 
-from jgi import mcmc
+from jgi.transport import mcmc
 
 
 def procedural_image(n=128):
@@ -34,7 +35,7 @@ def main(argv=None):
     ap.add_argument("--chains", type=int, default=256)
     a = ap.parse_args(argv)
     if a.image:
-        from jgi.imageio import read_exr
+        from jgi.core.imageio import read_exr
         rgb = read_exr(a.image)
         img = 0.2126 * rgb[..., 0] + 0.7152 * rgb[..., 1] + 0.0722 * rgb[..., 2]
     else:

@@ -5,13 +5,14 @@
     image = jgi.render(scene, "pt", spp=64, seed=0, strategy="mis", heuristic="power")
 """
 
-from . import _xla  # noqa: F401  (performance flags; must precede JAX's backend start-up)
+from . import _xla  # noqa: F401, I001  (performance flags; must precede JAX's backend start-up)
 from . import estimators
-from .estimators.registry import REGISTRY, ParameterError
-from .render import render
-from .scene import Scene, SceneBuilder, SceneError
-from .scenefile import load_scene
-from . import scenes
+from .api import render
+from .core.errors import ParameterError
+from .estimators.registry import REGISTRY
+from .scene import builtin as scenes
+from .scene.data import Scene, SceneBuilder, SceneError
+from .scene.files import load_scene
 
 __version__ = "0.1.0"
 __all__ = ["render", "load_scene", "Scene", "SceneBuilder", "SceneError", "ParameterError",

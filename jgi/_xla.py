@@ -16,7 +16,7 @@
    flag that selects every leaf of a wide state (such as a path restart) is computed
    separately; and the outputs of the reduce cannot be written in place into while-loop
    buffers, which costs one copy per loop-carried leaf unless the loop body runs two steps
-   (jgi.render.WAVEFRONT_UNROLL).
+   (jgi.drivers.wavefront.WAVEFRONT_UNROLL).
 
 3. :func:`take`: rows of small tables (materials, a handful of primitives) read with a chain of
    selects rather than a gather, which XLA's CPU backend emits as a separate, unfused loop.
@@ -60,7 +60,7 @@ machine can check the others):
   gather radius) can go the other way: 0-5 pixels of 1024 changed by more than 1e-3 per render
   at 32^2 and 16 spp, 46 for the photon map's density estimate. Images agree in distribution.
 * Edge cases are decided alike on every CPU: a surface seen edge-on scatters nothing and has
-  pdf 0, a ray in a primitive's plane misses it (jgi.vec.EDGE_ON_COS: a band wider than the
+  pdf 0, a ray in a primitive's plane misses it (jgi.core.vec.EDGE_ON_COS: a band wider than the
   rounding of a dot product, which with and without FMA differ in sign for exactly perpendicular
   vectors), a ray through an edge shared by two triangles hits one of them (the barycentric test
   is widened by bvh.BARY_EPS), the cosine-hemisphere warp's rim has cos = 0 exactly.

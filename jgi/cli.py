@@ -13,6 +13,15 @@ import sys
 import time
 from pathlib import Path
 
+from . import estimators  # noqa: F401  (registers the estimators)
+from .api import render
+from .core.errors import ParameterError
+from .core.imageio import write_exr, write_png
+from .estimators.registry import REGISTRY, get
+from .experiment import main_run
+from .scene.data import SceneError
+from .scene.files import load_scene
+
 
 def _convert(param, text: str):
     if param.type is bool:
@@ -31,9 +40,6 @@ def _convert(param, text: str):
 
 
 def _render(argv) -> int:
-    from . import estimators  # noqa: F401  (registers the estimators)
-    from .estimators.registry import REGISTRY, ParameterError, get
-
     ap = argparse.ArgumentParser(prog="jgi render", description="Render one image.")
     ap.add_argument("scene", nargs="?", help="built-in scene name or scene file (.toml)")
     ap.add_argument("-e", "--estimator", default="pt")
@@ -83,10 +89,6 @@ def _render(argv) -> int:
                              f"{', '.join(sorted(known))}")
         params[key] = _convert(known[key], val)
 
-    from .imageio import write_exr, write_png
-    from .render import render
-    from .scene import SceneError
-    from .scenefile import load_scene
 
     try:
         scene = load_scene(args.scene)
@@ -111,10 +113,6 @@ def _render(argv) -> int:
 
 
 def _run(argv) -> int:
-    try:
-        from .experiment import main_run
-    except ImportError as e:
-        raise SystemExit(f"jgi: experiments are unavailable: {e}") from None
     return main_run(argv) or 0
 
 

@@ -24,26 +24,38 @@ Every key and value is checked before any rendering (an error names the file and
 Each (estimator, sweep point, repetition) is written atomically to ``results/<hash>.npz``
 (the hash covers everything that determines the image), so an interrupted run resumes
 without recomputing; ``--dry-run`` prints the plan. Outputs: ``config.toml`` (as run),
-``provenance.json``, ``metrics.csv`` / ``metrics.json`` (jgi.stats per sweep point), EXR
+``provenance.json``, ``metrics.csv`` / ``metrics.json`` (jgi.analysis.stats per sweep point), EXR
 means, and log-log plots of MSE, bias^2 and variance against each numeric swept parameter.
 """
 
 from __future__ import annotations
 
 import argparse
+import copy
 import csv
 import hashlib
 import itertools
 import json
 import os
+import subprocess
 import sys
 import time
 import tomllib
 from pathlib import Path
 
+import jax
+import matplotlib
+import matplotlib.pyplot as plt
 import numpy as np
 
-from .estimators.registry import ParameterError, get
+from . import __version__
+from .analysis import stats
+from .analysis.stats import loglog_slope
+from .api import render as render_image
+from .core.errors import ParameterError
+from .core.imageio import tonemap, write_exr
+from .estimators.registry import get
+from .scene.files import load_scene
 
 EXPERIMENT_KEYS = {"name", "scene", "resolution", "repetitions", "seed", "reference"}
 ESTIMATOR_KEYS = {"name", "label", "spp", "params", "sweep"}
@@ -170,7 +182,6 @@ def smoke(doc: dict) -> dict:
     """The same study at a tiny size: resolution 8, two repetitions, at most two values per
     sweep key, and sample / photon counts capped by ``SMOKE_MAX`` (the structure, outputs and
     code paths are those of the full run)."""
-    import copy
 
     doc = copy.deepcopy(doc)
     exp = doc["experiment"]
@@ -199,16 +210,14 @@ def smoke(doc: dict) -> dict:
 
 
 def _scene(doc, config_path):
-    import jgi
-
     exp = doc["experiment"]
     src = exp["scene"]
     if not src.endswith((".toml", ".xml", ".pbrt")):
-        scene = jgi.load_scene(src)
+        scene = load_scene(src)
         scene_id = src
     else:
         p = (Path(config_path).parent / src).resolve()
-        scene = jgi.load_scene(p)
+        scene = load_scene(p)
         scene_id = hashlib.sha256(p.read_bytes()).hexdigest()
     if "resolution" in exp:
         scene = scene.with_resolution(exp["resolution"], exp["resolution"])
@@ -226,11 +235,8 @@ def run(config_path, *, out_root="runs", dry_run: bool = False, reduced: bool = 
     """Run (or resume) an experiment; returns its output folder. ``reduced`` runs the
     :func:`smoke` version (into ``runs/NAME-smoke``). ``render`` defaults to :func:`jgi.render`
     (tests pass a counting wrapper)."""
-    import jgi
-    from . import stats
-    from .imageio import write_exr
 
-    render = render or jgi.render
+    render = render or render_image
     doc = load_config(config_path)
     if reduced:
         doc = smoke(doc)
@@ -266,7 +272,7 @@ def run(config_path, *, out_root="runs", dry_run: bool = False, reduced: bool = 
             return references[rkey]
         params = {**cfg.get("params", {}), **matched}
         key = _hash(dict(scene=scene_id, res=exp.get("resolution"), est=cfg["estimator"], spp=cfg["spp"],
-                         params=params, v=jgi.__version__))
+                         params=params, v=__version__))
         cache = Path(out_root) / ".cache" / f"reference-{key}.npz"
         if cache.exists():
             with np.load(cache) as z:
@@ -290,7 +296,7 @@ def run(config_path, *, out_root="runs", dry_run: bool = False, reduced: bool = 
     for r in runs:
         params = {k: v for k, v in r["point"].items() if k != "spp"}
         key = _hash(dict(scene=scene_id, res=exp.get("resolution"), est=r["name"], point=r["point"],
-                         seed=r["seed"], v=jgi.__version__))
+                         seed=r["seed"], v=__version__))
         path = out / "results" / f"{key}.npz"
         r["file"] = path
         if path.exists():
@@ -344,8 +350,7 @@ def run(config_path, *, out_root="runs", dry_run: bool = False, reduced: bool = 
     slopes = _plots(out, rows, doc)
     _maps(out, means, reference_for(runs[0]["point"])[0])
     (out / "slopes.json").write_text(json.dumps(slopes, indent=2))
-    import jax
-    prov = dict(jgi_version=jgi.__version__, jax_version=jax.__version__,
+    prov = dict(jgi_version=__version__, jax_version=jax.__version__,
                 devices=[str(d) for d in jax.devices()], git_commit=_git_commit(),
                 config=str(Path(config_path).resolve()), reduced=reduced,
                 seeds=sorted({r["seed"] for r in runs}), wall_seconds=time.perf_counter() - t_start,
@@ -363,7 +368,6 @@ def _slug(text: str) -> str:
 
 
 def _git_commit():
-    import subprocess
     try:
         return subprocess.run(["git", "rev-parse", "HEAD"], capture_output=True, text=True,
                               cwd=Path(__file__).parent).stdout.strip() or None
@@ -379,10 +383,7 @@ def _numeric(values) -> bool:
 def _plots(out: Path, rows, doc) -> list[dict]:
     """Log-log MSE / bias^2 / variance against each numeric swept key (one curve per label and
     setting of the other swept keys) and MSE against render time; returns the fitted slopes."""
-    import matplotlib
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    from .stats import loglog_slope
 
     swept_all = {k for e in doc["estimator"] for k in e.get("sweep", {})}
     numeric = sorted(k for k in swept_all
@@ -440,10 +441,7 @@ def _plots(out: Path, rows, doc) -> list[dict]:
 def _maps(out: Path, means, ref, max_rows: int = 12):
     """An image grid like the lecture's comparisons: per configuration the mean image with a
     magnified crop, the false-colour per-pixel MSE and variance (shared colour scales)."""
-    import matplotlib
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    from .imageio import tonemap
 
     means = means[:max_rows]
     h, w = ref.shape[:2]

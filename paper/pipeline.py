@@ -53,7 +53,7 @@ def _write(path: Path, text: str):
 def furnace(scale, out: Path):
     """White furnace: measured radiance against L_e sum_k rho^k for several depths."""
     import jgi
-    from jgi import scenes
+    from jgi.scene import builtin as scenes
 
     s = SCALES[scale]
     rows = []
@@ -82,7 +82,7 @@ def pt_convergence(scale, out: Path):
     import matplotlib.pyplot as plt
 
     import jgi
-    from jgi import fitting
+    from jgi.analysis import fitting
 
     s = SCALES[scale]
     scene = jgi.scenes.cornell_box(resolution=s["res"])
@@ -116,7 +116,7 @@ def strategies(scale, out: Path):
     import matplotlib.pyplot as plt
 
     import jgi
-    from jgi.imageio import tonemap
+    from jgi.core.imageio import tonemap
 
     s = SCALES[scale]
     res = max(48, s["res"] * 3)
@@ -323,8 +323,8 @@ def bdpt_pyramid(scale, out: Path):
     import matplotlib.pyplot as plt
 
     import jgi
+    from jgi.core.imageio import tonemap
     from jgi.estimators.bdpt import render_strategies
-    from jgi.imageio import tonemap
 
     res, spp = (48, 64) if scale == "small" else (128, 1024)
     max_depth = 4

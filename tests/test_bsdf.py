@@ -1,4 +1,4 @@
-"""BSDFs (:mod:`jgi.bsdf`): sampling against evaluation, Dirac lobes against optics, and the
+"""BSDFs (:mod:`jgi.physics.bsdf`): sampling against evaluation, Dirac lobes against optics, and the
 physical properties every BSDF must have.
 
 * Diffuse and Phong: the valid directions of ``sample`` follow ``evaluate``'s pdf (chi-square
@@ -25,12 +25,13 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from hypothesis import given, settings, strategies as st
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 
-from jgi import bsdf as B
+from jgi.core.vec import EDGE_ON_COS, V3
+from jgi.physics import bsdf as B
 from jgi.scene import DIELECTRIC, DIFFUSE, MIRROR, PHONG
-from jgi.vec import EDGE_ON_COS, V3
 from tests.chi2 import SphereDomain, assert_chi2, bucket
 
 KINDS = (DIFFUSE, MIRROR, DIELECTRIC, PHONG)

@@ -19,8 +19,8 @@ import numpy as np
 import pytest
 import trimesh
 
-from jgi import bvh as B
-from jgi.vec import V3
+from jgi.core import bvh as B
+from jgi.core.vec import V3
 
 N_RAYS = 1024          # every traversal call uses this many rays and
 T_TEST = 5120          # every traversed mesh this many triangles, built with pad=True, so all
@@ -492,7 +492,7 @@ def test_scene_builds_bvh_by_size_and_geometry_agrees(torus_case):
     ``jgi._xla.materialize``, whose derivative is the identity)."""
     import equinox as eqx
 
-    from jgi import geometry as G
+    from jgi.physics import geometry as G
     from jgi.scene import BVH_MIN_TRIANGLES, with_bvh
 
     tris, _ = torus_case

@@ -1,4 +1,4 @@
-"""Pinhole camera (:mod:`jgi.camera`): primary rays, projection and importance.
+"""Pinhole camera (:mod:`jgi.physics.camera`): primary rays, projection and importance.
 
 * ``project(o + t sample_ray(px + u))`` returns the raster position px + u (round trip), the
   distance t and the direction back to the pinhole.
@@ -17,9 +17,9 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from jgi import camera as C
+from jgi.core.vec import V3
+from jgi.physics import camera as C
 from jgi.scene import SceneBuilder
-from jgi.vec import V3
 from tests.chi2 import SphereDomain, assert_chi2
 
 CAMERAS = {

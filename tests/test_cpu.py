@@ -32,12 +32,12 @@ import numpy as np
 import pytest
 
 import jgi
-from jgi import bsdf as B
-from jgi import geometry as G
-from jgi import lights as LT
+from jgi.core.vec import EDGE_ON_COS, V3
 from jgi.estimators.light_tracer import pdf_emission_dir
+from jgi.physics import bsdf as B
+from jgi.physics import geometry as G
+from jgi.physics import lights as LT
 from jgi.scene import DIELECTRIC, DIFFUSE, MIRROR, PHONG, SceneBuilder
-from jgi.vec import EDGE_ON_COS, V3
 
 ROOT = Path(__file__).resolve().parents[1]
 f32 = np.float32

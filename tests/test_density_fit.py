@@ -1,5 +1,5 @@
 """Gradient fitting of photon-density parameters against the exact irradiance of a point light
-over a plane (jgi.density_fit)."""
+over a plane (jgi.analysis.density_fit)."""
 
 from __future__ import annotations
 
@@ -7,8 +7,8 @@ import jax
 import numpy as np
 import pytest
 
-from jgi import density_fit as D
-from jgi import fitting as F
+from jgi.analysis import density_fit as D
+from jgi.analysis import fitting as F
 
 
 @pytest.fixture(scope="module")
@@ -73,7 +73,7 @@ def test_fitted_gaussian_is_no_worse_than_jensens(problem):
     assert float(fit.value) < float(gauss(start))
     # Jensen's filter divided by pi r^2 integrates to 0.53 of the disc: it underestimates by half
     # unless normalised; the fitted scale brings the estimate back towards unbiased.
-    from jgi.photon_map import gaussian_normaliser
+    from jgi.transport.photon_map import gaussian_normaliser
     assert float(gaussian_normaliser(0.918, 1.953)) == pytest.approx(0.531, abs=1e-3)
     assert 0.75 < float(gaussian_normaliser(fit.theta[0], jnp.exp(fit.theta[1]))) < 1.1
 

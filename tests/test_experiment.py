@@ -125,7 +125,7 @@ def test_interrupted_run_resumes_without_recomputing(tmp_path):
     rows = json.loads((out / "metrics.json").read_text())
     assert len(rows) == 4
     for r in rows:
-        mean = jgi.imageio.read_exr(out / r["image"])
+        mean = jgi.core.imageio.read_exr(out / r["image"])
         if r["strategy"] == "bsdf":
             np.testing.assert_allclose(mean, 1.9921875, rtol=1e-5)
             assert r["variance"] < 1e-10
@@ -183,4 +183,4 @@ def test_bundled_config_runs_end_to_end_reduced(tmp_path, config):
     assert len(rows) == n_points
     for r in rows:
         assert np.isfinite([r["mse"], r["variance"], r["seconds"]]).all(), r
-        assert np.isfinite(jgi.imageio.read_exr(out / r["image"])).all()
+        assert np.isfinite(jgi.core.imageio.read_exr(out / r["image"])).all()

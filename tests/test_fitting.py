@@ -6,7 +6,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jgi import fitting
+from jgi.analysis import fitting
 
 
 def synthetic_estimator(a=0.5, b=0.02, truth=1.0):

@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 
 import jgi
-from jgi.importers import load_mitsuba_xml
 from jgi.scene import SceneError
+from jgi.scene.importers import load_mitsuba_xml
 from tests.conftest import assert_agree
 
 DATA = Path(__file__).parent / "data"

@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 import jgi
-from jgi.importers import load_pbrt
 from jgi.scene import SceneBuilder, SceneError
+from jgi.scene.importers import load_pbrt
 from tests.conftest import assert_agree
 from tests.test_import_mitsuba import leaves_equal
 
@@ -119,8 +119,8 @@ def cornell_pbrt(res, flip):
     lines = [("Scale -1 1 1" if flip else ""), "LookAt 0 0 3.9  0 0 0  0 1 0",
              'Camera "perspective" "float fov" 39.3077',
              f'Film "rgb" "integer xresolution" {res} "integer yresolution" {res}', "WorldBegin"]
-    from jgi.scenes import CORNELL_LIGHT, GREEN, RED, WHITE
-    from jgi import transform as xf
+    from jgi.core import transform as xf
+    from jgi.scene.builtin import CORNELL_LIGHT, GREEN, RED, WHITE
     T, R, S = xf.translate, xf.rotate, xf.scale
 
     def quad(m, rgb, emit=None):

@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 
 import jgi
-from jgi import irradiance_cache as ic
-from jgi.vec import V3
+from jgi.core.vec import V3
+from jgi.estimators import irradiance_cache as ic
 from tests.conftest import assert_agree
 
 

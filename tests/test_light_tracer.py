@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 import jgi
-from jgi import scenes
+from jgi.scene import builtin as scenes
 from tests.conftest import assert_agree, critical_t, region_stats
 from tests.test_path_tracer import degenerate_scene, point_light_reference
 

@@ -1,4 +1,4 @@
-"""Lights (:mod:`jgi.lights`): next-event sampling, its pdf, emission sampling and selection.
+"""Lights (:mod:`jgi.physics.lights`): next-event sampling, its pdf, emission sampling and selection.
 
 * ``sample_li`` from a reference point: directions follow ``pdf_li`` (chi-square over the
   sphere of directions, zoomed on the light; ``pdf_li`` evaluated where an independent float64
@@ -20,9 +20,9 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from jgi import lights as LT
+from jgi.core.vec import V3
+from jgi.physics import lights as LT
 from jgi.scene import AREA_QUAD, AREA_SPHERE, SceneBuilder
-from jgi.vec import V3
 from tests.chi2 import PlaneDomain, SphereDomain, assert_chi2, bucket, pearson
 
 N = 1 << 18

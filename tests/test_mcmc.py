@@ -7,7 +7,7 @@ import jax.numpy as jnp
 import numpy as np
 from scipy import stats
 
-from jgi import mcmc
+from jgi.transport import mcmc
 
 C = 4096  # independent chains: one final state each gives independent samples
 

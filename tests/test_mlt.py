@@ -12,9 +12,9 @@ import pytest
 from scipy import stats
 
 import jgi
+from jgi.core.errors import ParameterError
+from jgi.core.vec import V3, dot, normalize
 from jgi.estimators import mlt
-from jgi.estimators.registry import ParameterError
-from jgi.vec import V3, dot, normalize
 from tests.conftest import assert_agree
 
 CFG = mlt.MLTConfig(max_depth=5)

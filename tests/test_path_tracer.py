@@ -12,14 +12,11 @@ import numpy as np
 import pytest
 
 import jgi
-from jgi import camera as C
-import sys
-
-import jgi.render  # noqa: F401  (the module; jgi.render is also the function)
-from jgi import scenes
+from jgi.drivers import chunked as R
+from jgi.drivers import wavefront as W
+from jgi.physics import camera as C
 from jgi.scene import SceneBuilder
-R = sys.modules["jgi.render"]
-
+from jgi.scene import builtin as scenes
 from tests.conftest import assert_agree, critical_t, region_stats
 
 SEEDS = range(16)  # enough repetitions for a well-estimated standard error
@@ -136,7 +133,7 @@ def test_path_lengths_sum_to_the_full_image(cornell, cornell_reference):
 # --- multiple importance sampling weights -------------------------------------------------------
 
 def test_mis_weights_sum_to_one(rng_np):
-    from jgi import mis
+    from jgi.transport import mis
 
     for beta in (1.0, 2.0, 3.5):
         p = rng_np.exponential(size=(3, 1000)).astype(np.float32) * 10.0 ** rng_np.uniform(-6, 6, (3, 1000))
@@ -184,7 +181,7 @@ def test_image_does_not_depend_on_chunking(cornell):
 def test_one_compilation_serves_every_spp_and_seed(cornell):
     def compiled():
         # (other tests in this process may have rendered other scenes with this config)
-        return {key: fn._cache_size() for key, fn in R._COMPILED.items()
+        return {key: fn._cache_size() for key, fn in W._COMPILED.items()
                 if key[0][0] == "pt" and key[0][1].max_depth == 5}
 
     jgi.render(cornell, "pt", spp=3, seed=1, max_depth=5)
@@ -205,7 +202,7 @@ def test_scene_values_are_arguments_not_constants(cornell):
     a = jgi.render(cornell, "pt", spp=2, seed=0, max_depth=5)
     b = jgi.render(brighter, "pt", spp=2, seed=0, max_depth=5)
     assert b[..., 0].mean() < a[..., 0].mean()
-    fns = [fn for key, fn in R._COMPILED.items() if key[0][0] == "pt" and key[0][1].max_depth == 5]
+    fns = [fn for key, fn in W._COMPILED.items() if key[0][0] == "pt" and key[0][1].max_depth == 5]
     assert fns[0]._cache_size() == 1
 
 

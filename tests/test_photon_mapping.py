@@ -9,9 +9,9 @@ import pytest
 from scipy.spatial import cKDTree
 
 import jgi
-from jgi import photon_map as PM
-from jgi.photons import PhotonMap
-from jgi.vec import V3
+from jgi.core.vec import V3
+from jgi.transport import photon_map as PM
+from jgi.transport.photons import PhotonMap
 from tests.conftest import critical_t
 
 

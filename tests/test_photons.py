@@ -5,10 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from jgi import scenes
-from jgi.photons import trace_photons
 from jgi.scene import SceneBuilder
-from jgi.scenes import _inward_box_faces
+from jgi.scene import builtin as scenes
+from jgi.scene.builtin import _inward_box_faces
+from jgi.transport.photons import trace_photons
 
 
 def closed_box_with_specular_spheres(albedo: float, intensity: float = 2.0):
@@ -83,11 +83,11 @@ def test_photon_map_is_deterministic_and_chunk_independent():
 
 
 def test_photon_map_order_does_not_depend_on_calls_in_flight(monkeypatch):
-    """Chunks traced concurrently (jgi.calls) are stored in chunk order: the same arrays, in
+    """Chunks traced concurrently (jgi.core.calls) are stored in chunk order: the same arrays, in
     the same order, as one chunk at a time."""
     import jax
 
-    from jgi import calls
+    from jgi.core import calls
 
     scene = scenes.cornell_box(resolution=8)
     pools, real_pool = [], calls.ThreadPoolExecutor

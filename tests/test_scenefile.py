@@ -20,9 +20,21 @@ import trimesh
 from scipy.spatial.transform import Rotation
 
 import jgi
-from jgi.scene import (AREA_QUAD, AREA_SPHERE, AREA_TRIANGLE, DIELECTRIC, DIFFUSE, DIRECTIONAL,
-                       ENVIRONMENT, MIRROR, PHONG, POINT, SPOT, SceneError)
-from jgi.scenefile import SceneWarning
+from jgi.scene import (
+    AREA_QUAD,
+    AREA_SPHERE,
+    AREA_TRIANGLE,
+    DIELECTRIC,
+    DIFFUSE,
+    DIRECTIONAL,
+    ENVIRONMENT,
+    MIRROR,
+    PHONG,
+    POINT,
+    SPOT,
+    SceneError,
+)
+from jgi.scene.files import SceneWarning
 
 ROOT = Path(__file__).resolve().parents[1]
 

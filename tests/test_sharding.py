@@ -15,10 +15,9 @@ ROOT = Path(__file__).resolve().parents[1]
 SCRIPT = textwrap.dedent("""
     import sys
     import jax, numpy as np, jgi
-    import jgi.render
-    R = sys.modules["jgi.render"]
-    from jgi.sharding import render_paths_sharded
-    from jgi.photons import trace_photons
+    from jgi.drivers import chunked as R
+    from jgi.drivers.chunked import render_paths_sharded
+    from jgi.transport.photons import trace_photons
     from jgi.estimators.path_tracer import PathTracerConfig, trace_pixels
     assert len(jax.devices()) == 2, jax.devices()
     sc = jgi.scenes.cornell_box_caustics(resolution=16)

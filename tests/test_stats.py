@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from jgi import stats
+from jgi.analysis import stats
 from tests.conftest import critical_t
 
 

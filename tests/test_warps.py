@@ -1,4 +1,4 @@
-"""Every warp in :mod:`jgi.warps` against its own pdf (chi-square goodness of fit).
+"""Every warp in :mod:`jgi.core.warps` against its own pdf (chi-square goodness of fit).
 
 Each sampler is jitted once and fed float32 uniforms from a fixed-seed numpy generator; the
 claimed density is integrated over every cell of the test grid by Gauss-Legendre quadrature
@@ -13,7 +13,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from jgi import warps
+from jgi.core import warps
 from tests.chi2 import PlaneDomain, SphereDomain, assert_chi2, chi2_test
 
 N = 200_000

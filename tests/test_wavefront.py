@@ -21,25 +21,25 @@ import numpy as np
 import pytest
 
 import jgi
-import jgi.render  # noqa: F401  (the module; jgi.render is also the function)
-from jgi import geometry as G
-from jgi import lights as LT
-from jgi import scenes
-from jgi import warps
 from jgi import _xla as X
-from jgi import calls as C
 from jgi._xla import pow_positive, sincos, take
+from jgi.core import calls as C
+from jgi.core import warps
+from jgi.core.vec import V3
+from jgi.drivers import chunked
+from jgi.drivers import wavefront as R
 from jgi.estimators import path_tracer as PT
+from jgi.physics import geometry as G
+from jgi.physics import lights as LT
 from jgi.scene import SceneBuilder
-from jgi.vec import V3
+from jgi.scene import builtin as scenes
 
-R = sys.modules["jgi.render"]
 ROOT = Path(__file__).resolve().parents[1]
 
 
 def per_path_image(scene, cfg, spp, seed):
     fn = lambda sc, pix, smp, sd: PT.trace_pixels(sc, cfg, sd, pix, smp)  # noqa: E731
-    return R.render_paths(scene, fn, spp=spp, seed=seed, cache_key=("test-wavefront-ref", cfg))
+    return chunked.render_paths(scene, fn, spp=spp, seed=seed, cache_key=("test-wavefront-ref", cfg))
 
 
 @pytest.mark.parametrize("name, params", [
@@ -122,9 +122,8 @@ def test_wavefront_on_two_devices_matches_one():
         import jax, numpy as np, jgi
         assert len(jax.devices()) == 2
         from jgi.estimators import path_tracer as PT
-        import sys, jgi.render
-        import jgi.calls as C
-        R = sys.modules["jgi.render"]
+        from jgi.drivers import wavefront as R
+        import jgi.core.calls as C
         sc = jgi.scenes.cornell_box(resolution=8)
         cfg = PT.PathTracerConfig()
         step = lambda s, l: PT._step(s, cfg, l)
@@ -326,7 +325,7 @@ def test_render_paths_with_concurrent_calls_is_bit_identical(monkeypatch):
     def render(streams):
         monkeypatch.setattr(C, "CALL_STREAMS", streams)
         # 64 pixels x 9 spp in calls of 4 chunks of 32 paths: 5 calls
-        return R.render_paths(scene, fn, spp=9, seed=3, cache_key=("test-streams", cfg), chunk=32)
+        return chunked.render_paths(scene, fn, spp=9, seed=3, cache_key=("test-streams", cfg), chunk=32)
 
     assert np.array_equal(render(1), render(3))
     assert pools == [3]           # one call at a time, then three in flight

@@ -6,7 +6,7 @@ import equinox as eqx
 import numpy as np
 
 import jgi
-from jgi import scenes
+from jgi.scene import builtin as scenes
 from tests.conftest import assert_agree, critical_t
 from tests.test_path_tracer import point_light_reference, region_stats
 
@@ -28,7 +28,7 @@ def specular_room_with_point_light(resolution=16):
     """The caustic Cornell box lit by a point light: the path tracer cannot reach a point light
     through a specular chain after a diffuse vertex (E D S+ L has zero probability), so its
     one-diffuse-vertex paths are exactly Whitted's E S* D L."""
-    from jgi import transform as xf
+    from jgi.core import transform as xf
     from jgi.scene import SceneBuilder
 
     b = SceneBuilder("specular_room")

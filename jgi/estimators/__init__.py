@@ -1,14 +1,17 @@
 """Estimators register themselves in :mod:`jgi.estimators.registry` when imported here."""
 
-from . import path_tracer  # noqa: F401
-from . import whitted  # noqa: F401
-from . import pssmlt  # noqa: F401
-from . import photon_mapping  # noqa: F401
-from . import light_tracer  # noqa: F401
-from . import bdpt  # noqa: F401
-from . import mmlt  # noqa: F401
-from . import mlt  # noqa: F401
-from .. import irradiance_cache  # noqa: F401  (registers "irradiance_cache")
-from .registry import REGISTRY, Estimator, Param, ParameterError, get, register
+from ..core.errors import ParameterError
+from . import (
+    bdpt,  # noqa: F401
+    irradiance_cache,  # noqa: F401  (registers "irradiance_cache")
+    light_tracer,  # noqa: F401
+    mlt,  # noqa: F401
+    mmlt,  # noqa: F401
+    path_tracer,  # noqa: F401
+    photon_mapping,  # noqa: F401
+    pssmlt,  # noqa: F401
+    whitted,  # noqa: F401
+)
+from .registry import REGISTRY, Estimator, Param, get, register
 
 __all__ = ["REGISTRY", "Estimator", "Param", "ParameterError", "get", "register"]

@@ -13,7 +13,7 @@ strategy (s, t) with s + t - 1 <= max_depth path segments then forms a full path
 * s = 0: the camera subpath hit an emitter, c = L_e(z_{t-1} -> z_{t-2});
 * s = 1: light sampling at z_{t-1} (``lights.sample_li``, as the path tracer's NEE);
 * t = 1: light tracing, y_{s-1} connected to the pinhole and *splatted* into the pixel it
-  projects to (W_e of jgi.camera);
+  projects to (W_e of jgi.physics.camera);
 * s, t >= 2: c = f(y_{s-2} -> y_{s-1} -> z_{t-1}) G(y_{s-1} <-> z_{t-1}) f(y_{s-1} -> z_{t-1}
   -> z_{t-2}), G = |cos| |cos| V / d^2.
 
@@ -51,19 +51,34 @@ import jax.numpy as jnp
 import numpy as np
 from jax import Array
 
-from .. import bsdf as B
-from .. import camera as C
-from .. import geometry as G
-from .. import lights as LT
-from .. import mis
-from .. import rng
 from .._xla import materialize
-from ..scene import ENVIRONMENT, Scene
-from ..vec import V3, dot, where
-from .light_tracer import (Vertices, Visit, WalkState, _cat, _row, connect_camera,
-                           convert_density, is_infinite, light_key, light_normal, light_subpath,
-                           occluded_many, pdf_emission_dir, pdf_light_origin, random_walk,
-                           render_splats)
+from ..core import rng
+from ..core.imageio import write_exr, write_png
+from ..core.vec import V3, dot, where
+from ..physics import bsdf as B
+from ..physics import camera as C
+from ..physics import geometry as G
+from ..physics import lights as LT
+from ..scene.data import Scene
+from ..transport import mis
+from .light_tracer import (
+    Vertices,
+    Visit,
+    WalkState,
+    _cat,
+    _row,
+    connect_camera,
+    convert_density,
+    is_infinite,
+    light_key,
+    light_normal,
+    light_subpath,
+    occluded_many,
+    pdf_emission_dir,
+    pdf_light_origin,
+    random_walk,
+    render_splats,
+)
 from .path_tracer import _material
 from .registry import Estimator, Param, register
 
@@ -139,15 +154,6 @@ def mis_weight(camera: list[tuple], light: list[tuple], delta_light: Array,
         prev_delta = light[i - 1][2] if i > 0 else delta_light
         sum_r = sum_r + jnp.where(~delta & ~prev_delta, r_i, 0.0)
     return 1.0 / (1.0 + sum_r)
-
-
-def _chain(v: Vertices, n: int) -> list[tuple]:
-    return [(v.pdf_fwd[i], v.pdf_rev[i], v.delta[i]) for i in range(n)]
-
-
-def _override(chain: list[tuple], i: int, p_rev: Array, connection: bool = False) -> None:
-    p_fwd, _, delta = chain[i]
-    chain[i] = (p_fwd, p_rev, jnp.zeros_like(delta) if connection else delta)
 
 
 # --- the camera subpath, with s = 0 and s = 1 evaluated at each vertex ----------------------------
@@ -462,7 +468,6 @@ def render_strategies(scene: Scene, spp: int = 16, seed: int = 0, max_depth: int
 def write_strategy_images(folder, images: dict, exposure: float = 0.0) -> list[Path]:
     """EXR + PNG per strategy (``s{s}_t{t}_weighted`` / ``_unweighted``) and a PNG pyramid:
     row L = path length, column s, weighted above unweighted."""
-    from ..imageio import write_exr, write_png
 
     folder = Path(folder)
     written = []

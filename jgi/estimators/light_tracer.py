@@ -8,7 +8,7 @@ non-specular vertex y_i is connected to the pinhole z_0 by a shadow ray; the con
     C = beta_i f(y_{i-1} -> y_i -> z_0) |cos theta_i| W_e(z_0 -> y_i) cos theta_cam / |y_i - z_0|^2
 
 is splatted (scatter-add, ``.at[].add``: deterministic) into the pixel that y_i projects to.
-W_e = 1 / (A cos^4) (jgi.camera) integrates to one over the film, so with one light subpath
+W_e = 1 / (A cos^4) (jgi.physics.camera) integrates to one over the film, so with one light subpath
 per pixel sample (P spp paths) the image is the sum of splats divided by spp. Light vertex y_0
 of an area light is splatted too (s = 1: emitters seen directly, L_e |cos| / (pmf / area)).
 
@@ -36,6 +36,7 @@ The subpath machinery (:class:`Vertices`, :func:`random_walk`, :func:`light_subp
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass
 from functools import partial
 from typing import Callable, NamedTuple
@@ -45,16 +46,24 @@ import jax.numpy as jnp
 import numpy as np
 from jax import Array
 
-from .. import bsdf as B
-from .. import camera as C
-from .. import geometry as G
-from .. import lights as LT
-from .. import rng
-from .. import warps
-from ..scene import (AREA_QUAD, AREA_SPHERE, AREA_TRIANGLE, DIRECTIONAL, ENVIRONMENT, POINT, SPOT,
-                     Scene)
-from ..vec import EDGE_ON_COS, V3, dot, max_component, normalize, where
 from .._xla import materialize
+from ..core import rng, warps
+from ..core.vec import EDGE_ON_COS, V3, dot, max_component, normalize, where
+from ..drivers.chunked import sum_path_chunks
+from ..physics import bsdf as B
+from ..physics import camera as C
+from ..physics import geometry as G
+from ..physics import lights as LT
+from ..scene.data import (
+    AREA_QUAD,
+    AREA_SPHERE,
+    AREA_TRIANGLE,
+    DIRECTIONAL,
+    ENVIRONMENT,
+    POINT,
+    SPOT,
+    Scene,
+)
 from .path_tracer import _material
 from .registry import Estimator, Param, register
 
@@ -357,9 +366,7 @@ def render_splats(scene: Scene, path_fn: Callable, *, spp: int, seed: int, cache
     each (image index, flat pixel (-1: none), V3 value) and splatted anywhere in the film, divided
     by spp: shape (n_images, H, W, 3). Path (pixel, sample) draws from the stream (seed, pixel,
     sample) whatever the chunking; the scatter-add is sequential, so results are reproducible."""
-    import warnings
 
-    from ..render import sum_path_chunks
 
     W, H = scene.camera.width, scene.camera.height
     P = W * H

@@ -62,16 +62,18 @@ import jax.numpy as jnp
 import numpy as np
 from jax import Array
 
-from .. import bsdf as B
-from .. import camera as CAM
-from .. import geometry as G
-from .. import lights as LT
-from .. import mcmc
-from .. import rng
-from ..lights import AREA_KINDS
-from ..scene import DIELECTRIC, MIRROR, Scene
-from ..vec import EDGE_ON_COS, V3, coordinate_system, dot, luminance, normalize, reflect, where
-from .registry import Estimator, Param, ParameterError, register
+from ..core import rng
+from ..core.errors import ParameterError
+from ..core.vec import EDGE_ON_COS, V3, coordinate_system, dot, luminance, normalize, reflect, where
+from ..physics import bsdf as B
+from ..physics import camera as CAM
+from ..physics import geometry as G
+from ..physics import lights as LT
+from ..physics.lights import AREA_KINDS
+from ..scene.data import DIELECTRIC, MIRROR, Scene
+from ..transport import mcmc
+from . import path_tracer
+from .registry import Estimator, Param, register
 
 _SALT = 0x1B873593
 LARGE, LENS, CAUSTIC = 0, 1, 2
@@ -157,7 +159,7 @@ def specular_coefficient(mp: B.MaterialParams, n: V3, wo: V3, wi: V3):
     """The Dirac coefficient of a specular vertex (f |cos| without the delta) for the pair
     (wo, wi), and the probability with which ``bsdf.sample`` picks that lobe. Mirror: k_s, 1.
     Dielectric: F k_s with probability F (reflection), (1 - F) k_s / eta^2 with 1 - F
-    (transmission, radiance scaling as in jgi.bsdf)."""
+    (transmission, radiance scaling as in jgi.physics.bsdf)."""
     cos_o = dot(wo, n)
     transmit = cos_o * dot(wi, n) < 0
     eta = jnp.where(cos_o > 0, mp.ior, 1.0 / mp.ior)
@@ -179,7 +181,7 @@ def specular_continue(mp: B.MaterialParams, n: V3, w_from: V3, transmit: Array):
     wt, can_refract = B.refract(w_from, nside, eta)
     d = where(transmit, wt, reflect(w_from, nside))
     ok = jnp.where(transmit, (mp.kind == DIELECTRIC) & can_refract, (mp.kind == MIRROR) | (mp.kind == DIELECTRIC))
-    return d, ok & (jnp.abs(cos_f) > EDGE_ON_COS)   # edge-on: nothing scattered, as in jgi.bsdf
+    return d, ok & (jnp.abs(cos_f) > EDGE_ON_COS)   # edge-on: nothing scattered, as in jgi.physics.bsdf
 
 
 def transmits(path: Path) -> Array:
@@ -575,11 +577,9 @@ def check_scene(scene: Scene) -> None:
 def normalisation_from_path_tracer(scene: Scene, cfg: MLTConfig, seed: int, paths: int) -> float:
     """b = the mean luminance of a path-traced image (MIS, same maximum length): an unbiased
     estimate of the integral of f* over the film."""
-    from ..render import render as render_image
-
     W, H = scene.camera.width, scene.camera.height
-    img = render_image(scene, "pt", spp=max(1, -(-paths // (W * H))), seed=seed + 0x2F6B1D,
-                       max_depth=cfg.max_depth)
+    img = path_tracer.render(scene, path_tracer.PathTracerConfig(max_depth=cfg.max_depth),
+                             spp=max(1, -(-paths // (W * H))), seed=seed + 0x2F6B1D)
     return float(np.mean(np.asarray(img, np.float64) @ np.array([0.2126, 0.7152, 0.0722])))
 
 

@@ -49,9 +49,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .. import rng
-from ..scene import Scene
-from ..vec import V3, luminance, where
+from ..core import rng
+from ..core.vec import V3, luminance, where
+from ..scene.data import Scene
 from .bdpt import CAMERA_DIMS0, CAMERA_DIMS_PER_STEP, BDPTConfig, contributions
 from .light_tracer import LIGHT_DIMS0, LIGHT_DIMS_PER_STEP
 from .pssmlt import _uniforms, kelemen_small_step

@@ -11,7 +11,7 @@ the camera is gathered by two strategies:
   draw n_g points on the lights and add (1/n_g) beta f L_i |cos| / p_g when unoccluded;
   emitters hit by BSDF rays then count only after a specular bounce (or straight from the camera).
 * **MIS** (``strategy="mis"``): both, weighted by the balance heuristic
-  w = n p / (n_f p_f + n_g p_g) or the power heuristic with exponent ``beta`` (jgi.mis), n_f = 1.
+  w = n p / (n_f p_f + n_g p_g) or the power heuristic with exponent ``beta`` (jgi.transport.mis), n_f = 1.
 
 beta (path throughput) is multiplied by f |cos| / p at every bounce. Russian roulette after
 ``rr_depth`` segments keeps the estimator unbiased (beta /= q). ``max_depth`` counts path
@@ -31,16 +31,17 @@ import jax
 import jax.numpy as jnp
 from jax import Array
 
-from .. import bsdf as B
-from .. import camera as C
-from .. import geometry as G
-from .. import lights as LT
-from .. import mis
-from .. import rng
 from .. import _xla as X
 from .._xla import materialize, take
-from ..scene import DIELECTRIC, DIFFUSE, MIRROR, PHONG, Scene
-from ..vec import V3, dot, max_component, where
+from ..core import rng
+from ..core.vec import V3, dot, max_component, where
+from ..drivers.wavefront import render_wavefront
+from ..physics import bsdf as B
+from ..physics import camera as C
+from ..physics import geometry as G
+from ..physics import lights as LT
+from ..scene.data import DIELECTRIC, DIFFUSE, MIRROR, PHONG, Scene
+from ..transport import mis
 from .registry import Estimator, Param, register
 
 
@@ -262,12 +263,14 @@ def _step(scene: Scene, cfg: PathTracerConfig, lane: _Lane):
     return _Lane(s, depth, lane.key), alive, s.L
 
 
-def _run(scene: Scene, *, spp: int, seed: int, progress: bool = False, **params):
-    from ..render import render_wavefront
-
-    cfg = PathTracerConfig(**params)
+def render(scene: Scene, cfg: PathTracerConfig, *, spp: int, seed: int, progress: bool = False):
+    """The path-traced image, (H, W, 3) float32, traced by the wavefront driver."""
     return render_wavefront(scene, _start, lambda sc, lane: _step(sc, cfg, lane), spp=spp, seed=seed,
                             progress=progress, cache_key=("pt", cfg))
+
+
+def _run(scene: Scene, *, spp: int, seed: int, progress: bool = False, **params):
+    return render(scene, PathTracerConfig(**params), spp=spp, seed=seed, progress=progress)
 
 
 PARAMS = (

@@ -1,7 +1,7 @@
 """Photon mapping (Jensen 1996, 2001) and its progressive forms (Hachisuka et al. 2008, 2009).
 
-All three start from the photon maps of :mod:`jgi.photons` and the density estimate of
-:mod:`jgi.photon_map`, and see the scene from the camera through specular chains
+All three start from the photon maps of :mod:`jgi.transport.photons` and the density estimate of
+:mod:`jgi.transport.photon_map`, and see the scene from the camera through specular chains
 (:func:`jgi.estimators.whitted.trace_to_diffuse`) to the first non-specular point x:
 
 * ``pm`` - direct visualisation: L(x) = L_r estimated from the global map at x (every
@@ -31,25 +31,19 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .. import bsdf as B
-from .. import camera as C
-from .. import photon_map as PMap
-from .. import rng
-from ..photons import trace_photons
-from ..scene import Scene
-from ..vec import V3, coordinate_system, dot, where
+from ..core import rng
+from ..core.vec import V3, coordinate_system, dot, where
+from ..core.warps import sample_cosine_hemisphere
+from ..physics import camera as C
+from ..physics import geometry as G
+from ..scene.data import Scene
+from ..transport import photon_map as PMap
+from ..transport.photons import trace_photons
+from . import irradiance_cache as IC
 from .registry import Estimator, Param, register
 from .whitted import WhittedConfig, trace_to_diffuse
 
 _SALT = 0x1B873593
-QUERY_CHUNK = 1024
-
-
-def _kd(scene: Scene, m):
-    kd = scene.materials.diffuse
-    return V3(kd.x[m], kd.y[m], kd.z[m])
-
-
 def _facing(n: V3, wo: V3) -> V3:
     return where(dot(n, wo) < 0, -n, n)
 
@@ -62,44 +56,6 @@ def visible_points(scene: Scene, seed, pixel, sample, light_samples: int, max_de
     v = trace_to_diffuse(scene, WhittedConfig(max_depth=max_depth, light_samples=light_samples),
                          lambda k: rng.uniform(key, k), o, d)
     return v._replace(n=_facing(v.n, v.wo))
-
-
-@partial(jax.jit, static_argnames=("cap", "k", "kind", "thickness"))
-def radiance_estimate(scene: Scene, grid: PMap.HashGrid, x: V3, n: V3, material, r, cap: int,
-                      k: int, kind: str, thickness, filter_params):
-    """L_r at points x from a photon grid: radius r, or (k > 0) the k nearest within r."""
-    g = PMap.gather(grid, x, n, cap, thickness)
-    r2 = PMap.knn_radius2(g, k, r) if k > 0 else jnp.broadcast_to(r * r, x.x.shape)
-    kd = _kd(scene, material)
-    f = V3(*(c[:, None] / jnp.pi for c in kd))
-    L, count = PMap.estimate(g, r2, f, kind, **filter_params)
-    return L, count, g.truncated
-
-
-def _warn_truncated(trunc, cap, r):
-    if trunc:
-        import warnings
-        warnings.warn(f"photon grid cells held more than cap={cap} photons: the estimate is biased "
-                      f"low; use a smaller radius than {r} or a larger cap", RuntimeWarning,
-                      stacklevel=3)
-
-
-def _estimate_chunked(scene, grid, x, n, m, r, *, cap, k, kind, thickness, filter_params):
-    out, trunc = [], False
-    N = x.x.shape[0]
-    cap = cap or PMap.auto_cap(grid)
-    chunk = PMap.query_chunk(cap)
-    for s in range(0, N, chunk):
-        sl = slice(s, s + chunk)
-        xs, ns = V3(*(c[sl] for c in x)), V3(*(c[sl] for c in n))
-        pad = chunk - xs.x.shape[0]
-        padv = lambda v: V3(*(jnp.pad(c, (0, pad), mode="edge") for c in v))
-        L, _, t = radiance_estimate(scene, grid, padv(xs), padv(ns), jnp.pad(m[sl], (0, pad), mode="edge"),
-                                    jnp.float32(r), cap, k, kind, thickness, filter_params)
-        out.append(np.stack([np.asarray(c)[: chunk - pad] for c in L]))
-        trunc |= bool(np.any(np.asarray(t)[: chunk - pad]))
-    _warn_truncated(trunc, cap, r)
-    return np.concatenate(out, axis=1), trunc
 
 
 def _pixels(scene, spp):
@@ -124,7 +80,7 @@ def render_pm(scene: Scene, *, spp: int = 4, seed: int = 0, photons: int = 200_0
     pix, smp = _pixels(scene, spp)
     v = visible_points(scene, jnp.uint32(seed), pix, smp, 0, max_depth)
     fp = dict(k=cone_k) if filter == "cone" else dict(alpha=alpha, beta=beta) if filter == "gaussian" else {}
-    L, trunc = _estimate_chunked(scene, grid, v.p, v.n, v.material, radius, cap=cap, k=k, kind=filter,
+    L, trunc = PMap.estimate_at_points(scene, grid, v.p, v.n, v.material, radius, cap=cap, k=k, kind=filter,
                                  thickness=thickness, filter_params=fp)
     found = np.asarray(v.found)
     beta_ = np.stack([np.asarray(c) for c in v.beta])
@@ -137,15 +93,12 @@ def render_pm(scene: Scene, *, spp: int = 4, seed: int = 0, photons: int = 200_0
 @partial(jax.jit, static_argnames=("n_gather", "max_depth"))
 def _gather_points(scene: Scene, seed, ids, x: V3, n: V3, n_gather: int, max_depth: int):
     """Final-gather rays from x: the diffuse points they reach and the chain throughput."""
-    N = x.x.shape[0]
     key = rng.derive(rng.path_key(seed, ids[:, None] * n_gather + jnp.arange(n_gather)[None, :], 0), _SALT)
     u1, u2 = rng.uniform(key, 0), rng.uniform(key, 1)
-    from ..warps import sample_cosine_hemisphere
     local = sample_cosine_hemisphere(u1, u2)
     s, t = coordinate_system(n)
     ex = lambda v: V3(*(c[:, None] for c in v))
     d = ex(s) * local.x + ex(t) * local.y + ex(n) * local.z
-    from .. import geometry as G
     o = G.offset_origin(ex(x), ex(n), d)
     flat = lambda v: V3(*(c.reshape(-1) for c in v))
     kf = key.reshape(-1)
@@ -168,19 +121,17 @@ def render_jensen(scene: Scene, *, spp: int = 1, seed: int = 0, photons: int = 2
     found = np.asarray(v.found)
     beta_ = np.stack([np.asarray(c) for c in v.beta])
     total = np.stack([np.asarray(c) for c in v.L])  # emission along the chain + direct light
-    kdx = np.stack([np.asarray(c) for c in _kd(scene, v.material)])
+    kdx = np.stack([np.asarray(c) for c in PMap.diffuse_reflectance(scene, v.material)])
     if caustics:
         cpm = trace_photons(scene, caustic_photons, seed=seed + 7919, max_depth=max_depth)
         cpm = cpm.select(cpm.caustic)
         if cpm.count:
             cgrid = PMap.build_grid(cpm, caustic_radius, cap=cap or 128)
-            Lc, _ = _estimate_chunked(scene, cgrid, v.p, v.n, v.material, float(cgrid.cell), cap=cap,
+            Lc, _ = PMap.estimate_at_points(scene, cgrid, v.p, v.n, v.material, float(cgrid.cell), cap=cap,
                                       k=k_caustic, kind=filter, thickness=None, filter_params={})
             total = total + np.where(found, beta_ * Lc, 0.0)
     # indirect diffuse by final gathering on the global map (at every point, or cached)
     if irradiance_cache:
-        from .. import irradiance_cache as IC
-
         m = max(1, int(round(np.sqrt(final_gather / 3))))  # Ward's strata: N ~ 3 M (phi vs theta)
         cfg = IC.CacheConfig(a=cache_a, gather_m=m, gather_n=max(1, final_gather // m), max_depth=max_depth)
         pts = IC.ShadingPoints(np.stack([np.asarray(c) for c in v.p]), np.stack([np.asarray(c) for c in v.n]),
@@ -200,7 +151,7 @@ def render_jensen(scene: Scene, *, spp: int = 1, seed: int = 0, photons: int = 2
             take = lambda vv: V3(*(jnp.asarray(np.asarray(c)[pad]) for c in vv))
             g = _gather_points(scene, jnp.uint32(seed), jnp.asarray(pad, jnp.int32), take(v.p), take(v.n),
                                final_gather, max_depth)
-            Lg, _ = _estimate_chunked(scene, grid, g.p, g.n, g.material, radius, cap=cap, k=k,
+            Lg, _ = PMap.estimate_at_points(scene, grid, g.p, g.n, g.material, radius, cap=cap, k=k,
                                       kind=filter, thickness=None, filter_params={})
             gb = np.stack([np.asarray(c) for c in g.beta])
             Lg = np.where(np.asarray(g.found), gb * Lg, 0.0).reshape(3, batch, final_gather).mean(-1)
@@ -215,7 +166,7 @@ def render_jensen(scene: Scene, *, spp: int = 1, seed: int = 0, photons: int = 2
 def _ppm_gather(scene: Scene, grid, x: V3, n: V3, material, r2, cap: int):
     g = PMap.gather(grid, x, n, cap, None)
     inside = g.d2 < r2[:, None]
-    kd = _kd(scene, material)
+    kd = PMap.diffuse_reflectance(scene, material)
     M = jnp.sum(inside, axis=-1).astype(jnp.float32)
     phi = V3(*(jnp.sum(jnp.where(inside, p, 0.0), axis=-1) * c / jnp.pi for p, c in zip(g.power, kd)))
     return M, phi, g.truncated
@@ -267,7 +218,7 @@ def render_progressive(scene: Scene, *, spp: int = 1, seed: int = 0, passes: int
         R2 = R2 * ratio
         N = grow
     L = direct / passes + tau / (np.pi * R2 * passes)
-    _warn_truncated(truncated, cap_t, radius)
+    PMap.warn_truncated(truncated, cap_t, radius)
     if stats is not None:
         stats.update(radius_final=float(np.sqrt(R2.mean())), truncated=truncated)
     return _to_image(scene, L, spp)

@@ -29,10 +29,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .. import camera as C
-from .. import rng
-from ..scene import Scene
-from ..vec import V3, luminance
+from ..core import rng
+from ..core.vec import V3, luminance
+from ..physics import camera as C
+from ..scene.data import Scene
 from .path_tracer import PathTracerConfig, radiance
 from .registry import Estimator, Param, register
 

@@ -11,9 +11,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Any, Callable
 
-
-class ParameterError(ValueError):
-    """A bad estimator name or parameter (names the estimator, the key and what is allowed)."""
+from ..core.errors import ParameterError
 
 
 @dataclass(frozen=True)

@@ -22,13 +22,14 @@ import jax
 import jax.numpy as jnp
 from jax import Array
 
-from .. import bsdf as B
-from .. import camera as C
-from .. import geometry as G
-from .. import lights as LT
-from .. import rng
-from ..scene import Scene
-from ..vec import V3, dot, where
+from ..core import rng
+from ..core.vec import V3, dot, where
+from ..drivers.chunked import render_paths
+from ..physics import bsdf as B
+from ..physics import camera as C
+from ..physics import geometry as G
+from ..physics import lights as LT
+from ..scene.data import Scene
 from .registry import Estimator, Param, register
 
 
@@ -108,8 +109,6 @@ def trace_pixels(scene: Scene, cfg: WhittedConfig, seed, pixel, sample) -> V3:
 
 
 def _run(scene: Scene, *, spp: int, seed: int, progress: bool = False, **params):
-    from ..render import render_paths
-
     cfg = WhittedConfig(**params)
     return render_paths(scene, lambda sc, pix, smp, sd: trace_pixels(sc, cfg, sd, pix, smp),
                         spp=spp, seed=seed, progress=progress, cache_key=("whitted", cfg))

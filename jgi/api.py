@@ -1,0 +1,32 @@
+"""The one entry point for rendering: ``jgi.render(scene, estimator, spp=, seed=, **params)``.
+
+Dispatches to a registered estimator (:mod:`jgi.estimators.registry`) after checking every
+parameter against its declared schema, so a typo is an error naming the key and what is allowed.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from . import estimators  # noqa: F401  (registers every estimator)
+from .core.errors import ParameterError
+from .estimators import registry
+from .scene.data import Scene
+from .scene.files import load_scene
+
+
+def render(scene: Scene | str, estimator: str = "pt", spp: int = 16, seed: int = 0,
+           progress: bool = False, **params) -> np.ndarray:
+    """Render ``scene`` with a registered estimator; float32 linear radiance, shape (H, W, 3).
+
+    ``params`` are the estimator's parameters (``jgi render --list`` shows them); unknown
+    names and out-of-range values raise :class:`jgi.ParameterError`."""
+    if isinstance(scene, str):
+        scene = load_scene(scene)
+    est = registry.get(estimator)
+    if isinstance(spp, bool) or not isinstance(spp, (int, np.integer)) or spp < 1:
+        raise ParameterError(f"spp must be a positive integer, got {spp!r}")
+    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or not 0 <= seed < 2**32:
+        raise ParameterError(f"seed must be an integer in [0, 2^32), got {seed!r}")
+    resolved = est.resolve(params)
+    return est.run(scene, spp=int(spp), seed=int(seed), progress=progress, **resolved)

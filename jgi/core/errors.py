@@ -1,0 +1,7 @@
+"""Errors a user's input can raise, below every layer that checks it."""
+
+from __future__ import annotations
+
+
+class ParameterError(ValueError):
+    """A bad estimator name or parameter (names the estimator, the key and what is allowed)."""

@@ -1,0 +1,61 @@
+"""Counter-based random numbers: u = hash(seed, pixel, sample, dimension) -> [0, 1).
+
+Why not ``jax.random``: XLA's CPU backend lowers threefry as a rolled loop that cannot fuse into
+the path tracer's bounce kernel (measured 1.2 vs 14 Mpaths/s). A stateless integer hash costs a
+handful of fused integer ops per number, and every number is reproducible from its coordinates,
+so a path's samples do not depend on chunking, device count or evaluation order.
+
+The mixer is Wellons' ``lowbias32`` (hash-prospector), a bijective 32-bit avalanche function.
+Streams for (seed, pixel, sample) are decorrelated by chaining the mixer over each coordinate;
+dimensions are then an additive counter with a Weyl increment before mixing.
+"""
+
+from __future__ import annotations
+
+import jax.numpy as jnp
+from jax import Array
+
+_U32 = jnp.uint32
+_WEYL = 0x9E3779B9  # 2^32 / golden ratio
+
+
+def lowbias32(x: Array) -> Array:
+    x = x.astype(_U32)
+    x = x ^ (x >> 16)
+    x = x * _U32(0x7FEB352D)
+    x = x ^ (x >> 15)
+    x = x * _U32(0x846CA68B)
+    x = x ^ (x >> 16)
+    return x
+
+
+def path_key(seed, pixel, sample) -> Array:
+    """A 32-bit stream key for one path, from (seed, pixel index, sample index)."""
+    k = lowbias32(jnp.asarray(seed).astype(_U32) ^ _U32(0x5BD1E995))
+    k = lowbias32(k ^ jnp.asarray(pixel).astype(_U32))
+    k = lowbias32(k + jnp.asarray(sample).astype(_U32) * _U32(_WEYL))
+    return k
+
+
+def uniform(key: Array, dim) -> Array:
+    """The ``dim``-th uniform float32 in [0, 1) of stream ``key`` (24 random bits)."""
+    return uniform_at(counter(key, dim), 0)
+
+
+def counter(key: Array, dim) -> Array:
+    """The hash input of dimension ``dim`` of stream ``key``; with :func:`uniform_at`, a block of
+    consecutive dimensions costs one add each (``uniform(key, dim + k) == uniform_at(counter(key,
+    dim), k)`` exactly, by arithmetic modulo 2^32)."""
+    return key + (jnp.asarray(dim).astype(_U32) + _U32(1)) * _U32(_WEYL)
+
+
+def uniform_at(c: Array, k: int) -> Array:
+    """Uniform number ``k`` dimensions after the counter ``c`` (see :func:`counter`)."""
+    h = lowbias32(c + _U32((k * _WEYL) & 0xFFFFFFFF)) if k else lowbias32(c)
+    return (h >> 8).astype(jnp.float32) * jnp.float32(1.0 / 16777216.0)
+
+
+def derive(key: Array, salt) -> Array:
+    """An independent sub-stream (e.g. per light subpath, per photon pass)."""
+    return lowbias32(key ^ lowbias32(jnp.asarray(salt).astype(_U32) + _U32(0x68E31DA4)))
+

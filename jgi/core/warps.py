@@ -1,0 +1,137 @@
+"""Sampling warps: each ``sample_*`` maps uniforms in [0,1)^2 to a domain, next to its ``pdf_*``.
+
+pbrt-v4 style triples (sample, pdf, and where useful the inverse): the chi-square tests in
+``tests/test_warps.py`` check every sampler against its own pdf. Densities are with respect to
+solid angle for directions and area for positions. Directions are in a local frame whose +z is
+the frame axis (the surface normal or a lobe axis); see :func:`jgi.core.vec.to_world`.
+"""
+
+from __future__ import annotations
+
+import jax.numpy as jnp
+from jax import Array
+
+from .. import _xla as X
+from .._xla import pow_positive, sincos, sincos_quarter
+from .vec import V3
+
+PI = jnp.float32(jnp.pi)
+INV_PI = jnp.float32(1.0 / jnp.pi)
+INV_4PI = jnp.float32(0.25 / jnp.pi)
+
+
+def _safe_sqrt(x: Array) -> Array:
+    return X.sqrt(jnp.maximum(x, 0.0))
+
+
+# --- disc -------------------------------------------------------------------------------------
+
+def sample_concentric_disc(u1: Array, u2: Array) -> tuple[Array, Array]:
+    """Shirley-Chiu concentric map; see :func:`concentric_disc_polar` (which also returns r)."""
+    x, y, _ = concentric_disc_polar(u1, u2)
+    return x, y
+
+
+def concentric_disc_polar(u1: Array, u2: Array) -> tuple[Array, Array, Array]:
+    """Shirley-Chiu concentric map of the square onto the unit disc (area-preserving).
+
+    The square point (a, b) goes to radius r = a at angle phi = (pi/4) b/a where |a| > |b|, else
+    to r = b at phi = pi/2 - (pi/4) a/b. Both angles are pi/4 t with |t| <= 1 (in the second
+    case cos and sin swap), so one division and the sin/cos polynomials without range reduction
+    suffice. At the centre r = 0 and the point is (0, 0) whatever t is. Returns (x, y, r), r = |a|
+    or |b| exactly."""
+    a, b = 2.0 * u1 - 1.0, 2.0 * u2 - 1.0
+    first = jnp.abs(a) > jnp.abs(b)
+    r = jnp.where(first, a, b)
+    # for float32 u in [0, 1), 2u - 1 is 0 or at least 2^-24 in magnitude (recip_normal's range)
+    t = jnp.where(first, b, a) * X.recip_normal(jnp.where(r == 0, 1.0, r))
+    s, c = sincos_quarter((PI / 4) * t)
+    return r * jnp.where(first, c, s), r * jnp.where(first, s, c), jnp.abs(r)
+
+
+def pdf_disc() -> Array:
+    return INV_PI
+
+
+# --- hemisphere and sphere ----------------------------------------------------------------------
+
+def sample_cosine_hemisphere(u1: Array, u2: Array) -> V3:
+    """Malley's method: disc sample lifted to the hemisphere; pdf = cos(theta) / pi.
+
+    cos(theta) = sqrt((1 - r)(1 + r)) from the disc radius r, which the concentric map gives
+    exactly: 1 - x^2 - y^2 carries the rounding of the sin/cos polynomials (and of FMA
+    contraction, which differs by CPU), so on the rim, r = 1, it gave 0 on one CPU and 3e-4
+    on another. The product form is 0 there on every CPU, and exact to a few roundings
+    elsewhere."""
+    x, y, r = concentric_disc_polar(u1, u2)
+    return V3(x, y, _safe_sqrt((1.0 - r) * (1.0 + r)))
+
+
+def pdf_cosine_hemisphere(cos_theta: Array) -> Array:
+    return jnp.where(cos_theta > 0, cos_theta * INV_PI, 0.0)
+
+
+def sample_uniform_sphere(u1: Array, u2: Array) -> V3:
+    z = 1.0 - 2.0 * u1
+    r = _safe_sqrt(1.0 - z * z)
+    phi = 2.0 * PI * u2
+    sin_phi, cos_phi = sincos(phi)
+    return V3(r * cos_phi, r * sin_phi, z)
+
+
+def pdf_uniform_sphere() -> Array:
+    return INV_4PI
+
+
+def sample_uniform_cone(u1: Array, u2: Array, cos_max: Array,
+                        one_minus_cos_max: Array | None = None) -> V3:
+    """Uniform direction within angle acos(cos_max) of +z; pdf = 1 / (2 pi (1 - cos_max)).
+
+    Works with 1 - cos(theta) = u1 (1 - cos_max) and sin^2 = (1 - cos)(1 + cos): in float32,
+    sqrt(1 - cos^2) of a cosine near 1 keeps only a few distinct values, which clumps the
+    samples of narrow cones (small or distant sphere lights). Callers that know
+    ``one_minus_cos_max`` more precisely than ``1 - cos_max`` (e.g. sin^2 / (1 + cos)) pass it.
+    """
+    om_max = (1.0 - cos_max) if one_minus_cos_max is None else one_minus_cos_max
+    one_minus = u1 * om_max
+    cos_t = 1.0 - one_minus
+    sin_t = _safe_sqrt(one_minus * (2.0 - one_minus))
+    phi = 2.0 * PI * u2
+    sin_phi, cos_phi = sincos(phi)
+    return V3(sin_t * cos_phi, sin_t * sin_phi, cos_t)
+
+
+def pdf_uniform_cone(cos_max: Array) -> Array:
+    solid_angle = 2.0 * PI * (1.0 - cos_max)
+    return jnp.where(solid_angle > 0, 1.0 / jnp.where(solid_angle > 0, solid_angle, 1.0), 0.0)
+
+
+# --- Phong lobe ---------------------------------------------------------------------------------
+
+def sample_phong_lobe(u1: Array, u2: Array, exponent: Array) -> V3:
+    """Direction about +z with density (n + 1) / (2 pi) cos^n(alpha) (Lafortune & Willems 1994).
+
+    cos(alpha) = u1^(1 / (n + 1)); 1 - cos(alpha) = -expm1(log(u1) / (n + 1)) keeps the angle
+    precise in float32 for sharp lobes (see :func:`sample_uniform_cone`).
+    """
+    one_minus = -jnp.expm1(jnp.log(u1) / (exponent + 1.0))
+    cos_a = 1.0 - one_minus
+    sin_a = _safe_sqrt(one_minus * (2.0 - one_minus))
+    phi = 2.0 * PI * u2
+    sin_phi, cos_phi = sincos(phi)
+    return V3(sin_a * cos_phi, sin_a * sin_phi, cos_a)
+
+
+def pdf_phong_lobe(cos_alpha: Array, exponent: Array) -> Array:
+    """(n + 1) / (2 pi) cos^n(alpha) on the lobe's hemisphere, 0 outside (also for n = 0)."""
+    inside = cos_alpha > 0
+    c = jnp.where(inside, cos_alpha, 1.0)  # finite gradients outside the lobe
+    return jnp.where(inside, (exponent + 1.0) * (0.5 * INV_PI) * pow_positive(c, exponent), 0.0)
+
+
+# --- triangle -----------------------------------------------------------------------------------
+
+def sample_uniform_triangle(u1: Array, u2: Array) -> tuple[Array, Array]:
+    """Barycentrics (b1, b2) uniform over the triangle (square-root parameterisation)."""
+    s = _safe_sqrt(u1)
+    return s * (1.0 - u2), s * u2

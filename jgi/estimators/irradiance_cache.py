@@ -1,0 +1,441 @@
+"""Irradiance caching (Ward, Rubinstein & Clear 1988) with Ward & Heckbert's (1992) gradients.
+
+Indirect irradiance changes slowly over diffuse surfaces, so it is computed at sparse *records*
+and interpolated (the lecture: "store illumination at sparse points, look up cached
+illumination"). A record at x_i with normal n_i stores
+
+    E_i  = (pi / (M N)) sum_jk L_jk                      (final gathering: M x N stratified,
+                                                          cosine-distributed directions)
+    R_i  = harmonic mean distance to the surfaces the gather rays hit
+    grad_r E_i = (pi / (M N)) sum_k v_k sum_j tan(theta_j) L_jk       (rotation gradient)
+    grad_t E_i = sum_k [ u_k (2 pi / N) sum_{j>=1} sin(theta_j-) cos^2(theta_j-) /
+                          min(r_{j-1,k}, r_jk) (L_jk - L_{j-1,k})
+                        + v_k- sum_j (sin(theta_j+) - sin(theta_j-)) / min(r_jk, r_{j,k-1})
+                          (L_jk - L_{j,k-1}) ]                       (translation gradient)
+
+with theta_j- = asin(sqrt(j / M)), theta_j+ = asin(sqrt((j + 1) / M)), u_k the base-plane
+direction at phi_k, v_k at phi_k + pi/2 and v_k- at 2 pi k / N + pi/2. A point x with normal n
+uses every record with Ward's weight
+
+    w_i(x, n) = 1 / ( |x - x_i| / R_i + sqrt(1 - n . n_i) )  >  1 / a
+
+that is not behind it ((x - x_i) . (n + n_i) / 2 >= -eps) and faces the same way (n . n_i > 0):
+
+    E(x) = sum_i w_i (E_i + (n_i x n) . grad_r E_i + (x - x_i) . grad_t E_i) / sum_i w_i.
+
+Records are created in passes: first at stratified pixels' first diffuse hits, then wherever
+the criterion fails, until every query point is covered; points still uncovered after the last
+pass are gathered directly. Gather rays are counted (``CacheStats``), so experiments compare
+caches and plain final gathering by work done, not by time.
+
+The incident radiance L_jk of a gather ray is the path tracer's estimate of the light reflected
+at the surface it hits (its emission excluded: direct light is computed separately by shadow
+rays, as in Jensen's split). Records are looked up by brute force over a padded table; the
+tables here hold thousands of records, where that is faster on the CPU than a hash grid.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, field
+from functools import partial
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jax import Array
+
+from ..core import rng
+from ..core.vec import V3, coordinate_system, cross, dot, length, where
+from ..physics import camera as C
+from ..physics import geometry as G
+from ..physics import lights as LT
+from ..scene.data import Scene
+from ..transport import photon_map as PMap
+from ..transport.photons import trace_photons
+from .path_tracer import PathTracerConfig, radiance
+from .registry import Estimator, Param, register
+from .whitted import WhittedConfig, trace_to_diffuse
+
+_SALT = 0x3C6EF372
+
+
+class Records(NamedTuple):
+    p: V3
+    n: V3
+    E: V3          # indirect irradiance (rgb)
+    R: Array       # harmonic mean distance (clamped)
+    gr: tuple      # rotation gradients (V3 per channel r, g, b)
+    gt: tuple      # translation gradients (V3 per channel)
+    valid: Array
+
+
+@dataclass(frozen=True)
+class CacheConfig:
+    a: float = 0.2              # Ward's error threshold
+    gather_m: int = 8           # theta strata
+    gather_n: int = 24          # phi strata
+    spacing: int = 8            # first pass: one record candidate every `spacing` pixels
+    passes: int = 4             # refinement passes (grid spacing halves each pass)
+    per_pass: int = 4096        # new records per refinement pass (at most)
+    r_min: float = 0.01         # clamp of R_i, relative to the scene's bounding radius
+    r_max: float = 0.5
+    gradients: bool = True
+    max_depth: int = 8
+    pt: PathTracerConfig = PathTracerConfig(max_depth=7)
+
+
+@dataclass
+class CacheStats:
+    records: int = 0
+    direct_points: int = 0
+    gather_rays: int = 0
+    passes: int = 0
+    history: list = field(default_factory=list)
+
+
+# --- final gathering ------------------------------------------------------------------------------
+
+def _gather_dirs(cfg: CacheConfig, u1, u2):
+    """Stratified cosine-distributed local directions; u1, u2 [..., M, N]."""
+    M, N = cfg.gather_m, cfg.gather_n
+    j = jnp.arange(M, dtype=jnp.float32)[:, None]
+    k = jnp.arange(N, dtype=jnp.float32)[None, :]
+    sin2 = (j + u1) / M
+    sin_t = jnp.sqrt(sin2)
+    cos_t = jnp.sqrt(jnp.maximum(1.0 - sin2, 0.0))
+    phi = 2.0 * jnp.pi * (k + u2) / N
+    return sin_t, cos_t, phi
+
+
+def _gather_rays(scene: Scene, cfg: CacheConfig, seed, ids, p: V3, n: V3):
+    """The M x N stratified gather rays at points p: (origins, directions, key, angles, frame)."""
+    M, N = cfg.gather_m, cfg.gather_n
+    key = rng.derive(rng.path_key(seed, ids[:, None, None] * (M * N) +
+                                  jnp.arange(M * N, dtype=jnp.int32).reshape(1, M, N), 0), _SALT)
+    u1, u2 = rng.uniform(key, 0), rng.uniform(key, 1)
+    sin_t, cos_t, phi = _gather_dirs(cfg, u1, u2)
+    s, t = coordinate_system(n)
+    ex = lambda v: V3(*(c[:, None, None] for c in v))
+    s3, t3, n3 = ex(s), ex(t), ex(n)
+    d = s3 * (sin_t * jnp.cos(phi)) + t3 * (sin_t * jnp.sin(phi)) + n3 * cos_t
+    o = G.offset_origin(ex(p), n3, d)
+    flat = lambda v: V3(*(c.reshape(-1) for c in jnp.broadcast_arrays(*v)))
+    return flat(o), flat(d), key.reshape(-1), (sin_t, cos_t, phi), (s, t)
+
+
+@partial(jax.jit, static_argnames=("cfg",))
+def gather(scene: Scene, cfg: CacheConfig, seed, ids, p: V3, n: V3):
+    """Final gathering at points p (normals n facing the viewer): E, R and gradients, with the
+    radiance of each gather ray estimated by the path tracer."""
+    K = p.x.shape[0]
+    of, df, kf, angles, frame = _gather_rays(scene, cfg, seed, ids, p, n)
+    hit = G.intersect(scene, of, df)
+    Le = LT.emitted(scene.lights, hit.emitter, hit.n, -df) if scene.lights.count else V3(*(0 * of.x,) * 3)
+    L = radiance(scene, cfg.pt, lambda dim: rng.uniform(kf, dim + 2), of, df)
+    L = V3(*(jnp.maximum(jnp.where(jnp.isfinite(a), a - b, 0.0), 0.0) for a, b in zip(L, Le)))
+    r = jnp.where(hit.valid, hit.t, jnp.inf)
+    return _record(scene, cfg, K, L, r, angles, frame)
+
+
+@partial(jax.jit, static_argnames=("cfg",))
+def _gather_hits(scene: Scene, cfg: CacheConfig, seed, ids, p: V3, n: V3):
+    """Gather rays followed through specular chains to the diffuse surfaces they reach."""
+    of, df, kf, angles, frame = _gather_rays(scene, cfg, seed, ids, p, n)
+    hit = G.intersect(scene, of, df)
+    v = trace_to_diffuse(scene, WhittedConfig(max_depth=cfg.max_depth, light_samples=0),
+                         lambda k: rng.uniform(kf, k + 2), of, df)
+    n_face = where(dot(v.n, v.wo) < 0, -v.n, v.n)
+    return v._replace(n=n_face), jnp.where(hit.valid, hit.t, jnp.inf), angles, frame
+
+
+_record_jit = jax.jit(lambda scene, cfg, K, L, r, angles, frame: _record(scene, cfg, K, L, r, angles, frame),
+                      static_argnames=("cfg", "K"))
+
+
+def gather_photons(scene: Scene, cfg: CacheConfig, seed, ids, p: V3, n: V3, grid, *, k: int,
+                   radius: float, cap: int | None = None):
+    """Final gathering against a global photon map (Jensen's split): each gather ray's radiance
+    is the photon estimate of the light reflected at the diffuse surface it reaches."""
+    K = p.x.shape[0]
+    v, r, angles, frame = _gather_hits(scene, cfg, seed, ids, p, n)
+    Lp, _ = PMap.estimate_at_points(scene, grid, v.p, v.n, v.material, radius, cap=cap, k=k, kind="box",
+                              thickness=None, filter_params={})
+    found = np.asarray(v.found)
+    L = V3(*(jnp.asarray(np.where(found, np.asarray(b) * c, 0.0)) for b, c in zip(v.beta, Lp)))
+    return _record_jit(scene, cfg, K, L, r, angles, frame)
+
+
+def _record(scene: Scene, cfg: CacheConfig, K: int, L: V3, r, angles, frame):
+    """E, R and Ward-Heckbert gradients from the gather rays' radiance L and hit distances r."""
+    M, N = cfg.gather_m, cfg.gather_n
+    sin_t, cos_t, phi = angles
+    s, t = frame
+    cp, sp = jnp.cos(phi), jnp.sin(phi)
+    L = V3(*(c.reshape(K, M, N) for c in L))
+    r = r.reshape(K, M, N)
+    E = V3(*(jnp.pi / (M * N) * jnp.sum(c, axis=(1, 2)) for c in L))
+    inv_r = jnp.sum(jnp.where(jnp.isfinite(r), 1.0 / jnp.maximum(r, 1e-9), 0.0), axis=(1, 2))
+    scale = scene.lights.bound_radius
+    R = jnp.clip(jnp.where(inv_r > 0, (M * N) / jnp.maximum(inv_r, 1e-30), jnp.inf),
+                 cfg.r_min * scale, cfg.r_max * scale)
+    if not cfg.gradients:
+        zero = V3(*(jnp.zeros(K),) * 3)
+        return E, R, (zero, zero, zero), (zero, zero, zero)
+    # local base-plane directions
+    tan_t = sin_t / jnp.maximum(cos_t, 1e-6)
+    vkx, vky = -sp, cp                       # v_k = phi_k + pi/2
+    jm = jnp.arange(M, dtype=jnp.float32)[:, None]
+    kk = jnp.arange(N, dtype=jnp.float32)[None, :]
+    sin_minus = jnp.sqrt(jm / M)
+    cos2_minus = 1.0 - jm / M
+    sin_plus = jnp.sqrt((jm + 1.0) / M)
+    phi_minus = 2.0 * jnp.pi * kk / N
+    ukx, uky = jnp.cos(phi), jnp.sin(phi)
+    vmx, vmy = -jnp.sin(phi_minus), jnp.cos(phi_minus)
+    r_up = jnp.minimum(r, jnp.roll(r, 1, axis=1))      # min(r_{j-1,k}, r_jk)
+    r_side = jnp.minimum(r, jnp.roll(r, 1, axis=2))    # min(r_jk, r_{j,k-1})
+    finite = lambda x: jnp.where(jnp.isfinite(x) & (x > 0), x, jnp.inf)
+    gr, gt = [], []
+    for c in L:
+        # rotation: (pi/(MN)) sum v_k tan(theta) L
+        w = jnp.pi / (M * N) * tan_t * c
+        grx, gry = jnp.sum(w * vkx, axis=(1, 2)), jnp.sum(w * vky, axis=(1, 2))
+        gr.append(s * grx + t * gry)
+        # translation
+        dL_up = c - jnp.roll(c, 1, axis=1)
+        term_u = jnp.where(jm >= 1, sin_minus * cos2_minus / finite(r_up) * dL_up, 0.0)
+        term_u = (2.0 * jnp.pi / N) * term_u
+        dL_side = c - jnp.roll(c, 1, axis=2)
+        term_v = (sin_plus - sin_minus) / finite(r_side) * dL_side
+        gtx = jnp.sum(term_u * ukx + term_v * vmx, axis=(1, 2))
+        gty = jnp.sum(term_u * uky + term_v * vmy, axis=(1, 2))
+        gt.append(s * gtx + t * gty)
+    return E, R, tuple(gr), tuple(gt)
+
+
+# --- interpolation -------------------------------------------------------------------------------
+
+def ward_weight(x: V3, n: V3, rp: V3, rn: V3, R) -> Array:
+    """Ward's weight, zero for records behind x or facing away (never across opposed normals)."""
+    diff = x - rp
+    dist = length(diff)
+    nn = dot(n, rn)
+    w = 1.0 / jnp.maximum(dist / R + jnp.sqrt(jnp.maximum(1.0 - nn, 0.0)), 1e-6)
+    behind = dot(diff, (n + rn) * 0.5) < -0.01 * R
+    return jnp.where((nn > 0) & ~behind, w, 0.0)
+
+
+@jax.jit
+def interpolate(rec: Records, x: V3, n: V3, a):
+    """(E(x), sum of accepted weights) by Ward's interpolation over all records."""
+    def body(i, acc):
+        num, wsum = acc
+        rp, rn = V3(rec.p.x[i], rec.p.y[i], rec.p.z[i]), V3(rec.n.x[i], rec.n.y[i], rec.n.z[i])
+        w = ward_weight(x, n, rp, rn, rec.R[i])
+        w = jnp.where(rec.valid[i] & (w > 1.0 / a), w, 0.0)
+        rot = cross(rn, n)
+        diff = x - rp
+        new = []
+        for c, (Ec, grc, gtc) in enumerate(zip(rec.E, rec.gr, rec.gt)):
+            g_r = V3(grc.x[i], grc.y[i], grc.z[i])
+            g_t = V3(gtc.x[i], gtc.y[i], gtc.z[i])
+            e = Ec[i] + dot(rot, g_r) + dot(diff, g_t)
+            new.append(num[c] + w * jnp.maximum(e, 0.0))
+        return tuple(new), wsum + w
+
+    z = jnp.zeros_like(x.x)
+    num, wsum = jax.lax.fori_loop(0, rec.R.shape[0], body, ((z, z, z), z))
+    E = V3(*(jnp.where(wsum > 0, c / jnp.where(wsum > 0, wsum, 1.0), 0.0) for c in num))
+    return E, wsum
+
+
+# --- the estimator ---------------------------------------------------------------------------------
+
+@partial(jax.jit, static_argnames=("cfg",))
+def shading_points(scene: Scene, cfg: CacheConfig, seed, pixel, sample):
+    """First non-specular vertex of each camera sample (with the direct light found there)."""
+    W = scene.camera.width
+    key = rng.path_key(seed, pixel, sample)
+    o, d = C.sample_ray(scene.camera, pixel % W, pixel // W, rng.uniform(key, 0), rng.uniform(key, 1))
+    v = trace_to_diffuse(scene, WhittedConfig(max_depth=cfg.max_depth), lambda k: rng.uniform(key, k), o, d)
+    n_face = where(dot(v.n, v.wo) < 0, -v.n, v.n)
+    return v._replace(n=n_face)
+
+
+def _pad_records(recs: list[tuple], capacity: int) -> Records:
+    """Concatenate record batches (numpy) and pad to ``capacity`` rows."""
+    cat = lambda xs: np.concatenate(xs) if xs else np.zeros(0, np.float32)
+    parts = list(zip(*recs)) if recs else [[] for _ in range(7)]
+    def v3(items):
+        return V3(*(np.pad(cat([np.asarray(it[c]) for it in items]), (0, capacity - n)) for c in range(3)))
+    n = sum(len(np.asarray(r[3])) for r in recs)
+    p, nn, E, R = v3(parts[0]), v3(parts[1]), v3(parts[2]), np.pad(cat([np.asarray(x) for x in parts[3]]), (0, capacity - n), constant_values=1.0)
+    gr = tuple(v3([it[c] for it in parts[4]]) for c in range(3))
+    gt = tuple(v3([it[c] for it in parts[5]]) for c in range(3))
+    valid = np.arange(capacity) < n
+    to = lambda t: jax.tree_util.tree_map(jnp.asarray, t)
+    return to(Records(p, nn, E, R, gr, gt, valid))
+
+
+def _capacity(n: int) -> int:
+    return max(64, 1 << int(np.ceil(np.log2(max(n, 1)))))
+
+
+class ShadingPoints(NamedTuple):
+    p: np.ndarray        # [3, n] positions
+    n: np.ndarray        # [3, n] normals facing the viewer
+    found: np.ndarray    # [n] a non-specular vertex was reached
+
+
+class PhotonSource(NamedTuple):
+    """Gather rays read radiance from this global photon map instead of the path tracer."""
+    grid: object        # jgi.transport.photon_map.HashGrid
+    k: int = 50         # photons in the estimate
+    radius: float = 0.08  # maximum search radius
+
+
+def photon_source(scene: Scene, photons: int, seed: int, *, k: int = 50, radius: float = 0.08,
+                  max_depth: int = 8) -> PhotonSource:
+
+    grid = PMap.build_grid(trace_photons(scene, photons, seed=seed, max_depth=max_depth), radius, cap=128)
+    return PhotonSource(grid, k, float(grid.cell))
+
+
+def irradiance(scene: Scene, pts: ShadingPoints, *, cfg: CacheConfig, cached: bool, seed: int = 0,
+               stats: CacheStats | None = None, raster: tuple | None = None,
+               source: PhotonSource | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Indirect irradiance [3, n] at shading points, and the indices of the records made.
+
+    Every gather at point i uses random stream (seed, i), so a record made at point i equals
+    the uncached gather there: as a -> 0 the cache reproduces plain final gathering exactly.
+    With a photon ``source`` the gather rays' radiance comes from the global photon map
+    (Jensen's final gathering) instead of the path tracer.
+    ``raster = (px, py)`` (pixel coordinates of the points) makes the passes hierarchical:
+    pass k considers uncovered points on a pixel grid of spacing ``cfg.spacing / 2^k``, so
+    records appear where the criterion fails, coarse to fine (Ward's lazy creation, in
+    passes)."""
+    stats = stats if stats is not None else CacheStats()
+    n_pts = len(pts.found)
+    batch = 64
+    # the gather kernel depends only on the gather settings: one compilation for every a
+    gather_cfg = dataclasses.replace(cfg, a=0.0, spacing=1, passes=0, per_pass=1)
+
+    def compute(idx: np.ndarray):
+        out = []
+        for s0 in range(0, len(idx), batch):
+            sel = idx[s0:s0 + batch]
+            pad = np.pad(sel, (0, batch - len(sel)), mode="edge")
+            take = lambda a: V3(*(jnp.asarray(c[pad]) for c in a))
+            args = (scene, gather_cfg, jnp.uint32(seed), jnp.asarray(pad, jnp.int32), take(pts.p), take(pts.n))
+            if source is None:
+                E, R, gr, gt = gather(*args)
+            else:
+                E, R, gr, gt = gather_photons(*args, source.grid, k=source.k, radius=source.radius)
+            k = len(sel)
+            cut = lambda t: jax.tree_util.tree_map(lambda a: np.asarray(a)[:k], t)
+            out.append((V3(*pts.p[:, sel]), V3(*pts.n[:, sel]), cut(E), cut(R), cut(gr), cut(gt)))
+            stats.gather_rays += k * cfg.gather_m * cfg.gather_n
+        return out
+
+    def fill(target, idx, outs):
+        for o, s0 in zip(outs, range(0, len(idx), batch)):
+            target[:, idx[s0:s0 + batch]] = np.stack([np.asarray(c) for c in o[2]])
+
+    E_final = np.zeros((3, n_pts), np.float32)
+    found = pts.found
+    if not cached:
+        idx = np.nonzero(found)[0]
+        fill(E_final, idx, compute(idx))
+        stats.direct_points = len(idx)
+        return E_final, np.zeros(0, np.int64)
+    def on_grid(k):
+        if raster is None:
+            return np.ones(n_pts, bool)
+        sp = max(1, cfg.spacing >> k)
+        px, py = raster
+        return ((px % sp) == sp // 2) & ((py % sp) == sp // 2)
+
+    cand = np.nonzero(found & on_grid(0))[0]
+    rec_idx = [cand]
+    recs = compute(cand)
+    covered = np.zeros(n_pts, bool)
+    qp, qn = V3(*(jnp.asarray(c) for c in pts.p)), V3(*(jnp.asarray(c) for c in pts.n))
+    for it in range(cfg.passes + 1):
+        table = _pad_records(recs, _capacity(sum(len(r[3]) for r in recs)))
+        E, wsum = interpolate(table, qp, qn, jnp.float32(cfg.a))
+        covered = (np.asarray(wsum) > 0) & found
+        uncovered = np.nonzero(found & ~covered)[0]
+        stats.history.append((int(sum(len(r[3]) for r in recs)), len(uncovered)))
+        if it == cfg.passes or len(uncovered) == 0:
+            break
+        stats.passes += 1
+        new = np.nonzero(found & ~covered & on_grid(it + 1))[0]
+        if len(new) > cfg.per_pass:
+            new = new[:: -(-len(new) // cfg.per_pass)]
+        rec_idx.append(new)
+        recs += compute(new)
+    stats.records = sum(len(r[3]) for r in recs)
+    E_final[:] = np.stack([np.asarray(c) for c in E])
+    rest = np.nonzero(found & ~covered)[0]
+    fill(E_final, rest, compute(rest))
+    stats.direct_points = len(rest)
+    return E_final, np.concatenate(rec_idx)
+
+
+def shade(scene: Scene, cfg: CacheConfig, seed: int, spp: int):
+    W, H = scene.camera.width, scene.camera.height
+    P = W * H
+    pixel = jnp.tile(jnp.arange(P, dtype=jnp.int32), spp)
+    sample = jnp.repeat(jnp.arange(spp, dtype=jnp.int32), P)
+    return shading_points(scene, cfg, jnp.uint32(seed), pixel, sample)
+
+
+def render(scene: Scene, *, spp: int = 1, seed: int = 0, cfg: CacheConfig = CacheConfig(),
+           cached: bool = True, stats: CacheStats | None = None, photons: int = 0,
+           photon_k: int = 50) -> np.ndarray:
+    """Direct light + specular chains exactly, indirect diffuse light from the irradiance cache
+    (``cached=False``: plain final gathering at every shading point, for comparison); with
+    ``photons > 0`` the gather rays read a global photon map of that many photons."""
+    W, H = scene.camera.width, scene.camera.height
+    v = shade(scene, cfg, seed, spp)
+    pts = ShadingPoints(np.stack([np.asarray(c) for c in v.p]),
+                        np.stack([np.asarray(c) for c in v.n]), np.asarray(v.found))
+    pix = np.arange(len(pts.found)) % (W * H)
+    source = photon_source(scene, photons, seed, k=photon_k) if photons else None
+    E, _ = irradiance(scene, pts, cfg=cfg, cached=cached, seed=seed, stats=stats,
+                      raster=(pix % W, pix // W), source=source)
+    kd = scene.materials.diffuse
+    m = np.asarray(v.material)
+    albedo = np.stack([np.asarray(kd.x)[m], np.asarray(kd.y)[m], np.asarray(kd.z)[m]])
+    beta = np.stack([np.asarray(c) for c in v.beta])
+    L = np.stack([np.asarray(c) for c in v.L]) + np.where(pts.found, beta * albedo / np.pi * E, 0.0)
+    return L.reshape(3, spp, H, W).mean(1).transpose(1, 2, 0).astype(np.float32)
+
+
+def _run(scene: Scene, *, spp: int, seed: int, progress: bool = False, a=0.2, gather_m=8,
+         gather_n=24, spacing=8, passes=4, cached=True, gradients=True, photons=0, photon_k=50):
+    cfg = CacheConfig(a=a, gather_m=gather_m, gather_n=gather_n, spacing=spacing, passes=passes,
+                      gradients=gradients)
+    return render(scene, spp=spp, seed=seed, cfg=cfg, cached=cached, photons=photons, photon_k=photon_k)
+
+
+def _register():
+    register(Estimator(
+        "irradiance_cache",
+        "direct light + specular chains, indirect diffuse light by final gathering with an "
+        "irradiance cache (Ward 1988)", _run,
+        (Param("a", 0.2, "Ward's error threshold (smaller: more records)", float, minimum=1e-4, maximum=10.0),
+         Param("gather_m", 8, "final-gather strata in theta", int, minimum=1, maximum=256),
+         Param("gather_n", 24, "final-gather strata in phi", int, minimum=1, maximum=512),
+         Param("spacing", 8, "first-pass record spacing in pixels", int, minimum=1),
+         Param("passes", 4, "refinement passes (spacing halves each pass)", int, minimum=0, maximum=16),
+         Param("cached", True, "false: plain final gathering at every shading point", bool),
+         Param("gradients", True, "use rotation and translation gradients", bool),
+         Param("photons", 0, "> 0: gather rays read a global photon map of this many photons "
+               "(Jensen); 0: the path tracer", int, minimum=0),
+         Param("photon_k", 50, "photons in each gather estimate", int, minimum=1, maximum=1024))))
+
+
+_register()

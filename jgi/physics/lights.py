@@ -1,0 +1,313 @@
+"""Light sampling: ``sample_li`` (towards a point), ``pdf_li``, ``emitted`` and ``sample_emission``.
+
+All lights are *elements* of one table (:class:`jgi.scene.Lights`), chosen with probability
+proportional to emitted power (``pmf``). Densities returned here include that selection
+probability, so MIS code compares like with like.
+
+Per kind (L_e radiance, I intensity, E irradiance, A area, R bounding-sphere radius):
+
+============  ==================================  ============================================
+kind          sample_li (towards x)               sample_emission (photons, light paths)
+============  ==================================  ============================================
+area quad,    uniform point y on the element,     uniform y, cosine-distributed direction:
+triangle      pdf = |x-y|^2 / (A cos theta_y)     pdf = (1/A)(cos/pi), power pi A L_e
+area sphere   uniform in the cone subtended       uniform y on the sphere, cosine direction
+              at x: pdf = 1/(2 pi (1-cos_max))
+point         delta, L_i = I / d^2                uniform direction, power 4 pi I
+spot          delta, I * smoothstep falloff       uniform within the cone
+directional   delta, L_i = E along -direction     parallel rays over the scene's bounding
+                                                  disc, power E pi R^2
+environment   uniform direction, pdf 1/(4 pi)     uniform direction, bounding disc
+============  ==================================  ============================================
+Quad and triangle emitters radiate on the side of their normal only; spheres outwards.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import jax.numpy as jnp
+from jax import Array
+
+from .. import _xla as X
+from .._xla import SMALL_TABLE, take
+from ..core import warps
+from ..core.vec import EDGE_ON_COS, V3, coordinate_system, dot, normalize, to_world, where
+from ..scene.data import (
+    AREA_QUAD,
+    AREA_SPHERE,
+    AREA_TRIANGLE,
+    DIRECTIONAL,
+    ENVIRONMENT,
+    POINT,
+    SPOT,
+    Lights,
+)
+
+AREA_KINDS = (AREA_QUAD, AREA_TRIANGLE, AREA_SPHERE)
+
+
+class LightSample(NamedTuple):
+    wi: V3          # unit direction from the reference point towards the light
+    dist: Array     # distance to the sampled point (inf for directional and environment)
+    Li: V3          # incident radiance (or I/d^2, E for delta lights), not divided by pdf
+    pdf: Array      # solid-angle pdf incl. selection; for delta lights the selection pmf
+    delta: Array    # True for point, spot and directional lights (no MIS possible)
+    valid: Array
+
+
+class EmissionSample(NamedTuple):
+    p: V3            # origin of the light path
+    n: V3            # surface normal at p (zero for point/spot, direction for directional)
+    d: V3            # direction of travel
+    weight: V3       # L_e |cos| / (pmf pdf_pos pdf_dir): the light-path throughput (power)
+    pdf_pos: Array   # area density of p incl. selection (the pmf alone for delta positions)
+    pdf_dir: Array   # solid-angle density of d (1 for a Dirac direction)
+    delta_pos: Array
+    delta_dir: Array
+    element: Array
+
+
+def _take(v: V3, i) -> V3:
+    """Row i of a V3 table (selects for small tables: a gather would split the caller's kernel
+    and keep it from vectorising)."""
+    return V3(take(v.x, i), take(v.y, i), take(v.z, i))
+
+
+def select(lights: Lights, u: Array) -> Array:
+    """Element index by inverting the power CDF: the number of CDF entries <= u. Small tables
+    count with compares (they fuse into the caller's kernel; ``searchsorted`` is a loop of
+    kernels of its own)."""
+    if lights.count <= SMALL_TABLE:
+        i = jnp.zeros(jnp.shape(u), jnp.int32)
+        for k in range(lights.count - 1):   # the last entry is 1 > u
+            i = i + (lights.cdf[k] <= u).astype(jnp.int32)
+        return i
+    i = jnp.searchsorted(lights.cdf, u, side="right")
+    return jnp.clip(i, 0, lights.count - 1).astype(jnp.int32)
+
+
+def spot_falloff(cos_theta, cos_total, cos_falloff) -> Array:
+    """pbrt-v4's smoothstep falloff between the cutoff and the falloff-start cones."""
+    span = jnp.maximum(cos_falloff - cos_total, 1e-6)
+    t = jnp.clip((cos_theta - cos_total) / span, 0.0, 1.0)
+    return jnp.where(cos_theta >= cos_falloff, 1.0, t * t * (3.0 - 2.0 * t))
+
+
+def _area_to_solid_angle(pdf_area, dist2, cos_light):
+    ok = (cos_light > EDGE_ON_COS) & (pdf_area > 0)
+    return jnp.where(ok, X.div(pdf_area * dist2, jnp.where(ok, cos_light, 1.0)), 0.0)
+
+
+def _sphere_cone(center: V3, radius, x: V3):
+    """(axis, cos_max, one_minus_cos_max, outside) of the cone the sphere subtends at x."""
+    to_c = center - x
+    dc2 = dot(to_c, to_c)
+    outside = dc2 > radius * radius * 1.0001
+    sin2 = jnp.where(outside, radius * radius / jnp.where(dc2 > 0, dc2, 1.0), 1.0)
+    cos_max = jnp.sqrt(jnp.maximum(1.0 - sin2, 0.0))
+    return normalize(to_c), cos_max, sin2 / (1.0 + cos_max), outside
+
+
+def sample_li(lights: Lights, x: V3, u_sel: Array, u1: Array, u2: Array) -> LightSample:
+    """Sample a direction from x towards a light (next-event estimation)."""
+    k = select(lights, u_sel)
+    kind = take(lights.kind, k)
+    pmf = take(lights.pmf, k)
+    p0, e1, e2 = _take(lights.p0, k), _take(lights.e1, k), _take(lights.e2, k)
+    emission = _take(lights.emission, k)
+    zero = jnp.zeros_like(u1)
+    out = LightSample(V3(zero, zero, zero + 1), zero, V3(zero, zero, zero), zero, zero > 0,
+                      zero > 0)
+    kinds = lights.kinds
+
+    def choose(sel, s: LightSample, acc: LightSample) -> LightSample:
+        return LightSample(where(sel, s.wi, acc.wi), jnp.where(sel, s.dist, acc.dist),
+                           where(sel, s.Li, acc.Li), jnp.where(sel, s.pdf, acc.pdf),
+                           jnp.where(sel, s.delta, acc.delta), jnp.where(sel, s.valid, acc.valid))
+
+    def towards(y: V3, n_light: V3, pdf_area, one_sided=True):
+        v = y - x
+        d2 = dot(v, v)
+        inv = jnp.where(d2 > 0, X.rsqrt(jnp.where(d2 > 0, d2, 1.0)), 1.0)
+        dist = d2 * inv
+        wi = v * inv
+        cos_l = -dot(wi, n_light)
+        pdf = _area_to_solid_angle(pdf_area, d2, cos_l) * pmf
+        ok = (pdf > 0) & (dist > 0)
+        return LightSample(wi, dist, where(ok, emission, V3(zero, zero, zero)), pdf, zero > 0, ok)
+
+    if AREA_QUAD in kinds or AREA_TRIANGLE in kinds:
+        area = take(lights.area, k)
+        inv_area = jnp.where(area > 0, X.recip(jnp.where(area > 0, area, 1.0)), 0.0)
+        n_l = _take(lights.normal, k)
+        if AREA_QUAD in kinds:
+            s = towards(p0 + e1 * u1 + e2 * u2, n_l, inv_area)
+            out = choose(kind == AREA_QUAD, s, out)
+        if AREA_TRIANGLE in kinds:
+            b1, b2 = warps.sample_uniform_triangle(u1, u2)
+            s = towards(p0 + e1 * b1 + e2 * b2, n_l, inv_area)
+            out = choose(kind == AREA_TRIANGLE, s, out)
+    if AREA_SPHERE in kinds:
+        r = take(lights.radius, k)
+        axis, cos_max, one_minus, outside = _sphere_cone(p0, r, x)
+        # one_minus = sin^2 / (1 + cos) keeps small (distant) cones their true width in float32
+        d_cone = to_world(warps.sample_uniform_cone(u1, u2, cos_max, one_minus), axis)
+        # the sampled ray's nearest intersection with the sphere (tangent point if it grazes)
+        oc = x - p0
+        b = dot(oc, d_cone)
+        closest = oc - d_cone * b
+        disc = jnp.maximum(r * r - dot(closest, closest), 0.0)
+        t = -b - jnp.sqrt(disc)
+        pdf_cone = jnp.where(one_minus > 0, 1.0 / (2.0 * jnp.pi * jnp.where(one_minus > 0, one_minus, 1.0)), 0.0)
+        ok = outside & (pdf_cone > 0)
+        cone = LightSample(d_cone, t, where(ok, emission, V3(zero, zero, zero)), pdf_cone * pmf,
+                           zero > 0, ok)
+        # inside the sphere nothing is received: spheres emit outwards only (as ``emitted``)
+        out = choose((kind == AREA_SPHERE) & outside, cone, out)
+        out = choose((kind == AREA_SPHERE) & ~outside, out._replace(valid=zero > 0), out)
+    if POINT in kinds or SPOT in kinds:
+        v = p0 - x
+        d2 = dot(v, v)
+        dist = jnp.sqrt(d2)
+        ok = d2 > 0
+        wi = v / jnp.where(ok, dist, 1.0)
+        inv_d2 = jnp.where(ok, 1.0 / jnp.where(ok, d2, 1.0), 0.0)
+        if POINT in kinds:
+            s = LightSample(wi, dist, emission * inv_d2, pmf, ok, ok)
+            out = choose(kind == POINT, s, out)
+        if SPOT in kinds:
+            fall = spot_falloff(-dot(wi, _take(lights.direction, k)), take(lights.cos_total, k),
+                                take(lights.cos_falloff, k))
+            s = LightSample(wi, dist, emission * (inv_d2 * fall), pmf, ok, ok & (fall > 0))
+            out = choose(kind == SPOT, s, out)
+    if DIRECTIONAL in kinds:
+        s = LightSample(-_take(lights.direction, k), zero + jnp.inf, emission, pmf, zero == 0,
+                        zero == 0)
+        out = choose(kind == DIRECTIONAL, s, out)
+    if ENVIRONMENT in kinds:
+        s = LightSample(warps.sample_uniform_sphere(u1, u2), zero + jnp.inf, emission,
+                        pmf * warps.INV_4PI, zero > 0, zero == 0)
+        out = choose(kind == ENVIRONMENT, s, out)
+    return out
+
+
+def pdf_li(lights: Lights, k: Array, x: V3, y: V3, n_y: V3) -> Array:
+    """Solid-angle density (incl. selection) with which ``sample_li`` from x produces the point
+    y on emitter element k (with geometric normal n_y); used by MIS when a BSDF-sampled ray hits
+    an emitter. For the environment pass ``k = lights.environment``.
+
+    ``n_y`` is the primitive's geometric normal (unflipped). Like ``sample_li`` and ``emitted``,
+    the density is one-sided: zero when x is behind a quad or triangle emitter or inside (or on)
+    a sphere emitter, where ``sample_li`` never produces y."""
+    kk = jnp.maximum(k, 0)
+    kind = take(lights.kind, kk)
+    pmf = take(lights.pmf, kk)
+    v = y - x
+    d2 = dot(v, v)
+    cos_l = -dot(v, n_y) * jnp.where(d2 > 0, X.rsqrt(jnp.where(d2 > 0, d2, 1.0)), 1.0)
+    area = take(lights.area, kk)
+    inv_area = jnp.where(area > 0, X.recip(jnp.where(area > 0, area, 1.0)), 0.0)
+    pdf = _area_to_solid_angle(inv_area, d2, cos_l)
+    kinds = lights.kinds
+    if AREA_SPHERE in kinds:
+        _, _, one_minus, outside = _sphere_cone(_take(lights.p0, kk), take(lights.radius, kk), x)
+        pdf_cone = jnp.where(one_minus > 0, 1.0 / (2.0 * jnp.pi * jnp.where(one_minus > 0, one_minus, 1.0)), 0.0)
+        pdf = jnp.where(kind == AREA_SPHERE, jnp.where(outside, pdf_cone, 0.0), pdf)
+    if ENVIRONMENT in kinds:
+        pdf = jnp.where(kind == ENVIRONMENT, warps.INV_4PI, pdf)
+    return jnp.where(k >= 0, pdf * pmf, 0.0)
+
+
+def emitted(lights: Lights, k: Array, n_y: V3, wo: V3) -> V3:
+    """Radiance leaving emitter element k towards wo (zero behind one-sided emitters)."""
+    kk = jnp.maximum(k, 0)
+    e = _take(lights.emission, kk)
+    front = (k >= 0) & (dot(n_y, wo) > EDGE_ON_COS)
+    z = jnp.zeros_like(e.x)
+    return where(front, e, V3(z, z, z))
+
+
+def environment_radiance(lights: Lights, like: Array) -> V3:
+    if lights.environment < 0:
+        z = jnp.zeros_like(like)
+        return V3(z, z, z)
+    e = _take(lights.emission, lights.environment)
+    return V3(e.x + 0 * like, e.y + 0 * like, e.z + 0 * like)
+
+
+def sample_emission(lights: Lights, u_sel, u1, u2, u3, u4) -> EmissionSample:
+    """Sample a light path's first vertex and direction (photon emission, lecture rules)."""
+    k = select(lights, u_sel)
+    kind = take(lights.kind, k)
+    pmf = take(lights.pmf, k)
+    p0, e1, e2 = _take(lights.p0, k), _take(lights.e1, k), _take(lights.e2, k)
+    emission = _take(lights.emission, k)
+    kinds = lights.kinds
+    zero = jnp.zeros_like(u1)
+    Z = V3(zero, zero, zero)
+    inv_pmf = jnp.where(pmf > 0, 1.0 / jnp.where(pmf > 0, pmf, 1.0), 0.0)
+    out = EmissionSample(Z, Z, V3(zero, zero, zero + 1), Z, zero, zero, zero > 0, zero > 0, k)
+
+    def choose(sel, s: EmissionSample, acc: EmissionSample) -> EmissionSample:
+        return EmissionSample(*(where(sel, a, b) if isinstance(a, V3) else jnp.where(sel, a, b)
+                                for a, b in zip(s, acc)))
+
+    if any(kd in kinds for kd in AREA_KINDS):
+        area = take(lights.area, k)
+        inv_area = jnp.where(area > 0, 1.0 / jnp.where(area > 0, area, 1.0), 0.0)
+        local = warps.sample_cosine_hemisphere(u3, u4)
+        pdf_dir = warps.pdf_cosine_hemisphere(local.z)
+        # L_e cos / (pmf (1/A) (cos/pi)) = L_e pi A / pmf
+        w = emission * (jnp.pi * area * inv_pmf)
+
+        def area_sample(y, n):
+            ok = (area > 0) & (local.z > EDGE_ON_COS)   # as emitted() and pdf_emission_dir
+            return EmissionSample(y, n, to_world(local, n), where(ok, w, Z), inv_area * pmf,
+                                  pdf_dir, zero > 0, zero > 0, k)
+        if AREA_QUAD in kinds:
+            s = area_sample(p0 + e1 * u1 + e2 * u2, _take(lights.normal, k))
+            out = choose(kind == AREA_QUAD, s, out)
+        if AREA_TRIANGLE in kinds:
+            b1, b2 = warps.sample_uniform_triangle(u1, u2)
+            s = area_sample(p0 + e1 * b1 + e2 * b2, _take(lights.normal, k))
+            out = choose(kind == AREA_TRIANGLE, s, out)
+        if AREA_SPHERE in kinds:
+            n = warps.sample_uniform_sphere(u1, u2)
+            s = area_sample(p0 + n * take(lights.radius, k), n)
+            out = choose(kind == AREA_SPHERE, s, out)
+    if POINT in kinds:
+        d = warps.sample_uniform_sphere(u3, u4)
+        s = EmissionSample(p0, Z, d, emission * (4.0 * jnp.pi * inv_pmf), pmf, zero + warps.INV_4PI,
+                           zero == 0, zero > 0, k)
+        out = choose(kind == POINT, s, out)
+    if SPOT in kinds:
+        axis = _take(lights.direction, k)
+        ct, cf = take(lights.cos_total, k), take(lights.cos_falloff, k)
+        d = to_world(warps.sample_uniform_cone(u3, u4, ct), axis)
+        pdf_dir = warps.pdf_uniform_cone(ct)
+        fall = spot_falloff(dot(d, axis), ct, cf)
+        w = emission * (fall * jnp.where(pdf_dir > 0, 1.0 / jnp.where(pdf_dir > 0, pdf_dir, 1.0), 0.0) * inv_pmf)
+        s = EmissionSample(p0, Z, d, w, pmf, pdf_dir, zero == 0, zero > 0, k)
+        out = choose(kind == SPOT, s, out)
+    if DIRECTIONAL in kinds or ENVIRONMENT in kinds:
+        R = lights.bound_radius
+        disc_x, disc_y = warps.sample_concentric_disc(u1, u2)
+        disc_area = jnp.pi * R * R
+
+        def parallel(d):
+            s_, t_ = coordinate_system(d)
+            p = lights.bound_center - d * R + (s_ * disc_x + t_ * disc_y) * R
+            return p
+        if DIRECTIONAL in kinds:
+            d = _take(lights.direction, k)
+            s = EmissionSample(parallel(d), d, d, emission * (disc_area * inv_pmf),
+                               pmf / disc_area, zero + 1.0, zero > 0, zero == 0, k)
+            out = choose(kind == DIRECTIONAL, s, out)
+        if ENVIRONMENT in kinds:
+            d = -warps.sample_uniform_sphere(u3, u4)
+            s = EmissionSample(parallel(d), d, d,
+                               emission * (disc_area * 4.0 * jnp.pi * inv_pmf),
+                               pmf / disc_area, zero + warps.INV_4PI, zero > 0, zero > 0, k)
+            out = choose(kind == ENVIRONMENT, s, out)
+    return out

@@ -1,0 +1,204 @@
+"""Built-in scenes, by name: ``jgi.scenes.get("cornell_box")`` or ``jgi.load_scene(name)``.
+
+* ``cornell_box``: the classic box, with the geometry, albedos and light of Mitsuba 3's
+  ``cornell_box()`` (so benchmarks compare like with like).
+* ``cornell_box_caustics``: the same room with a mirror sphere and a glass sphere (caustics).
+* ``glass_sphere``: a glass sphere on a diffuse plane under a small area light.
+* ``mirror_caustic``: a small lamp facing up at a mirror ceiling, so the floor is lit only by
+  paths E D S L (a mirror caustic): the test scene for Veach's caustic perturbation.
+* ``metal_ring``: a mirror ring (open cylinder, a trimesh mesh) on a plane: the cardioid caustic.
+* ``veach_plates``: Veach's MIS scene, four Phong plates of decreasing roughness lit by four
+  spherical lights of decreasing size and increasing radiance (equal power).
+* ``furnace``: a closed box whose walls all emit L_e and reflect with albedo rho, the camera
+  inside: radiance is L_e (1 + rho + ... + rho^(D-1)) for max depth D.
+* ``point_light_plane``: a point light of intensity I at height h over a diffuse plane: the
+  radiance is (rho / pi) I cos(theta) / d^2 at every point.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import trimesh
+
+from ..core import transform as xf
+from .data import Scene, SceneBuilder
+
+WHITE = (0.885809, 0.698859, 0.666422)
+GREEN = (0.105421, 0.37798, 0.076425)
+RED = (0.570068, 0.0430135, 0.0443706)
+CORNELL_LIGHT = (18.387, 13.9873, 6.75357)
+
+
+def cornell_room(b: SceneBuilder, resolution: int) -> None:
+    """Add the room of Mitsuba 3's ``cornell_box()`` to ``b``: its three materials ("white",
+    "green", "red"), five walls, the ceiling light and the camera, without the two blocks."""
+    b.material("white", "diffuse", diffuse=WHITE)
+    b.material("green", "diffuse", diffuse=GREEN)
+    b.material("red", "diffuse", diffuse=RED)
+    T, R, S = xf.translate, xf.rotate, xf.scale
+    b.rectangle(T([0, 0.99, 0.01]) @ R([1, 0, 0], 90) @ S([0.23, 0.19, 0.19]), "white",
+                emission=CORNELL_LIGHT)
+    b.rectangle(T([0, -1, 0]) @ R([1, 0, 0], -90), "white")
+    b.rectangle(T([0, 1, 0]) @ R([1, 0, 0], 90), "white")
+    b.rectangle(T([0, 0, -1]), "white")
+    b.rectangle(T([1, 0, 0]) @ R([0, 1, 0], -90), "green")
+    b.rectangle(T([-1, 0, 0]) @ R([0, 1, 0], 90), "red")
+    b.camera(position=(0, 0, 3.9), look_at=(0, 0, 0), up=(0, 1, 0), fov=39.3077,
+             width=resolution, height=resolution, fov_axis="smaller")
+
+
+def cornell_box(resolution: int = 256) -> Scene:
+    b = SceneBuilder("cornell_box")
+    cornell_room(b, resolution)
+    T, R, S = xf.translate, xf.rotate, xf.scale
+    b.cube(T([0.335, -0.7, 0.38]) @ R([0, 1, 0], -17) @ S(0.3), "white")
+    b.cube(T([-0.33, -0.4, -0.28]) @ R([0, 1, 0], 18.25) @ S([0.3, 0.61, 0.3]), "white")
+    return b.build()
+
+
+def cornell_box_caustics(resolution: int = 256) -> Scene:
+    b = SceneBuilder("cornell_box_caustics")
+    cornell_room(b, resolution)
+    b.material("mirror", "mirror", specular=(0.95, 0.95, 0.95))
+    b.material("glass", "dielectric", ior=1.5)
+    b.sphere((-0.45, -0.65, -0.3), 0.35, "mirror")
+    b.sphere((0.45, -0.65, 0.3), 0.35, "glass")
+    return b.build()
+
+
+def glass_sphere(resolution: int = 256) -> Scene:
+    b = SceneBuilder("glass_sphere")
+    b.material("floor", "diffuse", diffuse=(0.8, 0.8, 0.8))
+    b.material("glass", "dielectric", ior=1.5)
+    b.material("lamp", "diffuse", diffuse=(0.0, 0.0, 0.0))
+    b.quad((-4, 0, -4), (0, 0, 8), (8, 0, 0), "floor")
+    b.sphere((0, 1, 0), 1.0, "glass")
+    s = 0.25  # a small square light, facing down
+    b.quad((-s + 1.0, 4.0, -s), (2 * s, 0, 0), (0, 0, 2 * s), "lamp", emission=(200.0, 200.0, 200.0))
+    b.camera(position=(0, 4.5, 7.5), look_at=(0, 0.6, 0), fov=35, width=resolution,
+             height=resolution)
+    return b.build()
+
+
+def mirror_caustic(resolution: int = 256) -> Scene:
+    b = SceneBuilder("mirror_caustic")
+    b.material("floor", "diffuse", diffuse=(0.8, 0.8, 0.8))
+    b.material("mirror", "mirror", specular=(0.9, 0.9, 0.9))
+    b.material("lamp", "diffuse", diffuse=(0.0, 0.0, 0.0))
+    b.quad((-2, 0, -2), (0, 0, 4), (4, 0, 0), "floor")              # normal +y
+    b.quad((-2, 2, -2), (4, 0, 0), (0, 0, 4), "mirror")             # normal -y, facing the floor
+    s = 0.5  # a square lamp facing up: its light reaches the floor only by the mirror
+    b.quad((-s, 0.6, -s), (0, 0, 2 * s), (2 * s, 0, 0), "lamp", emission=(8.0, 8.0, 8.0))
+    b.camera(position=(0, 1.2, 4.5), look_at=(0, 0, 0), fov=40, width=resolution,
+             height=resolution)
+    return b.build()
+
+
+def metal_ring(resolution: int = 256, segments: int = 96) -> Scene:
+    """A thin mirror ring (open cylinder) on a diffuse plane, lit from a low angle."""
+    b = SceneBuilder("metal_ring")
+    b.material("floor", "diffuse", diffuse=(0.8, 0.8, 0.8))
+    b.material("metal", "mirror", specular=(0.95, 0.85, 0.55))
+    b.material("lamp", "diffuse", diffuse=(0.0, 0.0, 0.0))
+    b.quad((-3, 0, -3), (0, 0, 6), (6, 0, 0), "floor")
+    v, f = ring_mesh(radius=1.0, height=0.35, segments=segments)
+    b.mesh(v, f, "metal")
+    s = 0.15
+    b.quad((-s, 2.0, 3.0 - s), (2 * s, 0, 0), (0, 0, 2 * s), "lamp", emission=(300.0, 300.0, 300.0))
+    b.camera(position=(0, 3.2, -2.6), look_at=(0, 0, 0.2), fov=40, width=resolution,
+             height=resolution)
+    return b.build()
+
+
+def ring_mesh(radius: float, height: float, segments: int):
+    """Open cylinder (both faces reflect: the mirror material is two-sided) built with trimesh."""
+
+    ann = trimesh.creation.cylinder(radius=radius, height=height, sections=segments)
+    # keep only the side wall: drop the caps (faces whose normal is along the axis)
+    keep = np.abs(ann.face_normals[:, 2]) < 0.5
+    v = np.asarray(ann.vertices)
+    f = np.asarray(ann.faces)[keep]
+    v = v[:, [0, 2, 1]] + np.array([0.0, height / 2, 0.0])  # axis z -> y, standing on the floor
+    return v, f
+
+
+def veach_plates(resolution: int = 256) -> Scene:
+    """Veach's MIS scene (1997, fig. 9.8): four plates from rough (Phong n = 30) to nearly
+    mirror-like (n = 10^4), each tilted to reflect a row of four spherical lights of radius
+    0.9 .. 0.03 and equal power (radiance ~ 1 / r^2) into the camera. BSDF sampling wins on
+    smooth plates with large lights, light sampling on rough plates with small lights."""
+    b = SceneBuilder("veach_plates")
+    b.material("floor", "diffuse", diffuse=(0.3, 0.3, 0.3))
+    b.material("lamp", "diffuse", diffuse=(0.0, 0.0, 0.0))
+    b.quad((-12, -4.5, -12), (0, 0, 30), (24, 0, 0), "floor")
+    b.quad((-12, -4.5, -4), (24, 0, 0), (0, 16, 0), "floor")
+    eye = np.array([0.0, 2.0, 15.0])
+    light_row = np.array([0.0, 0.2, -2.0])
+    centers = [(0.0, -3.6, 4.4), (0.0, -2.75, 3.0), (0.0, -1.8, 1.7), (0.0, -0.75, 0.5)]
+    for i, (e, c) in enumerate(zip((30.0, 150.0, 1000.0, 10000.0), centers)):
+        c = np.array(c)
+        n = (eye - c) / np.linalg.norm(eye - c) + (light_row - c) / np.linalg.norm(light_row - c)
+        n /= np.linalg.norm(n)
+        along = np.cross(np.array([1.0, 0.0, 0.0]), n)  # in the plate, perpendicular to x
+        u, v = np.array([8.0, 0.0, 0.0]), along * 1.25
+        b.material(f"plate{i}", "phong", diffuse=(0.0, 0.0, 0.0), specular=(0.4, 0.4, 0.4), exponent=e)
+        b.quad(c - u / 2 - v / 2, u, v, f"plate{i}")
+    for i, r in enumerate((0.9, 0.3, 0.1, 0.03)):
+        radiance = 4.0 * (0.3 / r) ** 2  # equal power
+        b.sphere(light_row + np.array([-3.75 + 2.5 * i, 0.0, 0.0]), r, "lamp",
+                 emission=(radiance, radiance * 0.95, radiance * 0.85))
+    b.sphere((8.0, 12.0, 10.0), 1.0, "lamp", emission=(6.0, 6.0, 6.0))  # dim fill light
+    b.camera(position=tuple(eye), look_at=(0, -1.6, 2.0), fov=34, width=resolution,
+             height=resolution)
+    return b.build()
+
+
+def furnace(resolution: int = 32, albedo: float = 0.5, emission: float = 1.0) -> Scene:
+    """Closed box (inward normals); every wall emits ``emission`` and reflects ``albedo``."""
+    b = SceneBuilder("furnace")
+    b.material("wall", "diffuse", diffuse=(albedo, albedo, albedo))
+    e = (emission, emission, emission)
+    for c, u, v in _inward_box_faces():
+        b.quad(c, u, v, "wall", emission=e)
+    b.camera(position=(0.1, -0.2, 0.3), look_at=(0.5, 0.2, -1), fov=60, width=resolution,
+             height=resolution)
+    return b.build()
+
+
+def _inward_box_faces():
+    """Faces of [-1, 1]^3 with cross(u, v) pointing into the box."""
+    return [
+        ((-1, -1, 1), (0, 2, 0), (2, 0, 0)), ((1, -1, -1), (0, 2, 0), (-2, 0, 0)),
+        ((1, -1, 1), (0, 2, 0), (0, 0, -2)), ((-1, -1, -1), (0, 2, 0), (0, 0, 2)),
+        ((-1, 1, 1), (0, 0, -2), (2, 0, 0)), ((-1, -1, -1), (0, 0, 2), (2, 0, 0)),
+    ]
+
+
+def point_light_plane(resolution: int = 32, intensity: float = 10.0, height: float = 1.0,
+                      albedo: float = 0.5) -> Scene:
+    b = SceneBuilder("point_light_plane")
+    b.material("plane", "diffuse", diffuse=(albedo, albedo, albedo))
+    b.quad((-50, 0, -50), (0, 0, 100), (100, 0, 0), "plane")
+    b.point_light((0, height, 0), (intensity, intensity, intensity))
+    b.camera(position=(0, 3, 3), look_at=(0, 0, 0), fov=50, width=resolution, height=resolution)
+    return b.build()
+
+
+BUILTINS = {
+    "cornell_box": cornell_box,
+    "cornell_box_caustics": cornell_box_caustics,
+    "glass_sphere": glass_sphere,
+    "metal_ring": metal_ring,
+    "veach_plates": veach_plates,
+    "furnace": furnace,
+    "point_light_plane": point_light_plane,
+    "mirror_caustic": mirror_caustic,
+}
+
+
+def get(name: str, **kwargs) -> Scene:
+    try:
+        fn = BUILTINS[name]
+    except KeyError:
+        raise KeyError(f"unknown built-in scene '{name}'; available: {', '.join(BUILTINS)}") from None
+    return fn(**kwargs)

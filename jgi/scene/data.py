@@ -1,0 +1,628 @@
+"""The scene: an immutable pytree of struct-of-arrays tables with static sizes.
+
+Every float in a scene is a pytree leaf, so one compiled estimator serves every scene with the
+same *structure* (primitive counts and which material/light kinds occur), and ``jax.grad`` can
+differentiate an image with respect to any of them (albedos, light emission, positions).
+
+Tables:
+  * ``Spheres``, ``Rects`` (axis-aligned rectangles), ``Boxes`` (oriented cubes), ``Quads``
+    (other parallelograms), ``Triangles``: geometry, a material index and an emitter index (the
+    light element that makes the primitive emissive, or -1). The builder files each quad and
+    cube under the most specific table that represents it exactly, since the ray test is the
+    renderer's inner loop.
+  * ``Materials``: one row per material; ``kind`` selects the BSDF (see :mod:`jgi.physics.bsdf`).
+  * ``Lights``: a flat table of *light elements* chosen for next-event estimation with
+    probability proportional to power. A diffuse area light on a mesh contributes one element per
+    triangle, so light selection and ``pdf_li`` are the same code for every emitter shape.
+  * ``Camera``: a pinhole camera (see :mod:`jgi.physics.camera`).
+
+Scenes are made with :class:`SceneBuilder` (used by :mod:`jgi.scenes` and the TOML loader).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from dataclasses import field as dc_field
+
+import equinox as eqx
+import jax.numpy as jnp
+import numpy as np
+from jax import Array
+
+from ..core import transform as xf
+from ..core.bvh import BVH, build_bvh
+from ..core.vec import V3
+
+# Triangle tables at least this large get a BVH. Measured (experiments/bench_bvh.py, CPU, one
+# closest-hit and one shadow ray per ray, 2^16 rays, interleaved best-of-3 timings) since the
+# brute-force scan takes blocks of rows per loop iteration (jgi.physics.geometry._scan): brute force
+# falls as 1/T (4.2 Mrays/s at 196 triangles, 2.2 at 400, 0.92 at 1024, 0.22 at 4096) while
+# the BVH stays at 0.6-0.9; BVH/brute is 0.22 at 196, 0.40 at 400, 0.79 at 1024, 1.16 at 1600,
+# 1.7 at 2304, 2.7 at 4096: the crossover is at about 1400. (With one row per iteration it was
+# at 250-280.) The BVH traversal also adds compile time.
+BVH_MIN_TRIANGLES = 1400
+
+# Material kinds (jgi.physics.bsdf implements each).
+DIFFUSE, MIRROR, DIELECTRIC, PHONG = 0, 1, 2, 3
+MATERIAL_KINDS = {"diffuse": DIFFUSE, "mirror": MIRROR, "dielectric": DIELECTRIC, "phong": PHONG}
+
+# Light element kinds (jgi.physics.lights implements each).
+AREA_QUAD, AREA_TRIANGLE, AREA_SPHERE, POINT, SPOT, DIRECTIONAL, ENVIRONMENT = range(7)
+LIGHT_KIND_NAMES = ("area_quad", "area_triangle", "area_sphere", "point", "spot", "directional",
+                    "environment")
+DELTA_POSITION_KINDS = (POINT, SPOT)
+DELTA_DIRECTION_KINDS = (DIRECTIONAL,)
+
+
+def _v3(a) -> V3:
+    a = np.asarray(a, np.float32).reshape(-1, 3)
+    return V3(jnp.asarray(a[:, 0]), jnp.asarray(a[:, 1]), jnp.asarray(a[:, 2]))
+
+
+def _v3_scalar(a) -> V3:
+    a = np.asarray(a, np.float32).reshape(3)
+    return V3(jnp.asarray(a[0]), jnp.asarray(a[1]), jnp.asarray(a[2]))
+
+
+class Spheres(eqx.Module):
+    center: V3
+    radius: Array
+    material: Array
+    emitter: Array
+
+    @property
+    def count(self) -> int:
+        return int(self.radius.shape[0])
+
+
+class Quads(eqx.Module):
+    """Parallelograms origin + a * edge_u + b * edge_v, (a, b) in [0, 1]^2."""
+
+    origin: V3
+    edge_u: V3
+    edge_v: V3
+    normal: V3  # unit cross(edge_u, edge_v); emitters radiate on this side only
+    material: Array
+    emitter: Array
+
+    @property
+    def count(self) -> int:
+        return int(self.material.shape[0])
+
+
+class Rects(eqx.Module):
+    """Axis-aligned rectangles, a specialisation of quads chosen automatically by the builder.
+
+    Rectangle i lies in the plane x_axis = ``plane`` (axis static, rows sorted by axis, with
+    ``axis_counts`` rows per axis) and spans [lo_a, hi_a] x [lo_b, hi_b] in the other two axes
+    in increasing order (for axis y: a = x, b = z). Its ray test is about a fifth of a general
+    parallelogram's, which matters for architectural scenes such as the Cornell box."""
+
+    plane: Array
+    lo_a: Array
+    hi_a: Array
+    lo_b: Array
+    hi_b: Array
+    normal: V3  # unit normal (+-1 along the axis), the side cross(edge_u, edge_v) points to
+    material: Array
+    emitter: Array
+    axis_counts: tuple[int, int, int] = eqx.field(static=True)
+
+    @property
+    def count(self) -> int:
+        return int(self.material.shape[0])
+
+
+class Boxes(eqx.Module):
+    """Oriented boxes (Mitsuba's ``cube`` under a rotation/scale transform without shear):
+    centre + sum_k s_k half_k axis_k with s_k in [-1, 1]; one slab test replaces six quads."""
+
+    center: V3
+    axis_u: V3   # unit box axes (rows of the world-to-box rotation)
+    axis_v: V3
+    axis_w: V3
+    half: V3     # half extents along the axes
+    material: Array
+    emitter: Array  # always -1: emissive cubes are built from quads so they can be sampled
+
+    @property
+    def count(self) -> int:
+        return int(self.material.shape[0])
+
+
+class Triangles(eqx.Module):
+    """Triangles v0 + b1 * edge1 + b2 * edge2 (Moller-Trumbore layout).
+
+    ``bvh`` is a :class:`jgi.core.bvh.BVH` over the same triangles, built with the scene when there
+    are at least ``BVH_MIN_TRIANGLES`` of them (:mod:`jgi.physics.geometry` then traverses it instead of
+    testing every triangle), or None. Its arrays are pytree leaves like the rest, so the scene's
+    structure, and hence the compiled kernel, depends on their sizes only. It is a copy of the
+    geometry: a scene whose triangles are edited afterwards (``eqx.tree_at``) must rebuild it
+    (:func:`with_bvh`); gradients with respect to vertices flow through the hit triangle's
+    own intersection, not the traversal."""
+
+    v0: V3
+    edge1: V3
+    edge2: V3
+    normal: V3  # unit geometric normal cross(edge1, edge2)
+    material: Array
+    emitter: Array
+    bvh: BVH | None = None
+
+    @property
+    def count(self) -> int:
+        return int(self.material.shape[0])
+
+
+class Materials(eqx.Module):
+    kind: Array       # int32 [M]
+    diffuse: V3       # Lambertian albedo k_d (diffuse, phong)
+    specular: V3      # k_s: mirror reflectance, dielectric tint, Phong specular albedo
+    exponent: Array   # Phong exponent n
+    ior: Array        # dielectric index of refraction (inside / outside)
+    kinds: tuple[int, ...] = eqx.field(static=True)  # kinds present, to skip dead code
+
+
+class Lights(eqx.Module):
+    kind: Array         # int32 [K]
+    p0: V3              # quad/triangle corner, sphere centre, point/spot position
+    e1: V3              # quad/triangle edge 1
+    e2: V3              # quad/triangle edge 2
+    radius: Array       # sphere radius
+    normal: V3          # unit normal of quad/triangle emitters (emitting side)
+    direction: V3       # spot axis / directional travel direction (unit)
+    emission: V3        # radiance L_e (area, environment), intensity I (point, spot), irradiance E (directional)
+    cos_total: Array    # spot: cosine of the cone half-angle (no light outside)
+    cos_falloff: Array  # spot: cosine where the smooth falloff starts
+    area: Array         # area of area-light elements (0 otherwise)
+    pmf: Array          # selection probability (proportional to power)
+    cdf: Array          # inclusive running sum of pmf, for inversion
+    bound_center: V3    # scene bounding sphere (directional and environment emission)
+    bound_radius: Array
+    kinds: tuple[int, ...] = eqx.field(static=True)
+    environment: int = eqx.field(static=True)  # element index of the environment light or -1
+
+    @property
+    def count(self) -> int:
+        return int(self.kind.shape[0])
+
+
+class Camera(eqx.Module):
+    """Pinhole camera. ``forward`` is unit; ``right``/``up`` are scaled to the image-plane
+    half-extents at distance 1, so a film point (sx, sy) in [-1, 1]^2 maps to the direction
+    forward + sx * right + sy * up."""
+
+    position: V3
+    forward: V3
+    right: V3
+    up: V3
+    width: int = eqx.field(static=True)
+    height: int = eqx.field(static=True)
+
+
+class Scene(eqx.Module):
+    camera: Camera
+    spheres: Spheres
+    rects: Rects
+    boxes: Boxes
+    quads: Quads
+    triangles: Triangles
+    materials: Materials
+    lights: Lights
+    name: str = eqx.field(static=True, default="scene")
+
+    @property
+    def resolution(self) -> tuple[int, int]:
+        return self.camera.width, self.camera.height
+
+    def with_resolution(self, width: int, height: int) -> "Scene":
+        """Same scene and field of view, another film size."""
+        cam = self.camera
+        aspect_old = cam.width / cam.height
+        aspect_new = width / height
+        right = cam.right * (aspect_new / aspect_old)
+        new = Camera(cam.position, cam.forward, right, cam.up, int(width), int(height))
+        return eqx.tree_at(lambda s: s.camera, self, new)
+
+
+def with_bvh(scene: "Scene", bvh: bool | None = None) -> "Scene":
+    """The scene with its triangles' BVH rebuilt from the current triangles (``bvh`` None: if
+    there are at least BVH_MIN_TRIANGLES of them), or removed (``bvh=False``)."""
+    tr = scene.triangles
+    n = tr.count
+    use = n >= BVH_MIN_TRIANGLES if bvh is None else bool(bvh) and n > 0
+    new = None
+    if use:
+        v0 = np.asarray(tr.v0.stack(), np.float64)
+        new = build_bvh(v0, v0 + np.asarray(tr.edge1.stack()), v0 + np.asarray(tr.edge2.stack()))
+    return eqx.tree_at(lambda s: s.triangles.bvh, scene, new, is_leaf=lambda x: x is None)
+
+
+# ------------------------------------------------------------------------------------------------
+# Builder
+# ------------------------------------------------------------------------------------------------
+
+class SceneError(ValueError):
+    """An invalid scene description; the message names the source, the key and what is allowed."""
+
+
+@dataclass
+class _Material:
+    kind: int
+    diffuse: tuple = (0.0, 0.0, 0.0)
+    specular: tuple = (0.0, 0.0, 0.0)
+    exponent: float = 1.0
+    ior: float = 1.5
+
+
+@dataclass
+class SceneBuilder:
+    """Accumulates materials, shapes, lights and a camera; ``build()`` makes the pytree."""
+
+    name: str = "scene"
+    materials: list = dc_field(default_factory=list)
+    material_names: dict = dc_field(default_factory=dict)
+    spheres: list = dc_field(default_factory=list)    # (center, radius, material, emission|None)
+    quads: list = dc_field(default_factory=list)      # (origin, u, v, material, emission|None)
+    boxes: list = dc_field(default_factory=list)      # (center, axes[3x3 rows], half[3], material)
+    triangles: list = dc_field(default_factory=list)  # (v0, v1, v2, material, emission|None)
+    lights: list = dc_field(default_factory=list)     # dicts for point/spot/directional/env
+    camera_args: dict | None = None
+    bvh: bool | None = None   # BVH over the triangles: None = when >= BVH_MIN_TRIANGLES
+
+    # --- materials --------------------------------------------------------------------------
+    def material(self, name: str, kind: str, *, diffuse=(0.0, 0.0, 0.0), specular=(1.0, 1.0, 1.0),
+                 exponent: float = 1.0, ior: float = 1.5) -> int:
+        if kind not in MATERIAL_KINDS:
+            raise SceneError(f"material '{name}': unknown type '{kind}'; allowed: "
+                             f"{', '.join(MATERIAL_KINDS)}")
+        if name in self.material_names:
+            raise SceneError(f"material '{name}' is defined twice")
+        k = MATERIAL_KINDS[kind]
+        m = _Material(k, _rgb(diffuse), _rgb(specular), float(exponent), float(ior))
+        if k == DIFFUSE:
+            m.specular = (0.0, 0.0, 0.0)
+        if k in (MIRROR, DIELECTRIC):
+            m.diffuse = (0.0, 0.0, 0.0)
+        self.material_names[name] = len(self.materials)
+        self.materials.append(m)
+        return self.material_names[name]
+
+    def _mat(self, material) -> int:
+        if isinstance(material, (int, np.integer)):
+            return int(material)
+        if material not in self.material_names:
+            raise SceneError(f"unknown material '{material}'; defined: "
+                             f"{', '.join(self.material_names) or '(none)'}")
+        return self.material_names[material]
+
+    # --- shapes -----------------------------------------------------------------------------
+    def sphere(self, center, radius: float, material, emission=None):
+        self.spheres.append((np.asarray(center, float), float(radius), self._mat(material),
+                             None if emission is None else _rgb(emission)))
+
+    def quad(self, origin, edge_u, edge_v, material, emission=None):
+        self.quads.append((np.asarray(origin, float), np.asarray(edge_u, float),
+                           np.asarray(edge_v, float), self._mat(material),
+                           None if emission is None else _rgb(emission)))
+
+    def rectangle(self, to_world: np.ndarray, material, emission=None):
+        """Mitsuba's ``rectangle``: [-1, 1]^2 in the z = 0 plane, normal +z, then ``to_world``."""
+        o = xf.apply_point(to_world, [-1.0, -1.0, 0.0])
+        u = xf.apply_point(to_world, [1.0, -1.0, 0.0]) - o
+        v = xf.apply_point(to_world, [-1.0, 1.0, 0.0]) - o
+        self.quad(o, u, v, material, emission)
+
+    def cube(self, to_world: np.ndarray, material, emission=None):
+        """Mitsuba's ``cube``: [-1, 1]^3 under ``to_world``. Without shear and emission it is
+        stored as one oriented box; otherwise as six outward-facing quads."""
+        cols = np.asarray(to_world, float)[:3, :3]
+        half = np.linalg.norm(cols, axis=0)
+        if emission is None and np.all(half > 0):
+            axes = (cols / half).T
+            if np.allclose(axes @ axes.T, np.eye(3), atol=1e-9):
+                if np.linalg.det(axes) < 0:
+                    axes[2] = -axes[2]
+                self.boxes.append((xf.apply_point(to_world, [0.0, 0.0, 0.0]), axes, half,
+                                   self._mat(material)))
+                return
+        faces = [  # (corner, edge u, edge v) with cross(u, v) pointing outwards
+            ([-1, -1, 1], [2, 0, 0], [0, 2, 0]), ([1, -1, -1], [-2, 0, 0], [0, 2, 0]),
+            ([1, -1, 1], [0, 0, -2], [0, 2, 0]), ([-1, -1, -1], [0, 0, 2], [0, 2, 0]),
+            ([-1, 1, 1], [2, 0, 0], [0, 0, -2]), ([-1, -1, -1], [2, 0, 0], [0, 0, 2]),
+        ]
+        for c, u, v in faces:
+            o = xf.apply_point(to_world, c)
+            self.quad(o, xf.apply_vector(to_world, u), xf.apply_vector(to_world, v), material,
+                      emission)
+
+    def mesh(self, vertices, faces, material, emission=None, to_world=None):
+        v = np.asarray(vertices, float)
+        f = np.asarray(faces, np.int64)
+        if to_world is not None:
+            v = xf.apply_point(to_world, v)
+        m = self._mat(material)
+        e = None if emission is None else _rgb(emission)
+        for a, b, c in v[f]:
+            self.triangles.append((a, b, c, m, e))
+
+    # --- lights -----------------------------------------------------------------------------
+    def point_light(self, position, intensity):
+        self.lights.append(dict(kind=POINT, p0=position, emission=_rgb(intensity)))
+
+    def spot_light(self, position, target, intensity, cutoff_deg=30.0, falloff_deg=None):
+        d = np.asarray(target, float) - np.asarray(position, float)
+        falloff_deg = cutoff_deg * 0.75 if falloff_deg is None else falloff_deg
+        if not 0 < cutoff_deg <= 90 or not 0 <= falloff_deg <= cutoff_deg:
+            raise SceneError("spot light: need 0 < cutoff <= 90 and 0 <= falloff <= cutoff degrees")
+        self.lights.append(dict(kind=SPOT, p0=position, direction=d / np.linalg.norm(d),
+                                emission=_rgb(intensity),
+                                cos_total=np.cos(np.radians(cutoff_deg)),
+                                cos_falloff=np.cos(np.radians(falloff_deg))))
+
+    def directional_light(self, direction, irradiance):
+        d = np.asarray(direction, float)
+        self.lights.append(dict(kind=DIRECTIONAL, direction=d / np.linalg.norm(d),
+                                emission=_rgb(irradiance)))
+
+    def environment_light(self, radiance):
+        if any(l["kind"] == ENVIRONMENT for l in self.lights):
+            raise SceneError("only one environment light is allowed")
+        self.lights.append(dict(kind=ENVIRONMENT, emission=_rgb(radiance)))
+
+    # --- camera -----------------------------------------------------------------------------
+    def camera(self, position, look_at, up=(0, 1, 0), fov=40.0, width=256, height=256,
+               fov_axis="y", mirror=False):
+        """Pinhole camera; ``mirror`` flips the image horizontally (left-handed cameras, e.g.
+        pbrt's LookAt without a ``Scale -1 1 1``)."""
+        self.camera_args = dict(position=position, look_at=look_at, up=up, fov=fov,
+                                width=width, height=height, fov_axis=fov_axis, mirror=mirror)
+
+    # --- build ------------------------------------------------------------------------------
+    def build(self) -> Scene:
+        if self.camera_args is None:
+            raise SceneError("the scene has no camera")
+        elements = []  # light element rows
+        sph_emit, quad_emit, tri_emit = [], [], []
+        for c, r, m, e in self.spheres:
+            sph_emit.append(-1 if e is None else len(elements))
+            if e is not None:
+                elements.append(dict(kind=AREA_SPHERE, p0=c, radius=r, emission=e,
+                                     area=4 * np.pi * r * r))
+        for o, u, v, m, e in self.quads:
+            quad_emit.append(-1 if e is None else len(elements))
+            if e is not None:
+                n = np.cross(u, v)
+                a = float(np.linalg.norm(n))
+                elements.append(dict(kind=AREA_QUAD, p0=o, e1=u, e2=v, emission=e, area=a,
+                                     normal=n / a if a > 0 else np.zeros(3)))
+        for a_, b_, c_, m, e in self.triangles:
+            tri_emit.append(-1 if e is None else len(elements))
+            if e is not None:
+                n = np.cross(b_ - a_, c_ - a_)
+                a = float(np.linalg.norm(n))
+                elements.append(dict(kind=AREA_TRIANGLE, p0=a_, e1=b_ - a_, e2=c_ - a_,
+                                     emission=e, area=0.5 * a,
+                                     normal=n / a if a > 0 else np.zeros(3)))
+        elements.extend(self.lights)
+        center, radius = self._bounds()
+        return Scene(
+            camera=self._build_camera(),
+            spheres=self._build_spheres(sph_emit),
+            rects=self._build_rects(quad_emit),
+            boxes=self._build_boxes(),
+            quads=self._build_quads(quad_emit),
+            triangles=self._build_triangles(tri_emit),
+            materials=self._build_materials(),
+            lights=_build_lights(elements, center, radius),
+            name=self.name,
+        )
+
+    def _bounds(self):
+        pts = []
+        for c, r, *_ in self.spheres:
+            pts += [c - r, c + r]
+        for o, u, v, *_ in self.quads:
+            pts += [o, o + u, o + v, o + u + v]
+        for a, b, c, *_ in self.triangles:
+            pts += [a, b, c]
+        for c, axes, half, _ in self.boxes:
+            pts += [c - np.abs(axes.T) @ half, c + np.abs(axes.T) @ half]
+        for l in self.lights:
+            if "p0" in l:
+                pts.append(np.asarray(l["p0"], float))
+        if not pts:
+            return np.zeros(3), 1.0
+        pts = np.array(pts)
+        lo, hi = pts.min(0), pts.max(0)
+        center = 0.5 * (lo + hi)
+        return center, max(float(np.linalg.norm(hi - lo)) * 0.5, 1e-3)
+
+    def _build_camera(self) -> Camera:
+        a = self.camera_args
+        w, h = int(a["width"]), int(a["height"])
+        if w <= 0 or h <= 0:
+            raise SceneError(f"camera: width and height must be positive, got {w}x{h}")
+        if not 0 < a["fov"] < 180:
+            raise SceneError(f"camera: fov must be in (0, 180) degrees, got {a['fov']}")
+        pos = np.asarray(a["position"], float)
+        fwd = np.asarray(a["look_at"], float) - pos
+        if np.linalg.norm(fwd) == 0:
+            raise SceneError("camera: look_at equals position")
+        fwd /= np.linalg.norm(fwd)
+        right = np.cross(fwd, np.asarray(a["up"], float))
+        if np.linalg.norm(right) < 1e-9:
+            raise SceneError("camera: up is parallel to the viewing direction")
+        right /= np.linalg.norm(right)
+        up = np.cross(right, fwd)
+        t = np.tan(np.radians(a["fov"]) / 2)
+        axis = a.get("fov_axis", "y")
+        if axis == "smaller":
+            axis = "x" if w < h else "y"
+        if axis == "x":
+            tx, ty = t, t * h / w
+        elif axis == "y":
+            tx, ty = t * w / h, t
+        else:
+            raise SceneError(f"camera: fov_axis must be 'x', 'y' or 'smaller', got {axis!r}")
+        if a.get("mirror"):
+            right = -right
+        return Camera(_v3_scalar(pos), _v3_scalar(fwd), _v3_scalar(right * tx), _v3_scalar(up * ty),
+                      w, h)
+
+    def _build_spheres(self, emit) -> Spheres:
+        n = len(self.spheres)
+        c = np.array([s[0] for s in self.spheres]).reshape(n, 3)
+        r = np.array([s[1] for s in self.spheres], np.float32)
+        if np.any(r < 0):
+            raise SceneError("sphere radius must be non-negative")
+        return Spheres(_v3(c), jnp.asarray(r, jnp.float32),
+                       jnp.asarray([s[2] for s in self.spheres], jnp.int32),
+                       jnp.asarray(emit, jnp.int32))
+
+    def _rect_axis(self, q) -> int:
+        """The axis a quad is an axis-aligned rectangle across, or -1."""
+        u, v = q[1], q[2]
+        scale = max(np.abs(u).max(), np.abs(v).max(), 1e-30)
+        nz_u = np.abs(u) > 1e-12 * scale
+        nz_v = np.abs(v) > 1e-12 * scale
+        if nz_u.sum() != 1 or nz_v.sum() != 1 or np.argmax(nz_u) == np.argmax(nz_v):
+            return -1
+        return int(3 - np.argmax(nz_u) - np.argmax(nz_v))
+
+    def _build_rects(self, emit) -> Rects:
+        rows = [(self._rect_axis(q), i) for i, q in enumerate(self.quads)]
+        rows = sorted((a, i) for a, i in rows if a >= 0)
+        plane, lo_a, hi_a, lo_b, hi_b, nrm, mat, em = [], [], [], [], [], [], [], []
+        for axis, i in rows:
+            o, u, v, m, _ = self.quads[i]
+            a, b = [k for k in range(3) if k != axis]
+            corners = np.array([o, o + u, o + v, o + u + v])
+            plane.append(o[axis])
+            lo_a.append(corners[:, a].min()); hi_a.append(corners[:, a].max())
+            lo_b.append(corners[:, b].min()); hi_b.append(corners[:, b].max())
+            n = np.zeros(3)
+            n[axis] = np.sign(np.cross(u, v)[axis])
+            nrm.append(n)
+            mat.append(m)
+            em.append(emit[i])
+        counts = tuple(sum(1 for a, _ in rows if a == k) for k in range(3))
+        f32 = lambda x: jnp.asarray(np.asarray(x, np.float32).reshape(-1))
+        return Rects(f32(plane), f32(lo_a), f32(hi_a), f32(lo_b), f32(hi_b),
+                     _v3(np.asarray(nrm).reshape(-1, 3)), jnp.asarray(mat, jnp.int32).reshape(-1),
+                     jnp.asarray(em, jnp.int32).reshape(-1), counts)
+
+    def _build_boxes(self) -> Boxes:
+        n = len(self.boxes)
+        c = np.array([b[0] for b in self.boxes]).reshape(n, 3)
+        ax = np.array([b[1] for b in self.boxes]).reshape(n, 3, 3)
+        h = np.array([b[2] for b in self.boxes]).reshape(n, 3)
+        return Boxes(_v3(c), _v3(ax[:, 0]), _v3(ax[:, 1]), _v3(ax[:, 2]), _v3(h),
+                     jnp.asarray([b[3] for b in self.boxes], jnp.int32).reshape(-1),
+                     jnp.full((n,), -1, jnp.int32))
+
+    def _build_quads(self, emit) -> Quads:
+        keep = [i for i, q in enumerate(self.quads) if self._rect_axis(q) < 0]
+        n = len(keep)
+        qs = [self.quads[i] for i in keep]
+        o = np.array([q[0] for q in qs]).reshape(n, 3)
+        u = np.array([q[1] for q in qs]).reshape(n, 3)
+        v = np.array([q[2] for q in qs]).reshape(n, 3)
+        nrm = np.cross(u, v)
+        ln = np.linalg.norm(nrm, axis=1, keepdims=True)
+        nrm = np.where(ln > 0, nrm / np.where(ln > 0, ln, 1), 0.0)
+        return Quads(_v3(o), _v3(u), _v3(v), _v3(nrm),
+                     jnp.asarray([q[3] for q in qs], jnp.int32).reshape(-1),
+                     jnp.asarray([emit[i] for i in keep], jnp.int32).reshape(-1))
+
+    def _build_triangles(self, emit) -> Triangles:
+        n = len(self.triangles)
+        a = np.array([t[0] for t in self.triangles]).reshape(n, 3)
+        b = np.array([t[1] for t in self.triangles]).reshape(n, 3)
+        c = np.array([t[2] for t in self.triangles]).reshape(n, 3)
+        e1, e2 = b - a, c - a
+        nrm = np.cross(e1, e2)
+        ln = np.linalg.norm(nrm, axis=1, keepdims=True)
+        nrm = np.where(ln > 0, nrm / np.where(ln > 0, ln, 1), 0.0)
+        use_bvh = n >= BVH_MIN_TRIANGLES if self.bvh is None else bool(self.bvh) and n > 0
+        return Triangles(_v3(a), _v3(e1), _v3(e2), _v3(nrm),
+                         jnp.asarray([t[3] for t in self.triangles], jnp.int32),
+                         jnp.asarray(emit, jnp.int32),
+                         build_bvh(a, b, c) if use_bvh else None)
+
+    def _build_materials(self) -> Materials:
+        ms = self.materials or [_Material(DIFFUSE, (0.5, 0.5, 0.5))]
+        for m in ms:
+            if m.kind == PHONG and m.exponent < 0:
+                raise SceneError("phong exponent must be >= 0")
+            if m.kind == DIELECTRIC and m.ior <= 0:
+                raise SceneError("dielectric ior must be > 0")
+        return Materials(
+            kind=jnp.asarray([m.kind for m in ms], jnp.int32),
+            diffuse=_v3([m.diffuse for m in ms]),
+            specular=_v3([m.specular for m in ms]),
+            exponent=jnp.asarray([m.exponent for m in ms], jnp.float32),
+            ior=jnp.asarray([m.ior for m in ms], jnp.float32),
+            kinds=tuple(sorted({m.kind for m in ms})),
+        )
+
+
+def _rgb(v) -> tuple:
+    a = np.broadcast_to(np.asarray(v, float), (3,))
+    if not np.all(np.isfinite(a)):
+        raise SceneError(f"colour {list(a)} is not finite")
+    return tuple(float(x) for x in a)
+
+
+def luminance_np(rgb) -> float:
+    r, g, b = rgb
+    return 0.2126 * r + 0.7152 * g + 0.0722 * b
+
+
+def light_power(el: dict, radius: float) -> float:
+    """Emitted power (luminance), used for power-proportional light selection."""
+    lum = luminance_np(el["emission"])
+    k = el["kind"]
+    if k in (AREA_QUAD, AREA_TRIANGLE, AREA_SPHERE):
+        return np.pi * el["area"] * lum
+    if k == POINT:
+        return 4 * np.pi * lum
+    if k == SPOT:
+        return 2 * np.pi * (1 - 0.5 * (el["cos_total"] + el["cos_falloff"])) * lum
+    if k == DIRECTIONAL:
+        return np.pi * radius * radius * lum
+    if k == ENVIRONMENT:
+        return 4 * np.pi * np.pi * radius * radius * lum
+    raise AssertionError(k)
+
+
+def _build_lights(elements: list, center, radius) -> Lights:
+    k = len(elements)
+    power = np.array([light_power(e, radius) for e in elements], float)
+    if k and power.sum() > 0:
+        pmf = power / power.sum()
+    else:
+        pmf = np.full(k, 1.0 / max(k, 1))
+    cdf = np.cumsum(pmf)
+    if k:
+        cdf[-1] = 1.0
+
+    def col(key, default):
+        return [e.get(key, default) for e in elements]
+
+    z3 = (0.0, 0.0, 0.0)
+    env = [i for i, e in enumerate(elements) if e["kind"] == ENVIRONMENT]
+    return Lights(
+        kind=jnp.asarray(col("kind", 0), jnp.int32),
+        p0=_v3(col("p0", z3)), e1=_v3(col("e1", z3)), e2=_v3(col("e2", z3)),
+        radius=jnp.asarray(col("radius", 0.0), jnp.float32),
+        normal=_v3(col("normal", z3)), direction=_v3(col("direction", (0.0, 0.0, 1.0))),
+        emission=_v3(col("emission", z3)),
+        cos_total=jnp.asarray(col("cos_total", 1.0), jnp.float32),
+        cos_falloff=jnp.asarray(col("cos_falloff", 1.0), jnp.float32),
+        area=jnp.asarray(col("area", 0.0), jnp.float32),
+        pmf=jnp.asarray(pmf, jnp.float32), cdf=jnp.asarray(cdf, jnp.float32),
+        bound_center=_v3_scalar(center), bound_radius=jnp.asarray(radius, jnp.float32),
+        kinds=tuple(sorted({e["kind"] for e in elements})),
+        environment=env[0] if env else -1,
+    )

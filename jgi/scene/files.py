@@ -1,0 +1,492 @@
+"""Scene loading: built-in names, jgi TOML scene files, Mitsuba 3 XML and pbrt-v4 files.
+
+The TOML format is documented key by key in ``docs/scene-format.md``; ``scenes/*.toml`` are
+examples. A file is read with :mod:`tomllib`, checked completely, and turned into a
+:class:`~jgi.scene.Scene` through :class:`~jgi.scene.SceneBuilder`. Loading runs on the host
+(numpy), never under ``jit``, so a mistake can never surface as a JAX traceback.
+
+Validation policy: every mistake is a :class:`jgi.SceneError` whose message is
+``FILE: KEY PATH: what is wrong; allowed: ...``, with key paths counted from 0 in file order
+(``shape[3].radius``, ``shape[0].transform.rotate[1].angle``, ``material[1].type``). Nothing is
+silently ignored: an unknown key is an error (it is usually a typo, and a close match is
+suggested). Degenerate geometry (zero-radius spheres, zero-area quads, singular transforms) is
+refused rather than warned about, since it renders as nothing or as NaN. Two conditions that
+can be deliberate only warn (:class:`SceneWarning`): a scene without any light, and a mesh
+containing zero-area triangles.
+"""
+
+from __future__ import annotations
+
+import difflib
+import inspect
+import math
+import re
+import tomllib
+import warnings
+from pathlib import Path
+
+import numpy as np
+
+from ..core import transform as xf
+from . import builtin as scenes
+from .data import ENVIRONMENT, MATERIAL_KINDS, Scene, SceneBuilder, SceneError
+from .importers import load_mitsuba_xml, load_pbrt
+from .importers._common import load_mesh
+
+
+class SceneWarning(UserWarning):
+    """A scene that loads but is probably not what was meant (no light, degenerate triangles)."""
+
+
+# ------------------------------------------------------------------------------------------------
+# Schema: key -> value kind, per table and per type
+# ------------------------------------------------------------------------------------------------
+
+TOP_KEYS = ("name", "camera", "material", "shape", "light")
+
+CAMERA_KEYS = {"position": "vec3", "look_at": "vec3", "up": "vec3", "fov": "number",
+               "fov_axis": "str", "width": "int", "height": "int"}
+CAMERA_REQUIRED = ("position", "look_at")
+FOV_AXES = ("x", "y", "smaller")
+
+# Each material type accepts only the parameters its BSDF uses (a key another type uses is a
+# likely mistake, e.g. `ior` on a mirror). Defaults are filled in by `_material`.
+MATERIAL_KEYS = {
+    "diffuse": {"diffuse": "rgb"},
+    "mirror": {"specular": "rgb"},
+    "dielectric": {"ior": "number", "specular": "rgb"},
+    "phong": {"diffuse": "rgb", "specular": "rgb", "exponent": "number"},
+}
+MATERIAL_REQUIRED = {"phong": ("specular", "exponent")}
+MATERIAL_DEFAULTS = {
+    "diffuse": {"diffuse": 0.5},
+    "mirror": {"specular": 1.0},
+    "dielectric": {"ior": 1.5, "specular": 1.0},
+    "phong": {"diffuse": 0.0},
+}
+
+SHAPE_COMMON = {"type": "str", "material": "str", "emission": "rgb", "transform": "table"}
+SHAPE_KEYS = {
+    "sphere": {"center": "vec3", "radius": "number"},
+    "quad": {"origin": "vec3", "edge_u": "vec3", "edge_v": "vec3"},
+    "rectangle": {},
+    "cube": {},
+    "mesh": {"file": "str"},
+}
+SHAPE_REQUIRED = {"sphere": ("center", "radius"), "quad": ("origin", "edge_u", "edge_v"),
+                  "mesh": ("file",)}
+MESH_SUFFIXES = (".obj", ".ply", ".stl", ".off", ".glb", ".gltf")
+
+LIGHT_KEYS = {
+    "point": {"position": "vec3", "intensity": "rgb"},
+    "spot": {"position": "vec3", "target": "vec3", "intensity": "rgb", "cutoff": "number",
+             "falloff": "number"},
+    "directional": {"direction": "vec3", "irradiance": "rgb"},
+    "environment": {"radiance": "rgb"},
+}
+LIGHT_REQUIRED = {"point": ("position", "intensity"),
+                  "spot": ("position", "target", "intensity"),
+                  "directional": ("direction", "irradiance"), "environment": ("radiance",)}
+
+TRANSFORM_KEYS = ("matrix", "translate", "rotate", "scale")
+ROTATE_KEYS = {"axis": "vec3", "angle": "number"}
+
+# A linear map whose smallest singular value is below this fraction of its largest flattens
+# the shape (zero volume/area) within float32 precision.
+SINGULAR_RTOL = 1e-7
+
+FILE_OPTIONS = ("resolution", "width", "height")
+
+
+# ------------------------------------------------------------------------------------------------
+# Entry point
+# ------------------------------------------------------------------------------------------------
+
+def load_scene(source: str | Path, **kwargs) -> Scene:
+    """A built-in scene by name, or a scene file: ``.toml`` (jgi), ``.xml`` (Mitsuba 3) or
+    ``.pbrt`` (pbrt-v4).
+
+    For a built-in, ``kwargs`` go to its constructor (e.g. ``resolution=64``). For a file they
+    override the film size: ``width=`` and/or ``height=``, or ``resolution=N`` (width N); a
+    dimension not given keeps the file's aspect ratio. The field of view is unchanged.
+    """
+    src = str(source)
+    if src in scenes.BUILTINS:
+        fn = scenes.BUILTINS[src]
+        allowed = list(inspect.signature(fn).parameters)
+        unknown = sorted(set(kwargs) - set(allowed))
+        if unknown:
+            raise SceneError(f"built-in scene '{src}': unknown option '{unknown[0]}'; allowed: "
+                             f"{', '.join(allowed) or '(none)'}")
+        return fn(**kwargs)
+    path = Path(src)
+    unknown = sorted(set(kwargs) - set(FILE_OPTIONS))
+    if unknown:
+        raise SceneError(f"{src}: unknown option '{unknown[0]}' for a scene file; allowed: "
+                         f"{', '.join(FILE_OPTIONS)}")
+    suffix = path.suffix.lower()
+    if suffix == ".toml":
+        scene = _TomlLoader(path).load()
+    elif suffix == ".xml":
+        scene = load_mitsuba_xml(path)
+    elif suffix == ".pbrt":
+        scene = load_pbrt(path)
+    else:
+        raise SceneError(f"{src}: not a built-in scene ({', '.join(scenes.BUILTINS)}) and not a "
+                         "scene file (.toml, .xml, .pbrt)")
+    return _resize(scene, src, kwargs)
+
+
+def _resize(scene: Scene, src: str, opts: dict) -> Scene:
+    if not opts:
+        return scene
+    for k, v in opts.items():
+        if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v <= 0:
+            raise SceneError(f"{src}: option {k}: expected a positive integer, got {v!r}")
+    w0, h0 = scene.camera.width, scene.camera.height
+    w = opts.get("width", opts.get("resolution"))
+    h = opts.get("height")
+    if w is None:
+        w = max(1, round(h * w0 / h0))
+    if h is None:
+        h = max(1, round(w * h0 / w0))
+    return scene.with_resolution(int(w), int(h))
+
+
+# ------------------------------------------------------------------------------------------------
+# TOML loader
+# ------------------------------------------------------------------------------------------------
+
+def _toml_type(v) -> str:
+    if isinstance(v, bool):
+        return "a boolean"
+    if isinstance(v, int):
+        return "an integer"
+    if isinstance(v, float):
+        return "a float"
+    if isinstance(v, str):
+        return "a string"
+    if isinstance(v, list):
+        return f"an array of {len(v)}"
+    if isinstance(v, dict):
+        return "a table"
+    return f"a {type(v).__name__}"
+
+
+def _is_number(v) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool)
+
+
+class _TomlLoader:
+    """One pass over a parsed document; ``fail`` raises with the file and key path."""
+
+    def __init__(self, path: Path):
+        self.path = path
+
+    def fail(self, key: str, msg: str):
+        raise SceneError(f"{self.path}: {key}: {msg}" if key else f"{self.path}: {msg}")
+
+    # --- typed values ------------------------------------------------------------------------
+    def value(self, key: str, v, kind: str):
+        """Check one value against its kind: str, int, number, vec3, rgb or table."""
+        got = f"got {v!r} ({_toml_type(v)})"
+        if kind == "str":
+            if not isinstance(v, str):
+                self.fail(key, f"expected a string, {got}")
+            return v
+        if kind == "int":
+            if isinstance(v, bool) or not isinstance(v, int):
+                self.fail(key, f"expected an integer, {got}")
+            return v
+        if kind == "number":
+            if not _is_number(v):
+                self.fail(key, f"expected a number, {got}")
+            if not math.isfinite(v):
+                self.fail(key, f"expected a finite number, got {v!r}")
+            return float(v)
+        if kind in ("vec3", "rgb"):
+            if kind == "rgb" and _is_number(v):
+                v = [v, v, v]
+            if not isinstance(v, list) or len(v) != 3 or not all(_is_number(x) for x in v):
+                allowed = ("3 numbers [r, g, b] or one number (grey)" if kind == "rgb"
+                           else "3 numbers [x, y, z]")
+                self.fail(key, f"expected {allowed}, {got}")
+            a = np.asarray(v, float)
+            if not np.all(np.isfinite(a)):
+                self.fail(key, f"expected finite numbers, got {v!r}")
+            if kind == "rgb" and np.any(a < 0):
+                self.fail(key, f"colours must be non-negative, got {v!r}")
+            return a
+        if kind == "table":
+            if not isinstance(v, dict):
+                self.fail(key, f"expected a table {{ ... }}, {got}")
+            return v
+        raise AssertionError(kind)
+
+    def table(self, key: str, t, allowed: dict, required=(), what: str = "") -> dict:
+        """Check a table's keys (unknown ones, missing required ones) and each value's kind."""
+        if not isinstance(t, dict):
+            self.fail(key, f"expected a table, got {t!r} ({_toml_type(t)})")
+        for k in t:
+            if k not in allowed:
+                near = difflib.get_close_matches(k, list(allowed), n=1)
+                hint = f" (did you mean '{near[0]}'?)" if near else ""
+                self.fail(f"{key}.{k}", f"unknown key{what}{hint}; allowed: "
+                                        f"{', '.join(sorted(allowed))}")
+        for r in required:
+            if r not in t:
+                self.fail(f"{key}.{r}", f"missing (required{what}); required keys: "
+                                        f"{', '.join(required)}")
+        return {k: self.value(f"{key}.{k}", v, allowed[k]) for k, v in t.items()}
+
+    def array_of_tables(self, doc: dict, name: str) -> list:
+        items = doc.get(name, [])
+        if not isinstance(items, list):
+            self.fail(name, f"expected an array of tables: write [[{name}]] (double brackets) "
+                            "before each entry")
+        return items
+
+    def type_of(self, key: str, t, allowed) -> str:
+        """The ``type`` of a [[material]]/[[shape]]/[[light]] entry, checked against ``allowed``."""
+        if not isinstance(t, dict):
+            self.fail(key, f"expected a table, got {t!r} ({_toml_type(t)})")
+        if "type" not in t:
+            self.fail(f"{key}.type", f"missing (required); allowed: {', '.join(allowed)}")
+        kind = t["type"]
+        if not isinstance(kind, str) or kind not in allowed:
+            self.fail(f"{key}.type", f"unknown type {kind!r}; allowed: {', '.join(allowed)}")
+        return kind
+
+    # --- transforms --------------------------------------------------------------------------
+    def transform(self, key: str, t: dict) -> np.ndarray:
+        """The 4x4 matrix of a ``transform`` table: ``matrix``, or translate * rotate * scale."""
+        for k in t:
+            if k not in TRANSFORM_KEYS:
+                self.fail(f"{key}.{k}", f"unknown key; allowed: {', '.join(TRANSFORM_KEYS)}")
+        if "matrix" in t:
+            if len(t) != 1:
+                self.fail(key, "give either matrix or translate/rotate/scale, not both")
+            m = t["matrix"]
+            if (not isinstance(m, list) or len(m) != 4 or not all(
+                    isinstance(r, list) and len(r) == 4 and all(_is_number(x) for x in r)
+                    for r in m)):
+                self.fail(f"{key}.matrix", f"expected 4 rows of 4 numbers (row-major), got {m!r}")
+            m = np.asarray(m, float)
+            if not np.all(np.isfinite(m)):
+                self.fail(f"{key}.matrix", "expected finite numbers")
+            if not np.array_equal(m[3], [0.0, 0.0, 0.0, 1.0]):
+                self.fail(f"{key}.matrix", f"the last row must be [0, 0, 0, 1] (affine), got "
+                                           f"{m[3].tolist()}")
+        else:
+            S = np.eye(4)
+            if "scale" in t:
+                s = t["scale"]
+                s = self.value(f"{key}.scale", s, "vec3" if isinstance(s, list) else "number")
+                S = xf.scale(s)
+            R = np.eye(4)
+            rots = t.get("rotate", [])
+            rots = [rots] if isinstance(rots, dict) else rots
+            if not isinstance(rots, list):
+                self.fail(f"{key}.rotate", "expected { axis = [x, y, z], angle = degrees } or an "
+                                           f"array of them, got {rots!r} ({_toml_type(rots)})")
+            sub = f"{key}.rotate" if isinstance(t.get("rotate"), dict) else None
+            for i, r in enumerate(rots):
+                rk = sub or f"{key}.rotate[{i}]"
+                rr = self.table(rk, r, ROTATE_KEYS, ("axis", "angle"))
+                if not np.any(rr["axis"]):
+                    self.fail(f"{rk}.axis", "must be non-zero")
+                R = xf.rotate(rr["axis"], rr["angle"]) @ R  # listed order = application order
+            T = xf.translate(self.value(f"{key}.translate", t["translate"], "vec3")) \
+                if "translate" in t else np.eye(4)
+            m = T @ R @ S
+        sv = np.linalg.svd(m[:3, :3], compute_uv=False)
+        if not sv[0] > 0 or sv[-1] <= SINGULAR_RTOL * sv[0]:
+            self.fail(key, "the transform is singular (it flattens the shape, e.g. a zero "
+                           "scale); allowed: an invertible transform")
+        return m
+
+    # --- document ----------------------------------------------------------------------------
+    def parse(self) -> dict:
+        try:
+            text = self.path.read_bytes().decode("utf-8")
+        except OSError as e:
+            self.fail("", f"cannot read the scene file: {e.strerror or e}")
+        except UnicodeDecodeError as e:
+            self.fail("", f"not a UTF-8 text file (byte {e.start}); TOML files are UTF-8")
+        try:
+            return tomllib.loads(text)
+        except tomllib.TOMLDecodeError as e:
+            msg = f"TOML syntax error: {e}"
+            line = re.search(r"line (\d+)", str(e))
+            if line:
+                lines = text.splitlines()
+                n = int(line.group(1))
+                if 1 <= n <= len(lines):
+                    msg += f"\n    {n} | {lines[n - 1]}"
+            self.fail("", msg)
+
+    def load(self) -> Scene:
+        doc = self.parse()
+        for k in doc:
+            if k not in TOP_KEYS:
+                near = difflib.get_close_matches(k, TOP_KEYS, n=1)
+                hint = f" (did you mean '{near[0]}'?)" if near else ""
+                self.fail(k, f"unknown table or key{hint}; allowed: {', '.join(TOP_KEYS)}")
+        name = self.value("name", doc["name"], "str") if "name" in doc else self.path.stem
+        b = SceneBuilder(name)
+        if "camera" not in doc:
+            self.fail("camera", "missing: a scene needs a [camera] table with at least "
+                                "position and look_at")
+        self.camera(b, doc["camera"])
+        for i, m in enumerate(self.array_of_tables(doc, "material")):
+            self.material(b, f"material[{i}]", m)
+        for i, s in enumerate(self.array_of_tables(doc, "shape")):
+            self.shape(b, f"shape[{i}]", s)
+        for i, l in enumerate(self.array_of_tables(doc, "light")):
+            self.light(b, f"light[{i}]", l)
+        if not b.lights and not any(s[-1] is not None for s in b.spheres + b.quads + b.triangles):
+            warnings.warn(f"{self.path}: the scene has no light (no [[light]] and no shape with "
+                          "emission): it renders black", SceneWarning, stacklevel=3)
+        try:
+            return b.build()
+        except SceneError as e:  # the loader checks everything first; this is a safety net
+            self.fail("", str(e))
+
+    def camera(self, b: SceneBuilder, c):
+        cam = self.table("camera", c, CAMERA_KEYS, CAMERA_REQUIRED)
+        pos, look = cam["position"], cam["look_at"]
+        up = cam.get("up", np.array([0.0, 1.0, 0.0]))
+        fov = cam.get("fov", 40.0)
+        axis = cam.get("fov_axis", "y")
+        w, h = cam.get("width", 256), cam.get("height", 256)
+        if np.array_equal(pos, look):
+            self.fail("camera.look_at", "equals camera.position; allowed: any other point")
+        fwd = (look - pos) / np.linalg.norm(look - pos)
+        if np.linalg.norm(np.cross(fwd, up)) <= 1e-6 * np.linalg.norm(up):
+            self.fail("camera.up", f"{up.tolist()} is zero or parallel to the viewing direction "
+                                   "look_at - position; allowed: any other direction")
+        if not 0 < fov < 180:
+            self.fail("camera.fov", f"must be in (0, 180) degrees, got {fov}")
+        if axis not in FOV_AXES:
+            self.fail("camera.fov_axis", f"unknown value {axis!r}; allowed: {', '.join(FOV_AXES)}")
+        for k, v in (("width", w), ("height", h)):
+            if v <= 0:
+                self.fail(f"camera.{k}", f"must be a positive number of pixels, got {v}")
+        b.camera(pos, look, up=up, fov=fov, width=w, height=h, fov_axis=axis)
+
+    def material(self, b: SceneBuilder, key: str, m):
+        kind = self.type_of(key, m, tuple(MATERIAL_KINDS))
+        allowed = {"name": "str", "type": "str", **MATERIAL_KEYS[kind]}
+        mm = self.table(key, m, allowed, ("name",) + MATERIAL_REQUIRED.get(kind, ()),
+                        f" for type '{kind}'")
+        if mm["name"] in b.material_names:
+            self.fail(f"{key}.name", f"material '{mm['name']}' is defined twice; names must be "
+                                     "unique")
+        p = {k: mm.get(k, d) for k, d in MATERIAL_DEFAULTS.get(kind, {}).items()}
+        p.update({k: mm[k] for k in MATERIAL_KEYS[kind] if k in mm})
+        # Reflectances above 1 create energy; the estimators' variance would then diverge.
+        for k in ("diffuse", "specular"):
+            if k in mm and np.any(mm[k] > 1):
+                self.fail(f"{key}.{k}", f"reflectance must be in [0, 1], got {mm[k].tolist()}")
+        if kind == "phong" and np.any(np.broadcast_to(p["diffuse"], 3) + mm["specular"] > 1):
+            self.fail(f"{key}.specular", "diffuse + specular must be <= 1 in every channel "
+                                         "(energy conservation of the modified Phong BSDF)")
+        if "exponent" in mm and mm["exponent"] < 0:
+            self.fail(f"{key}.exponent", f"must be >= 0, got {mm['exponent']}")
+        if "ior" in mm and mm["ior"] <= 0:
+            self.fail(f"{key}.ior", f"must be > 0 (inside / outside), got {mm['ior']}")
+        b.material(mm["name"], kind, **p)
+
+    def shape(self, b: SceneBuilder, key: str, s):
+        kind = self.type_of(key, s, tuple(SHAPE_KEYS))
+        t = self.table(key, s, {**SHAPE_COMMON, **SHAPE_KEYS[kind]},
+                       ("type", "material") + SHAPE_REQUIRED.get(kind, ()), f" for a {kind}")
+        mat = t["material"]
+        if mat not in b.material_names:
+            self.fail(f"{key}.material", f"unknown material '{mat}'; defined: "
+                                         f"{', '.join(b.material_names) or '(none)'}")
+        m = self.transform(f"{key}.transform", t["transform"]) if "transform" in t else np.eye(4)
+        e = t.get("emission")
+        if kind == "sphere":
+            if t["radius"] <= 0:
+                self.fail(f"{key}.radius", f"must be > 0, got {t['radius']}")
+            sv = np.linalg.svd(m[:3, :3], compute_uv=False)
+            if sv[-1] < sv[0] * (1 - 1e-6):
+                self.fail(f"{key}.transform", "a sphere allows only uniform scaling "
+                                              f"(scale factors {sv.round(6).tolist()})")
+            b.sphere(xf.apply_point(m, t["center"]), t["radius"] * sv[0], mat, e)
+        elif kind == "quad":
+            u, v = t["edge_u"], t["edge_v"]
+            if np.linalg.norm(np.cross(u, v)) <= SINGULAR_RTOL * np.linalg.norm(u) * np.linalg.norm(v) \
+                    or not np.any(u) or not np.any(v):
+                self.fail(key, "edge_u and edge_v are zero or parallel: the quad has no area; "
+                               "allowed: two non-parallel edges")
+            b.quad(xf.apply_point(m, t["origin"]), xf.apply_vector(m, u), xf.apply_vector(m, v),
+                   mat, e)
+        elif kind == "rectangle":
+            b.rectangle(m, mat, e)
+        elif kind == "cube":
+            b.cube(m, mat, e)
+        else:
+            v, f = self.mesh(f"{key}.file", t["file"])
+            b.mesh(v, f, mat, e, to_world=m)
+
+    def mesh(self, key: str, name: str):
+        """Vertices and triangles of a mesh file (relative to the scene file), via trimesh."""
+
+        path = self.path.parent / name
+        if path.suffix.lower() not in MESH_SUFFIXES:
+            self.fail(key, f"'{name}': unsupported mesh format '{path.suffix}'; allowed: "
+                           f"{', '.join(MESH_SUFFIXES)}")
+        if not path.is_file():
+            what = "is not a file" if path.exists() else "does not exist"
+            self.fail(key, f"mesh file '{path}' {what} (paths are relative to the scene file)")
+        try:
+            with open(path, "rb"):
+                pass
+        except OSError as e:
+            self.fail(key, f"cannot read mesh file '{path}': {e.strerror or e}")
+        # load_mesh raises SceneError naming `where` for unparsable or empty files; vertex
+        # normals are accepted and ignored (jgi shades with geometric normals)
+        try:
+            v, f = load_mesh(path, f"{self.path}: {key}", allow_vertex_normals=True)
+        except SceneError as e:
+            raise SceneError(f"{e} (expected a valid {path.suffix[1:].upper()} file that trimesh "
+                             "can read)") from None
+        if f.ndim != 2 or f.shape[1] != 3 or f.min() < 0 or f.max() >= len(v):
+            self.fail(key, f"mesh '{name}' has malformed faces (expected triangles indexing "
+                           f"{len(v)} vertices)")
+        if not np.all(np.isfinite(v)):
+            self.fail(key, f"mesh '{name}' has non-finite vertex coordinates")
+        area2 = np.linalg.norm(np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]]), axis=1)
+        if np.any(area2 == 0):
+            warnings.warn(f"{self.path}: {key}: mesh '{name}' has {int(np.sum(area2 == 0))} "
+                          "zero-area triangles (rays never hit them)", SceneWarning, stacklevel=5)
+        return v, f
+
+    def light(self, b: SceneBuilder, key: str, l):
+        kind = self.type_of(key, l, tuple(LIGHT_KEYS))
+        t = self.table(key, l, {"type": "str", **LIGHT_KEYS[kind]}, LIGHT_REQUIRED[kind],
+                       f" for a {kind} light")
+        if kind == "point":
+            b.point_light(t["position"], t["intensity"])
+        elif kind == "spot":
+            if np.array_equal(t["position"], t["target"]):
+                self.fail(f"{key}.target", "equals position; allowed: any other point")
+            cutoff = t.get("cutoff", 30.0)
+            falloff = t.get("falloff", 0.75 * cutoff)
+            if not 0 < cutoff <= 90:
+                self.fail(f"{key}.cutoff", f"must be in (0, 90] degrees, got {cutoff}")
+            if not 0 <= falloff <= cutoff:
+                self.fail(f"{key}.falloff", f"must be in [0, cutoff = {cutoff}] degrees, got "
+                                            f"{falloff}")
+            b.spot_light(t["position"], t["target"], t["intensity"], cutoff_deg=cutoff,
+                         falloff_deg=falloff)
+        elif kind == "directional":
+            if not np.any(t["direction"]):
+                self.fail(f"{key}.direction", "must be non-zero")
+            b.directional_light(t["direction"], t["irradiance"])
+        else:
+            if any(l_["kind"] == ENVIRONMENT for l_ in b.lights):
+                self.fail(key, "a second environment light; allowed: at most one")
+            b.environment_light(t["radiance"])

@@ -1,0 +1,399 @@
+"""pbrt-v4 scene files -> jgi scenes, for the subset jgi represents exactly.
+
+Supported (anything else is refused with the file, the line, the directive/plugin and this list):
+
+  camera     Camera "perspective" ("float fov": the shorter image axis, as in pbrt), placed by
+             the transform current at the Camera directive (LookAt etc.); Film "rgb"/"gbuffer"
+             xresolution, yresolution. Sampler, Integrator, PixelFilter, ColorSpace, Option,
+             Accelerator are ignored (jgi has its own estimators and box pixel filtering).
+  transforms Identity, Translate, Scale, Rotate, LookAt, Transform, ConcatTransform,
+             AttributeBegin/End (and pbrt-v3's TransformBegin/End), ReverseOrientation
+  materials  Material / MakeNamedMaterial + NamedMaterial: "diffuse" (reflectance),
+             "conductor" only as a perfect mirror ("rgb reflectance" [1 1 1], roughness 0),
+             "dielectric" (eta, roughness 0)
+  shapes     "sphere" (radius), "trianglemesh" (P, indices; no shading normals N),
+             "plymesh" (filename), inside AreaLightSource "diffuse" (L, scale, power; one-sided)
+  lights     LightSource "point" (I, from, scale, power), "spot" (I, from, to, coneangle,
+             conedelta, scale, power), "distant" (L, from, to, scale, illuminance),
+             "uniform" / "infinite" without a map (L, scale)
+  files      Include / Import
+
+Units (pbrt-v4's RGB lights): an "rgb" emission spectrum is normalised by pbrt to the colour
+space's illuminant, so its RGB values are radiance/intensity in jgi's units, times ``scale``.
+``power`` sets the total emitted power: a point light's I becomes P / (4 pi), a spot light's
+I becomes P / (2 pi (1 - (cos_start + cos_end) / 2)), an area light's L becomes P / (pi A) (one
+sided), each divided by the luminance of the given RGB so that the *luminous* power is P (as
+pbrt divides by the spectrum's photometric integral). A distant light's "illuminance" E sets
+its irradiance to E / luminance(rgb) times the rgb.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from pathlib import Path
+
+import numpy as np
+
+from ...core import transform as xf
+from ..data import Scene, SceneBuilder
+from ._common import ImportError_, load_mesh
+
+_TOKEN = re.compile(r'"[^"]*"|\[|\]|[^\s\[\]"]+')
+IGNORED = {"Sampler", "Integrator", "PixelFilter", "ColorSpace", "Option", "Accelerator",
+           "WorldEnd", "Attribute", "MakeNamedMedium", "MediumInterface"}
+SUPPORTED = {
+    "Camera": ("perspective",), "Film": ("rgb", "gbuffer", "spectral"),
+    "Material": ("diffuse", "conductor", "dielectric"),
+    "Shape": ("sphere", "trianglemesh", "plymesh"),
+    "LightSource": ("point", "spot", "distant", "uniform", "infinite"),
+    "AreaLightSource": ("diffuse",),
+}
+
+
+def _lum(rgb) -> float:
+    r, g, b = rgb
+    return 0.2126 * r + 0.7152 * g + 0.0722 * b
+
+
+class _Tokens:
+    def __init__(self, path: Path):
+        self.path = path
+        try:
+            text = path.read_text()
+        except OSError as e:
+            raise ImportError_(f"{path}: cannot read: {e}") from None
+        self.items = []
+        for lineno, line in enumerate(text.splitlines(), 1):
+            line = line.split("#", 1)[0] if '"' not in line else _strip_comment(line)
+            for m in _TOKEN.finditer(line):
+                self.items.append((m.group(0), lineno))
+        self.i = 0
+
+    def peek(self):
+        return self.items[self.i] if self.i < len(self.items) else (None, None)
+
+    def next(self):
+        tok = self.peek()
+        self.i += 1
+        return tok
+
+
+def _strip_comment(line: str) -> str:
+    out, quoted = [], False
+    for ch in line:
+        if ch == '"':
+            quoted = not quoted
+        if ch == "#" and not quoted:
+            break
+        out.append(ch)
+    return "".join(out)
+
+
+class _Importer:
+    def __init__(self, path: Path):
+        self.path = path
+        self.b = SceneBuilder(path.stem)
+        self.ctm = np.eye(4)
+        self.stack = []
+        self.material = None
+        self.area = None       # (L rgb) of the current AreaLightSource
+        self.reverse = False
+        self.named = {}
+        self.n_mat = 0
+        self.camera_seen = False
+        self.film = (1280, 720)
+        self.cam = None
+
+    def fail(self, where, msg):
+        raise ImportError_(f"{where[0]}:{where[1]}: {msg}")
+
+    # --- parameter lists ------------------------------------------------------------------
+    def params(self, toks: _Tokens, where) -> dict:
+        out = {}
+        while True:
+            tok, line = toks.peek()
+            if tok is None or not tok.startswith('"'):
+                return out
+            toks.next()
+            decl = tok.strip('"').split()
+            if len(decl) != 2:
+                self.fail((toks.path, line), f"malformed parameter declaration {tok}")
+            typ, name = decl
+            val, _ = toks.next()
+            if val == "[":
+                vals = []
+                while True:
+                    v, l2 = toks.next()
+                    if v is None:
+                        self.fail((toks.path, line), f"unterminated [ for parameter '{name}'")
+                    if v == "]":
+                        break
+                    vals.append(v)
+            else:
+                vals = [val]
+            if typ in ("float", "integer", "rgb", "point3", "point", "normal", "normal3",
+                       "vector3", "vector", "point2", "color"):
+                try:
+                    vals = [float(v) for v in vals]
+                except ValueError:
+                    self.fail((toks.path, line), f"parameter '{name}' expects numbers")
+            elif typ == "bool":
+                vals = [v.strip('"') == "true" for v in vals]
+            elif typ in ("string", "texture"):
+                vals = [v.strip('"') for v in vals]
+            elif typ in ("spectrum", "blackbody"):
+                self.fail((toks.path, line), f"parameter '{name}': {typ} values are not supported "
+                                             "(use rgb)")
+            out[name] = (typ, vals)
+
+    def _get(self, p, name, default, where, n=None):
+        if name not in p:
+            return default
+        typ, vals = p[name]
+        if typ == "texture":
+            self.fail(where, f"parameter '{name}': textures are not supported")
+        if n == 1:
+            return vals[0]
+        if n is not None and len(vals) != n:
+            self.fail(where, f"parameter '{name}' needs {n} values, got {len(vals)}")
+        return np.array(vals) if typ not in ("string", "bool") else vals
+
+    # --- directives -----------------------------------------------------------------------
+    def material_from(self, kind, p, where) -> str:
+        name = f"_pbrt_material{self.n_mat}"
+        self.n_mat += 1
+        if self._get(p, "roughness", 0.0, where, 1) != 0 or "uroughness" in p:
+            self.fail(where, f"material '{kind}': only smooth (roughness 0) surfaces are supported")
+        if kind == "diffuse":
+            self.b.material(name, "diffuse", diffuse=self._get(p, "reflectance", np.full(3, 0.5), where, 3))
+        elif kind == "conductor":
+            refl = self._get(p, "reflectance", None, where, 3)
+            if refl is None or not np.allclose(refl, 1.0):
+                self.fail(where, "conductor: only a perfect mirror (\"rgb reflectance\" [1 1 1]) is "
+                                 "supported; jgi has no complex-IOR Fresnel")
+            self.b.material(name, "mirror", specular=(1.0, 1.0, 1.0))
+        elif kind == "dielectric":
+            self.b.material(name, "dielectric", ior=float(self._get(p, "eta", 1.5, where, 1)))
+        else:
+            self.fail(where, f"material '{kind}' is not supported; supported: "
+                             f"{', '.join(SUPPORTED['Material'])}")
+        return name
+
+    def check(self, directive, kind, where):
+        if kind not in SUPPORTED[directive]:
+            self.fail(where, f"{directive} \"{kind}\" is not supported by jgi; supported: "
+                             f"{', '.join(SUPPORTED[directive])}")
+
+    def light(self, kind, p, where):
+        m = self.ctm
+        scale = float(self._get(p, "scale", 1.0, where, 1))
+        if kind in ("point", "spot"):
+            I = self._get(p, "I", np.ones(3), where, 3) * scale
+            frm = xf.apply_point(m, self._get(p, "from", np.zeros(3), where, 3))
+            power = float(self._get(p, "power", -1.0, where, 1))
+            if kind == "point":
+                if power > 0:
+                    I = I * power / (4 * math.pi * _lum(I / scale))
+                self.b.point_light(frm, I)
+            else:
+                to = xf.apply_point(m, self._get(p, "to", np.array([0.0, 0, 1]), where, 3))
+                cone = float(self._get(p, "coneangle", 30.0, where, 1))
+                delta = float(self._get(p, "conedelta", 5.0, where, 1))
+                if power > 0:
+                    c_end, c_start = math.cos(math.radians(cone)), math.cos(math.radians(cone - delta))
+                    I = I * power / (2 * math.pi * (1 - 0.5 * (c_start + c_end)) * _lum(I / scale))
+                self.b.spot_light(frm, to, I, cutoff_deg=cone, falloff_deg=max(cone - delta, 0.0))
+        elif kind == "distant":
+            L = self._get(p, "L", np.ones(3), where, 3) * scale
+            frm = self._get(p, "from", np.zeros(3), where, 3)
+            to = self._get(p, "to", np.array([0.0, 0, 1]), where, 3)
+            E = float(self._get(p, "illuminance", -1.0, where, 1))
+            if E > 0:
+                L = L * E / _lum(L / scale)
+            self.b.directional_light(xf.apply_vector(m, to - frm), L)
+        else:  # uniform / infinite
+            if "filename" in p:
+                self.fail(where, "infinite lights with an environment map are not supported")
+            self.b.environment_light(self._get(p, "L", np.ones(3), where, 3) * scale)
+
+    def shape(self, kind, p, where):
+        mat = self.material
+        if mat is None:
+            mat = self.material_from("diffuse", {}, where)
+            self.material = mat
+        emission = None
+        if self.area is not None:
+            L, power, _ = self.area
+            emission = L
+        if kind == "sphere":
+            cols = self.ctm[:3, :3]
+            s = np.linalg.norm(cols, axis=0)
+            if not np.allclose(s, s[0], rtol=1e-6):
+                self.fail(where, "sphere under a non-uniform scale is not supported")
+            r = float(self._get(p, "radius", 1.0, where, 1)) * s[0]
+            if emission is not None and self.area[1] > 0:
+                emission = emission * self.area[1] / (math.pi * 4 * math.pi * r * r * _lum(emission))
+            self.b.sphere(xf.apply_point(self.ctm, np.zeros(3)), r, mat, emission)
+            return
+        if kind == "trianglemesh":
+            if "N" in p:
+                self.fail(where, "trianglemesh with shading normals N: jgi shades with geometric "
+                                 "normals only; remove N")
+            P = self._get(p, "P", None, where)
+            idx = self._get(p, "indices", None, where)
+            if P is None or len(P) % 3:
+                self.fail(where, "trianglemesh needs \"point3 P\" with 3 numbers per vertex")
+            v = P.reshape(-1, 3)
+            if idx is None:
+                if len(v) != 3:
+                    self.fail(where, "trianglemesh without indices must have exactly 3 vertices")
+                idx = np.arange(3)
+            f = np.asarray(idx, np.int64).reshape(-1, 3)
+            if f.size and (f.min() < 0 or f.max() >= len(v)):
+                self.fail(where, "trianglemesh indices out of range")
+        else:  # plymesh
+            fname = self._get(p, "filename", None, where)
+            if not fname:
+                self.fail(where, "plymesh needs \"string filename\"")
+            v, f = load_mesh(Path(where[0]).parent / fname[0], f"{where[0]}:{where[1]}", False)
+        if self.reverse:
+            f = f[:, ::-1]
+        v = xf.apply_point(self.ctm, v)
+        if emission is not None and self.area[1] > 0:
+            tri = v[f]
+            area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1).sum()
+            emission = emission * self.area[1] / (math.pi * area * _lum(emission))
+        self.b.mesh(v, f, mat, emission)
+
+    def run_file(self, path: Path):
+        toks = _Tokens(path)
+        while True:
+            tok, line = toks.next()
+            if tok is None:
+                return
+            where = (path, line)
+
+            def kind():
+                k, _ = toks.next()
+                if k is None or not k.startswith('"'):
+                    self.fail(where, f"{tok} expects a quoted type name")
+                return k.strip('"')
+
+            def numbers(n):
+                vals = []
+                for _ in range(n):
+                    v, _ = toks.next()
+                    if v == "[":
+                        v, _ = toks.next()
+                    try:
+                        vals.append(float(v))
+                    except (TypeError, ValueError):
+                        self.fail(where, f"{tok} expects {n} numbers")
+                if toks.peek()[0] == "]":
+                    toks.next()
+                return np.array(vals)
+
+            if tok in ("AttributeBegin", "TransformBegin"):
+                self.stack.append((self.ctm.copy(), self.material, self.area, self.reverse))
+            elif tok in ("AttributeEnd", "TransformEnd"):
+                if not self.stack:
+                    self.fail(where, f"{tok} without a matching begin")
+                self.ctm, self.material, self.area, self.reverse = self.stack.pop()
+            elif tok == "Identity":
+                self.ctm = np.eye(4)
+            elif tok == "Translate":
+                self.ctm = self.ctm @ xf.translate(numbers(3))
+            elif tok == "Scale":
+                self.ctm = self.ctm @ xf.scale(numbers(3))
+            elif tok == "Rotate":
+                a = numbers(4)
+                self.ctm = self.ctm @ xf.rotate(a[1:], a[0])
+            elif tok in ("Transform", "ConcatTransform"):
+                m = numbers(16).reshape(4, 4).T  # pbrt lists matrices column by column
+                self.ctm = m if tok == "Transform" else self.ctm @ m
+            elif tok == "LookAt":
+                a = numbers(9)
+                c2w = xf.look_at(a[0:3], a[3:6], a[6:9])
+                # pbrt's camera frame has x = cross(up, dir); look_at gives x = cross(up, dir) too
+                self.ctm = self.ctm @ np.linalg.inv(c2w)
+            elif tok == "ReverseOrientation":
+                self.reverse = not self.reverse
+            elif tok == "Camera":
+                k = kind()
+                self.check("Camera", k, where)
+                p = self.params(toks, where)
+                self.cam = (np.linalg.inv(self.ctm), float(self._get(p, "fov", 90.0, where, 1)))
+            elif tok == "Film":
+                k = kind()
+                self.check("Film", k, where)
+                p = self.params(toks, where)
+                self.film = (int(self._get(p, "xresolution", 1280, where, 1)),
+                             int(self._get(p, "yresolution", 720, where, 1)))
+            elif tok == "WorldBegin":
+                self.ctm = np.eye(4)
+            elif tok == "Material":
+                k = kind()
+                self.material = self.material_from(k, self.params(toks, where), where)
+            elif tok == "MakeNamedMaterial":
+                name = kind()
+                p = self.params(toks, where)
+                typ = self._get(p, "type", None, where)
+                if typ is None:
+                    self.fail(where, f"MakeNamedMaterial \"{name}\" needs \"string type\"")
+                self.named[name] = self.material_from(typ[0], p, where)
+            elif tok == "NamedMaterial":
+                name = kind()
+                if name not in self.named:
+                    self.fail(where, f"unknown named material \"{name}\"; defined: "
+                                     f"{', '.join(self.named) or '(none)'}")
+                self.material = self.named[name]
+            elif tok == "AreaLightSource":
+                k = kind()
+                self.check("AreaLightSource", k, where)
+                p = self.params(toks, where)
+                if self._get(p, "twosided", [False], where)[0]:
+                    self.fail(where, "two-sided area lights are not supported (jgi's emit on one side)")
+                L = self._get(p, "L", np.ones(3), where, 3) * float(self._get(p, "scale", 1.0, where, 1))
+                self.area = (L, float(self._get(p, "power", -1.0, where, 1)), where)
+            elif tok == "LightSource":
+                k = kind()
+                self.check("LightSource", k, where)
+                self.light(k, self.params(toks, where), where)
+            elif tok == "Shape":
+                k = kind()
+                self.check("Shape", k, where)
+                self.shape(k, self.params(toks, where), where)
+            elif tok in ("Include", "Import"):
+                f, _ = toks.next()
+                self.run_file(path.parent / f.strip('"'))
+            elif tok in IGNORED:
+                if tok not in ("WorldEnd",):
+                    k, _ = toks.next() if toks.peek()[0] and toks.peek()[0].startswith('"') else (None, None)
+                    self.params(toks, where)
+            else:
+                self.fail(where, f"directive '{tok}' is not supported; supported: transforms, "
+                                 "Camera, Film, WorldBegin, Material, MakeNamedMaterial, "
+                                 "NamedMaterial, AreaLightSource, LightSource, Shape, "
+                                 "AttributeBegin/End, Include")
+
+    def run(self) -> Scene:
+        self.run_file(self.path)
+        if self.cam is None:
+            raise ImportError_(f"{self.path}: the scene has no Camera")
+        c2w, fov = self.cam
+        w, h = self.film
+        pos = xf.apply_point(c2w, np.zeros(3))
+        fwd = xf.apply_vector(c2w, np.array([0.0, 0, 1]))
+        up = xf.apply_vector(c2w, np.array([0.0, 1, 0]))
+        x_axis = xf.apply_vector(c2w, np.array([1.0, 0, 0]))
+        # pbrt's raster x runs along the camera's +x; jgi's along cross(forward, up)
+        mirror = float(np.dot(x_axis, np.cross(fwd, up))) < 0
+        self.b.camera(pos, pos + fwd, up=up, fov=fov, width=w, height=h, fov_axis="smaller",
+                      mirror=mirror)
+        return self.b.build()
+
+
+def load_pbrt(path) -> Scene:
+    """Load a pbrt-v4 scene (see the module docstring for the supported subset)."""
+    return _Importer(Path(path)).run()

@@ -1,0 +1,41 @@
+"""Multiple importance sampling weights (Veach 1997, ch. 9), in one place.
+
+For strategies i = 1..k with n_i samples each and densities p_i(x), the one-sample weight of the
+strategy s that produced x is
+
+    balance heuristic:  w_s(x) = n_s p_s(x) / sum_i n_i p_i(x)
+    power heuristic:    w_s(x) = (n_s p_s(x))^beta / sum_i (n_i p_i(x))^beta   (beta = 2 usual)
+
+and the combined estimator is sum_i (1/n_i) sum_j f(X_ij) w_i(X_ij) / p_i(X_ij) (the lecture's
+two-strategy formula with n_f BSDF and n_g light samples). Weights are evaluated as
+1 / (1 + sum_{i != s} (n_i p_i / n_s p_s)^beta) so that no power of a pdf overflows.
+"""
+
+from __future__ import annotations
+
+import jax.numpy as jnp
+from jax import Array
+
+from .. import _xla as X
+
+
+def heuristic_weight(n_s, p_s: Array, others: list[tuple], beta: float = 1.0) -> Array:
+    """w_s for the strategy with (n_s, p_s) against ``others = [(n_i, p_i), ...]``.
+
+    Returns 0 where p_s = 0 (that strategy could not have produced the sample)."""
+    a = n_s * p_s
+    ok = a > 0
+    a_safe = jnp.where(ok, a, 1.0)
+    denom = jnp.ones_like(a_safe)
+    for n_i, p_i in others:
+        r = X.div(n_i * p_i, a_safe)
+        denom = denom + (r if beta == 1.0 else (r * r if beta == 2.0 else r ** beta))
+    return jnp.where(ok, X.recip(denom), 0.0)
+
+
+def balance(n_s, p_s, n_o, p_o) -> Array:
+    return heuristic_weight(n_s, p_s, [(n_o, p_o)], 1.0)
+
+
+def power(n_s, p_s, n_o, p_o, beta: float = 2.0) -> Array:
+    return heuristic_weight(n_s, p_s, [(n_o, p_o)], beta)

@@ -1,0 +1,151 @@
+"""Photon tracing (Jensen 1996/2001; the lecture's "photon emission", "photon tracing", "photon
+storage"): the first pass of photon mapping.
+
+Each photon starts from ``lights.sample_emission`` (point lights: uniform directions;
+directional lights: parallel rays over the scene's bounding disc; area lights: uniform positions,
+cosine-distributed directions; several lights chosen in proportion to power) with power
+P_photon = P_light / n_e, i.e. ``EmissionSample.weight / n_emitted``.
+
+At every hit on a non-specular surface (diffuse, or Phong with k_d > 0) the photon is *stored*:
+position, power (RGB), incident direction (towards where it came from) and surface normal. It
+is then scattered by Russian roulette: the BSDF is sampled (importance transport) giving the
+weight f |cos| / pdf, the photon survives with probability q = min(1, max(weight)), and its
+power is multiplied by weight / q, so the expected power is unchanged while photons keep roughly
+equal power (Jensen's reflect/transmit/absorb decision). Mirrors and dielectrics pass photons on
+without storing them (Fresnel chooses reflection or transmission).
+
+Two maps are distinguished by a flag per stored photon:
+  * global: every non-specular hit;
+  * caustic: photons whose path so far is L S+ D (one or more specular bounces, then the first
+    diffuse hit).
+"""
+
+from __future__ import annotations
+
+from functools import partial
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jax import Array
+
+from ..core import rng
+from ..core.calls import ordered_calls
+from ..core.sharding import device_mesh, sharded_calls
+from ..core.vec import V3, max_component, where
+from ..physics import bsdf as B
+from ..physics import geometry as G
+from ..physics import lights as LT
+from ..scene.data import DIFFUSE, PHONG, Scene
+
+DIMS_PER_BOUNCE = 4
+_SALT = 0x1E3779B1  # photon streams are independent of camera streams for the same seed
+
+
+class PhotonMap(NamedTuple):
+    """Stored photons, struct of arrays (host or device arrays of one length)."""
+
+    position: V3
+    power: V3        # flux carried (W), already divided by the number of emitted photons
+    wi: V3           # unit direction towards the photon's previous vertex
+    normal: V3       # geometric normal of the surface it was stored on
+    caustic: Array   # bool: L S+ D path
+    depth: Array     # int32: number of bounces before storage (0 = direct from the light)
+
+    @property
+    def count(self) -> int:
+        return int(self.caustic.shape[0])
+
+    def select(self, mask) -> "PhotonMap":
+        return jax.tree_util.tree_map(lambda a: a[mask], self)
+
+
+def _storable(mp: B.MaterialParams) -> Array:
+    return (mp.kind == DIFFUSE) | ((mp.kind == PHONG) & (jnp.maximum(jnp.maximum(mp.kd.x, mp.kd.y), mp.kd.z) > 0))
+
+
+def trace_photon_paths(scene: Scene, seed, photon_index: Array, n_emitted, max_depth: int):
+    """Trace photons ``photon_index`` ([N] int32); return per-bounce records of shape
+    [max_depth, N] (a slot is valid where a photon was stored) as a PhotonMap plus ``valid``."""
+    lights, mats = scene.lights, scene.materials
+    key = rng.derive(rng.path_key(seed, photon_index, 0), _SALT)
+    u = lambda d: rng.uniform(key, d)
+    em = LT.sample_emission(lights, u(0), u(1), u(2), u(3), u(4))
+    inv_n = 1.0 / jnp.asarray(n_emitted, jnp.float32)
+    power = em.weight * inv_n
+    z = jnp.zeros_like(power.x)
+    state = (em.p, em.d, power, power.x >= 0, z > 0, z == 0)  # o, d, power, alive, specular_seen, only_specular
+
+    def bounce(state, depth):
+        o, d, pw, alive, spec_seen, only_spec = state
+        hit = G.intersect(scene, o, d)
+        alive = alive & hit.valid
+        mp = B.lookup(mats, hit.material)
+        store = alive & _storable(mp)
+        record = (hit.p, pw, -d, hit.n, store & spec_seen & only_spec, store)
+        base = 5 + depth * DIMS_PER_BOUNCE
+        bs = B.sample(mats.kinds, mp, hit.n, -d, u(base), u(base + 1), u(base + 2), mode=B.IMPORTANCE)
+        q = jnp.clip(max_component(bs.weight), 0.0, 1.0)
+        survive = alive & bs.valid & (u(base + 3) < q)
+        pw = where(survive, pw * bs.weight / jnp.where(q > 0, q, 1.0), pw)
+        o_next = G.offset_origin(hit.p, hit.n, bs.wi)
+        only_spec = only_spec & bs.delta
+        spec_seen = spec_seen | bs.delta
+        return (o_next, bs.wi, pw, survive, spec_seen, only_spec), record
+
+    _, rec = jax.lax.scan(bounce, state, jnp.arange(max_depth))
+    p, pw, wi, n, caustic, valid = rec
+    depth = jnp.broadcast_to(jnp.arange(max_depth, dtype=jnp.int32)[:, None], caustic.shape)
+    return PhotonMap(p, pw, wi, n, caustic, depth), valid
+
+
+@partial(jax.jit, static_argnames=("chunk", "max_depth"))
+def _trace_chunk(scene, seed, start, n_emitted, *, chunk, max_depth):
+    idx = start + jnp.arange(chunk, dtype=jnp.int32)
+    pm, valid = trace_photon_paths(scene, seed, idx, n_emitted, max_depth)
+    valid = valid & (idx < n_emitted)[None, :]
+    return pm, valid
+
+
+def trace_photons(scene: Scene, n_photons: int, seed: int = 0, max_depth: int = 8,
+                  chunk: int = 1 << 16, devices=None) -> PhotonMap:
+    """Emit ``n_photons`` photons and return the stored ones (numpy arrays, compacted).
+
+    Photon i uses random stream (seed, i), so the map does not depend on ``chunk`` or on the
+    number of ``devices`` (default: all visible; chunks are split over them with
+    :mod:`jgi.core.sharding`); chunks keep memory bounded (13 floats per stored photon)."""
+    if scene.lights.count == 0:
+        raise ValueError("the scene has no lights to emit photons from")
+    chunk = int(min(chunk, max(256, 1 << int(np.ceil(np.log2(max(n_photons, 1)))))))
+    starts = list(range(0, n_photons, chunk))
+    devices = list(devices if devices is not None else jax.devices())
+    parts = []
+
+    def keep(pm, valid):
+        mask = np.asarray(valid).ravel()
+        parts.append(jax.tree_util.tree_map(lambda a: np.asarray(a).ravel()[mask], pm))
+
+    if len(devices) == 1:
+        def call(i):
+            pm, valid = _trace_chunk(scene, jnp.uint32(seed), jnp.int32(starts[i]),
+                                     jnp.int32(n_photons), chunk=chunk, max_depth=max_depth)
+            return jax.tree_util.tree_map(np.asarray, pm), np.asarray(valid)
+
+        for pm, valid in ordered_calls(call, len(starts)):
+            keep(pm, valid)
+    else:
+
+        mesh = device_mesh(devices)
+        D = len(devices)
+        fn = sharded_calls(
+            lambda sc, sd, s0, _p0, n: _trace_chunk.__wrapped__(sc, sd, s0, n, chunk=chunk,
+                                                               max_depth=max_depth),
+            mesh, ("photons", chunk, max_depth))
+        for first in range(0, len(starts), D):
+            group = [starts[min(first + k, len(starts) - 1)] for k in range(D)]
+            pm, valid = fn(scene, jnp.uint32(seed), jnp.asarray(group, jnp.int32),
+                           jnp.zeros(D, jnp.int32), jnp.full(D, n_photons, jnp.int32))
+            for k in range(min(D, len(starts) - first)):  # in chunk order, as on one device
+                keep(jax.tree_util.tree_map(lambda a: a[k], pm), valid[k])
+    return jax.tree_util.tree_map(lambda *xs: np.concatenate(xs), *parts)
