@@ -7,6 +7,7 @@ import jax.numpy as jnp
 import numpy as np
 from scipy import stats
 
+from jgi.core import rng
 from jgi.transport import mcmc
 
 C = 4096  # independent chains: one final state each gives independent samples
@@ -105,3 +106,99 @@ def test_same_seed_same_chain(rng_np):
     c = final_states(lambda x: 1 + x[0], prop, x0, 50, seed=5)
     np.testing.assert_array_equal(np.asarray(a.x), np.asarray(b.x))
     assert not np.array_equal(np.asarray(a.x), np.asarray(c.x))
+
+
+# --- the kernel shared by the estimators (jgi.mcmc.metropolis) -----------------------------------
+
+W6 = jnp.array([1.0, 2.0, 3.0, 4.0, 5.0, 6.0])
+
+
+def _f6(x):
+    """A piecewise-constant target on [0, 1): weight W6[k] on [k/6, (k+1)/6)."""
+    return W6[jnp.clip(jnp.floor(x * 6).astype(jnp.int32), 0, 5)]
+
+
+def _independent(x, key):
+    """The large step: y uniform, T(x -> y) = 1. Kinds mixed in one kernel return Moves of one
+    structure (lax.switch), so the optional fields are set as in _drift."""
+    y = rng.uniform(key, 0)
+    zero, true = jnp.zeros_like(x), jnp.ones_like(x) > 0
+    return mcmc.Move(y, _f6(x), _f6(y), zero, zero, applicable=true, valid=true)
+
+
+def _drift(x, key):
+    """An asymmetric kind on [0, 1/2) only: y = x + s v, s = +1 with probability 0.8 and -1 with
+    0.2, v uniform on [0, 0.1): T(x -> y) = 0.8 / 0.1 forwards, 0.2 / 0.1 backwards. It applies
+    to x < 1/2, and a y outside [0, 1/2) is no state of it (valid = False), so the kind is a
+    kernel on [0, 1/2) that preserves f there."""
+    forward = rng.uniform(key, 2) < 0.8
+    y = x + jnp.where(forward, 0.1, -0.1) * rng.uniform(key, 3)
+    log_t_xy = jnp.log(jnp.where(forward, 8.0, 2.0))
+    log_t_yx = jnp.log(jnp.where(forward, 2.0, 8.0))
+    return mcmc.Move(y, _f6(x), _f6(jnp.clip(y, 0.0, 0.999)), log_t_xy, log_t_yx,
+                     applicable=x < 0.5, valid=(y >= 0) & (y < 0.5))
+
+
+def _drift_unmasked(x, key):
+    """_drift treated as symmetric: the Hastings term dropped (the wrong chain)."""
+    zero = jnp.zeros_like(x)
+    return _drift(x, key)._replace(log_t_xy=zero, log_t_yx=zero)
+
+
+def _run_kernel(mutations, x0, steps, **kw):
+    probs = None if len(mutations) == 1 else jnp.array([0.2, 0.8])
+    fn = jax.jit(lambda x: mcmc.metropolis(mutations, x, steps, seed=7, salt=11,
+                                           kind_probs=probs, **kw))
+    return jax.device_get(fn(x0))
+
+
+def test_metropolis_kernel_mixes_kinds_with_hastings_term_and_counts_per_kind(rng_np):
+    """Two kinds (independent large steps, and an asymmetric drift that applies on half the
+    space) mixed by kind_probs: the final states of independent chains follow f (chi-square),
+    they do not without the Hastings term, and the tally counts each kind's steps."""
+    steps = 200
+    x0 = jnp.asarray(rng_np.random(C), jnp.float32)
+    x, _, tally, _ = _run_kernel([_independent, _drift], x0, steps)
+    h = np.bincount(np.clip((x * 6).astype(int), 0, 5), minlength=6)
+    expected = np.asarray(W6, np.float64) / float(W6.sum()) * C
+    assert stats.chisquare(h, expected).pvalue > 1e-3, h
+    proposed, applicable, accepted = (np.asarray(n) for n in tally)
+    # one kind per step for all chains, drawn with probabilities (0.2, 0.8)
+    assert np.all(proposed.sum(0) == steps) and np.all(proposed == proposed[:, :1])
+    assert abs(proposed[1, 0] / steps - 0.8) < 5 * np.sqrt(0.16 / steps)
+    # the large step always applies; the drift only from x < 1/2 (under 1/2 of f's mass)
+    assert np.all(applicable[0] == proposed[0])
+    share = applicable[1].sum() / proposed[1].sum()
+    assert 0.1 < share < 0.5, share
+    assert np.all(accepted <= applicable)
+    assert 0.2 < accepted[1].sum() / applicable[1].sum() < 1.0
+    # the same chains without the Hastings term drift upwards on [0, 1/2): the test has power
+    x_w, *_ = _run_kernel([_independent, _drift_unmasked], x0, steps)
+    h_w = np.bincount(np.clip((x_w * 6).astype(int), 0, 5), minlength=6)
+    assert stats.chisquare(h_w, expected).pvalue < 1e-6, h_w
+
+
+def test_metropolis_splats_expected_values_and_masked_steps_do_nothing(rng_np):
+    """Each counted step splats weights (1 - a) + a = 1 per chain (value = f, so each splat is
+    its weight), and steps past n_live neither splat, move nor count: 10 steps with n_live = 6
+    give the bits of 6 steps."""
+    x0 = jnp.asarray(rng_np.random(256), jnp.float32)
+    bins = 6
+
+    def measure(x):
+        return jnp.clip(jnp.floor(x * bins).astype(jnp.int32), 0, bins - 1), (_f6(x),), _f6(x)
+
+    kw = dict(record=mcmc.splatting(measure, 0.5), acc0=jnp.zeros((bins, 1), jnp.float32))
+    x6, img6, tally6, _ = _run_kernel([_independent, _drift], x0, 6, **kw)
+    x10, img10, tally10, _ = _run_kernel([_independent, _drift], x0, 10, n_live=jnp.int32(6), **kw)
+    np.testing.assert_allclose(img6.sum(), 0.5 * 6 * 256, rtol=1e-5)
+    np.testing.assert_array_equal(x10, x6)
+    np.testing.assert_array_equal(img10, img6)
+    for a, b in zip(tally10, tally6):
+        np.testing.assert_array_equal(a, b)
+    # emitted proposals: one per step, the state the chain moved to when it accepted
+    x1, _, tally1, ys = _run_kernel([_independent], x0, 1, emit_proposals=True)
+    assert ys.shape == (1, 256)
+    moved = x1 != np.asarray(x0)
+    np.testing.assert_array_equal(x1[moved], ys[0][moved])
+    assert tally1.accepted.sum() == moved.sum()

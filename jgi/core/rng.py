@@ -55,6 +55,12 @@ def uniform_at(c: Array, k: int) -> Array:
     return (h >> 8).astype(jnp.float32) * jnp.float32(1.0 / 16777216.0)
 
 
+def uniforms(key: Array, first_dim: int, n: int) -> Array:
+    """Dimensions ``first_dim .. first_dim + n - 1`` of stream ``key``, stacked: [n, *key.shape]
+    (a vector of primary samples, one column per stream)."""
+    return jnp.stack([uniform(key, first_dim + k) for k in range(n)])
+
+
 def derive(key: Array, salt) -> Array:
     """An independent sub-stream (e.g. per light subpath, per photon pass)."""
     return lowbias32(key ^ lowbias32(jnp.asarray(salt).astype(_U32) + _U32(0x68E31DA4)))

@@ -44,7 +44,9 @@ from the mean of C* over ``bootstrap_samples`` independent large-step paths, fro
 chains also start (resampled in proportion to C*, so there is no start-up bias). Each step
 applies one mutation kind to all chains, chosen at random with probabilities
 (p_large, p_lens, p_caustic): a random mixture of kernels that each preserve f*, so the mixture
-does too, and only the chosen kind's code runs.
+does too, and only the chosen kind's code runs. That step (kind choice, acceptance, splatting,
+acceptance counts per kind) is the Metropolis kernel :func:`jgi.mcmc.metropolis`; this module
+supplies the path state, the mutations and the targets in their coordinates.
 
 Only area emitters (quads, triangles, spheres) are supported: a point or directional light has no
 area measure for x_k. Where two emitters lie along one ray the large step's light-sampling
@@ -528,43 +530,28 @@ def run_chains(scene: Scene, cfg: MLTConfig, mu: Mutations, seed, x: Path, step0
     a render's last block runs masked instead of compiling a shorter one. Returns (state, image
     sums times ``scale``, per-kind counts [3, 3]: proposed, applicable, accepted)."""
     W, H = scene.camera.width, scene.camera.height
-    C = x.length.shape[0]
-    chain = jnp.arange(C, dtype=jnp.int32)
-    probs = jnp.stack([mu.p_large, mu.p_lens, mu.p_caustic])
-    cdf = jnp.cumsum(probs / jnp.sum(probs))[:-1]
-    kernels = [partial(_large_step, scene, cfg, mu), partial(lens_perturbation, scene, cfg, mu),
-               partial(caustic_perturbation, scene, cfg, mu)]
 
-    def step(carry, t):
-        x, xv, img, counts = carry
-        # one mutation kind per step for all chains (a random mixture of f*-preserving kernels)
-        which = jnp.sum(rng.uniform(rng.path_key(seed, -1, step0 + t), 0) >= cdf).astype(jnp.int32)
-        key = rng.derive(rng.path_key(seed, chain, step0 + t), _SALT + 1)
-        y, yv, num, den, applicable = jax.lax.switch(
-            which, kernels, x, xv, rng.derive(key, 3))
-        live = t < n_live
-        # every kind is symmetric in its own coordinates: log T cancels
-        a = jnp.where(applicable & (y.length > 0),
-                      mcmc.acceptance_probability(den, num, 0.0, 0.0), 0.0)
-        # expected-value splatting: current path with 1 - a, proposal with a, each b P / lum P
-        w_x = jnp.where(live & (xv.lum > 0), (1.0 - a) / jnp.where(xv.lum > 0, xv.lum, 1.0), 0.0) * scale
-        w_y = jnp.where(live & (yv.lum > 0), a / jnp.where(yv.lum > 0, yv.lum, 1.0), 0.0) * scale
-        vals = jnp.stack([c * w_x for c in xv.color], -1)
-        vals_y = jnp.stack([c * w_y for c in yv.color], -1)
-        img = img.at[_pixel(scene, x)].add(vals).at[_pixel(scene, y)].add(vals_y)
-        take = (rng.uniform(key, 1) < a) & live
-        x = jax.tree_util.tree_map(lambda b, c: jnp.where(take if c.ndim == 1 else take[None], b, c), y, x)
-        xv = jax.tree_util.tree_map(lambda b, c: jnp.where(take, b, c), yv, xv)
-        row = jnp.stack([jnp.int32(C), jnp.sum(applicable).astype(jnp.int32),
-                         jnp.sum(take).astype(jnp.int32)]) * live.astype(jnp.int32)
-        counts = counts.at[which].add(row)
-        return (x, xv, img, counts), None
+    def kind(mutate):
+        """A kind for :func:`jgi.mcmc.metropolis`: each is symmetric in its own coordinates,
+        so log T cancels and the acceptance is the ratio of the target written in them."""
+        def mutation(state, key) -> mcmc.Move:
+            x, xv = state
+            y, yv, num, den, applicable = mutate(scene, cfg, mu, x, xv, rng.derive(key, 3))
+            return mcmc.Move((y, yv), den, num, applicable=applicable, valid=y.length > 0)
+        return mutation
 
-    xv = evaluate(scene, cfg, x)
-    img0 = jnp.zeros((W * H, 3), jnp.float32)
-    (x, _, img, counts), _ = jax.lax.scan(step, (x, xv, img0, jnp.zeros((3, 3), jnp.int32)),
-                                          jnp.arange(n_steps, dtype=jnp.int32))
-    return x, img, counts
+    def splat_at(state):
+        # each path splats b P / lum P at its film point
+        path, value = state
+        return _pixel(scene, path), value.color, value.lum
+
+    mutations = [kind(_large_step), kind(lens_perturbation), kind(caustic_perturbation)]
+    (x, _), img, tally, _ = mcmc.metropolis(
+        mutations, (x, evaluate(scene, cfg, x)), n_steps, seed=seed, salt=_SALT + 1, step0=step0,
+        n_live=n_live, kind_probs=jnp.stack([mu.p_large, mu.p_lens, mu.p_caustic]),
+        record=mcmc.splatting(splat_at, scale), acc0=jnp.zeros((W * H, 3), jnp.float32))
+    # per kind: (proposed, applicable, accepted), summed over the chains
+    return x, img, jnp.stack([jnp.sum(n, axis=1) for n in tally], axis=1)
 
 
 def check_scene(scene: Scene) -> None:

@@ -28,8 +28,9 @@ the allocation only affects efficiency:
 
 with Kelemen's small steps (every coordinate, the strategy choice included, moved by
 +- s2 exp(-log(s2/s1) xi) on the torus: symmetric) and large steps (a fresh vector) as in
-:mod:`jgi.estimators.pssmlt`, acceptance min(1, f'/f), and expected-value splatting of the
-current state (weight 1 - a) and the proposal (weight a).
+:mod:`jgi.estimators.pssmlt` (:func:`~jgi.estimators.pssmlt.kelemen_mutation`), acceptance
+min(1, f'/f), and expected-value splatting of the current state (weight 1 - a) and the proposal
+(weight a), all in the Metropolis kernel :func:`jgi.mcmc.metropolis`.
 
 Cost: every mutation evaluates all strategies of its length and keeps one (simple, not
 pbrt's single-strategy evaluation). Compilation dominates small renders: one chain kernel per
@@ -49,12 +50,12 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ..core import rng
 from ..core.vec import V3, luminance, where
 from ..scene.data import Scene
+from ..transport import mcmc
 from .bdpt import CAMERA_DIMS0, CAMERA_DIMS_PER_STEP, BDPTConfig, contributions
 from .light_tracer import LIGHT_DIMS0, LIGHT_DIMS_PER_STEP
-from .pssmlt import _uniforms, kelemen_small_step
+from .pssmlt import PrimarySample, kelemen_mutation, splat_at
 from .registry import Estimator, Param, register
 
 _SALT = 0x5F3759DF
@@ -161,35 +162,17 @@ def run_chains(scene: Scene, cfg: MMLTConfig, length: int, seed, state, step0, n
     With ``p_large = 1`` every proposal is an independent uniform sample: the bootstrap runs
     through this same kernel (one compilation per path length, not two)."""
     W, H = scene.camera.width, scene.camera.height
-    d = dims(length)
-    C_ = state[0].shape[1]
-    chain = jnp.arange(C_, dtype=jnp.int32)
 
-    def step(carry, t):
-        (u, val, f, pix), img, accepted = carry
-        key = rng.derive(rng.path_key(seed, chain, step0 + t), _SALT + 1 + length)
-        large = rng.uniform(key, 0) < p_large
-        small = kelemen_small_step(u, _uniforms(key, 3, d), _uniforms(rng.derive(key, 7), 0, d),
-                                   cfg.s1, cfg.s2)
-        u_new = jnp.where(large[None, :], _uniforms(rng.derive(key, 11), 0, d), small)
-        val_new, f_new, pix_new = evaluate(scene, cfg, length, u_new)
-        a = jnp.where(f > 0, jnp.minimum(1.0, f_new / jnp.where(f > 0, f, 1.0)), 1.0)
-        w_cur = jnp.where(f > 0, (1.0 - a) / jnp.where(f > 0, f, 1.0), 0.0) * scale
-        w_new = jnp.where(f_new > 0, a / jnp.where(f_new > 0, f_new, 1.0), 0.0) * scale
-        vals = jnp.stack([c * w_cur for c in val], -1)
-        vals_new = jnp.stack([c * w_new for c in val_new], -1)
-        img = img.at[pix].add(vals).at[pix_new].add(vals_new)
-        take = rng.uniform(key, 1) < a
-        u = jnp.where(take[None, :], u_new, u)
-        val = V3(*(jnp.where(take, nv, ov) for nv, ov in zip(val_new, val)))
-        f = jnp.where(take, f_new, f)
-        pix = jnp.where(take, pix_new, pix)
-        return ((u, val, f, pix), img, accepted + jnp.sum(take)), (u_new, val_new, f_new, pix_new)
+    def mutation(x: PrimarySample, key) -> mcmc.Move:
+        v = kelemen_mutation(x.u, key, p_large, cfg.s1, cfg.s2)
+        y = PrimarySample(v, *evaluate(scene, cfg, length, v))
+        return mcmc.Move(y, x.f, y.f)
 
-    img0 = jnp.zeros((W * H, 3), jnp.float32)
-    (state, img, acc), proposals = jax.lax.scan(step, (tuple(state), img0, jnp.int32(0)),
-                                                jnp.arange(n_steps, dtype=jnp.int32))
-    return state, img, acc, proposals
+    x, img, tally, proposals = mcmc.metropolis(
+        [mutation], PrimarySample(*state), n_steps, seed=seed, salt=_SALT + 1 + length,
+        step0=step0, record=mcmc.splatting(splat_at, scale),
+        acc0=jnp.zeros((W * H, 3), jnp.float32), emit_proposals=True)
+    return x, img, jnp.sum(tally.accepted), proposals
 
 
 _BOOT_STEP0 = 1 << 30     # bootstrap proposals: step indices no chain reaches

@@ -17,22 +17,27 @@ radiance L(u) (the lecture's "once we find a good path, perturb it"):
 
 Chains start from a resampling of the bootstrap samples in proportion to f (no start-up bias)
 and run in parallel (one lane per chain). The image is consistent: its expectation equals the
-path tracer's up to the error of b, which the bootstrap makes small.
+path tracer's up to the error of b, which the bootstrap makes small. The Metropolis step itself
+(acceptance, splatting, the accept decision) is :func:`jgi.mcmc.metropolis`; this module
+supplies the state (:class:`PrimarySample`), the mutation and the target.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
 from functools import partial
+from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
 import numpy as np
+from jax import Array
 
 from ..core import rng
 from ..core.vec import V3, luminance
 from ..physics import camera as C
 from ..scene.data import Scene
+from ..transport import mcmc
 from .path_tracer import PathTracerConfig, radiance
 from .registry import Estimator, Param, register
 
@@ -70,15 +75,37 @@ def kelemen_small_step(u, xi_size, xi_sign, s1: float, s2: float):
     return v - jnp.floor(v)
 
 
-def _uniforms(key, first_dim, shape_d):
-    return jnp.stack([rng.uniform(key, first_dim + k) for k in range(shape_d)])
+def kelemen_mutation(u, key, p_large, s1: float, s2: float):
+    """Kelemen's mutation of primary samples u [d, chains], from the step's stream ``key`` of
+    :func:`jgi.mcmc.metropolis`: with probability p_large (dimension 0) a large step, a fresh
+    vector (sub-stream 11); else a small step of every coordinate, sizes from dimensions
+    3 .. d + 2 and directions from sub-stream 7. Both are symmetric, so T cancels in a(u -> v)."""
+    d = u.shape[0]
+    large = rng.uniform(key, 0) < p_large
+    small = kelemen_small_step(u, rng.uniforms(key, 3, d), rng.uniforms(rng.derive(key, 7), 0, d),
+                               s1, s2)
+    return jnp.where(large[None, :], rng.uniforms(rng.derive(key, 11), 0, d), small)
+
+
+class PrimarySample(NamedTuple):
+    """A chain's state in primary sample space, with its evaluation (all [chains] but u)."""
+
+    u: Array          # [dims, chains] the primary samples
+    value: V3         # the contribution it splats (PSSMLT: L(u))
+    f: Array          # the target f(u), the luminance of ``value``
+    pixel: Array      # int32 flat film pixel it splats to
+
+
+def splat_at(x: PrimarySample):
+    """(pixel, value, f) of a primary sample, for :func:`jgi.mcmc.splatting`."""
+    return x.pixel, x.value, x.f
 
 
 @partial(jax.jit, static_argnames=("cfg", "n"))
 def bootstrap(scene: Scene, cfg: PSSMLTConfig, seed, n: int):
     """n independent primary-sample vectors, their f, and the estimate of b = E[f]."""
     key = rng.derive(rng.path_key(seed, jnp.arange(n, dtype=jnp.int32), 0), _SALT)
-    u = _uniforms(key, 0, cfg.dims)
+    u = rng.uniforms(key, 0, cfg.dims)
     _, f, _ = contribution(scene, cfg, u)
     return u, f
 
@@ -91,38 +118,18 @@ def run_chains(scene: Scene, cfg: PSSMLTConfig, seed, u0, step0, n_steps: int, s
     and the number of accepted proposals."""
     n_live = n_steps if n_live is None else n_live
     W, H = scene.camera.width, scene.camera.height
-    C_ = u0.shape[1]
-    chain = jnp.arange(C_, dtype=jnp.int32)
-    L0, f0, pix0 = contribution(scene, cfg, u0)
 
-    def step(carry, t):
-        u, L, f, pix, img, accepted = carry
-        key = rng.derive(rng.path_key(seed, chain, step0 + t), _SALT + 1)
-        large = rng.uniform(key, 0) < cfg.p_large
-        fresh = _uniforms(key, 3, cfg.dims)
-        small = kelemen_small_step(u, fresh, _uniforms(rng.derive(key, 7), 0, cfg.dims),
-                                   cfg.s1, cfg.s2)
-        u_new = jnp.where(large[None, :], _uniforms(rng.derive(key, 11), 0, cfg.dims), small)
-        L_new, f_new, pix_new = contribution(scene, cfg, u_new)
-        a = jnp.where(f > 0, jnp.minimum(1.0, f_new / jnp.where(f > 0, f, 1.0)), 1.0)
-        live = t < n_live
-        # expected-value splatting of the current and the proposed sample
-        w_cur = jnp.where(live & (f > 0), (1.0 - a) / jnp.where(f > 0, f, 1.0), 0.0) * scale
-        w_new = jnp.where(live & (f_new > 0), a / jnp.where(f_new > 0, f_new, 1.0), 0.0) * scale
-        vals = jnp.stack([L.x * w_cur, L.y * w_cur, L.z * w_cur], -1)
-        vals_new = jnp.stack([L_new.x * w_new, L_new.y * w_new, L_new.z * w_new], -1)
-        img = img.at[pix].add(vals).at[pix_new].add(vals_new)
-        take = (rng.uniform(key, 1) < a) & live
-        u = jnp.where(take[None, :], u_new, u)
-        L = V3(*(jnp.where(take, n, o) for n, o in zip(L_new, L)))
-        f = jnp.where(take, f_new, f)
-        pix = jnp.where(take, pix_new, pix)
-        return (u, L, f, pix, img, accepted + jnp.sum(take)), None
+    def mutation(x: PrimarySample, key) -> mcmc.Move:
+        v = kelemen_mutation(x.u, key, cfg.p_large, cfg.s1, cfg.s2)
+        y = PrimarySample(v, *contribution(scene, cfg, v))
+        return mcmc.Move(y, x.f, y.f)
 
-    img0 = jnp.zeros((W * H, 3), jnp.float32)
-    (u, L, f, pix, img, acc), _ = jax.lax.scan(step, (u0, L0, f0, pix0, img0, jnp.int32(0)),
-                                               jnp.arange(n_steps, dtype=jnp.int32))
-    return u, img, acc
+    x0 = PrimarySample(u0, *contribution(scene, cfg, u0))
+    x, img, tally, _ = mcmc.metropolis([mutation], x0, n_steps, seed=seed, salt=_SALT + 1,
+                                       step0=step0, n_live=n_live,
+                                       record=mcmc.splatting(splat_at, scale),
+                                       acc0=jnp.zeros((W * H, 3), jnp.float32))
+    return x.u, img, jnp.sum(tally.accepted)
 
 
 def render(scene: Scene, *, spp: int, seed: int, chains: int = 4096, bootstrap_samples: int = 65536,
