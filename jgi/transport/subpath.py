@@ -3,8 +3,9 @@
 Notation (Veach 1997, ch. 8 and 10; pbrt-v4's BDPT): a light subpath y_0 y_1 ... starts on a
 light, a camera subpath z_0 z_1 ... at the pinhole. Each vertex x_i of a subpath carries
 
-* beta: the subpath's throughput up to x_i (the product of f |cos| / p of the directions
-  sampled before it, and L_e / p(y_0) or W_e / p(z_0) at its start);
+* beta: the subpath's throughput arriving at x_i, before x_i's BSDF: the start's emission
+  (L_e |cos| / p of y_0 and its direction; 1 for the pinhole) times f |cos| / p of every
+  direction sampled since; row 0 holds L_e on a light (1 at the camera);
 * pdf_fwd: the area density p(x_i) with which its own subpath sampled it (from x_{i-1});
 * pdf_rev: the area density with which x_i would be sampled from x_{i+1}, walking the other
   way (what a strategy that builds x_i from the other end needs: MIS by ratios of these).
