@@ -33,11 +33,11 @@ import pytest
 
 import jgi
 from jgi.core.vec import EDGE_ON_COS, V3
-from jgi.estimators.light_tracer import pdf_emission_dir
 from jgi.physics import bsdf as B
 from jgi.physics import geometry as G
 from jgi.physics import lights as LT
 from jgi.scene import DIELECTRIC, DIFFUSE, MIRROR, PHONG, SceneBuilder
+from jgi.transport.subpath import pdf_emission_dir
 
 ROOT = Path(__file__).resolve().parents[1]
 f32 = np.float32

@@ -18,14 +18,14 @@ SCRIPT = textwrap.dedent("""
     from jgi.drivers import chunked as R
     from jgi.drivers.chunked import render_paths_sharded
     from jgi.transport.photons import trace_photons
+    from jgi.core.configured import Configured
     from jgi.estimators.path_tracer import PathTracerConfig, trace_pixels
     assert len(jax.devices()) == 2, jax.devices()
     sc = jgi.scenes.cornell_box_caustics(resolution=16)
-    cfg = PathTracerConfig()
-    fn = lambda s, pix, smp, sd: trace_pixels(s, cfg, sd, pix, smp)
+    fn = Configured(trace_pixels, PathTracerConfig())
     for spp in (1, 7):
-        one = R.render_paths(sc, fn, spp=spp, seed=4, cache_key=("t", cfg), chunk=256)
-        two = render_paths_sharded(sc, fn, spp=spp, seed=4, cache_key=("t", cfg), chunk=256,
+        one = R.render_paths(sc, fn, spp=spp, seed=4, chunk=256)
+        two = render_paths_sharded(sc, fn, spp=spp, seed=4, chunk=256,
                                    chunks_per_call=R.CHUNKS_PER_CALL)
         assert np.array_equal(one, two), np.abs(one - two).max()
     a = trace_photons(sc, 5000, seed=2, chunk=1024, devices=jax.devices()[:1])

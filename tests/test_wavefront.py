@@ -25,6 +25,7 @@ from jgi import _xla as X
 from jgi._xla import pow_positive, sincos, take
 from jgi.core import calls as C
 from jgi.core import warps
+from jgi.core.configured import Configured
 from jgi.core.vec import V3
 from jgi.drivers import chunked
 from jgi.drivers import wavefront as R
@@ -38,8 +39,7 @@ ROOT = Path(__file__).resolve().parents[1]
 
 
 def per_path_image(scene, cfg, spp, seed):
-    fn = lambda sc, pix, smp, sd: PT.trace_pixels(sc, cfg, sd, pix, smp)  # noqa: E731
-    return chunked.render_paths(scene, fn, spp=spp, seed=seed, cache_key=("test-wavefront-ref", cfg))
+    return chunked.render_paths(scene, Configured(PT.trace_pixels, cfg), spp=spp, seed=seed)
 
 
 @pytest.mark.parametrize("name, params", [
@@ -67,8 +67,7 @@ def test_wavefront_lane_slot_and_unroll_counts_do_not_change_the_image():
     cfg = PT.PathTracerConfig()
 
     def render(**kw):
-        return R.render_wavefront(scene, PT._start, lambda sc, lane: PT._step(sc, cfg, lane),
-                                  spp=5, seed=2, cache_key=("test-wavefront-lanes", cfg), **kw)
+        return R.render_wavefront(scene, PT._start, Configured(PT._step, cfg), spp=5, seed=2, **kw)
 
     a = render(lanes=256)
     b = render(lanes=16, per_slot=2)       # 16 lanes take 192 slots from the queue
@@ -85,14 +84,10 @@ def test_concurrent_streams_trace_the_same_paths(monkeypatch):
     scene = scenes.cornell_box(resolution=8)
     cfg = PT.PathTracerConfig()
     monkeypatch.setattr(R, "WAVEFRONT_STREAM_SLOTS", 1)
-    calls = []
-    real = R._wavefront_call
-
-    def counting(*a, **kw):       # runs when the loop is traced, once per compile
-        calls.append(1)
-        return real(*a, **kw)
-
-    monkeypatch.setattr(R, "_wavefront_call", counting)
+    # a step function of this test's own: its compilations are the cache entries it adds
+    step = Configured(_step_of_the_streams_test, cfg)
+    compiled = R.wavefront_call._cache_size
+    before = compiled()
     pools = []
     real_pool = C.ThreadPoolExecutor
 
@@ -103,17 +98,20 @@ def test_concurrent_streams_trace_the_same_paths(monkeypatch):
     monkeypatch.setattr(C, "ThreadPoolExecutor", pool)
 
     def render(streams):
-        return R.render_wavefront(scene, PT._start, lambda sc, lane: PT._step(sc, cfg, lane),
-                                  spp=5, seed=2, cache_key=("test-wavefront-streams", cfg),
-                                  lanes=16, per_slot=1, streams=streams)
+        return R.render_wavefront(scene, PT._start, step, spp=5, seed=2, lanes=16, per_slot=1,
+                                  streams=streams)
 
     one = render(1)
-    assert len(calls) == 1        # one compile serves every stream count
+    assert compiled() == before + 1   # one compile serves every stream count
     for streams in (2, 3):
         many = render(streams)
         np.testing.assert_allclose(many, one, rtol=1e-5, atol=1e-7)
         assert np.array_equal(many, render(streams))
-    assert len(calls) == 1 and pools == [2, 2, 3, 3]
+    assert compiled() == before + 1 and pools == [2, 2, 3, 3]
+
+
+def _step_of_the_streams_test(scene, cfg, lane):
+    return PT._step(scene, cfg, lane)
 
 
 def test_wavefront_on_two_devices_matches_one():
@@ -125,10 +123,10 @@ def test_wavefront_on_two_devices_matches_one():
         from jgi.drivers import wavefront as R
         import jgi.core.calls as C
         sc = jgi.scenes.cornell_box(resolution=8)
-        cfg = PT.PathTracerConfig()
-        step = lambda s, l: PT._step(s, cfg, l)
+        from jgi.core.configured import Configured
+        step = Configured(PT._step, PT.PathTracerConfig())
         R.WAVEFRONT_STREAM_SLOTS = 1   # split this small render: 320 slots over 16 lanes
-        kw = dict(spp=5, seed=4, cache_key=("t", cfg), lanes=16, per_slot=1)
+        kw = dict(spp=5, seed=4, lanes=16, per_slot=1)
         one = R.render_wavefront(sc, PT._start, step, devices=jax.devices()[:1], streams=1, **kw)
         pools, Pool = [], C.ThreadPoolExecutor
         C.ThreadPoolExecutor = lambda n: (pools.append(n), Pool(n))[1]
@@ -315,8 +313,7 @@ def test_sum_calls_adds_parts_in_call_order_whatever_finishes_first():
 def test_render_paths_with_concurrent_calls_is_bit_identical(monkeypatch):
     """Several jitted calls in flight (CALL_STREAMS) give exactly the image of one at a time."""
     scene = scenes.cornell_box(resolution=8)
-    cfg = PT.PathTracerConfig()
-    fn = lambda sc, pix, smp, sd: PT.trace_pixels(sc, cfg, sd, pix, smp)  # noqa: E731
+    fn = Configured(PT.trace_pixels, PT.PathTracerConfig())
 
     pools = []
     real_pool = C.ThreadPoolExecutor
@@ -325,7 +322,7 @@ def test_render_paths_with_concurrent_calls_is_bit_identical(monkeypatch):
     def render(streams):
         monkeypatch.setattr(C, "CALL_STREAMS", streams)
         # 64 pixels x 9 spp in calls of 4 chunks of 32 paths: 5 calls
-        return chunked.render_paths(scene, fn, spp=9, seed=3, cache_key=("test-streams", cfg), chunk=32)
+        return chunked.render_paths(scene, fn, spp=9, seed=3, chunk=32)
 
     assert np.array_equal(render(1), render(3))
     assert pools == [3]           # one call at a time, then three in flight

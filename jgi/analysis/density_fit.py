@@ -85,7 +85,8 @@ def estimate(problem: DensityProblem, r, kind: str = "epanechnikov", normalised:
                            jnp.isfinite(problem.d2), None)
     E, _ = PM.estimate(gathered, r * r, jnp.float32(1.0), kind, **filter_params)
     if kind == "gaussian" and not normalised:
-        return E.x * PM.gaussian_normaliser(filter_params.get("alpha", 0.918), filter_params.get("beta", 1.953))
+        return E.x * PM.gaussian_normaliser(filter_params.get("alpha", PM.JENSEN_ALPHA),
+                                             filter_params.get("beta", PM.JENSEN_BETA))
     return E.x
 
 

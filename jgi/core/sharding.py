@@ -15,6 +15,7 @@ before rendering; ``jax.devices()`` then lists all hosts' devices and the same m
 
 from __future__ import annotations
 
+from functools import partial
 from typing import Callable, Sequence
 
 import jax
@@ -22,27 +23,23 @@ import numpy as np
 from jax.sharding import Mesh
 from jax.sharding import PartitionSpec as P
 
-_COMPILED: dict = {}
-
 
 def device_mesh(devices: Sequence | None = None) -> Mesh:
     devices = list(devices if devices is not None else jax.devices())
     return Mesh(np.array(devices), ("d",))
 
 
-def sharded_calls(call: Callable, mesh: Mesh, cache_key):
-    """Wrap ``call(scene, seed, sample0, pixel0, count) -> pytree`` so that it runs once per
-    device on per-device (sample0, pixel0, count) and returns the outputs stacked along a new
-    leading device axis."""
-    key = (cache_key, tuple(mesh.devices.flat))
-    fn = _COMPILED.get(key)
-    if fn is None:
-        def per_device(scene, seed, sample0, pixel0, count):
-            out = call(scene, seed, sample0[0], pixel0[0], count[0])
-            return jax.tree_util.tree_map(lambda x: x[None], out)
+def _per_device(call, scene, seed, sample0, pixel0, count):
+    out = call(scene, seed, sample0[0], pixel0[0], count[0])
+    return jax.tree_util.tree_map(lambda x: x[None], out)
 
-        fn = jax.jit(jax.shard_map(per_device, mesh=mesh,
-                                   in_specs=(P(), P(), P("d"), P("d"), P("d")),
-                                   out_specs=P("d"), check_vma=False))
-        _COMPILED[key] = fn
-    return fn
+
+@partial(jax.jit, static_argnames=("call", "mesh"))
+def sharded_calls(scene, seed, sample0, pixel0, count, *, call: Callable, mesh: Mesh):
+    """``call(scene, seed, sample0, pixel0, count) -> pytree`` run once per device of ``mesh``
+    on that device's entries of the [D] arrays (sample0, pixel0, count), the outputs stacked
+    along a new leading device axis. ``call`` is a static argument: it must be hashable and
+    equal by value (jgi.core.configured), so that JAX's compile cache keys on it."""
+    return jax.shard_map(partial(_per_device, call), mesh=mesh,
+                         in_specs=(P(), P(), P("d"), P("d"), P("d")),
+                         out_specs=P("d"), check_vma=False)(scene, seed, sample0, pixel0, count)

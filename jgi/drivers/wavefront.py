@@ -7,6 +7,10 @@ lanes that finish their slot take the next one from a queue shared by all lanes,
 idles while the longest paths of a batch finish. Which lane traces a path depends on timing
 within the loop, but each path's random numbers come from (seed, pixel, sample), so the image
 is still a function of the seed alone.
+
+``start_fn`` and ``step_fn`` are static arguments of the jitted :func:`wavefront_call`: JAX's
+compile cache keys on them, so they must be hashable and equal by value (module-level
+functions, or :class:`jgi.core.configured.Configured` for a step with its settings).
 """
 
 from __future__ import annotations
@@ -27,9 +31,6 @@ from ..core.errors import ParameterError
 from ..core.vec import V3
 from ..scene.data import Scene
 from .chunked import progress_line
-
-_COMPILED: dict = {}  # compile cache: (estimator key, lanes, unroll) -> jitted fn
-
 
 WAVEFRONT_LANES = 1 << 12   # lanes per loop. With two loops in flight (jgi.core.calls), 2^12 was
                             # fastest of 2^10..2^14 at 128^2, 16 spp (Cornell box 1.2x, its
@@ -71,8 +72,9 @@ def _slot_work(slot_id, P, spp, per_slot):
     return pixel, first, jnp.clip(spp - first, 0, per_slot)
 
 
-def _wavefront_call(scene: Scene, seed, slot0, n_call, spp, per_slot, n_inner, *, start_fn,
-                    step_fn, lanes, unroll=1):
+@partial(jax.jit, static_argnames=("start_fn", "step_fn", "lanes", "unroll"))
+def wavefront_call(scene: Scene, seed, slot0, n_call, spp, per_slot, n_inner, *, start_fn,
+                   step_fn, lanes, unroll=1):
     """Trace every path of work slots slot0 .. slot0 + n_call - 1 and return the (P, 3) sum of
     their radiance, and how many paths were dropped as non-finite.
 
@@ -154,7 +156,7 @@ def _wavefront_call(scene: Scene, seed, slot0, n_call, spp, per_slot, n_inner, *
 
 
 def render_wavefront(scene: Scene, start_fn: Callable, step_fn: Callable, *, spp: int, seed: int,
-                     cache_key, progress: bool = False, lanes: int | None = None,
+                     progress: bool = False, lanes: int | None = None,
                      per_slot: int | None = None, devices=None,
                      unroll: int | None = None, streams: int | None = None) -> np.ndarray:
     """Average over ``spp`` samples per pixel of paths traced segment by segment.
@@ -163,11 +165,11 @@ def render_wavefront(scene: Scene, start_fn: Callable, step_fn: Callable, *, spp
     arrays; ``step_fn(scene, state) -> (state, alive, L)`` advances every lane by one segment and
     says which paths are still going; when a lane's ``alive`` turns False its ``L`` (a V3) is
     that path's final estimate. A new path's state reaches ``step_fn`` as ``start_fn``'s values
-    selected in, not yet computed (see :func:`_wavefront_call`), and the state ``step_fn``
+    selected in, not yet computed (see :func:`wavefront_call`), and the state ``step_fn``
     returns is carried as it is: the step stores (jgi._xla.materialize) whatever several of its
     kernels read. Work is split into slots of (pixel, up to ``per_slot`` samples,
     default ``WAVEFRONT_SAMPLES``) that lanes take from a queue as they finish (see
-    :func:`_wavefront_call`): lanes stay busy whatever the spread of path lengths over the
+    :func:`wavefront_call`): lanes stay busy whatever the spread of path lengths over the
     image (Cornell box, 256^2, 64 spp: 91% of lane-segments trace a path, against 78% when each
     lane had a fixed list of four pixels; 1.07x fewer CPU-seconds, 1.26x on the glass sphere).
     Each inner-loop iteration advances every lane by ``unroll`` segments (default
@@ -192,12 +194,6 @@ def render_wavefront(scene: Scene, start_fn: Callable, step_fn: Callable, *, spp
             f"seeds and average the images")
     # refill every ~8 segments, or sooner when slots are short (paths average ~4 segments)
     n_inner = max(1, min(8, 2 * per_slot) // unroll)
-    key = (cache_key, ("wavefront", lanes, unroll))
-    fn = _COMPILED.get(key)
-    if fn is None:
-        fn = jax.jit(partial(_wavefront_call, start_fn=start_fn, step_fn=step_fn, lanes=lanes,
-                             unroll=unroll))
-        _COMPILED[key] = fn
     # calls of at most per_call slots; a render of at least WAVEFRONT_STREAM_SLOTS slots per
     # lane and call is split into enough calls for ``streams`` loops per device to run at once
     streams = D * (streams or calls.CALL_STREAMS)
@@ -209,8 +205,9 @@ def render_wavefront(scene: Scene, start_fn: Callable, step_fn: Callable, *, spp
     t0 = time.perf_counter()
 
     def call(i):
-        return fn(scenes[i % D], jnp.uint32(seed), jnp.int32(bounds[i]),
-                  jnp.int32(bounds[i + 1] - bounds[i]), *args)
+        return wavefront_call(scenes[i % D], jnp.uint32(seed), jnp.int32(bounds[i]),
+                              jnp.int32(bounds[i + 1] - bounds[i]), *args, start_fn=start_fn,
+                              step_fn=step_fn, lanes=lanes, unroll=unroll)
 
     def report(i):
         if progress:

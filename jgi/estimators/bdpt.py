@@ -2,7 +2,7 @@
 
 Estimator: for each pixel sample a camera subpath z_0 z_1 ... z_{t-1} (z_0 the pinhole) and a
 light subpath y_0 y_1 ... y_{s-1} (y_0 on a light) are traced, each as fixed-size vertex arrays
-(:class:`~jgi.estimators.light_tracer.Vertices`, struct of arrays, [max_depth + 1, N]) carrying
+(:class:`~jgi.transport.subpath.Vertices`, struct of arrays, [max_depth + 1, N]) carrying
 their throughput beta and the forward and reverse area densities of every vertex. Every
 strategy (s, t) with s + t - 1 <= max_depth path segments then forms a full path and estimates
 
@@ -11,7 +11,8 @@ strategy (s, t) with s + t - 1 <= max_depth path segments then forms a full path
 (Veach eq. 10.8), with the connection term c_{s,t} of each kind:
 
 * s = 0: the camera subpath hit an emitter, c = L_e(z_{t-1} -> z_{t-2});
-* s = 1: light sampling at z_{t-1} (``lights.sample_li``, as the path tracer's NEE);
+* s = 1: light sampling at z_{t-1} (:func:`~jgi.transport.subpath.sample_next_event`, the
+  path tracer's NEE);
 * t = 1: light tracing, y_{s-1} connected to the pinhole and *splatted* into the pixel it
   projects to (W_e of jgi.physics.camera);
 * s, t >= 2: c = f(y_{s-2} -> y_{s-1} -> z_{t-1}) G(y_{s-1} <-> z_{t-1}) f(y_{s-1} -> z_{t-1}
@@ -53,33 +54,36 @@ from jax import Array
 
 from .._xla import materialize
 from ..core import rng
+from ..core.configured import Configured
 from ..core.imageio import write_exr, write_png
 from ..core.vec import V3, dot, where
+from ..drivers.splat import render_splats
 from ..physics import bsdf as B
 from ..physics import camera as C
 from ..physics import geometry as G
 from ..physics import lights as LT
 from ..scene.data import Scene
 from ..transport import mis
-from .light_tracer import (
+from ..transport.subpath import (
     Vertices,
     Visit,
     WalkState,
-    _cat,
-    _row,
+    camera_ray,
+    concat_rows,
     connect_camera,
     convert_density,
     is_infinite,
     light_key,
     light_normal,
     light_subpath,
+    next_event_value,
     occluded_many,
     pdf_emission_dir,
     pdf_light_origin,
     random_walk,
-    render_splats,
+    rows,
+    sample_next_event,
 )
-from .path_tracer import _material
 from .registry import Estimator, Param, register
 
 CAMERA_DIMS0 = 2              # dims 0, 1: pixel jitter
@@ -183,16 +187,11 @@ def _camera_visit(scene: Scene, exponent: float):
             out["env_value"] = where(escaped, L_env, Z)
             out["env_weight"] = w
         # ---- s = 1: light sampling at z_{t-1} ----
-        ls = LT.sample_li(lights, hit.p, u(3), u(4), u(5))
+        ne = sample_next_event(scene, mp, hit.p, hit.n, wo, u(3), u(4), u(5), v.valid)
+        ls, pdf_p_fwd, cos_p = ne.light, ne.pdf_bsdf, ne.cos
         k = LT.select(lights, u(3))
-        f, pdf_p_fwd = B.evaluate(kinds, mp, hit.n, wo, ls.wi)
         _, pdf_p_rev = B.evaluate(kinds, mp, hit.n, ls.wi, wo)
-        cos_p = dot(hit.n, ls.wi)
-        ok = v.valid & ~B.is_delta(mp) & ls.valid & (ls.pdf > 0)
-        o_s, d_s, t_s = G.shadow_ray(hit.p, hit.n, ls.wi, ls.dist)
-        ok = ok & ~G.occluded(scene, o_s, d_s, t_s)
-        value = s.beta * f * ls.Li * (jnp.abs(cos_p) / jnp.where(ok, ls.pdf, 1.0))
-        out["s1_value"] = where(ok, value, Z)
+        out["s1_value"] = where(~G.occluded(scene, *ne.shadow), next_event_value(ne, s.beta), Z)
         infinite = is_infinite(lights, k)
         dist = jnp.where(infinite, 0.0, ls.dist)
         d2 = dist * dist
@@ -218,9 +217,8 @@ def camera_subpath(scene: Scene, cfg: BDPTConfig, key: Array, pixel: Array, unif
     """z_0 (the pinhole) .. z_max_depth, and the per-vertex s = 0 / s = 1 records.
     ``uniform(dim)``, if given, replaces the hashed stream ``key`` (dims 0, 1: pixel jitter)."""
     cam = scene.camera
-    W = cam.width
     u = (lambda k: rng.uniform(key, k)) if uniform is None else uniform  # noqa: E731
-    o, d = C.sample_ray(cam, pixel % W, pixel // W, u(0), u(1))
+    o, d = camera_ray(cam, pixel, u)
     z = jnp.zeros_like(o.x)
     Z = V3(z, z, z)
     one = V3(z + 1, z + 1, z + 1)
@@ -232,7 +230,7 @@ def camera_subpath(scene: Scene, cfg: BDPTConfig, key: Array, pixel: Array, unif
                                        cfg.max_depth, start, B.RADIANCE,
                                        _camera_visit(scene, cfg.exponent), uniform=uniform)
     z0 = jax.tree_util.tree_map(lambda x: x[None], z0._replace(pdf_rev=pdf_rev0))
-    return _cat(z0, verts), rec
+    return concat_rows(z0, verts), rec
 
 
 # --- all strategies of one sample -------------------------------------------------------------------
@@ -244,7 +242,8 @@ def _interior(scene: Scene, q: Vertices, qm: Vertices, p: Vertices, pm: Vertices
     d2 = dot(v, v)
     dist = jnp.sqrt(d2)
     w = v / jnp.where(dist > 0, dist, 1.0)            # from y_{s-1} towards z_{t-1}
-    mq, mp = _material(scene.materials, q.material), _material(scene.materials, p.material)
+    mq = B.lookup_specialised(scene.materials, q.material)
+    mp = B.lookup_specialised(scene.materials, p.material)
     f_q, pdf_q_fwd = B.evaluate(kinds, mq, q.n, q.wo, w)     # y_{s-2} -> y_{s-1} -> z_{t-1}
     _, pdf_q_rev = B.evaluate(kinds, mq, q.n, w, q.wo)
     f_p, pdf_p_fwd = B.evaluate(kinds, mp, p.n, p.wo, -w)    # z_{t-2} -> z_{t-1} -> y_{s-1}
@@ -323,8 +322,8 @@ def contributions(scene: Scene, cfg: BDPTConfig, seed, pixel: Array, sample: Arr
     inner = [(s, t) for (s, t) in strategies if s >= 2 and t >= 2]
     rays = []
     if t1:
-        rows = np.array([s - 1 for s, _ in t1])
-        q, qm = _row(light, rows), _row(light, rows - 1)
+        q_rows = np.array([s - 1 for s, _ in t1])
+        q, qm = rows(light, q_rows), rows(light, q_rows - 1)
         conn = materialize(connect_camera(scene, q))
         vm = qm.p - q.p
         rev_qsm = convert_density(conn.pdf_q_rev, dot(vm, vm), dot(qm.n, q.wo), qm.on_surface)
@@ -333,7 +332,7 @@ def contributions(scene: Scene, cfg: BDPTConfig, seed, pixel: Array, sample: Arr
         ls = np.array([s - 1 for s, _ in inner])
         ts = np.array([t - 1 for _, t in inner])
         value_in, shadow_in, rev_in = materialize(_interior(
-            scene, _row(light, ls), _row(light, ls - 1), _row(cam, ts), _row(cam, ts - 1)))
+            scene, rows(light, ls), rows(light, ls - 1), rows(cam, ts), rows(cam, ts - 1)))
         rays.append(shadow_in)
     occ = occluded_many(scene, rays) if rays else []
     occ_t1 = occ.pop(0) if t1 else None
@@ -393,29 +392,29 @@ def contributions(scene: Scene, cfg: BDPTConfig, seed, pixel: Array, sample: Arr
         w = weights[j]
         pix = None
         if s == 0:
-            c = _row(rec["s0_value"], t - 2)
+            c = rows(rec["s0_value"], t - 2)
             weighted = c * w
             if "env_value" in rec:        # camera rays that escaped to the environment
-                ce = _row(rec["env_value"], t - 2)
-                weighted = weighted + ce * _row(rec["env_weight"], t - 2)
+                ce = rows(rec["env_value"], t - 2)
+                weighted = weighted + ce * rows(rec["env_weight"], t - 2)
                 c = c + ce
             out[(s, t)] = (None, weighted, c)
             continue
         if s == 1:
-            c = _row(rec["s1_value"], t - 2)
-            w = jnp.where(_row(rec["s1_infinite"], t - 2), _row(rec["s1_w_infinite"], t - 2), w)
+            c = rows(rec["s1_value"], t - 2)
+            w = jnp.where(rows(rec["s1_infinite"], t - 2), rows(rec["s1_w_infinite"], t - 2), w)
         elif t == 1:
             k = t1.index((s, t))
-            c = where(occ_t1[k], V3.full(0.0, w), _row(conn.value, k))
+            c = where(occ_t1[k], V3.full(0.0, w), rows(conn.value, k))
             pix = jnp.where(occ_t1[k], -1, conn.pixel[k])
         else:
             k = inner.index((s, t))
-            c = where(occ_in[k], V3.full(0.0, w), _row(value_in, k))
+            c = where(occ_in[k], V3.full(0.0, w), rows(value_in, k))
         out[(s, t)] = (pix, c * w, c)
     return out
 
 
-def _pixel_contribs(scene, cfg, seed, pixel, sample):
+def pixel_contributions(scene, cfg, seed, pixel, sample):
     """The render's splat list: the sum of all t >= 2 strategies at the sample's own pixel,
     then one splat per t = 1 strategy."""
     out = materialize(contributions(scene, cfg, seed, pixel, sample))
@@ -430,7 +429,9 @@ def _pixel_contribs(scene, cfg, seed, pixel, sample):
     return items + splats
 
 
-def _strategy_contribs(scene, cfg, seed, pixel, sample):
+def strategy_contributions(scene, cfg, seed, pixel, sample):
+    """The splat list of :func:`render_strategies`: every strategy's unweighted value (image
+    2k) and weighted value (image 2k + 1)."""
     # both values of every strategy, computed once and stored (otherwise XLA re-derives the
     # shared unweighted value inside both consumers: measured 2.5x slower)
     out = materialize(contributions(scene, cfg, seed, pixel, sample))
@@ -459,8 +460,7 @@ def render_strategies(scene: Scene, spp: int = 16, seed: int = 0, max_depth: int
     strategies = cfg.strategies()
     if scene.lights.count == 0 or not strategies:
         return {st: (_blank(scene), _blank(scene)) for st in strategies}
-    fn = lambda sc, sd, px, sm: _strategy_contribs(sc, cfg, sd, px, sm)  # noqa: E731
-    imgs = render_splats(scene, fn, spp=spp, seed=seed, cache_key=("bdpt-strategies", cfg),
+    imgs = render_splats(scene, Configured(strategy_contributions, cfg), spp=spp, seed=seed,
                          n_images=2 * len(strategies), progress=progress)
     return {st: (imgs[2 * k], imgs[2 * k + 1]) for k, st in enumerate(strategies)}
 
@@ -501,8 +501,7 @@ def _run(scene: Scene, *, spp: int, seed: int, progress: bool = False, strategy_
         return sum((w for _, w in imgs.values()), _blank(scene))
     if scene.lights.count == 0 or not cfg.strategies():
         return _blank(scene)
-    fn = lambda sc, sd, px, sm: _pixel_contribs(sc, cfg, sd, px, sm)  # noqa: E731
-    return render_splats(scene, fn, spp=spp, seed=seed, cache_key=("bdpt", cfg),
+    return render_splats(scene, Configured(pixel_contributions, cfg), spp=spp, seed=seed,
                          progress=progress)[0]
 
 

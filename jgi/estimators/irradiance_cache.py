@@ -47,16 +47,16 @@ import numpy as np
 from jax import Array
 
 from ..core import rng
-from ..core.vec import V3, coordinate_system, cross, dot, length, where
-from ..physics import camera as C
+from ..core.vec import V3, coordinate_system, cross, dot, length
+from ..physics import bsdf as B
 from ..physics import geometry as G
 from ..physics import lights as LT
 from ..scene.data import Scene
 from ..transport import photon_map as PMap
 from ..transport.photons import trace_photons
+from ..transport.subpath import trace_to_diffuse, visible_points
 from .path_tracer import PathTracerConfig, radiance
 from .registry import Estimator, Param, register
-from .whitted import WhittedConfig, trace_to_diffuse
 
 _SALT = 0x3C6EF372
 
@@ -144,10 +144,9 @@ def _gather_hits(scene: Scene, cfg: CacheConfig, seed, ids, p: V3, n: V3):
     """Gather rays followed through specular chains to the diffuse surfaces they reach."""
     of, df, kf, angles, frame = _gather_rays(scene, cfg, seed, ids, p, n)
     hit = G.intersect(scene, of, df)
-    v = trace_to_diffuse(scene, WhittedConfig(max_depth=cfg.max_depth, light_samples=0),
-                         lambda k: rng.uniform(kf, k + 2), of, df)
-    n_face = where(dot(v.n, v.wo) < 0, -v.n, v.n)
-    return v._replace(n=n_face), jnp.where(hit.valid, hit.t, jnp.inf), angles, frame
+    v = trace_to_diffuse(scene, lambda k: rng.uniform(kf, k + 2), of, df, max_depth=cfg.max_depth,
+                         light_samples=0)
+    return v._replace(n=B.facing(v.n, v.wo)), jnp.where(hit.valid, hit.t, jnp.inf), angles, frame
 
 
 _record_jit = jax.jit(lambda scene, cfg, K, L, r, angles, frame: _record(scene, cfg, K, L, r, angles, frame),
@@ -252,17 +251,6 @@ def interpolate(rec: Records, x: V3, n: V3, a):
 
 
 # --- the estimator ---------------------------------------------------------------------------------
-
-@partial(jax.jit, static_argnames=("cfg",))
-def shading_points(scene: Scene, cfg: CacheConfig, seed, pixel, sample):
-    """First non-specular vertex of each camera sample (with the direct light found there)."""
-    W = scene.camera.width
-    key = rng.path_key(seed, pixel, sample)
-    o, d = C.sample_ray(scene.camera, pixel % W, pixel // W, rng.uniform(key, 0), rng.uniform(key, 1))
-    v = trace_to_diffuse(scene, WhittedConfig(max_depth=cfg.max_depth), lambda k: rng.uniform(key, k), o, d)
-    n_face = where(dot(v.n, v.wo) < 0, -v.n, v.n)
-    return v._replace(n=n_face)
-
 
 def _pad_records(recs: list[tuple], capacity: int) -> Records:
     """Concatenate record batches (numpy) and pad to ``capacity`` rows."""
@@ -385,11 +373,14 @@ def irradiance(scene: Scene, pts: ShadingPoints, *, cfg: CacheConfig, cached: bo
 
 
 def shade(scene: Scene, cfg: CacheConfig, seed: int, spp: int):
+    """The shading points of ``spp`` camera samples per pixel: their visible points, with the
+    direct light found there (one light sample)."""
     W, H = scene.camera.width, scene.camera.height
     P = W * H
     pixel = jnp.tile(jnp.arange(P, dtype=jnp.int32), spp)
     sample = jnp.repeat(jnp.arange(spp, dtype=jnp.int32), P)
-    return shading_points(scene, cfg, jnp.uint32(seed), pixel, sample)
+    return visible_points(scene, jnp.uint32(seed), pixel, sample, max_depth=cfg.max_depth,
+                          light_samples=1)
 
 
 def render(scene: Scene, *, spp: int = 1, seed: int = 0, cfg: CacheConfig = CacheConfig(),

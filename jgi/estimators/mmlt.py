@@ -53,8 +53,8 @@ import numpy as np
 from ..core.vec import V3, luminance, where
 from ..scene.data import Scene
 from ..transport import mcmc
+from ..transport.subpath import LIGHT_DIMS0, LIGHT_DIMS_PER_STEP
 from .bdpt import CAMERA_DIMS0, CAMERA_DIMS_PER_STEP, BDPTConfig, contributions
-from .light_tracer import LIGHT_DIMS0, LIGHT_DIMS_PER_STEP
 from .pssmlt import PrimarySample, kelemen_mutation, splat_at
 from .registry import Estimator, Param, register
 

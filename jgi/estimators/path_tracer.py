@@ -32,16 +32,17 @@ import jax.numpy as jnp
 from jax import Array
 
 from .. import _xla as X
-from .._xla import materialize, take
+from .._xla import materialize
 from ..core import rng
-from ..core.vec import V3, dot, max_component, where
+from ..core.configured import Configured
+from ..core.vec import V3, max_component, where
 from ..drivers.wavefront import render_wavefront
 from ..physics import bsdf as B
-from ..physics import camera as C
 from ..physics import geometry as G
 from ..physics import lights as LT
-from ..scene.data import DIELECTRIC, DIFFUSE, MIRROR, PHONG, Scene
+from ..scene.data import Scene
 from ..transport import mis
+from ..transport.subpath import camera_ray, next_event_value, sample_next_event
 from .registry import Estimator, Param, register
 
 
@@ -75,21 +76,6 @@ class PathState(NamedTuple):
     prev_pdf: Array      # solid-angle pdf of the BSDF sample that produced d
     prev_delta: Array    # that sample came from a Dirac lobe (no MIS possible)
     prev_p: V3           # the vertex d left from (reference point for pdf_li)
-
-
-def _material(mats, m: Array) -> B.MaterialParams:
-    """``bsdf.lookup`` for the path tracer's inner loop: small material tables are read with
-    selects instead of gathers (see jgi._xla.take), and a kind that is the only one present is a
-    constant, so the BSDF code for the absent kinds folds away."""
-    kinds = mats.kinds
-    kind = (jnp.full(m.shape, kinds[0], jnp.int32) if len(kinds) == 1 else take(mats.kind, m))
-    zero = jnp.zeros(m.shape, jnp.float32)
-    uses_ks = any(k in kinds for k in (MIRROR, DIELECTRIC, PHONG))
-    kd = V3(*(take(c, m) for c in mats.diffuse)) if (DIFFUSE in kinds or PHONG in kinds) else V3(zero, zero, zero)
-    ks = V3(*(take(c, m) for c in mats.specular)) if uses_ks else V3(zero, zero, zero)
-    exponent = take(mats.exponent, m) if PHONG in kinds else zero
-    ior = take(mats.ior, m) if DIELECTRIC in kinds else zero + 1.0
-    return B.MaterialParams(kind, kd, ks, exponent, ior)
 
 
 def _shade(scene: Scene, cfg: PathTracerConfig, s: PathState, hit: G.Hit, depth,
@@ -135,26 +121,22 @@ def _shade(scene: Scene, cfg: PathTracerConfig, s: PathState, hit: G.Hit, depth,
     else:
         L = s.L
     active = s.active & hit.valid & (length < max_depth)
-    mp = _material(mats, hit.material)
+    mp = B.lookup_specialised(mats, hit.material)
 
     # ---- Light sampling (next-event estimation): shadow rays and their unoccluded values ----
     shadow = []  # (origin, direction, t_max, contribution if visible)
     if use_nee:
-        nee_ok = active & ~B.is_delta(mp) & counts(length + 1)
+        nee_active = active & counts(length + 1)
         for j in range(cfg.light_samples):
             dj = 4 + 3 * j
-            ls = LT.sample_li(lights, hit.p, u(dj), u(dj + 1), u(dj + 2))
-            f, pdf_bsdf = B.evaluate(kinds, mp, hit.n, wo, ls.wi)
-            cos_i = jnp.abs(dot(ls.wi, hit.n))
+            ne = sample_next_event(scene, mp, hit.p, hit.n, wo, u(dj), u(dj + 1), u(dj + 2),
+                                   nee_active)
             if cfg.strategy == "mis":
-                w_g = mis.heuristic_weight(n_g, ls.pdf, [(n_f, pdf_bsdf)], cfg.exponent)
-                w_g = jnp.where(ls.delta, 1.0, w_g)
+                w_g = mis.heuristic_weight(n_g, ne.light.pdf, [(n_f, ne.pdf_bsdf)], cfg.exponent)
+                w_g = jnp.where(ne.light.delta, 1.0, w_g)
             else:
                 w_g = jnp.ones_like(z)
-            ok = nee_ok & ls.valid & (ls.pdf > 0)
-            scale = X.div(w_g * cos_i, n_g * jnp.where(ok, ls.pdf, 1.0))
-            shadow.append((*G.shadow_ray(hit.p, hit.n, ls.wi, ls.dist),
-                           where(ok, s.throughput * f * ls.Li * scale, Z)))
+            shadow.append((*ne.shadow, next_event_value(ne, s.throughput, w_g, n_g)))
 
     # ---- BSDF sampling: extend the path ----
     bs = B.sample(kinds, mp, hit.n, wo, u(0), u(1), u(2))
@@ -215,13 +197,12 @@ def radiance(scene: Scene, cfg: PathTracerConfig, uniform: Callable[[Array], Arr
 
 
 def trace_pixels(scene: Scene, cfg: PathTracerConfig, seed, pixel: Array, sample: Array) -> V3:
-    """Radiance samples for (pixel, sample) index arrays: the per-path estimator the renderer
-    vmaps (as arrays) over a chunk."""
-    W = scene.camera.width
+    """Radiance samples for (pixel, sample) index arrays: the per-path estimator, for
+    :func:`jgi.drivers.chunked.render_paths` as ``Configured(trace_pixels, cfg)``."""
     key = rng.path_key(seed, pixel, sample)
-    px, py = pixel % W, pixel // W
-    o, d = C.sample_ray(scene.camera, px, py, rng.uniform(key, 0), rng.uniform(key, 1))
-    return radiance(scene, cfg, lambda dim: rng.uniform(key, dim), o, d)
+    uniform = lambda dim: rng.uniform(key, dim)  # noqa: E731
+    o, d = camera_ray(scene.camera, pixel, uniform)
+    return radiance(scene, cfg, uniform, o, d)
 
 
 # --- the same estimator as a per-segment step, for the wavefront renderer ----------------------
@@ -233,11 +214,9 @@ class _Lane(NamedTuple):
 
 
 def _start(scene: Scene, seed, pixel: Array, sample: Array) -> _Lane:
-    W = scene.camera.width
     key = rng.path_key(seed, pixel, sample)
     c = rng.counter(key, 0)
-    o, d = C.sample_ray(scene.camera, pixel % W, pixel // W, rng.uniform_at(c, 0),
-                        rng.uniform_at(c, 1))
+    o, d = camera_ray(scene.camera, pixel, lambda k: rng.uniform_at(c, k))
     return _Lane(_camera_state(o, d), jnp.zeros_like(pixel), key)
 
 
@@ -265,8 +244,8 @@ def _step(scene: Scene, cfg: PathTracerConfig, lane: _Lane):
 
 def render(scene: Scene, cfg: PathTracerConfig, *, spp: int, seed: int, progress: bool = False):
     """The path-traced image, (H, W, 3) float32, traced by the wavefront driver."""
-    return render_wavefront(scene, _start, lambda sc, lane: _step(sc, cfg, lane), spp=spp, seed=seed,
-                            progress=progress, cache_key=("pt", cfg))
+    return render_wavefront(scene, _start, Configured(_step, cfg), spp=spp, seed=seed,
+                            progress=progress)
 
 
 def _run(scene: Scene, *, spp: int, seed: int, progress: bool = False, **params):

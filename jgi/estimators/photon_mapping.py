@@ -2,7 +2,7 @@
 
 All three start from the photon maps of :mod:`jgi.transport.photons` and the density estimate of
 :mod:`jgi.transport.photon_map`, and see the scene from the camera through specular chains
-(:func:`jgi.estimators.whitted.trace_to_diffuse`) to the first non-specular point x:
+(:func:`jgi.transport.subpath.visible_points`) to the first non-specular point x:
 
 * ``pm`` - direct visualisation: L(x) = L_r estimated from the global map at x (every
   bounce of light, direct included, from photons). Fixed radius, or k nearest photons.
@@ -32,30 +32,18 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..core import rng
-from ..core.vec import V3, coordinate_system, dot, where
+from ..core.vec import V3, coordinate_system
 from ..core.warps import sample_cosine_hemisphere
-from ..physics import camera as C
+from ..physics import bsdf as B
 from ..physics import geometry as G
 from ..scene.data import Scene
 from ..transport import photon_map as PMap
 from ..transport.photons import trace_photons
+from ..transport.subpath import trace_to_diffuse, visible_points
 from . import irradiance_cache as IC
 from .registry import Estimator, Param, register
-from .whitted import WhittedConfig, trace_to_diffuse
 
 _SALT = 0x1B873593
-def _facing(n: V3, wo: V3) -> V3:
-    return where(dot(n, wo) < 0, -n, n)
-
-
-@partial(jax.jit, static_argnames=("light_samples", "max_depth"))
-def visible_points(scene: Scene, seed, pixel, sample, light_samples: int, max_depth: int):
-    W = scene.camera.width
-    key = rng.path_key(seed, pixel, sample)
-    o, d = C.sample_ray(scene.camera, pixel % W, pixel // W, rng.uniform(key, 0), rng.uniform(key, 1))
-    v = trace_to_diffuse(scene, WhittedConfig(max_depth=max_depth, light_samples=light_samples),
-                         lambda k: rng.uniform(key, k), o, d)
-    return v._replace(n=_facing(v.n, v.wo))
 
 
 def _pixels(scene, spp):
@@ -70,15 +58,16 @@ def _to_image(scene, L, spp):
 
 
 def render_pm(scene: Scene, *, spp: int = 4, seed: int = 0, photons: int = 200_000, radius: float = 0.05,
-              k: int = 0, filter: str = "box", cone_k: float = 1.1, alpha: float = 0.918,
-              beta: float = 1.953, cap: int | None = None, max_depth: int = 8, thickness: float | None = None,
+              k: int = 0, filter: str = "box", cone_k: float = 1.1,
+              alpha: float = PMap.JENSEN_ALPHA, beta: float = PMap.JENSEN_BETA,
+              cap: int | None = None, max_depth: int = 8, thickness: float | None = None,
               stats: dict | None = None):
     """Direct visualisation of the global photon map (see the module docstring)."""
     pm = trace_photons(scene, photons, seed=seed, max_depth=max_depth)
     grid = PMap.build_grid(pm, radius, cap=(cap or 128) if k > 0 else None)
     radius = float(grid.cell)
     pix, smp = _pixels(scene, spp)
-    v = visible_points(scene, jnp.uint32(seed), pix, smp, 0, max_depth)
+    v = visible_points(scene, jnp.uint32(seed), pix, smp, max_depth=max_depth, light_samples=0)
     fp = dict(k=cone_k) if filter == "cone" else dict(alpha=alpha, beta=beta) if filter == "gaussian" else {}
     L, trunc = PMap.estimate_at_points(scene, grid, v.p, v.n, v.material, radius, cap=cap, k=k, kind=filter,
                                  thickness=thickness, filter_params=fp)
@@ -102,9 +91,9 @@ def _gather_points(scene: Scene, seed, ids, x: V3, n: V3, n_gather: int, max_dep
     o = G.offset_origin(ex(x), ex(n), d)
     flat = lambda v: V3(*(c.reshape(-1) for c in v))
     kf = key.reshape(-1)
-    v = trace_to_diffuse(scene, WhittedConfig(max_depth=max_depth, light_samples=0),
-                         lambda k: rng.uniform(kf, k + 2), flat(o), flat(d))
-    return v._replace(n=_facing(v.n, v.wo))
+    v = trace_to_diffuse(scene, lambda k: rng.uniform(kf, k + 2), flat(o), flat(d),
+                         max_depth=max_depth, light_samples=0)
+    return v._replace(n=B.facing(v.n, v.wo))
 
 
 def render_jensen(scene: Scene, *, spp: int = 1, seed: int = 0, photons: int = 200_000,
@@ -117,7 +106,7 @@ def render_jensen(scene: Scene, *, spp: int = 1, seed: int = 0, photons: int = 2
     grid = PMap.build_grid(pm, radius, cap=cap or 128)
     radius = float(grid.cell)
     pix, smp = _pixels(scene, spp)
-    v = visible_points(scene, jnp.uint32(seed), pix, smp, 1, max_depth)
+    v = visible_points(scene, jnp.uint32(seed), pix, smp, max_depth=max_depth, light_samples=1)
     found = np.asarray(v.found)
     beta_ = np.stack([np.asarray(c) for c in v.beta])
     total = np.stack([np.asarray(c) for c in v.L])  # emission along the chain + direct light
@@ -190,7 +179,7 @@ def render_progressive(scene: Scene, *, spp: int = 1, seed: int = 0, passes: int
     for t in range(passes):
         if stochastic or v is None:
             v = visible_points(scene, jnp.uint32(rng.lowbias32(jnp.uint32(seed * 65599 + t)).item()),
-                               pix, smp, 0, max_depth)
+                               pix, smp, max_depth=max_depth, light_samples=0)
             found = np.asarray(v.found)
             beta_ = np.stack([np.asarray(c) for c in v.beta])
             Lv = np.stack([np.asarray(c) for c in v.L])
@@ -233,8 +222,8 @@ register(Estimator("pm", "photon mapping, direct visualisation of the global map
                     Param("k", 0, "k nearest photons (0: fixed radius)", int, minimum=0, maximum=1024),
                     Param("filter", "box", "density filter", str, FILTERS),
                     Param("cone_k", 1.1, "cone filter k >= 1", float, minimum=1.0),
-                    Param("alpha", 0.918, "Gaussian filter alpha", float, minimum=1e-3),
-                    Param("beta", 1.953, "Gaussian filter beta", float, minimum=1e-3),
+                    Param("alpha", PMap.JENSEN_ALPHA, "Gaussian filter alpha", float, minimum=1e-3),
+                    Param("beta", PMap.JENSEN_BETA, "Gaussian filter beta", float, minimum=1e-3),
                     Param("max_depth", 8, "maximum bounces of photons and of specular chains", int, minimum=1))))
 register(Estimator("pm_jensen", "photon mapping with Jensen's split (direct, specular, caustic map, final gathering)",
                    lambda scene, *, spp, seed, progress=False, **p: render_jensen(scene, spp=spp, seed=seed, **p),

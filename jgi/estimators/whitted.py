@@ -16,20 +16,13 @@ wavefront jgi picks one with the Fresnel probability instead, which has the same
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import NamedTuple
-
-import jax
-import jax.numpy as jnp
-from jax import Array
 
 from ..core import rng
-from ..core.vec import V3, dot, where
+from ..core.configured import Configured
+from ..core.vec import V3
 from ..drivers.chunked import render_paths
-from ..physics import bsdf as B
-from ..physics import camera as C
-from ..physics import geometry as G
-from ..physics import lights as LT
 from ..scene.data import Scene
+from ..transport.subpath import camera_ray, trace_to_diffuse
 from .registry import Estimator, Param, register
 
 
@@ -39,79 +32,24 @@ class WhittedConfig:
     light_samples: int = 1    # shadow rays per diffuse hit
 
 
-class DiffuseVertex(NamedTuple):
-    """Where a camera path's specular chain ends: the first non-specular hit."""
-
-    L: V3            # emission seen along the chain plus direct light at the vertex
-    beta: V3         # throughput of the specular chain
-    p: V3            # the vertex (valid where ``found``)
-    n: V3            # its geometric normal
-    wo: V3           # direction back along the path
-    material: Array
-    found: Array     # bool: the chain ended on a non-specular surface
-
-
-def trace_to_diffuse(scene: Scene, cfg: WhittedConfig, uniform, o: V3, d: V3) -> DiffuseVertex:
-    """Follow rays (o, d) through specular surfaces to the first non-specular hit, adding
-    emission seen on the way and direct light (shadow rays) at that hit."""
-    mats, lights = scene.materials, scene.lights
-    z = jnp.zeros_like(o.x)
-    Z = V3(z, z, z)
-    dims = 1 + 3 * cfg.light_samples
-
-    def step(depth, s):
-        o, d, beta, L, active, v = s
-        hit = G.intersect(scene, o, d)
-        wo = -d
-        base = 2 + depth * dims
-        if lights.count:
-            L = L + where(active & hit.valid, beta * LT.emitted(lights, hit.emitter, hit.n, wo), Z)
-            if lights.environment >= 0:
-                L = L + where(active & ~hit.valid, beta * LT.environment_radiance(lights, z), Z)
-        active = active & hit.valid
-        mp = B.lookup(mats, hit.material)
-        specular = B.is_delta(mp)
-        diffuse_end = active & ~specular
-        # ---- direct light at the first non-specular surface ----
-        if lights.count:
-            for j in range(cfg.light_samples):
-                dj = base + 1 + 3 * j
-                ls = LT.sample_li(lights, hit.p, uniform(dj), uniform(dj + 1), uniform(dj + 2))
-                f, _ = B.evaluate(mats.kinds, mp, hit.n, wo, ls.wi)
-                visible = ~G.occluded(scene, *G.shadow_ray(hit.p, hit.n, ls.wi, ls.dist))
-                ok = diffuse_end & ls.valid & visible & (ls.pdf > 0)
-                scale = jnp.abs(dot(ls.wi, hit.n)) / (cfg.light_samples * jnp.where(ok, ls.pdf, 1.0))
-                L = L + where(ok, beta * f * ls.Li * scale, Z)
-        v = DiffuseVertex(v.L, where(diffuse_end, beta, v.beta), where(diffuse_end, hit.p, v.p),
-                          where(diffuse_end, hit.n, v.n), where(diffuse_end, wo, v.wo),
-                          jnp.where(diffuse_end, hit.material, v.material), v.found | diffuse_end)
-        # ---- follow the specular chain ----
-        bs = B.sample(mats.kinds, mp, hit.n, wo, uniform(base), z, z)
-        active = active & specular & bs.valid
-        return (G.offset_origin(hit.p, hit.n, bs.wi), bs.wi, beta * bs.weight, L, active, v)
-
-    one = jnp.ones_like(z)
-    v0 = DiffuseVertex(Z, Z, o, V3(z, z, one), V3(z, z, one), jnp.zeros_like(z, jnp.int32), z > 0)
-    state = (o, d, V3(one, one, one), Z, z == 0, v0)
-    _, _, _, L, _, v = jax.lax.fori_loop(0, cfg.max_depth, step, state)
-    return v._replace(L=L)
-
-
 def radiance(scene: Scene, cfg: WhittedConfig, uniform, o: V3, d: V3) -> V3:
-    return trace_to_diffuse(scene, cfg, uniform, o, d).L
+    """Emission seen through the specular chain from rays (o, d), plus direct light at its
+    first non-specular vertex (:func:`jgi.transport.subpath.trace_to_diffuse`)."""
+    return trace_to_diffuse(scene, uniform, o, d, max_depth=cfg.max_depth,
+                            light_samples=cfg.light_samples).L
 
 
 def trace_pixels(scene: Scene, cfg: WhittedConfig, seed, pixel, sample) -> V3:
     key = rng.path_key(seed, pixel, sample)
-    W = scene.camera.width
-    o, d = C.sample_ray(scene.camera, pixel % W, pixel // W, rng.uniform(key, 0), rng.uniform(key, 1))
-    return radiance(scene, cfg, lambda k: rng.uniform(key, k), o, d)
+    uniform = lambda k: rng.uniform(key, k)  # noqa: E731
+    o, d = camera_ray(scene.camera, pixel, uniform)
+    return radiance(scene, cfg, uniform, o, d)
 
 
 def _run(scene: Scene, *, spp: int, seed: int, progress: bool = False, **params):
     cfg = WhittedConfig(**params)
-    return render_paths(scene, lambda sc, pix, smp, sd: trace_pixels(sc, cfg, sd, pix, smp),
-                        spp=spp, seed=seed, progress=progress, cache_key=("whitted", cfg))
+    return render_paths(scene, Configured(trace_pixels, cfg), spp=spp, seed=seed,
+                        progress=progress)
 
 
 register(Estimator(

@@ -40,6 +40,7 @@ from ..core.vec import V3, dot
 from ..scene.data import Scene
 
 _P1, _P2, _P3 = 73856093, 19349663, 83492791  # Teschner et al. 2003
+JENSEN_ALPHA, JENSEN_BETA = 0.918, 1.953       # the Gaussian filter's constants (Jensen 2001)
 
 
 class HashGrid(NamedTuple):
@@ -109,7 +110,7 @@ def gaussian_normaliser(alpha, beta):
     return alpha * (1.0 - (1.0 - (2.0 / beta) * (1.0 - jnp.exp(-beta / 2.0))) / (1.0 - jnp.exp(-beta)))
 
 
-def filter_weight(kind: str, d2, r2, k=1.1, alpha=0.918, beta=1.953):
+def filter_weight(kind: str, d2, r2, k=1.1, alpha=JENSEN_ALPHA, beta=JENSEN_BETA):
     """(W(d), K / (pi r^2)) for a filter; d2, r2 squared distance and radius."""
     if kind == "box":
         return jnp.ones_like(d2), 1.0

@@ -22,6 +22,7 @@ Two maps are distinguished by a flag per stored photon:
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from functools import partial
 from typing import NamedTuple
 
@@ -108,6 +109,19 @@ def _trace_chunk(scene, seed, start, n_emitted, *, chunk, max_depth):
     return pm, valid
 
 
+@dataclass(frozen=True)
+class PhotonChunk:
+    """Photons start .. start + chunk - 1 of n_emitted, as a call of
+    :func:`jgi.core.sharding.sharded_calls` (hashable by value: its compile-cache key)."""
+
+    chunk: int
+    max_depth: int
+
+    def __call__(self, scene, seed, start, _pixel0, n_emitted):
+        return _trace_chunk.__wrapped__(scene, seed, start, n_emitted, chunk=self.chunk,
+                                        max_depth=self.max_depth)
+
+
 def trace_photons(scene: Scene, n_photons: int, seed: int = 0, max_depth: int = 8,
                   chunk: int = 1 << 16, devices=None) -> PhotonMap:
     """Emit ``n_photons`` photons and return the stored ones (numpy arrays, compacted).
@@ -135,17 +149,13 @@ def trace_photons(scene: Scene, n_photons: int, seed: int = 0, max_depth: int = 
         for pm, valid in ordered_calls(call, len(starts)):
             keep(pm, valid)
     else:
-
         mesh = device_mesh(devices)
         D = len(devices)
-        fn = sharded_calls(
-            lambda sc, sd, s0, _p0, n: _trace_chunk.__wrapped__(sc, sd, s0, n, chunk=chunk,
-                                                               max_depth=max_depth),
-            mesh, ("photons", chunk, max_depth))
         for first in range(0, len(starts), D):
             group = [starts[min(first + k, len(starts) - 1)] for k in range(D)]
-            pm, valid = fn(scene, jnp.uint32(seed), jnp.asarray(group, jnp.int32),
-                           jnp.zeros(D, jnp.int32), jnp.full(D, n_photons, jnp.int32))
+            pm, valid = sharded_calls(scene, jnp.uint32(seed), jnp.asarray(group, jnp.int32),
+                                      jnp.zeros(D, jnp.int32), jnp.full(D, n_photons, jnp.int32),
+                                      call=PhotonChunk(chunk, max_depth), mesh=mesh)
             for k in range(min(D, len(starts) - first)):  # in chunk order, as on one device
                 keep(jax.tree_util.tree_map(lambda a: a[k], pm), valid[k])
     return jax.tree_util.tree_map(lambda *xs: np.concatenate(xs), *parts)

@@ -33,13 +33,15 @@ from .common import (
     is_delta,
     lit,
     lookup,
+    lookup_specialised,
     no_sample,
     side,
 )
 from .fresnel import fresnel_dielectric, refract
 from .phong import specular_probability
 
-__all__ = ["RADIANCE", "IMPORTANCE", "MaterialParams", "BSDFSample", "lookup", "is_delta",
+__all__ = ["RADIANCE", "IMPORTANCE", "MaterialParams", "BSDFSample", "lookup",
+           "lookup_specialised", "is_delta",
            "facing", "side", "lit", "specular_probability", "fresnel_dielectric", "refract",
            "evaluate", "sample"]
 

@@ -8,8 +8,9 @@ from typing import NamedTuple
 import jax.numpy as jnp
 from jax import Array
 
+from ..._xla import take
 from ...core.vec import EDGE_ON_COS, V3, dot
-from ...scene.data import DIELECTRIC, MIRROR, Materials
+from ...scene.data import DIELECTRIC, DIFFUSE, MIRROR, PHONG, Materials
 
 # Transport modes: camera paths carry radiance, light paths importance (Veach 1997, 5.2).
 RADIANCE, IMPORTANCE = 0, 1
@@ -34,9 +35,27 @@ class BSDFSample(NamedTuple):
 
 
 def lookup(mats: Materials, m: Array) -> MaterialParams:
+    """Rows ``m`` (any index array) of the material table."""
     return MaterialParams(mats.kind[m], V3(mats.diffuse.x[m], mats.diffuse.y[m], mats.diffuse.z[m]),
                           V3(mats.specular.x[m], mats.specular.y[m], mats.specular.z[m]),
                           mats.exponent[m], mats.ior[m])
+
+
+def lookup_specialised(mats: Materials, m: Array) -> MaterialParams:
+    """:func:`lookup` for inner loops, specialised to the kinds the scene uses (``mats.kinds``):
+    small material tables are read with selects instead of gathers (see jgi._xla.take), a kind
+    that is the only one present is a constant, and the parameters no present kind reads are
+    constants too, so the BSDF code of the absent kinds folds away. Values that a present
+    kind's BSDF reads are those of :func:`lookup`."""
+    kinds = mats.kinds
+    kind = (jnp.full(m.shape, kinds[0], jnp.int32) if len(kinds) == 1 else take(mats.kind, m))
+    zero = jnp.zeros(m.shape, jnp.float32)
+    uses_ks = any(k in kinds for k in (MIRROR, DIELECTRIC, PHONG))
+    kd = V3(*(take(c, m) for c in mats.diffuse)) if (DIFFUSE in kinds or PHONG in kinds) else V3(zero, zero, zero)
+    ks = V3(*(take(c, m) for c in mats.specular)) if uses_ks else V3(zero, zero, zero)
+    exponent = take(mats.exponent, m) if PHONG in kinds else zero
+    ior = take(mats.ior, m) if DIELECTRIC in kinds else zero + 1.0
+    return MaterialParams(kind, kd, ks, exponent, ior)
 
 
 def is_delta(mp: MaterialParams) -> Array:

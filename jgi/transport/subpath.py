@@ -1,0 +1,445 @@
+"""Subpaths and their connections: the path machinery every estimator is assembled from.
+
+Notation (Veach 1997, ch. 8 and 10; pbrt-v4's BDPT): a light subpath y_0 y_1 ... starts on a
+light, a camera subpath z_0 z_1 ... at the pinhole. Each vertex x_i of a subpath carries
+
+* beta: the subpath's throughput arriving at x_i, before x_i's BSDF: the start's emission
+  (L_e |cos| / p of y_0 and its direction; 1 for the pinhole) times f |cos| / p of every
+  direction sampled since; row 0 holds L_e on a light (1 at the camera);
+* pdf_fwd: the area density p(x_i) with which its own subpath sampled it (from x_{i-1});
+* pdf_rev: the area density with which x_i would be sampled from x_{i+1}, walking the other
+  way (what a strategy that builds x_i from the other end needs: MIS by ratios of these).
+
+Directions are sampled with solid-angle densities p_omega; :func:`convert_density` turns one
+into the area measure at the vertex it reaches, p_A = p_omega |cos theta| / d^2 (the cosine
+at the target, only if that is a surface point).
+
+Contents: the camera ray (:func:`camera_ray`); vertices (:class:`Vertices`, :func:`rows`,
+:func:`concat_rows`); BSDF-sampled random walks (:func:`random_walk`); lights as path vertices
+(:func:`pdf_light_origin`, :func:`pdf_emission_dir`, :func:`light_normal`,
+:func:`is_infinite`) and light subpaths (:func:`light_subpath`); next-event estimation
+(:func:`sample_next_event`, :func:`next_event_value`); the t = 1 connection to the pinhole
+(:func:`connect_camera`) and batched shadow rays (:func:`occluded_many`); and visible points,
+the first non-specular vertex seen from the camera (:func:`trace_to_diffuse`,
+:func:`visible_points`).
+
+Random numbers: a camera path uses dimensions 0 and 1 of its stream for the pixel jitter; a
+light subpath draws from the stream :func:`light_key` (independent of the camera path's),
+``LIGHT_DIMS0`` numbers for its emission sample, then ``LIGHT_DIMS_PER_STEP`` per bounce.
+"""
+
+from __future__ import annotations
+
+from functools import partial
+from typing import Callable, NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jax import Array
+
+from .. import _xla as X
+from .._xla import materialize
+from ..core import rng, warps
+from ..core.vec import EDGE_ON_COS, V3, dot, max_component, normalize, where
+from ..physics import bsdf as B
+from ..physics import camera as C
+from ..physics import geometry as G
+from ..physics import lights as LT
+from ..scene.data import (
+    AREA_QUAD,
+    AREA_SPHERE,
+    AREA_TRIANGLE,
+    DIRECTIONAL,
+    ENVIRONMENT,
+    POINT,
+    SPOT,
+    Camera,
+    Scene,
+)
+
+LIGHT_SALT = 0x2C1B3C6D        # light subpaths: a stream independent of the camera path's
+LIGHT_DIMS0 = 5                # dims 0..4: sample_emission (selection, position, direction)
+LIGHT_DIMS_PER_STEP = 3        # per bounce: lobe, u1, u2
+
+
+# --- streams and the camera ray ---------------------------------------------------------------------
+
+def light_key(seed, pixel, sample) -> Array:
+    """The stream of the light subpath of path (seed, pixel, sample)."""
+    return rng.derive(rng.path_key(seed, pixel, sample), LIGHT_SALT)
+
+
+def camera_ray(camera: Camera, pixel: Array, uniform: Callable[[int], Array]) -> tuple[V3, V3]:
+    """The primary ray (origin, direction) through flat pixel index ``pixel`` (row-major, row 0
+    at the top), jittered within the pixel by ``uniform(0)``, ``uniform(1)``: dimensions 0 and
+    1 of every camera path's stream."""
+    W = camera.width
+    return C.sample_ray(camera, pixel % W, pixel // W, uniform(0), uniform(1))
+
+
+# --- subpath vertices (struct of arrays, [K, N]) --------------------------------------------------
+
+class Vertices(NamedTuple):
+    """Vertices of a subpath, each field [K, N] (vertex index, path). Vertex 0 is the camera or
+    the light; the densities are area-measure (pbrt-v4's Vertex::pdfFwd / pdfRev)."""
+    p: V3             # position
+    n: V3             # unit geometric normal (unflipped; zero for the camera and point lights)
+    wo: V3            # unit direction towards the previous vertex of this subpath
+    beta: V3          # throughput of the subpath up to this vertex (before its BSDF)
+    pdf_fwd: Array    # area density of this vertex as its own subpath sampled it
+    pdf_rev: Array    # area density of this vertex sampled from the next vertex (reverse walk)
+    delta: Array      # Dirac BSDF at this vertex (mirror, glass): not connectable
+    on_surface: Array  # a surface point (densities convert with |cos|); False: camera, point light
+    valid: Array
+    material: Array
+    emitter: Array    # light element at this surface, -1 if none
+
+
+def concat_rows(a, b):
+    """The rows of b after those of a, in every leaf (e.g. vertex 0, then the walk's vertices)."""
+    return jax.tree_util.tree_map(lambda x, y: jnp.concatenate([x, y], 0), a, b)
+
+
+def rows(v, i):
+    """Row i (an int or a slice) or rows i (a static index list) of every leaf. Rows are taken
+    by static slices, not a gather (which XLA's CPU backend runs as a slow, unfused loop)."""
+    if isinstance(i, (int, np.integer, slice)):
+        return jax.tree_util.tree_map(lambda x: x[i], v)
+    return jax.tree_util.tree_map(lambda x: jnp.stack([x[int(k)] for k in i]), v)
+
+
+def convert_density(pdf_solid: Array, d2: Array, cos_at: Array, on_surface: Array) -> Array:
+    """Solid-angle density at one vertex -> area density at the other (pbrt's ConvertDensity):
+    p_A = p_omega |cos theta| / d^2, the cosine only where the target is a surface point."""
+    ok = d2 > 0
+    c = jnp.where(on_surface, jnp.abs(cos_at), 1.0)
+    return jnp.where(ok, pdf_solid * c / jnp.where(ok, d2, 1.0), 0.0)
+
+
+# --- random walks --------------------------------------------------------------------------------
+
+class WalkState(NamedTuple):
+    o: V3
+    d: V3
+    beta: V3
+    pdf_dir: Array     # solid-angle pdf of d at the previous vertex (0 after a Dirac lobe)
+    prev_p: V3
+    prev_n: V3
+    prev_surface: Array
+    prev_delta: Array
+    alive: Array
+
+
+class Visit(NamedTuple):
+    """What a walk's per-vertex callback sees (all [N])."""
+    step: Array
+    hit: G.Hit
+    mp: B.MaterialParams
+    wo: V3
+    state: WalkState   # the state that produced this hit (beta, pdf_dir, previous vertex)
+    valid: Array
+    d2_prev: Array     # squared distance to the previous vertex
+    u: Callable[[int], Array]
+
+
+def random_walk(scene: Scene, key: Array, dim0: int, dims_per_step: int, n_steps: int,
+                start: WalkState, mode: int, visit: Callable[[Visit], object] | None = None,
+                uniform: Callable | None = None):
+    """Extend a subpath by ``n_steps`` BSDF-sampled segments (pbrt-v4's RandomWalk).
+
+    Random numbers come from the hashed stream ``key``, or, if ``uniform`` is given, from
+    ``uniform(dim)`` (explicit primary samples, e.g. Metropolis; ``key`` is then unused).
+
+    Returns (vertices 1..n_steps as :class:`Vertices` [n_steps, N], pdf_rev of vertex 0 [N],
+    the stacked outputs of ``visit``). Each vertex's ``pdf_rev`` is filled in by the next step
+    (the density of sampling it backwards from there); the last one's is 0."""
+    mats = scene.materials
+    kinds = mats.kinds
+
+    def step(s: WalkState, j):
+        base = dim0 + j * dims_per_step
+        u = ((lambda k: rng.uniform(key, base + k)) if uniform is None  # noqa: E731
+             else (lambda k: uniform(base + k)))
+        hit = G.intersect(scene, s.o, s.d)
+        valid = s.alive & hit.valid
+        v = hit.p - s.prev_p
+        d2 = dot(v, v)
+        pdf_fwd = jnp.where(valid, convert_density(s.pdf_dir, d2, dot(hit.n, s.d), True), 0.0)
+        mp = B.lookup_specialised(mats, hit.material)
+        wo = -s.d
+        delta = B.is_delta(mp)
+        extra = visit(Visit(j, hit, mp, wo, s, valid, d2, u)) if visit is not None else None
+        # ---- BSDF sampling: the next direction, and the reverse density of the previous vertex
+        bs = materialize(B.sample(kinds, mp, hit.n, wo, u(0), u(1), u(2), mode=mode))
+        _, pdf_back = B.evaluate(kinds, mp, hit.n, bs.wi, wo)
+        pdf_rev_prev = jnp.where(valid & ~delta,
+                                 convert_density(pdf_back, d2, dot(s.prev_n, s.d), s.prev_surface),
+                                 0.0)
+        vert = Vertices(hit.p, hit.n, wo, s.beta, pdf_fwd, pdf_rev_prev, delta, valid, valid,
+                        hit.material, jnp.where(valid, hit.emitter, -1))
+        beta = s.beta * bs.weight
+        alive = valid & bs.valid & (max_component(beta) > 0)
+        nxt = WalkState(G.offset_origin(hit.p, hit.n, bs.wi), bs.wi, beta,
+                        jnp.where(bs.delta, 0.0, bs.pdf), hit.p, hit.n, valid, delta, alive)
+        return nxt, (vert, extra)
+
+    _, (verts, extras) = jax.lax.scan(step, start, jnp.arange(n_steps))
+    # shift: the value computed at step j belongs to vertex j (the one before the hit)
+    pdf_rev0 = verts.pdf_rev[0]
+    pdf_rev = jnp.concatenate([verts.pdf_rev[1:], jnp.zeros_like(verts.pdf_rev[:1])], 0)
+    return verts._replace(pdf_rev=pdf_rev), pdf_rev0, extras
+
+
+# --- lights as path vertices ---------------------------------------------------------------------
+
+def pdf_light_origin(lights, k: Array) -> Array:
+    """Area density (incl. selection) with which a light subpath starts at a point of element k
+    (pbrt's PdfLightOrigin): pmf / area for area lights; the pmf for point and spot lights."""
+    kk = jnp.maximum(k, 0)
+    area = lights.area[kk]
+    kind = lights.kind[kk]
+    is_area = (kind == AREA_QUAD) | (kind == AREA_TRIANGLE) | (kind == AREA_SPHERE)
+    inv_area = jnp.where(area > 0, 1.0 / jnp.where(area > 0, area, 1.0), 0.0)
+    return jnp.where(k >= 0, lights.pmf[kk] * jnp.where(is_area, inv_area, 1.0), 0.0)
+
+
+def pdf_emission_dir(lights, k: Array, n_y: V3, w: V3) -> Array:
+    """Solid-angle density with which ``sample_emission`` leaves element k in direction w from
+    a point with normal n_y (pbrt's PdfLight before conversion): cos / pi for area lights (one
+    side), 1 / 4 pi for point lights, uniform in the cone for spots."""
+    kk = jnp.maximum(k, 0)
+    kind = lights.kind[kk]
+    cos_y = dot(n_y, w)
+    pdf = jnp.where(cos_y > EDGE_ON_COS, cos_y * jnp.float32(1.0 / np.pi), 0.0)
+    kinds = lights.kinds
+    if POINT in kinds:
+        pdf = jnp.where(kind == POINT, warps.INV_4PI, pdf)
+    if SPOT in kinds:
+        axis = V3(lights.direction.x[kk], lights.direction.y[kk], lights.direction.z[kk])
+        ct = lights.cos_total[kk]
+        inside = dot(w, axis) >= ct
+        pdf = jnp.where(kind == SPOT, jnp.where(inside, warps.pdf_uniform_cone(ct), 0.0), pdf)
+    return jnp.where(k >= 0, pdf, 0.0)
+
+
+def light_normal(lights, k: Array, y: V3) -> tuple[V3, Array]:
+    """(normal, on_surface) at point y of light element k (zero normal for point/spot)."""
+    kk = jnp.maximum(k, 0)
+    kind = lights.kind[kk]
+    n = V3(lights.normal.x[kk], lights.normal.y[kk], lights.normal.z[kk])
+    if AREA_SPHERE in lights.kinds:
+        c = V3(lights.p0.x[kk], lights.p0.y[kk], lights.p0.z[kk])
+        n = where(kind == AREA_SPHERE, normalize(y - c), n)
+    on = (kind == AREA_QUAD) | (kind == AREA_TRIANGLE) | (kind == AREA_SPHERE)
+    z = jnp.zeros_like(y.x)
+    return where(on, n, V3(z, z, z)), on
+
+
+def is_infinite(lights, k: Array) -> Array:
+    """Element k is a directional or environment light (no position: y_0 would be a point of
+    the scene's bounding disc)."""
+    kind = lights.kind[jnp.maximum(k, 0)]
+    return (kind == DIRECTIONAL) | (kind == ENVIRONMENT)
+
+
+class LightPath(NamedTuple):
+    vertices: Vertices   # [max_depth, N]: vertex 0 on the light, then max_depth - 1 bounces
+    delta_light: Array   # point, spot (delta position) or directional (delta direction)
+    element: Array       # the light element
+
+
+def light_subpath(scene: Scene, key: Array, max_depth: int, infinite: bool = False,
+                  uniform: Callable | None = None) -> LightPath:
+    """Light subpath y_0 .. y_{max_depth-1} (enough for every strategy with t >= 1).
+
+    ``uniform(dim)``, if given, replaces the hashed stream ``key`` (explicit primary samples).
+
+    ``infinite=False`` drops subpaths that start on directional or environment lights (their
+    y_0 is a point of a bounding disc, not of the scene); BDPT reaches those lights through the
+    camera subpath only. Light tracing keeps them (``infinite=True``)."""
+    lights = scene.lights
+    u = (lambda k: rng.uniform(key, k)) if uniform is None else uniform  # noqa: E731
+    em = LT.sample_emission(lights, u(0), u(1), u(2), u(3), u(4))
+    inf = is_infinite(lights, em.element)
+    ok = (em.pdf_pos > 0) & (max_component(em.weight) > 0)
+    if not infinite:
+        ok = ok & ~inf
+    on_surface = ~em.delta_pos & ~inf
+    z = jnp.zeros_like(em.pdf_pos)
+    delta_light = em.delta_pos | em.delta_dir
+    le = LT.emitted(lights, jnp.where(on_surface, em.element, -1), em.n, em.d)
+    v0 = Vertices(em.p, em.n, V3(z, z, z), le, em.pdf_pos, z, z > 0, on_surface, ok,
+                  jnp.zeros_like(em.element), em.element)
+    v0 = jax.tree_util.tree_map(lambda x: x[None], v0)
+    if max_depth <= 1:
+        return LightPath(v0, delta_light, em.element)
+    start = WalkState(G.offset_origin(em.p, em.n, em.d), em.d, em.weight,
+                      em.pdf_dir, em.p, em.n, on_surface, z > 0, ok)
+    verts, pdf_rev0, _ = random_walk(scene, key, LIGHT_DIMS0, LIGHT_DIMS_PER_STEP, max_depth - 1,
+                                     start, B.IMPORTANCE, uniform=uniform)
+    v0 = v0._replace(pdf_rev=pdf_rev0[None])
+    return LightPath(concat_rows(v0, verts), delta_light, em.element)
+
+
+# --- next-event estimation (s = 1): a light sample seen from a surface point -----------------------
+
+class NextEvent(NamedTuple):
+    """A light sample y for the surface point x (the light-sampling strategy p_light of Veach
+    1997, sec. 9.2; BDPT's s = 1), with what estimators need of the BSDF at x towards it."""
+    light: LT.LightSample  # wi (x -> y), dist, L_i, pdf (solid angle, selection included), delta
+    f: V3                  # f(wo -> wi) at x
+    pdf_bsdf: Array        # solid-angle density of BSDF sampling wi at x (for MIS against it)
+    cos: Array             # |cos theta_i| = |n . wi| at x
+    shadow: tuple          # (origin, direction, t_max) of the shadow ray x -> y
+    ok: Array              # a usable sample (before the visibility test)
+
+
+def sample_next_event(scene: Scene, mp: B.MaterialParams, p: V3, n: V3, wo: V3, u_select: Array,
+                      u1: Array, u2: Array, active: Array) -> NextEvent:
+    """Sample a light for the point p (normal n, ``wo`` towards the previous vertex) with
+    ``lights.sample_li``, and evaluate the BSDF mp towards it. Usable where ``active``, the
+    BSDF has a non-Dirac lobe, and the sample has a positive density; the caller tests the
+    shadow ray (now, or batched with others) and chooses the MIS weight."""
+    ls = LT.sample_li(scene.lights, p, u_select, u1, u2)
+    f, pdf_bsdf = B.evaluate(scene.materials.kinds, mp, n, wo, ls.wi)
+    ok = active & ~B.is_delta(mp) & ls.valid & (ls.pdf > 0)
+    return NextEvent(ls, f, pdf_bsdf, jnp.abs(dot(ls.wi, n)), G.shadow_ray(p, n, ls.wi, ls.dist), ok)
+
+
+def next_event_value(ne: NextEvent, beta: V3, weight: Array | None = None,
+                     n_samples: float = 1.0) -> V3:
+    """The sample's contribution if y is visible from x: beta f L_i |cos theta_i| w / (n p_light),
+    with MIS weight w (None: 1) for one of ``n_samples`` light samples; 0 where not ``ne.ok``."""
+    num = ne.cos if weight is None else weight * ne.cos
+    scale = X.div(num, n_samples * jnp.where(ne.ok, ne.light.pdf, 1.0))
+    return where(ne.ok, beta * ne.f * ne.light.Li * scale, V3.full(0.0, scale))
+
+
+# --- t = 1: connecting a light vertex to the pinhole ------------------------------------------------
+
+class CameraConnection(NamedTuple):
+    pixel: Array       # flat pixel index (-1 outside the frame)
+    value: V3          # unweighted contribution if unoccluded
+    shadow: tuple      # (origin, direction, t_max) of the shadow ray towards the pinhole
+    pdf_cam: Array     # camera's area density for q_{s-1} (its pdf_rev under this strategy)
+    pdf_q_rev: Array   # BSDF solid-angle density at q_{s-1} from the camera towards q_{s-2}
+    ok: Array
+
+
+def connect_camera(scene: Scene, q: Vertices) -> CameraConnection:
+    """Connect surface vertices q (any array shape) to the pinhole (strategy t = 1)."""
+    cam = scene.camera
+    kinds = scene.materials.kinds
+    proj = C.project(cam, q.p)
+    w = proj.wi                                  # from q towards the pinhole
+    mp = B.lookup_specialised(scene.materials, q.material)
+    f, _ = B.evaluate(kinds, mp, q.n, q.wo, w)
+    _, pdf_q_rev = B.evaluate(kinds, mp, q.n, w, q.wo)
+    cos_q = jnp.abs(dot(q.n, w))
+    d2 = proj.dist * proj.dist
+    inv_d2 = jnp.where(d2 > 0, 1.0 / jnp.where(d2 > 0, d2, 1.0), 0.0)
+    cos_cam = -dot(w, cam.forward)
+    # W_e / p(pinhole as seen from q) with p = d^2 / cos_cam (pbrt's Camera::SampleWi)
+    we_term = proj.importance * cos_cam * inv_d2
+    ok = q.valid & ~q.delta & proj.visible
+    value = where(ok, q.beta * f * (cos_q * we_term), V3.full(0.0, cos_q))
+    W, H = cam.width, cam.height
+    ix = jnp.clip(jnp.floor(proj.px).astype(jnp.int32), 0, W - 1)
+    iy = jnp.clip(jnp.floor(proj.py).astype(jnp.int32), 0, H - 1)
+    pixel = jnp.where(ok, iy * W + ix, -1)
+    shadow = G.shadow_ray(q.p, q.n, w, proj.dist)
+    pdf_cam = jnp.where(ok, proj.pdf_dir * cos_q * inv_d2, 0.0)
+    return CameraConnection(pixel, value, shadow, pdf_cam, pdf_q_rev, ok)
+
+
+def occluded_many(scene: Scene, rays: list[tuple]) -> list[Array]:
+    """One any-hit query for several batches of shadow rays (one kernel, not one per batch)."""
+    shapes = [o.x.shape for o, _, _ in rays]
+    flat = lambda a: a.reshape(-1)  # noqa: E731
+    o = V3(*(jnp.concatenate([flat(r[0][c]) for r in rays]) for c in range(3)))
+    d = V3(*(jnp.concatenate([flat(r[1][c]) for r in rays]) for c in range(3)))
+    t = jnp.concatenate([flat(jnp.broadcast_to(r[2], s)) for r, s in zip(rays, shapes)])
+    o, d, t = materialize((o, d, t))   # one buffer, read by every primitive test
+    occ = G.occluded(scene, o, d, t)
+    out, i = [], 0
+    for s in shapes:
+        n = int(np.prod(s))
+        out.append(occ[i:i + n].reshape(s))
+        i += n
+    return out
+
+
+# --- visible points: the first non-specular vertex seen from the camera ---------------------------
+
+class DiffuseVertex(NamedTuple):
+    """Where a camera path's specular chain ends: the first non-specular hit."""
+
+    L: V3            # emission seen along the chain plus direct light at the vertex
+    beta: V3         # throughput of the specular chain
+    p: V3            # the vertex (valid where ``found``)
+    n: V3            # its geometric normal
+    wo: V3           # direction back along the path
+    material: Array
+    found: Array     # bool: the chain ended on a non-specular surface
+
+
+def trace_to_diffuse(scene: Scene, uniform, o: V3, d: V3, *, max_depth: int,
+                     light_samples: int) -> DiffuseVertex:
+    """Follow rays (o, d) through specular surfaces (at most ``max_depth`` segments) to the
+    first non-specular hit, adding emission seen on the way and direct light there
+    (``light_samples`` shadow rays, unweighted next-event estimation). Segment k draws
+    ``uniform(2 + k * (1 + 3 light_samples) + ...)``: the lobe choice, then the light samples."""
+    mats, lights = scene.materials, scene.lights
+    z = jnp.zeros_like(o.x)
+    Z = V3(z, z, z)
+    dims = 1 + 3 * light_samples
+
+    def step(depth, s):
+        o, d, beta, L, active, v = s
+        hit = G.intersect(scene, o, d)
+        wo = -d
+        base = 2 + depth * dims
+        if lights.count:
+            L = L + where(active & hit.valid, beta * LT.emitted(lights, hit.emitter, hit.n, wo), Z)
+            if lights.environment >= 0:
+                L = L + where(active & ~hit.valid, beta * LT.environment_radiance(lights, z), Z)
+        active = active & hit.valid
+        mp = B.lookup(mats, hit.material)
+        specular = B.is_delta(mp)
+        diffuse_end = active & ~specular
+        # ---- direct light at the first non-specular surface ----
+        if lights.count:
+            for j in range(light_samples):
+                dj = base + 1 + 3 * j
+                ne = sample_next_event(scene, mp, hit.p, hit.n, wo, uniform(dj), uniform(dj + 1),
+                                       uniform(dj + 2), diffuse_end)
+                value = next_event_value(ne, beta, n_samples=light_samples)
+                L = L + where(~G.occluded(scene, *ne.shadow), value, Z)
+        v = DiffuseVertex(v.L, where(diffuse_end, beta, v.beta), where(diffuse_end, hit.p, v.p),
+                          where(diffuse_end, hit.n, v.n), where(diffuse_end, wo, v.wo),
+                          jnp.where(diffuse_end, hit.material, v.material), v.found | diffuse_end)
+        # ---- follow the specular chain ----
+        bs = B.sample(mats.kinds, mp, hit.n, wo, uniform(base), z, z)
+        active = active & specular & bs.valid
+        return (G.offset_origin(hit.p, hit.n, bs.wi), bs.wi, beta * bs.weight, L, active, v)
+
+    one = jnp.ones_like(z)
+    v0 = DiffuseVertex(Z, Z, o, V3(z, z, one), V3(z, z, one), jnp.zeros_like(z, jnp.int32), z > 0)
+    state = (o, d, V3(one, one, one), Z, z == 0, v0)
+    _, _, _, L, _, v = jax.lax.fori_loop(0, max_depth, step, state)
+    return v._replace(L=L)
+
+
+@partial(jax.jit, static_argnames=("max_depth", "light_samples"))
+def visible_points(scene: Scene, seed, pixel, sample, *, max_depth: int,
+                   light_samples: int) -> DiffuseVertex:
+    """The visible point of each camera sample (seed, pixel, sample): its camera ray followed
+    through specular surfaces to the first non-specular hit (:func:`trace_to_diffuse`), the
+    normal there turned to face the viewer. Where photon mapping estimates its density, and
+    where an irradiance cache is queried."""
+    key = rng.path_key(seed, pixel, sample)
+    uniform = lambda k: rng.uniform(key, k)  # noqa: E731
+    o, d = camera_ray(scene.camera, pixel, uniform)
+    v = trace_to_diffuse(scene, uniform, o, d, max_depth=max_depth, light_samples=light_samples)
+    return v._replace(n=B.facing(v.n, v.wo))
