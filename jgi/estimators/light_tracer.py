@@ -65,9 +65,9 @@ from ..scene.data import (
     Scene,
 )
 from .path_tracer import _material
-from .registry import Estimator, Param, register
+from .registry import Estimator, Render, param, register
 
-LIGHT_SALT = 0x2C1B3C6D        # light subpaths: a stream independent of the camera path's
+LIGHT_SALT = rng.SALTS["light_subpath"]  # light subpaths: a stream independent of the camera path's
 LIGHT_DIMS0 = 5                # dims 0..4: sample_emission (selection, position, direction)
 LIGHT_DIMS_PER_STEP = 3        # per bounce: lobe, u1, u2
 
@@ -387,7 +387,10 @@ def render_splats(scene: Scene, path_fn: Callable, *, spp: int, seed: int, cache
 
 @dataclass(frozen=True)
 class LightTracerConfig:
-    max_depth: int = 8   # path segments (1: emitters seen directly)
+    """The light tracer's parameters (static)."""
+
+    max_depth: int = param(8, "maximum path segments (1 = emitters only, 2 = direct light)",
+                           minimum=1, maximum=64)
 
 
 def light_key(seed, pixel, sample) -> Array:
@@ -426,19 +429,16 @@ def trace_light_paths(scene: Scene, cfg: LightTracerConfig, seed, pixel: Array, 
     return out
 
 
-def _run(scene: Scene, *, spp: int, seed: int, progress: bool = False, **params):
-    cfg = LightTracerConfig(**params)
+def render(scene: Scene, cfg: LightTracerConfig = LightTracerConfig(), *, spp: int, seed: int,
+           progress: bool = False) -> Render:
+    """The light-traced image, (H, W, 3) float32 (no stats)."""
     if scene.lights.count == 0:
         H, W = scene.camera.height, scene.camera.width
-        return np.zeros((H, W, 3), np.float32)
+        return Render(np.zeros((H, W, 3), np.float32), {})
     fn = lambda sc, sd, px, sm: trace_light_paths(sc, cfg, sd, px, sm)  # noqa: E731
-    return render_splats(scene, fn, spp=spp, seed=seed, cache_key=("lt", cfg), progress=progress)[0]
+    image = render_splats(scene, fn, spp=spp, seed=seed, cache_key=("lt", cfg), progress=progress)[0]
+    return Render(image, {})
 
-
-PARAMS = (
-    Param("max_depth", 8, "maximum path segments (1 = emitters only, 2 = direct light)", int,
-          minimum=1, maximum=64),
-)
 
 register(Estimator("lt", "light tracing: light subpaths splatted onto the pinhole film (t = 1)",
-                   _run, PARAMS))
+                   render, LightTracerConfig))

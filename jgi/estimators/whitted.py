@@ -30,13 +30,16 @@ from ..physics import camera as C
 from ..physics import geometry as G
 from ..physics import lights as LT
 from ..scene.data import Scene
-from .registry import Estimator, Param, register
+from .registry import Estimator, Render, param, register
 
 
 @dataclass(frozen=True)
 class WhittedConfig:
-    max_depth: int = 8        # maximum number of specular segments followed
-    light_samples: int = 1    # shadow rays per diffuse hit
+    """Whitted ray tracing's parameters (static)."""
+
+    max_depth: int = param(8, "maximum number of segments (specular chain length + 1)",
+                           minimum=1, maximum=256)
+    light_samples: int = param(1, "shadow rays per diffuse hit", minimum=1, maximum=64)
 
 
 class DiffuseVertex(NamedTuple):
@@ -108,15 +111,14 @@ def trace_pixels(scene: Scene, cfg: WhittedConfig, seed, pixel, sample) -> V3:
     return radiance(scene, cfg, lambda k: rng.uniform(key, k), o, d)
 
 
-def _run(scene: Scene, *, spp: int, seed: int, progress: bool = False, **params):
-    cfg = WhittedConfig(**params)
-    return render_paths(scene, lambda sc, pix, smp, sd: trace_pixels(sc, cfg, sd, pix, smp),
-                        spp=spp, seed=seed, progress=progress, cache_key=("whitted", cfg))
+def render(scene: Scene, cfg: WhittedConfig = WhittedConfig(), *, spp: int, seed: int,
+           progress: bool = False) -> Render:
+    """The Whitted image, (H, W, 3) float32 (no stats)."""
+    image = render_paths(scene, lambda sc, pix, smp, sd: trace_pixels(sc, cfg, sd, pix, smp),
+                         spp=spp, seed=seed, progress=progress, cache_key=("whitted", cfg))
+    return Render(image, {})
 
 
 register(Estimator(
     "whitted", "Whitted ray tracing: direct light at the first diffuse hit, specular chains",
-    _run,
-    (Param("max_depth", 8, "maximum number of segments (specular chain length + 1)", int, minimum=1, maximum=256),
-     Param("light_samples", 1, "shadow rays per diffuse hit", int, minimum=1, maximum=64)),
-))
+    render, WhittedConfig))

@@ -23,7 +23,7 @@ from jax import Array
 
 from ..core import rng
 
-_SALT = 0x27D4EB2F
+_SALT = rng.SALTS["mcmc"]
 
 
 class Proposal(NamedTuple):
