@@ -34,7 +34,7 @@ def bench_jgi(p: np.ndarray, q: np.ndarray, radius: float) -> dict:
     import jax.numpy as jnp
 
     from jgi.core.vec import V3
-    from jgi.transport import photon_map as PM
+    from jgi.transport import photon_map as PMap
     from jgi.transport.photons import PhotonMap
 
     n = len(p)
@@ -44,17 +44,17 @@ def bench_jgi(p: np.ndarray, q: np.ndarray, radius: float) -> dict:
     up[:, 2] = 1
     pm = PhotonMap(col(p), V3(ones, ones, ones), col(up), col(up), np.zeros(n, bool), np.zeros(n, np.int32))
     t0 = time.perf_counter()
-    grid = PM.build_grid(pm, radius)
+    grid = PMap.build_grid(pm, radius)
     jax.block_until_ready(grid.start)
     build = time.perf_counter() - t0
-    cap = PM.auto_cap(grid, limit=4096)
-    chunk = PM.query_chunk(cap)
+    cap = PMap.auto_cap(grid, limit=4096)
+    chunk = PMap.query_chunk(cap)
 
     @jax.jit
     def query(grid, x, y):
         z = jnp.zeros_like(x)
-        g = PM.gather(grid, V3(x, y, z), V3(z, z, z + 1.0), cap)
-        E, count = PM.estimate(g, jnp.float32(radius * radius), jnp.float32(1.0))
+        g = PMap.gather(grid, V3(x, y, z), V3(z, z, z + 1.0), cap)
+        E, count = PMap.estimate(g, jnp.float32(radius * radius), jnp.float32(1.0))
         return E.x, count
 
     def run_all():

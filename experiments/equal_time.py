@@ -31,7 +31,6 @@ ESTIMATORS = {  # label: (registry name, parameters)
     "MMLT": ("mmlt", {}),
     "Veach MLT": ("mlt", {}),
 }
-MLT_NAMES = ("pssmlt", "mmlt", "mlt")
 
 
 def main(argv=None) -> dict:
@@ -89,12 +88,8 @@ def main(argv=None) -> dict:
         spp = max(1, int(spp * (a.budget - fixed) / max(measured - fixed, 1e-3)))
         imgs, secs, acc = [], [], []
         for r in range(a.reps):
-            st = {}
             t0 = time.perf_counter()
-            if name in MLT_NAMES:
-                img = _render_with_stats(name, scene, spp, 100 + r, st, params)
-            else:
-                img = jgi.render(scene, name, spp=spp, seed=100 + r, **params)
+            img, st = jgi.render_result(scene, name, spp=spp, seed=100 + r, **params)
             secs.append(time.perf_counter() - t0)
             imgs.append(img)
             if "acceptance" in st:
@@ -137,13 +132,6 @@ def main(argv=None) -> dict:
     fig.savefig(out / "equal_time.png", dpi=130)
     return summary
 
-
-def _render_with_stats(name, scene, spp, seed, st, params):
-    """MLT renders through their modules, to read acceptance rates."""
-    import importlib
-
-    mod = importlib.import_module(f"jgi.estimators.{name}")
-    return mod.render_with_stats(scene, spp=spp, seed=seed, stats=st, **params)
 
 
 if __name__ == "__main__":

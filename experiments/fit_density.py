@@ -1,7 +1,8 @@
 """Differentiable fitting of photon-density parameters on the point light over a plane (exact
 irradiance, see jgi.analysis.density_fit): the MSE-optimal radius as a function of photon count and its
 scaling exponent (theory: -1/6), the optimal cone k, a Gaussian filter fitted by gradient
-beside Jensen's alpha = 0.918, beta = 1.953, and progressive photon mapping's alpha.
+beside Jensen's constants (gauss_alpha = 0.918, gauss_beta = 1.953), and progressive photon
+mapping's radius_alpha.
 
     python experiments/fit_density.py [--out runs/fit_density] [--reps 8] [--photons 2500 5000 ...]
 
@@ -80,14 +81,16 @@ def main(argv=None) -> dict:
     cone = F.minimise(lambda y: D.relative_mse(p, r, "cone", k=1.0 + y * y), jnp.float32(0.5))
     cone_k = 1.0 + float(cone.theta) ** 2
     box = float(D.relative_mse(p, r, "box"))
-    jensen = float(D.relative_mse(p, r, "gaussian", normalised=False, alpha=0.918, beta=1.953))
+    jensen = float(D.relative_mse(p, r, "gaussian", normalised=False, gauss_alpha=0.918,
+                                  gauss_beta=1.953))
 
     def gauss(theta):
-        return D.relative_mse(p, r, "gaussian", normalised=False, alpha=theta[0], beta=jnp.exp(theta[1]))
+        return D.relative_mse(p, r, "gaussian", normalised=False, gauss_alpha=theta[0],
+                              gauss_beta=jnp.exp(theta[1]))
 
     g = F.minimise(gauss, jnp.array([0.918, np.log(1.953)], jnp.float32))
-    alpha, beta = float(g.theta[0]), float(np.exp(g.theta[1]))
-    # Progressive photon mapping's alpha, fitted by gradient for 8 passes from r0 = 2 r*(N).
+    gauss_alpha, gauss_beta = float(g.theta[0]), float(np.exp(g.theta[1]))
+    # Progressive photon mapping's radius_alpha, fitted by gradient for 8 passes from r0 = 2 r*(N).
     passes = 8
     r0 = min(2 * r, 1.2)
     pp = D.point_light_problem(mid["photons"], passes * max(2, a.reps // 2), r_max=r0,
@@ -96,14 +99,15 @@ def main(argv=None) -> dict:
     pfit = F.minimise(lambda y: ploss(jax.nn.sigmoid(y)), jnp.float32(0.0))
     alpha_star = float(jax.nn.sigmoid(pfit.theta))
     alphas = np.linspace(0.05, 0.95, 19)
-    progressive = dict(passes=passes, r0=r0, alpha=alpha_star, rel_mse=float(pfit.value),
+    progressive = dict(passes=passes, r0=r0, radius_alpha=alpha_star, rel_mse=float(pfit.value),
                        curve=[(float(al), float(ploss(jnp.float32(al)))) for al in alphas])
     filters = dict(radius=r, photons=mid["photons"], box=box, epanechnikov=mid["rel_mse"],
                    cone=dict(k=cone_k, rel_mse=float(cone.value)),
-                   gaussian_jensen=dict(alpha=0.918, beta=1.953, rel_mse=jensen,
+                   gaussian_jensen=dict(gauss_alpha=0.918, gauss_beta=1.953, rel_mse=jensen,
                                         integral=float(gaussian_normaliser(0.918, 1.953))),
-                   gaussian_fitted=dict(alpha=alpha, beta=beta, rel_mse=float(g.value),
-                                        integral=float(gaussian_normaliser(alpha, beta))))
+                   gaussian_fitted=dict(gauss_alpha=gauss_alpha, gauss_beta=gauss_beta,
+                                        rel_mse=float(g.value),
+                                        integral=float(gaussian_normaliser(gauss_alpha, gauss_beta))))
     summary = dict(rows=rows, r_star_exponent=slope_r, r_star_exponent_se=se_r, theory_r_exponent=-1 / 6,
                    mse_exponent=slope_m, mse_exponent_se=se_m, theory_mse_exponent=-2 / 3,
                    filters=filters, progressive=progressive, repetitions=a.reps,
@@ -127,10 +131,11 @@ def main(argv=None) -> dict:
           f"(theory -0.667)")
     print(f"at N={mid['photons']}, r={r:.3f}: box {box:.3e}, Epanechnikov {mid['rel_mse']:.3e}, "
           f"cone k={cone_k:.3f} {float(cone.value):.3e}, Gaussian Jensen {jensen:.3e}, "
-          f"Gaussian fitted alpha={alpha:.3f} beta={beta:.3f} {float(g.value):.3e}")
+          f"Gaussian fitted gauss_alpha={gauss_alpha:.3f} gauss_beta={gauss_beta:.3f} "
+          f"{float(g.value):.3e}")
     print(f"progressive photon mapping, {passes} passes from r0={progressive['r0']:.3f}: "
-          f"MSE-optimal alpha {alpha_star:.3f} (relMSE {progressive['rel_mse']:.3e}); "
-          + ", ".join(f"alpha {al:.2f}: {v:.2e}" for al, v in progressive["curve"][::6]))
+          f"MSE-optimal radius_alpha {alpha_star:.3f} (relMSE {progressive['rel_mse']:.3e}); "
+          + ", ".join(f"radius_alpha {al:.2f}: {v:.2e}" for al, v in progressive["curve"][::6]))
     return summary
 
 

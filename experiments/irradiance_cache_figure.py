@@ -18,7 +18,7 @@ import numpy as np
 
 import jgi
 from jgi.core.imageio import tonemap
-from jgi.estimators import irradiance_cache as ic
+from jgi.estimators import irradiance_cache as IC
 
 
 def main(argv=None):
@@ -29,28 +29,26 @@ def main(argv=None):
     out = Path(a.out)
     out.mkdir(parents=True, exist_ok=True)
     scene = jgi.scenes.cornell_box(resolution=a.res)
-    v = ic.shade(scene, ic.CacheConfig(), 0, 1)
-    pts = ic.ShadingPoints(np.stack([np.asarray(c) for c in v.p]),
+    v = IC.shade(scene, IC.CacheConfig(), 0, 1)
+    pts = IC.ShadingPoints(np.stack([np.asarray(c) for c in v.p]),
                            np.stack([np.asarray(c) for c in v.n]), np.asarray(v.found))
     pix = np.arange(len(pts.found))
     raster = (pix % a.res, pix // a.res)
-    ref, _ = ic.irradiance(scene, pts, cfg=ic.CacheConfig(gather_m=24, gather_n=64), cached=False, seed=99)
+    ref = IC.irradiance(scene, pts, cfg=IC.CacheConfig(gather_m=24, gather_n=64, cached=False), seed=99).E
     lum = lambda E: 0.2126 * E[0] + 0.7152 * E[1] + 0.0722 * E[2]
     f = pts.found
     err = lambda E: float(np.sqrt(np.mean((lum(E)[f] - lum(ref)[f]) ** 2)) / lum(ref)[f].mean())
     plain, cached = [], []
     for m, n in [(2, 6), (4, 12), (8, 24), (12, 32)]:
-        st = ic.CacheStats()
-        E, _ = ic.irradiance(scene, pts, cfg=ic.CacheConfig(gather_m=m, gather_n=n), cached=False, seed=1, stats=st)
+        E, _, st = IC.irradiance(scene, pts, cfg=IC.CacheConfig(gather_m=m, gather_n=n, cached=False), seed=1)
         plain.append((st.gather_rays, err(E)))
     records = None
     for a_ in (0.6, 0.4, 0.2, 0.1):
-        st = ic.CacheStats()
-        E, rec = ic.irradiance(scene, pts, cfg=ic.CacheConfig(a=a_), cached=True, seed=1, stats=st, raster=raster)
+        E, rec, st = IC.irradiance(scene, pts, cfg=IC.CacheConfig(a=a_), seed=1, raster=raster)
         cached.append((st.gather_rays, err(E), a_))
         if a_ == 0.4:
             records = rec
-    img = ic.render(scene, spp=1, seed=0, cfg=ic.CacheConfig(a=0.4))
+    img = IC.render(scene, IC.CacheConfig(a=0.4), spp=1, seed=0).image
     fig, (ax0, ax1) = plt.subplots(1, 2, figsize=(8, 3.6))
     ax0.imshow(tonemap(img))
     ax0.scatter(records % a.res, records // a.res, s=4, c="cyan", marker="o", linewidths=0)

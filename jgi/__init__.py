@@ -3,17 +3,18 @@
     import jgi
     scene = jgi.load_scene("cornell_box")          # a built-in, or a .toml scene file
     image = jgi.render(scene, "pt", spp=64, seed=0, strategy="mis", heuristic="power")
+    image, stats = jgi.render_result(scene, "pssmlt", spp=64)   # with the estimator's statistics
 """
 
 from . import _xla  # noqa: F401, I001  (performance flags; must precede JAX's backend start-up)
 from . import estimators
-from .api import render
+from .api import render, render_result
 from .core.errors import ParameterError
-from .estimators.registry import REGISTRY
+from .estimators.registry import REGISTRY, Render
 from .scene import builtin as scenes
 from .scene.data import Scene, SceneBuilder, SceneError
 from .scene.files import load_scene
 
 __version__ = "0.1.0"
-__all__ = ["render", "load_scene", "Scene", "SceneBuilder", "SceneError", "ParameterError",
-           "REGISTRY", "scenes", "estimators"]
+__all__ = ["render", "render_result", "Render", "load_scene", "Scene", "SceneBuilder", "SceneError",
+           "ParameterError", "REGISTRY", "scenes", "estimators"]

@@ -1,7 +1,7 @@
 """Command line: ``jgi render`` (one image) and ``jgi run`` (an experiment from a config file).
 
     jgi render cornell_box --estimator pt --spp 64 --seed 0 --out out/cb.exr --strategy mis
-    jgi render scenes/my_scene.toml -e pt --spp 16 -p heuristic=power -p beta=2
+    jgi render scenes/my_scene.toml -e pt --spp 16 -p heuristic=power -p power=2
     jgi render --list                      # every estimator with its parameters and defaults
     jgi run configs/quickstart.toml [--dry-run]
 """
@@ -65,7 +65,6 @@ def _render(argv) -> int:
         est = get(args.estimator)
     except ParameterError as e:
         raise SystemExit(f"jgi: {e}") from None
-    known = {p.name: p for p in est.params}
     params = {}
     pairs = [p.split("=", 1) for p in args.param]
     it = iter(rest)
@@ -84,10 +83,11 @@ def _render(argv) -> int:
         if len(pair) != 2:
             raise SystemExit(f"jgi: parameters are KEY=VALUE, got '{'='.join(pair)}'")
         key, val = pair
-        if key not in known:
-            raise SystemExit(f"jgi: estimator '{est.name}' has no parameter '{key}'; allowed: "
-                             f"{', '.join(sorted(known))}")
-        params[key] = _convert(known[key], val)
+        try:
+            param = est.lookup(key)   # unknown and former names are refused, naming what to use
+        except ParameterError as e:
+            raise SystemExit(f"jgi: {e}") from None
+        params[key] = _convert(param, val)
 
 
     try:

@@ -451,7 +451,7 @@ def _maps(out: Path, means, ref, max_rows: int = 12):
     var_max = max(float(np.percentile(lum(s.variance), 99)) for _, s in means) or 1.0
     fig, axes = plt.subplots(len(means) + 1, 4, figsize=(8, 2 * (len(means) + 1)), squeeze=False)
     panels = [("reference", ref, None)] + [(r["label"] + " " + ", ".join(
-        f"{k}={v}" for k, v in r.items() if k in ("spp", "photons", "radius", "k", "passes", "alpha")), s.mean, s)
+        f"{k}={v}" for k, v in r.items() if k in ("spp", "photons", "radius", "k", "passes", "radius_alpha")), s.mean, s)
         for r, s in means]
     for row, (title, img, s) in zip(axes, panels):
         row[0].imshow(tonemap(img))

@@ -181,11 +181,11 @@ def density_fit(scale, out: Path):
                   dfConeK=f"{f['cone']['k']:.3f}", dfCone=f"{f['cone']['rel_mse']:.2e}",
                   dfJensen=f"{f['gaussian_jensen']['rel_mse']:.2e}",
                   dfJensenIntegral=f"{f['gaussian_jensen']['integral']:.3f}",
-                  dfGaussAlpha=f"{f['gaussian_fitted']['alpha']:.3f}",
-                  dfGaussBeta=f"{f['gaussian_fitted']['beta']:.3f}",
+                  dfGaussAlpha=f"{f['gaussian_fitted']['gauss_alpha']:.3f}",
+                  dfGaussBeta=f"{f['gaussian_fitted']['gauss_beta']:.3f}",
                   dfGauss=f"{f['gaussian_fitted']['rel_mse']:.2e}",
                   dfGaussIntegral=f"{f['gaussian_fitted']['integral']:.3f}", dfReps=str(r["repetitions"]),
-                  dfPpmPasses=str(r["progressive"]["passes"]), dfPpmAlpha=f"{r['progressive']['alpha']:.3f}",
+                  dfPpmPasses=str(r["progressive"]["passes"]), dfPpmAlpha=f"{r['progressive']['radius_alpha']:.3f}",
                   dfPpmMse=f"{r['progressive']['rel_mse']:.2e}",
                   dfPpmCurve=", ".join(f"{v:.2e} ($\\alpha={al:.2f}$)" for al, v in r["progressive"]["curve"][::6]))
     _write(out / "density_fit_macros.tex",
@@ -324,12 +324,12 @@ def bdpt_pyramid(scale, out: Path):
 
     import jgi
     from jgi.core.imageio import tonemap
-    from jgi.estimators.bdpt import render_strategies
+    from jgi.estimators.bdpt import BDPTConfig, render_strategies
 
     res, spp = (48, 64) if scale == "small" else (128, 1024)
     max_depth = 4
     scene = jgi.scenes.cornell_box_caustics(resolution=res)
-    imgs = render_strategies(scene, spp=spp, seed=5, max_depth=max_depth, heuristic="power")
+    imgs = render_strategies(scene, BDPTConfig(max_depth=max_depth, heuristic="power"), spp=spp, seed=5)
     full = sum(w for _, w in imgs.values())
     cols = max_depth + 1                       # row L holds s = 0 .. L (t = L + 1 - s)
     size, pad, top, left = 1.0, 0.08, 0.22, 0.25   # inches

@@ -10,6 +10,7 @@ crosses a module boundary. Read from the source with ``ast``, so nothing needs i
 from __future__ import annotations
 
 import ast
+import re
 from pathlib import Path
 
 import pytest
@@ -18,11 +19,6 @@ PACKAGE = Path(__file__).resolve().parents[1] / "jgi"
 LAYERS = ["jgi._xla", "jgi.core", "jgi.scene", "jgi.physics", "jgi.transport", "jgi.drivers",
           "jgi.estimators", "jgi.analysis", "jgi.api", "jgi", "jgi.experiment", "jgi.cli"]
 OPTIONAL = {"mitsuba", "drjit"}   # may be imported inside functions: not installed by default
-# Private names still crossing modules, each to be removed by the work that moves it (the path
-# machinery into jgi/transport/subpath.py, the Metropolis kernel into jgi/transport/mcmc.py).
-# The list only shrinks: a name not listed fails the test.
-KNOWN_PRIVATE = {"jgi.estimators.light_tracer._cat", "jgi.estimators.light_tracer._row",
-                 "jgi.estimators.path_tracer._material", "jgi.estimators.pssmlt._uniforms"}
 
 
 def _modules() -> dict[str, tuple[Path, ast.Module]]:
@@ -92,8 +88,7 @@ def test_no_private_name_crosses_a_module():
     for m, (path, tree) in MODULES.items():
         aliases = {}
         for target, name, node, _ in _imports(m, tree):
-            if (target.startswith("jgi") and name and name.startswith("_") and name != "__version__"
-                    and f"{target}.{name}" not in KNOWN_PRIVATE):
+            if target.startswith("jgi") and name and name.startswith("_") and name != "__version__":
                 bad.append(f"{path.relative_to(PACKAGE.parent)}:{node.lineno}: {target}.{name}")
             if target in MODULES and isinstance(node, ast.ImportFrom):
                 for a in node.names:
@@ -144,3 +139,43 @@ def test_imports_go_downward(module):
     mine = _layer(module)
     up = [t for t in _graph()[module] if _layer(t) > mine]
     assert not up, f"{module} ({LAYERS[mine]}) imports from above: {sorted(up)}"
+
+
+def test_one_alias_per_module():
+    """A jgi module imported under an alias has that alias everywhere in the package, and an
+    alias names one module (``B`` was bsdf in some modules and bvh in another)."""
+    by_module: dict[str, set[str]] = {}
+    by_alias: dict[str, set[str]] = {}
+    for m, (_, tree) in MODULES.items():
+        for target, _, node, _ in _imports(m, tree):
+            if target not in MODULES or not isinstance(node, ast.ImportFrom):
+                continue
+            for a in node.names:
+                if a.asname and f"{_resolve(m, node)}.{a.name}" == target:
+                    by_module.setdefault(target, set()).add(a.asname)
+                    by_alias.setdefault(a.asname, set()).add(target)
+    assert not {k: v for k, v in by_module.items() if len(v) > 1}, by_module
+    assert not {k: v for k, v in by_alias.items() if len(v) > 1}, by_alias
+
+
+README = PACKAGE.parent / "README.md"
+
+
+def test_readme_layout_table_matches_the_tree():
+    """Every module and package the README's layout table names exists, and every module of the
+    package is named by it (itself, or its package)."""
+    text = README.read_text()
+    table = text[text.index("## Layout"):]
+    table = table[: table.index("\n## ", 5)] if "\n## " in table[5:] else table
+
+    named = set(re.findall(r"`(jgi/[\w/.]+)`", table))
+    for path in named:
+        assert (PACKAGE.parent / path).exists(), f"README names {path}, which does not exist"
+    for m, (path, _) in MODULES.items():
+        rel = str(path.relative_to(PACKAGE.parent))
+        covered = rel in named or any(rel.startswith(n) for n in named if n.endswith("/"))
+        covered = covered or (path.name == "__init__.py" and rel.rsplit("/", 1)[0] + "/" in named)
+        if path.name == "__init__.py" and not covered:
+            covered = rel == "jgi/__init__.py" or any(
+                n.startswith(rel.rsplit("/", 1)[0] + "/") for n in named)
+        assert covered, f"{rel} is not in the README's layout table"

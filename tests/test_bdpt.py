@@ -50,7 +50,7 @@ def _valid(s, n, delta, delta_light):
     return ~delta[s - 1] & ~delta[s]
 
 
-def _weights_reference(p_L, p_E, delta, delta_light, beta):
+def _weights_reference(p_L, p_E, delta, delta_light, power):
     n = p_L.shape[0]
     out = {}
     for s in range(0, n):
@@ -58,11 +58,11 @@ def _weights_reference(p_L, p_E, delta, delta_light, beta):
         cam = [(jnp.asarray(p_E[n - 1 - i]), jnp.asarray(p_L[n - 1 - i]), jnp.asarray(delta[n - 1 - i]))
                for i in range(t)]
         light = [(jnp.asarray(p_L[i]), jnp.asarray(p_E[i]), jnp.asarray(delta[i])) for i in range(s)]
-        out[s] = np.asarray(BD.mis_weight(cam, light, jnp.asarray(delta_light), beta))
+        out[s] = np.asarray(BD.mis_weight(cam, light, jnp.asarray(delta_light), power))
     return out
 
 
-def _weights_batched(p_L, p_E, delta, delta_light, beta):
+def _weights_batched(p_L, p_E, delta, delta_light, power):
     n = p_L.shape[0]
     log_pdf = np.concatenate([p_L, p_E, np.zeros_like(p_L[:1])])   # rows L_k, E_k, zero
     flags = np.concatenate([delta, delta_light[None], np.zeros_like(delta[:1]),
@@ -77,17 +77,17 @@ def _weights_batched(p_L, p_E, delta, delta_light, beta):
                        for i in range(s - 1, -1, -1)] if n > 2 else []
         chains.append((cam_steps, light_steps))
     w = BD.mis_weights_batched(BD._log_remap0(jnp.asarray(log_pdf)), jnp.asarray(flags), chains,
-                               beta)
+                               power)
     return {s: np.asarray(w[s]) for s in range(n)}
 
 
-@pytest.mark.parametrize("beta", [1.0, 2.0])
+@pytest.mark.parametrize("power", [1.0, 2.0])
 @pytest.mark.parametrize("n", [2, 3, 4, 6])
-def test_mis_weights_sum_to_one_over_strategies(rng_np, n, beta):
+def test_mis_weights_sum_to_one_over_strategies(rng_np, n, power):
     N = 2000
     p_L, p_E, delta, delta_light = _full_path(rng_np, n, N)
-    ref = _weights_reference(p_L, p_E, delta, delta_light, beta)
-    bat = _weights_batched(p_L, p_E, delta, delta_light, beta)
+    ref = _weights_reference(p_L, p_E, delta, delta_light, power)
+    bat = _weights_batched(p_L, p_E, delta, delta_light, power)
     total = np.zeros(N)
     any_valid = np.zeros(N, bool)
     for s in range(n):
@@ -104,8 +104,8 @@ def test_mis_weights_are_finite_for_extreme_and_zero_densities():
     dens = jnp.asarray([0.0, 1e-38, 1e30, 3e38])
     cam = [(dens, dens[::-1], z > 0), (dens[::-1], dens, z > 0), (dens, z, z > 0)]
     light = [(z, dens, z > 0), (dens, dens * 0 + 1e-30, z > 0)]
-    for beta in (1.0, 2.0, 4.0):
-        w = np.asarray(BD.mis_weight(cam, light, z > 0, beta))
+    for power in (1.0, 2.0, 4.0):
+        w = np.asarray(BD.mis_weight(cam, light, z > 0, power))
         assert np.all(np.isfinite(w)) and np.all((w >= 0) & (w <= 1)), w
 
 
@@ -132,7 +132,8 @@ def cornell():
 @pytest.fixture(scope="module")
 def cornell_strategies(cornell):
     """Per-strategy (unweighted, weighted) images of 12 independent renders."""
-    return [BD.render_strategies(cornell, spp=128, seed=s, max_depth=DEPTH) for s in SEEDS]
+    return [BD.render_strategies(cornell, BD.BDPTConfig(max_depth=DEPTH), spp=128, seed=s)
+            for s in SEEDS]
 
 
 @pytest.fixture(scope="module")

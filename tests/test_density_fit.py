@@ -66,7 +66,8 @@ def test_fitted_gaussian_is_no_worse_than_jensens(problem):
     import jax.numpy as jnp
 
     def gauss(theta):
-        return D.relative_mse(problem, 0.55, "gaussian", normalised=False, alpha=theta[0], beta=jnp.exp(theta[1]))
+        return D.relative_mse(problem, 0.55, "gaussian", normalised=False, gauss_alpha=theta[0],
+                              gauss_beta=jnp.exp(theta[1]))
 
     start = jnp.array([0.918, np.log(1.953)], jnp.float32)
     fit = F.minimise(gauss, start)

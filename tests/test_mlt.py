@@ -3,6 +3,7 @@ the large step's normalisation, and images that agree with the path tracer's per
 
 from __future__ import annotations
 
+from dataclasses import replace
 from functools import partial
 
 import jax
@@ -135,11 +136,10 @@ def test_lens_mlt_matches_path_tracer_per_region():
     """Lens perturbations and large steps on the Cornell box (mostly lens steps, so an error in
     the lens acceptance shows: dropping G(x'_m, x_{m+1}) gives |t| = 9 here)."""
     scene = jgi.scenes.cornell_box(resolution=16)
-    mu = mlt.Mutations(p_large=0.05, p_lens=0.95, p_caustic=0.0)
-    stats_ = {}
-    imgs = np.stack([mlt.render(scene, spp=128, seed=10 + s, chains=1024, bootstrap_samples=65536,
-                                cfg=CFG, mutations=mu, stats=stats_ if s == 0 else None)
-                     for s in range(8)])
+    cfg = replace(CFG, chains=1024, bootstrap_samples=65536, p_large=0.05, p_lens=0.95, p_caustic=0.0)
+    results = [mlt.render(scene, cfg, spp=128, seed=10 + s) for s in range(8)]
+    imgs = np.stack([r.image for r in results])
+    stats_ = results[0].stats
     pt = np.stack([jgi.render(scene, "pt", spp=64, seed=100 + s, max_depth=5) for s in range(8)])
     assert np.all(np.isfinite(imgs))
     assert_agree(_shape(imgs), _shape(pt), regions=4, label="mlt (lens) vs pt")
@@ -151,11 +151,11 @@ def test_lens_mlt_matches_path_tracer_per_region():
 def test_caustic_mlt_matches_path_tracer_per_region(mirror):
     """Caustic and lens perturbations alone (no large steps) from chains started in the target
     distribution keep it: the floor lit through the mirror agrees with the path tracer."""
-    mu = mlt.Mutations(p_large=0.0, p_lens=0.5, p_caustic=0.5, caustic_theta2=0.5)
-    stats_ = {}
-    imgs = np.stack([mlt.render(mirror, spp=2048, seed=20 + s, chains=1024, bootstrap_samples=65536,
-                                cfg=CFG, mutations=mu, stats=stats_ if s == 0 else None)
-                     for s in range(8)])
+    cfg = replace(CFG, chains=1024, bootstrap_samples=65536, p_large=0.0, p_lens=0.5, p_caustic=0.5,
+                  caustic_theta2=0.5)
+    results = [mlt.render(mirror, cfg, spp=2048, seed=20 + s) for s in range(8)]
+    imgs = np.stack([r.image for r in results])
+    stats_ = results[0].stats
     pt = np.stack([jgi.render(mirror, "pt", spp=256, seed=200 + s, max_depth=5) for s in range(8)])
     assert_agree(_shape(imgs), _shape(pt), regions=4, label="mlt (caustic) vs pt")
     assert stats_["caustic_applicable"] > 0.1 * stats_["caustic_proposed"]

@@ -31,8 +31,7 @@ def cornell():
 def mmlt_renders(cornell):
     out = []
     for s in SEEDS:
-        st = {}
-        img = mmlt.render_with_stats(cornell, spp=32, seed=s, stats=st, **PARAMS)
+        img, st = mmlt.render(cornell, mmlt.MMLTConfig(**PARAMS), spp=32, seed=s)
         out.append((img, st))
     return out
 

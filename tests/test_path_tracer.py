@@ -111,7 +111,7 @@ def cornell_reference(cornell):
 @pytest.mark.parametrize("params", [
     dict(strategy="bsdf"),
     dict(strategy="light"),
-    dict(strategy="mis", heuristic="power", beta=2.0),
+    dict(strategy="mis", heuristic="power", power=2.0),
     dict(strategy="mis", heuristic="balance", light_samples=3),
 ])
 def test_strategies_agree_on_cornell_box(cornell, cornell_reference, params):
@@ -136,10 +136,10 @@ def test_path_lengths_sum_to_the_full_image(cornell, cornell_reference):
 def test_mis_weights_sum_to_one(rng_np):
     from jgi.transport import mis
 
-    for beta in (1.0, 2.0, 3.5):
+    for power in (1.0, 2.0, 3.5):
         p = rng_np.exponential(size=(3, 1000)).astype(np.float32) * 10.0 ** rng_np.uniform(-6, 6, (3, 1000))
         n = np.array([1.0, 3.0, 2.0])
-        total = sum(mis.heuristic_weight(n[i], p[i], [(n[j], p[j]) for j in range(3) if j != i], beta)
+        total = sum(mis.heuristic_weight(n[i], p[i], [(n[j], p[j]) for j in range(3) if j != i], power)
                     for i in range(3))
         np.testing.assert_allclose(np.asarray(total), 1.0, rtol=1e-5)
     # extreme ratios stay finite and in [0, 1]

@@ -10,7 +10,7 @@ from scipy.spatial import cKDTree
 
 import jgi
 from jgi.core.vec import V3
-from jgi.transport import photon_map as PM
+from jgi.transport import photon_map as PMap
 from jgi.transport.photons import PhotonMap
 from tests.conftest import critical_t
 
@@ -38,14 +38,14 @@ def queries(xy):
 def test_knn_and_ball_queries_agree_with_ckdtree(rng_np, clustered):
     pm, xy = plane_photons(rng_np, 20000, clustered=clustered)
     q = rng_np.random((500, 2))
-    grid = PM.build_grid(pm, 0.05, cap=128)
+    grid = PMap.build_grid(pm, 0.05, cap=128)
     x, n = queries(q)
-    g = PM.gather(grid, x, n, cap=128)
+    g = PMap.gather(grid, x, n, cap=128)
     assert not np.any(np.asarray(g.truncated))
     tree = cKDTree(xy)
     k = 20
     d_ref, _ = tree.query(q, k=k)
-    r2 = np.asarray(PM.knn_radius2(g, k, float(grid.cell)))
+    r2 = np.asarray(PMap.knn_radius2(g, k, float(grid.cell)))
     have = d_ref[:, -1] < float(grid.cell)  # the k-th neighbour lies within the search radius
     np.testing.assert_allclose(np.sqrt(r2[have] / (1 + 1e-6)), d_ref[have, -1], rtol=1e-4, atol=1e-6)
     rb = 0.9 * float(grid.cell)  # fixed-radius queries see every photon within one cell
@@ -56,36 +56,37 @@ def test_knn_and_ball_queries_agree_with_ckdtree(rng_np, clustered):
 
 
 @pytest.mark.parametrize("kind, params", [("box", {}), ("cone", dict(k=1.1)), ("cone", dict(k=3.0)),
-                                          ("gaussian", dict(alpha=0.918, beta=1.953)),
+                                          ("gaussian", dict(gauss_alpha=0.918, gauss_beta=1.953)),
                                           ("epanechnikov", {})])
 def test_constant_density_is_estimated_without_bias(rng_np, kind, params):
     n, size, r = 40000, 1.0, 0.04
     pm, _ = plane_photons(rng_np, n, size)
-    grid = PM.build_grid(pm, r)
+    grid = PMap.build_grid(pm, r)
     # independent estimates: query points on a grid spaced > 2r apart, away from the border
     g1 = np.arange(0.1, 0.9, 0.09)
     q = np.stack(np.meshgrid(g1, g1), -1).reshape(-1, 2)
     x, nrm = queries(q)
-    est, _ = PM.estimate(PM.gather(grid, x, nrm, cap=256), jnp.float32(r * r), jnp.float32(1.0), kind, **params)
+    est, _ = PMap.estimate(PMap.gather(grid, x, nrm, cap=256), jnp.float32(r * r), jnp.float32(1.0), kind, **params)
     e = np.asarray(est.x)
     density = n / size**2
     se = e.std(ddof=1) / np.sqrt(len(e))
     assert abs(e.mean() - density) < critical_t(len(e) - 1, 1) * se, (kind, e.mean(), density, se)
 
 
-@pytest.mark.parametrize("kind, name", [("gaussian", "alpha"), ("gaussian", "beta"), ("cone", "k"),
+@pytest.mark.parametrize("kind, name", [("gaussian", "gauss_alpha"), ("gaussian", "gauss_beta"), ("cone", "k"),
                                         ("epanechnikov", "r"), ("gaussian", "r")])
 def test_gradients_match_central_differences(rng_np, kind, name):
     pm, _ = plane_photons(rng_np, 5000)
-    grid = PM.build_grid(pm, 0.1)
+    grid = PMap.build_grid(pm, 0.1)
     x, n = queries(np.array([[0.5, 0.5], [0.3, 0.6]]))
-    g = PM.gather(grid, x, n, cap=256)
-    base = dict(r=0.08, alpha=0.918, beta=1.953, k=1.5)
+    g = PMap.gather(grid, x, n, cap=256)
+    base = dict(r=0.08, gauss_alpha=0.918, gauss_beta=1.953, k=1.5)
 
     def f(v):
         p = dict(base, **{name: v})
-        fp = {kk: p[kk] for kk in (("alpha", "beta") if kind == "gaussian" else ("k",) if kind == "cone" else ())}
-        L, _ = PM.estimate(g, p["r"] ** 2, jnp.float32(1.0), kind, **fp)
+        fp = {kk: p[kk] for kk in (("gauss_alpha", "gauss_beta") if kind == "gaussian"
+                                   else ("k",) if kind == "cone" else ())}
+        L, _ = PMap.estimate(g, p["r"] ** 2, jnp.float32(1.0), kind, **fp)
         return jnp.sum(L.x)
 
     # evaluate in float64 so that the finite difference measures the derivative, not rounding
@@ -96,8 +97,9 @@ def test_gradients_match_central_differences(rng_np, kind, name):
 
         def f64(v):
             p = dict(base, **{name: v})
-            fp = {kk: p[kk] for kk in (("alpha", "beta") if kind == "gaussian" else ("k",) if kind == "cone" else ())}
-            L, _ = PM.estimate(g64, p["r"] ** 2, jnp.float64(1.0), kind, **fp)
+            fp = {kk: p[kk] for kk in (("gauss_alpha", "gauss_beta") if kind == "gaussian"
+                                       else ("k",) if kind == "cone" else ())}
+            L, _ = PMap.estimate(g64, p["r"] ** 2, jnp.float64(1.0), kind, **fp)
             return jnp.sum(L.x)
 
         v0 = jnp.float64(base[name])
@@ -115,9 +117,9 @@ def test_gradients_match_central_differences(rng_np, kind, name):
 
 def test_truncation_is_reported(rng_np):
     pm, _ = plane_photons(rng_np, 20000)
-    grid = PM.build_grid(pm, 0.2)
+    grid = PMap.build_grid(pm, 0.2)
     x, n = queries(np.array([[0.5, 0.5]]))
-    assert bool(PM.gather(grid, x, n, cap=8).truncated[0])
+    assert bool(PMap.gather(grid, x, n, cap=8).truncated[0])
 
 
 def test_photon_mapping_point_light_converges_to_closed_form():
@@ -160,6 +162,6 @@ def test_sppm_is_consistent():
     ref = np.mean([jgi.render(scene, "pt", spp=128, seed=s) for s in range(4)], 0)
     rel = []
     for passes in (1, 6, 36):
-        img = jgi.render(scene, "sppm", spp=1, seed=3, passes=passes, photons=10_000, radius=0.15, alpha=0.7)
+        img = jgi.render(scene, "sppm", spp=1, seed=3, passes=passes, photons=10_000, radius=0.15, radius_alpha=0.7)
         rel.append(float(np.mean((img - ref) ** 2 / (ref**2 + 1e-2))))
     assert rel[0] > rel[1] > rel[2], rel

@@ -3,8 +3,8 @@
 The test bed is the lecture's point light over a diffuse plane: a point light of intensity I at
 height h gives the plane the irradiance E(rho) = I h / (h^2 + rho^2)^(3/2) at distance rho from
 the foot point, so the error of every photon estimate E_hat(x; theta) is exact, not measured
-against a noisy reference. For a parameter vector theta (radius, cone k, Gaussian alpha and
-beta) and R photon maps traced with fixed seeds (common random numbers) the objective is the
+against a noisy reference. For a parameter vector theta (radius, cone k, the Gaussian's
+gauss_alpha and gauss_beta) and R photon maps traced with fixed seeds (common random numbers) the objective is the
 sample-average relative MSE over query points x_j:
 
     MSE_R(theta) = (1 / (R J)) sum_r sum_j (E_hat_r(x_j; theta) - E(x_j))^2 / E(x_j)^2
@@ -13,7 +13,7 @@ which is smooth in theta wherever the filter vanishes at the radius (cone with k
 Epanechnikov): a photon crossing the disc's edge then changes the estimate continuously and
 the pathwise gradient is the gradient of MSE_R. For filters that do not vanish at r (box,
 Gaussian), crossings are jumps that ``jax.grad`` cannot see; their radius should not be fitted
-by gradient (fitting the Gaussian's alpha and beta at a fixed radius is fine).
+by gradient (fitting gauss_alpha and gauss_beta at a fixed radius is fine).
 
 Theory for the radius (2D kernel density estimation): bias ~ c_b r^2, variance ~ c_v / (N r^2),
 so the MSE-optimal radius scales as r* ~ N^(-1/6) and the optimal MSE as N^(-2/3).
@@ -30,7 +30,7 @@ from jax import Array
 
 from ..core.vec import V3
 from ..scene.builtin import point_light_plane
-from ..transport import photon_map as PM
+from ..transport import photon_map as PMap
 from ..transport.photons import trace_photons
 
 
@@ -64,8 +64,8 @@ def point_light_problem(photons: int, repetitions: int, *, intensity: float = 10
     d2s, pows = [], []
     for r in range(repetitions):
         pm = trace_photons(scene, photons, seed=seed + 7919 * r, max_depth=1)
-        grid = PM.build_grid(pm, r_max)
-        g = PM.gather(grid, x, n, PM.auto_cap(grid, limit=1 << 14))
+        grid = PMap.build_grid(pm, r_max)
+        g = PMap.gather(grid, x, n, PMap.auto_cap(grid, limit=1 << 14))
         if bool(jnp.any(g.truncated)):
             raise ValueError(f"a grid cell holds more photons than the gather cap: lower r_max ({r_max})")
         neg, idx = jax.lax.top_k(-g.d2, candidates)
@@ -80,13 +80,13 @@ def point_light_problem(photons: int, repetitions: int, *, intensity: float = 10
 
 def estimate(problem: DensityProblem, r, kind: str = "epanechnikov", normalised: bool = True, **filter_params):
     """[R, J] irradiance estimates sum_p W(d_p) Phi_p / K; with ``normalised=False`` the Gaussian
-    is used as Jensen wrote it, divided by pi r^2 only (alpha then sets its scale)."""
-    gathered = PM.Gathered(problem.d2, V3(problem.power, problem.power, problem.power), None,
+    is used as Jensen wrote it, divided by pi r^2 only (``gauss_alpha`` then sets its scale)."""
+    gathered = PMap.Gathered(problem.d2, V3(problem.power, problem.power, problem.power), None,
                            jnp.isfinite(problem.d2), None)
-    E, _ = PM.estimate(gathered, r * r, jnp.float32(1.0), kind, **filter_params)
+    E, _ = PMap.estimate(gathered, r * r, jnp.float32(1.0), kind, **filter_params)
     if kind == "gaussian" and not normalised:
-        return E.x * PM.gaussian_normaliser(filter_params.get("alpha", PM.JENSEN_ALPHA),
-                                             filter_params.get("beta", PM.JENSEN_BETA))
+        return E.x * PMap.gaussian_normaliser(filter_params.get("gauss_alpha", PMap.JENSEN_ALPHA),
+                                              filter_params.get("gauss_beta", PMap.JENSEN_BETA))
     return E.x
 
 
@@ -103,16 +103,16 @@ def mse_terms(problem: DensityProblem, r, kind: str = "epanechnikov", **filter_p
     return jnp.mean(jnp.mean(e, 0) ** 2), jnp.mean(jnp.var(e, 0, ddof=1))
 
 
-def progressive_estimate(problem: DensityProblem, passes: int, r0, alpha):
+def progressive_estimate(problem: DensityProblem, passes: int, r0, radius_alpha):
     """Progressive photon mapping's estimate after ``passes`` passes (Hachisuka et al. 2008),
     with the R photon maps of ``problem`` split into R / passes independent sequences. Each pass
     i adds M_i photons of flux Phi_i found within r_i and shrinks the radius:
 
-        N_{i+1} = N_i + alpha M_i,   r_{i+1}^2 = r_i^2 (N_i + alpha M_i) / (N_i + M_i),
+        N_{i+1} = N_i + a M_i,   r_{i+1}^2 = r_i^2 (N_i + a M_i) / (N_i + M_i),   (a = radius_alpha)
         tau_{i+1} = (tau_i + Phi_i) r_{i+1}^2 / r_i^2,   E = tau / (pi r^2 passes).
 
     M_i and Phi_i use the Epanechnikov kernel (M_i = sum_p W(d_p) / 0.5, the kernel integrating
-    to half the disc), so the estimate is smooth in alpha and r0 and ``jax.grad`` gives the
+    to half the disc), so the estimate is smooth in radius_alpha and r0 and ``jax.grad`` gives the
     derivative of the sample-average MSE. Returns [R / passes, J]. Candidates must cover r0."""
     R, J, Cn = problem.d2.shape
     seqs = R // passes
@@ -127,13 +127,13 @@ def progressive_estimate(problem: DensityProblem, passes: int, r0, alpha):
         w = jnp.where(inside, 1.0 - jnp.where(inside, d2[:, i], 0.0) / r2[..., None], 0.0) / 0.5
         m = jnp.sum(w, -1)
         phi = jnp.sum(w * pw[:, i], -1)
-        shrink = jnp.where(n + m > 0, (n + alpha * m) / jnp.maximum(n + m, 1e-30), 1.0)
+        shrink = jnp.where(n + m > 0, (n + radius_alpha * m) / jnp.maximum(n + m, 1e-30), 1.0)
         tau = (tau + phi) * shrink
         r2 = r2 * shrink
-        n = n + alpha * m
+        n = n + radius_alpha * m
     return tau / (jnp.pi * r2 * passes)
 
 
-def progressive_relative_mse(problem: DensityProblem, passes: int, r0, alpha) -> Array:
-    e = progressive_estimate(problem, passes, r0, alpha) / problem.exact - 1.0
+def progressive_relative_mse(problem: DensityProblem, passes: int, r0, radius_alpha) -> Array:
+    e = progressive_estimate(problem, passes, r0, radius_alpha) / problem.exact - 1.0
     return jnp.mean(e * e)

@@ -2,8 +2,9 @@
 
 The estimators are pure functions of (scene, parameters, random stream), so the mean squared
 error of an estimator as a function of a continuous parameter theta (a photon radius, a cone
-filter's k, a Gaussian filter's alpha and beta, progressive photon mapping's alpha) can be
-estimated by the *sample-average approximation*: fix R random streams (common random numbers),
+filter's k, a Gaussian filter's gauss_alpha and gauss_beta, progressive photon mapping's
+radius_alpha) can be estimated by the *sample-average approximation*: fix R random streams
+(common random numbers),
 
     MSE_R(theta) = (1/R) sum_r mean_pixels (X(theta; xi_r) - L)^2,
 

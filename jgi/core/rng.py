@@ -61,7 +61,30 @@ def uniforms(key: Array, first_dim: int, n: int) -> Array:
     return jnp.stack([uniform(key, first_dim + k) for k in range(n)])
 
 
+# Every salt :func:`derive` is given in jgi, named by stream. A stream is
+# ``derive(path_key(seed, i, j), salt)``: two streams with one salt and one (seed, i, j) are the
+# same numbers, so salts must differ between streams that one estimate uses together. Camera
+# paths use ``path_key(seed, pixel, sample)`` itself (no salt), shared by every estimator.
+SALTS: dict[str, int] = {
+    "photons": 0x1E3779B1,            # photon paths, per photon (transport.photons)
+    "light_subpath": 0x2C1B3C6D,      # light subpaths of lt and bdpt, per (pixel, sample)
+    "final_gather": 0x1B873593,       # pm_jensen's final-gather rays, per (point, ray)
+    "irradiance_gather": 0x3C6EF372,  # the irradiance cache's gather rays, per (point, ray)
+    "mcmc": 0x27D4EB2F,               # transport.mcmc chains, per (chain, step)
+    "pssmlt": 0x2545F491,             # PSSMLT bootstrap; + 1: its chains, per (chain, step)
+    "mmlt": 0x5F3759DF,               # MMLT chains of path length L: + 1 + L, per (chain, step)
+    # Veach's MLT: bootstrap paths; + 1: chain steps. The bootstrap shares its value with
+    # "final_gather": harmless, as no estimate uses both (pm_jensen never runs an MLT chain,
+    # mlt never final-gathers), and estimators run with one seed are correlated anyway through
+    # the shared camera stream; a distinct value would change every mlt image.
+    "mlt": 0x1B873593,
+}
+# Sub-streams of one step's key (``derive(key, k)``, k small), in pssmlt's, mmlt's and mlt's
+# chain steps: 7 the small step's signs, 11 the large step's fresh sample, 3 the mutation.
+
+
 def derive(key: Array, salt) -> Array:
-    """An independent sub-stream (e.g. per light subpath, per photon pass)."""
+    """An independent sub-stream (e.g. per light subpath, per photon pass); ``salt`` from
+    :data:`SALTS`."""
     return lowbias32(key ^ lowbias32(jnp.asarray(salt).astype(_U32) + _U32(0x68E31DA4)))
 

@@ -12,6 +12,7 @@ from . import (
     pssmlt,  # noqa: F401
     whitted,  # noqa: F401
 )
-from .registry import REGISTRY, Estimator, Param, get, register
+from .registry import REGISTRY, Estimator, Param, Render, get, param, params_of, register
 
-__all__ = ["REGISTRY", "Estimator", "Param", "ParameterError", "get", "register"]
+__all__ = ["REGISTRY", "Estimator", "Param", "ParameterError", "Render", "get", "param", "params_of",
+           "register"]

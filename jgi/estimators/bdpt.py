@@ -21,7 +21,7 @@ strategy (s, t) with s + t - 1 <= max_depth path segments then forms a full path
 (s, t) = (1, 1) is not used (a light seen directly is the s = 0 strategy), as in pbrt.
 
 MIS (:func:`mis_weight`, one place): w_{s,t} = p_s^b / sum_i p_i^b (balance b = 1, power b =
-``beta``), computed as in pbrt-v4's MISWeight by ratios r_i = p_i / p_s built stepwise from the
+``power``), computed as in pbrt-v4's MISWeight by ratios r_i = p_i / p_s built stepwise from the
 vertices' reverse and forward densities, r_{i-1} = r_i (p_rev / p_fwd)^b, so that no full path
 density (which under/overflows float32) is ever formed; here in log space with the ratio
 clamped, so that weights and their gradients stay finite. The last two vertices of each
@@ -37,14 +37,14 @@ s = 1, weight 1; environment: the path tracer's two-strategy weight). No Russian
 subpaths end at ``max_depth`` or at absorption.
 
 Parameters: ``max_depth`` (segments, the path tracer's convention), ``heuristic``
-("balance" | "power"), ``beta`` (power exponent), ``path_length`` (> 0: only paths of exactly
+("balance" | "power"), ``power`` (power exponent), ``path_length`` (> 0: only paths of exactly
 that many segments), ``strategy_images`` (a folder: also write every strategy's weighted and
 unweighted image there, Veach's pyramid, fig. 10.3). :func:`render_strategies` returns them.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import jax
@@ -84,7 +84,7 @@ from ..transport.subpath import (
     rows,
     sample_next_event,
 )
-from .registry import Estimator, Param, register
+from .registry import Estimator, Render, param, register
 
 CAMERA_DIMS0 = 2              # dims 0, 1: pixel jitter
 CAMERA_DIMS_PER_STEP = 6      # per vertex: BSDF (3), light sample (3)
@@ -93,16 +93,23 @@ LOG_RATIO_MAX = 80.0          # r_i <= e^80: sums of a few stay below float32's 
 
 @dataclass(frozen=True)
 class BDPTConfig:
-    """Static settings (hashable: one compile serves every render with them)."""
+    """BDPT's parameters; static but for ``strategy_images`` (hashable: one compile serves every
+    render with them)."""
 
-    max_depth: int = 5          # maximum path segments s + t - 1
-    heuristic: str = "power"    # "balance" | "power"
-    beta: float = 2.0           # power-heuristic exponent
-    path_length: int = 0        # > 0: only strategies with s + t - 1 == path_length
+    max_depth: int = param(5, "maximum path segments s + t - 1 (1 = emitters only)", minimum=1,
+                           maximum=16)
+    heuristic: str = param("power", "MIS heuristic over the (s, t) strategies",
+                           choices=("balance", "power"))
+    power: float = param(2.0, "power-heuristic exponent", minimum=0.1, maximum=16)
+    path_length: int = param(0, "keep only paths with exactly this many segments (0 = all)",
+                             minimum=0, maximum=16)
+    # not seen by the kernels (render drops it from the compile key)
+    strategy_images: str = param("", "folder: also write each (s, t) strategy's weighted and "
+                                 "unweighted image (EXR, PNG) and pyramid.png there")
 
     @property
     def exponent(self) -> float:
-        return 1.0 if self.heuristic == "balance" else float(self.beta)
+        return 1.0 if self.heuristic == "balance" else float(self.power)
 
     def strategies(self) -> list[tuple[int, int]]:
         """Every (s, t) this configuration evaluates, in pyramid order (by length, then s)."""
@@ -449,14 +456,13 @@ def _blank(scene, n=None):
     return np.zeros((H, W, 3) if n is None else (n, H, W, 3), np.float32)
 
 
-def render_strategies(scene: Scene, spp: int = 16, seed: int = 0, max_depth: int = 5,
-                      heuristic: str = "power", beta: float = 2.0, path_length: int = 0,
+def render_strategies(scene: Scene, cfg: BDPTConfig = BDPTConfig(), *, spp: int = 16, seed: int = 0,
                       progress: bool = False) -> dict:
     """Veach's pyramid: ``{(s, t): (unweighted, weighted)}`` images (H, W, 3) per strategy.
 
     The weighted images of one render sum to the BDPT image; each unweighted image is an
     unbiased estimate of the paths of length s + t - 1 that its strategy can sample."""
-    cfg = BDPTConfig(max_depth, heuristic, beta, path_length)
+    cfg = replace(cfg, strategy_images="")
     strategies = cfg.strategies()
     if scene.lights.count == 0 or not strategies:
         return {st: (_blank(scene), _blank(scene)) for st in strategies}
@@ -492,29 +498,19 @@ def write_strategy_images(folder, images: dict, exposure: float = 0.0) -> list[P
     return written
 
 
-def _run(scene: Scene, *, spp: int, seed: int, progress: bool = False, strategy_images: str = "",
-         **params):
-    cfg = BDPTConfig(**params)
-    if strategy_images:
-        imgs = render_strategies(scene, spp, seed, progress=progress, **params)
-        write_strategy_images(strategy_images, imgs)
-        return sum((w for _, w in imgs.values()), _blank(scene))
+def render(scene: Scene, cfg: BDPTConfig = BDPTConfig(), *, spp: int, seed: int,
+           progress: bool = False) -> Render:
+    """The BDPT image, (H, W, 3) float32 (no stats); with ``cfg.strategy_images`` every
+    strategy's images are written there too (:func:`write_strategy_images`)."""
+    if cfg.strategy_images:
+        imgs = render_strategies(scene, cfg, spp=spp, seed=seed, progress=progress)
+        write_strategy_images(cfg.strategy_images, imgs)
+        return Render(sum((w for _, w in imgs.values()), _blank(scene)), {})
     if scene.lights.count == 0 or not cfg.strategies():
-        return _blank(scene)
-    return render_splats(scene, Configured(pixel_contributions, cfg), spp=spp, seed=seed,
-                         progress=progress)[0]
+        return Render(_blank(scene), {})
+    return Render(render_splats(scene, Configured(pixel_contributions, cfg), spp=spp, seed=seed,
+                                progress=progress)[0], {})
 
 
-PARAMS = (
-    Param("max_depth", 5, "maximum path segments s + t - 1 (1 = emitters only)", int, minimum=1,
-          maximum=16),
-    Param("heuristic", "power", "MIS heuristic over the (s, t) strategies", str, ("balance", "power")),
-    Param("beta", 2.0, "power-heuristic exponent", float, minimum=0.1, maximum=16),
-    Param("path_length", 0, "keep only paths with exactly this many segments (0 = all)", int,
-          minimum=0, maximum=16),
-    Param("strategy_images", "", "folder: also write each (s, t) strategy's weighted and "
-          "unweighted image (EXR, PNG) and pyramid.png there", str),
-)
-
-register(Estimator("bdpt", "bidirectional path tracing, all (s, t) strategies with MIS", _run,
-                   PARAMS))
+register(Estimator("bdpt", "bidirectional path tracing, all (s, t) strategies with MIS", render,
+                   BDPTConfig, renamed={"beta": "power"}))

@@ -56,9 +56,9 @@ from ..transport import photon_map as PMap
 from ..transport.photons import trace_photons
 from ..transport.subpath import trace_to_diffuse, visible_points
 from .path_tracer import PathTracerConfig, radiance
-from .registry import Estimator, Param, register
+from .registry import Estimator, Render, param, register
 
-_SALT = 0x3C6EF372
+_SALT = rng.SALTS["irradiance_gather"]
 
 
 class Records(NamedTuple):
@@ -73,26 +73,45 @@ class Records(NamedTuple):
 
 @dataclass(frozen=True)
 class CacheConfig:
-    a: float = 0.2              # Ward's error threshold
-    gather_m: int = 8           # theta strata
-    gather_n: int = 24          # phi strata
-    spacing: int = 8            # first pass: one record candidate every `spacing` pixels
-    passes: int = 4             # refinement passes (grid spacing halves each pass)
+    """The irradiance cache's parameters. The gather kernels see only the gather settings
+    (:meth:`gather_settings`, static): one compilation serves every a, spacing and pass count."""
+
+    a: float = param(0.2, "Ward's error threshold (smaller: more records)", minimum=1e-4,
+                     maximum=10.0)
+    gather_m: int = param(8, "final-gather strata in theta", minimum=1, maximum=256)
+    gather_n: int = param(24, "final-gather strata in phi", minimum=1, maximum=512)
+    spacing: int = param(8, "first-pass record spacing in pixels", minimum=1)
+    passes: int = param(4, "refinement passes (spacing halves each pass)", minimum=0, maximum=16)
+    cached: bool = param(True, "false: plain final gathering at every shading point")
+    gradients: bool = param(True, "use rotation and translation gradients")
+    photons: int = param(0, "> 0: gather rays read a global photon map of this many photons "
+                         "(Jensen); 0: the path tracer", minimum=0)
+    photon_k: int = param(50, "photons in each gather estimate", minimum=1, maximum=1024)
     per_pass: int = 4096        # new records per refinement pass (at most)
     r_min: float = 0.01         # clamp of R_i, relative to the scene's bounding radius
     r_max: float = 0.5
-    gradients: bool = True
-    max_depth: int = 8
-    pt: PathTracerConfig = PathTracerConfig(max_depth=7)
+    max_depth: int = 8          # specular chains of camera and gather rays
+    pt: PathTracerConfig = PathTracerConfig(max_depth=7)   # the gather rays' radiance
+
+    def gather_settings(self) -> "CacheConfig":
+        """The compile key of the gather kernels: the fields they do not read at fixed values."""
+        return dataclasses.replace(self, a=0.0, spacing=1, passes=0, per_pass=1, cached=True,
+                                   photons=0, photon_k=1)
 
 
 @dataclass
 class CacheStats:
-    records: int = 0
-    direct_points: int = 0
-    gather_rays: int = 0
-    passes: int = 0
-    history: list = field(default_factory=list)
+    records: int = 0          # records made
+    direct_points: int = 0    # points gathered directly (uncached, or not covered by records)
+    gather_rays: int = 0      # gather rays traced, records and direct points together
+    passes: int = 0           # refinement passes run
+    history: list = field(default_factory=list)   # (records, uncovered points) per pass
+
+
+class CacheResult(NamedTuple):
+    E: np.ndarray             # [3, n] indirect irradiance at the shading points
+    records: np.ndarray       # indices of the points where records were made
+    stats: CacheStats
 
 
 # --- final gathering ------------------------------------------------------------------------------
@@ -291,10 +310,10 @@ def photon_source(scene: Scene, photons: int, seed: int, *, k: int = 50, radius:
     return PhotonSource(grid, k, float(grid.cell))
 
 
-def irradiance(scene: Scene, pts: ShadingPoints, *, cfg: CacheConfig, cached: bool, seed: int = 0,
-               stats: CacheStats | None = None, raster: tuple | None = None,
-               source: PhotonSource | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """Indirect irradiance [3, n] at shading points, and the indices of the records made.
+def irradiance(scene: Scene, pts: ShadingPoints, *, cfg: CacheConfig, seed: int = 0,
+               raster: tuple | None = None, source: PhotonSource | None = None) -> CacheResult:
+    """Indirect irradiance [3, n] at shading points, the indices of the records made, and the
+    work done (:class:`CacheStats`); ``cfg.cached=False`` gathers at every point.
 
     Every gather at point i uses random stream (seed, i), so a record made at point i equals
     the uncached gather there: as a -> 0 the cache reproduces plain final gathering exactly.
@@ -304,11 +323,11 @@ def irradiance(scene: Scene, pts: ShadingPoints, *, cfg: CacheConfig, cached: bo
     pass k considers uncovered points on a pixel grid of spacing ``cfg.spacing / 2^k``, so
     records appear where the criterion fails, coarse to fine (Ward's lazy creation, in
     passes)."""
-    stats = stats if stats is not None else CacheStats()
+    stats = CacheStats()
     n_pts = len(pts.found)
     batch = 64
     # the gather kernel depends only on the gather settings: one compilation for every a
-    gather_cfg = dataclasses.replace(cfg, a=0.0, spacing=1, passes=0, per_pass=1)
+    gather_cfg = cfg.gather_settings()
 
     def compute(idx: np.ndarray):
         out = []
@@ -333,11 +352,11 @@ def irradiance(scene: Scene, pts: ShadingPoints, *, cfg: CacheConfig, cached: bo
 
     E_final = np.zeros((3, n_pts), np.float32)
     found = pts.found
-    if not cached:
+    if not cfg.cached:
         idx = np.nonzero(found)[0]
         fill(E_final, idx, compute(idx))
         stats.direct_points = len(idx)
-        return E_final, np.zeros(0, np.int64)
+        return CacheResult(E_final, np.zeros(0, np.int64), stats)
     def on_grid(k):
         if raster is None:
             return np.ones(n_pts, bool)
@@ -369,7 +388,7 @@ def irradiance(scene: Scene, pts: ShadingPoints, *, cfg: CacheConfig, cached: bo
     rest = np.nonzero(found & ~covered)[0]
     fill(E_final, rest, compute(rest))
     stats.direct_points = len(rest)
-    return E_final, np.concatenate(rec_idx)
+    return CacheResult(E_final, np.concatenate(rec_idx), stats)
 
 
 def shade(scene: Scene, cfg: CacheConfig, seed: int, spp: int):
@@ -383,50 +402,31 @@ def shade(scene: Scene, cfg: CacheConfig, seed: int, spp: int):
                           light_samples=1)
 
 
-def render(scene: Scene, *, spp: int = 1, seed: int = 0, cfg: CacheConfig = CacheConfig(),
-           cached: bool = True, stats: CacheStats | None = None, photons: int = 0,
-           photon_k: int = 50) -> np.ndarray:
+def render(scene: Scene, cfg: CacheConfig = CacheConfig(), *, spp: int = 1, seed: int = 0,
+           progress: bool = False) -> Render:
     """Direct light + specular chains exactly, indirect diffuse light from the irradiance cache
-    (``cached=False``: plain final gathering at every shading point, for comparison); with
-    ``photons > 0`` the gather rays read a global photon map of that many photons."""
+    (``cfg.cached=False``: plain final gathering at every shading point, for comparison); with
+    ``cfg.photons > 0`` the gather rays read a global photon map of that many photons.
+
+    Stats: those of :class:`CacheStats` (records, direct_points, gather_rays, passes, history)."""
     W, H = scene.camera.width, scene.camera.height
     v = shade(scene, cfg, seed, spp)
     pts = ShadingPoints(np.stack([np.asarray(c) for c in v.p]),
                         np.stack([np.asarray(c) for c in v.n]), np.asarray(v.found))
     pix = np.arange(len(pts.found)) % (W * H)
-    source = photon_source(scene, photons, seed, k=photon_k) if photons else None
-    E, _ = irradiance(scene, pts, cfg=cfg, cached=cached, seed=seed, stats=stats,
-                      raster=(pix % W, pix // W), source=source)
+    source = photon_source(scene, cfg.photons, seed, k=cfg.photon_k) if cfg.photons else None
+    E, _, stats = irradiance(scene, pts, cfg=cfg, seed=seed, raster=(pix % W, pix // W),
+                             source=source)
     kd = scene.materials.diffuse
     m = np.asarray(v.material)
     albedo = np.stack([np.asarray(kd.x)[m], np.asarray(kd.y)[m], np.asarray(kd.z)[m]])
     beta = np.stack([np.asarray(c) for c in v.beta])
     L = np.stack([np.asarray(c) for c in v.L]) + np.where(pts.found, beta * albedo / np.pi * E, 0.0)
-    return L.reshape(3, spp, H, W).mean(1).transpose(1, 2, 0).astype(np.float32)
+    image = L.reshape(3, spp, H, W).mean(1).transpose(1, 2, 0).astype(np.float32)
+    return Render(image, dataclasses.asdict(stats))
 
 
-def _run(scene: Scene, *, spp: int, seed: int, progress: bool = False, a=0.2, gather_m=8,
-         gather_n=24, spacing=8, passes=4, cached=True, gradients=True, photons=0, photon_k=50):
-    cfg = CacheConfig(a=a, gather_m=gather_m, gather_n=gather_n, spacing=spacing, passes=passes,
-                      gradients=gradients)
-    return render(scene, spp=spp, seed=seed, cfg=cfg, cached=cached, photons=photons, photon_k=photon_k)
-
-
-def _register():
-    register(Estimator(
-        "irradiance_cache",
-        "direct light + specular chains, indirect diffuse light by final gathering with an "
-        "irradiance cache (Ward 1988)", _run,
-        (Param("a", 0.2, "Ward's error threshold (smaller: more records)", float, minimum=1e-4, maximum=10.0),
-         Param("gather_m", 8, "final-gather strata in theta", int, minimum=1, maximum=256),
-         Param("gather_n", 24, "final-gather strata in phi", int, minimum=1, maximum=512),
-         Param("spacing", 8, "first-pass record spacing in pixels", int, minimum=1),
-         Param("passes", 4, "refinement passes (spacing halves each pass)", int, minimum=0, maximum=16),
-         Param("cached", True, "false: plain final gathering at every shading point", bool),
-         Param("gradients", True, "use rotation and translation gradients", bool),
-         Param("photons", 0, "> 0: gather rays read a global photon map of this many photons "
-               "(Jensen); 0: the path tracer", int, minimum=0),
-         Param("photon_k", 50, "photons in each gather estimate", int, minimum=1, maximum=1024))))
-
-
-_register()
+register(Estimator(
+    "irradiance_cache",
+    "direct light + specular chains, indirect diffuse light by final gathering with an "
+    "irradiance cache (Ward 1988)", render, CacheConfig))

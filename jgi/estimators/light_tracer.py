@@ -51,12 +51,15 @@ from ..physics import geometry as G
 from ..physics import lights as LT
 from ..scene.data import Scene
 from ..transport.subpath import connect_camera, light_key, light_subpath, occluded_many, rows
-from .registry import Estimator, Param, register
+from .registry import Estimator, Render, param, register
 
 
 @dataclass(frozen=True)
 class LightTracerConfig:
-    max_depth: int = 8   # path segments (1: emitters seen directly)
+    """The light tracer's parameters (static)."""
+
+    max_depth: int = param(8, "maximum path segments (1 = emitters only, 2 = direct light)",
+                           minimum=1, maximum=64)
 
 
 def trace_light_paths(scene: Scene, cfg: LightTracerConfig, seed, pixel: Array, sample: Array):
@@ -91,19 +94,16 @@ def trace_light_paths(scene: Scene, cfg: LightTracerConfig, seed, pixel: Array, 
     return out
 
 
-def _run(scene: Scene, *, spp: int, seed: int, progress: bool = False, **params):
-    cfg = LightTracerConfig(**params)
+def render(scene: Scene, cfg: LightTracerConfig = LightTracerConfig(), *, spp: int, seed: int,
+           progress: bool = False) -> Render:
+    """The light-traced image, (H, W, 3) float32 (no stats)."""
     if scene.lights.count == 0:
         H, W = scene.camera.height, scene.camera.width
-        return np.zeros((H, W, 3), np.float32)
-    return render_splats(scene, Configured(trace_light_paths, cfg), spp=spp, seed=seed,
-                         progress=progress)[0]
+        return Render(np.zeros((H, W, 3), np.float32), {})
+    image = render_splats(scene, Configured(trace_light_paths, cfg), spp=spp, seed=seed,
+                          progress=progress)[0]
+    return Render(image, {})
 
-
-PARAMS = (
-    Param("max_depth", 8, "maximum path segments (1 = emitters only, 2 = direct light)", int,
-          minimum=1, maximum=64),
-)
 
 register(Estimator("lt", "light tracing: light subpaths splatted onto the pinhole film (t = 1)",
-                   _run, PARAMS))
+                   render, LightTracerConfig))

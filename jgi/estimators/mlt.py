@@ -68,39 +68,66 @@ from ..core import rng
 from ..core.errors import ParameterError
 from ..core.vec import EDGE_ON_COS, V3, coordinate_system, dot, luminance, normalize, reflect, where
 from ..physics import bsdf as B
-from ..physics import camera as CAM
+from ..physics import camera as C
 from ..physics import geometry as G
 from ..physics import lights as LT
 from ..physics.lights import AREA_KINDS
 from ..scene.data import DIELECTRIC, MIRROR, Scene
 from ..transport import mcmc
 from . import path_tracer
-from .registry import Estimator, Param, register
+from .registry import Estimator, Render, param, register
 
-_SALT = 0x1B873593
+_SALT = rng.SALTS["mlt"]
 LARGE, LENS, CAUSTIC = 0, 1, 2
 KERNELS = ("large", "lens", "caustic")
 
 
 @dataclass(frozen=True)
 class MLTConfig:
-    """Static settings (one compilation each): only the path length."""
+    """Veach's MLT's parameters. Only ``max_depth`` is static (one compilation each): the kernels
+    see :meth:`kernel`; the mutation mixture and sizes are traced (:meth:`mutations`)."""
 
-    max_depth: int = 5            # K: path segments
+    max_depth: int = param(5, "maximum path segments", minimum=1, maximum=32)   # K
+    chains: int = param(4096, "Markov chains run in parallel", minimum=1)
+    bootstrap_samples: int = param(65536, "independent large-step paths to start the chains",
+                                   minimum=16)
+    b_paths: int = param(1 << 20, "path-traced paths to estimate b (0: the bootstrap's mean)",
+                         minimum=0)
+    p_large: float = param(0.1, "probability of a large step (fresh path)", minimum=0.0, maximum=1.0)
+    p_lens: float = param(0.45, "probability of a lens perturbation", minimum=0.0, maximum=1.0)
+    p_caustic: float = param(0.45, "probability of a caustic perturbation", minimum=0.0,
+                             maximum=1.0)
+    lens_r1: float = 0.1          # smallest film displacement, pixels
+    lens_r2: float = param(0.1, "largest lens perturbation, fraction of the image size",
+                           minimum=1e-3, maximum=1.0)
+    caustic_theta1: float = 1e-4  # smallest turn of the caustic direction, radians
+    # largest, radians (measured on mirror_caustic: relMSE at 2M mutations 0.0090 / 0.0041 /
+    # 0.0033 / 0.0028 for 0.1 / 0.3 / 0.5 / 1)
+    caustic_theta2: float = param(0.5, "largest caustic perturbation angle, radians", minimum=1e-3,
+                                  maximum=1.0)
+    steps_per_call: int = 16      # mutations per chain and kernel call
+
+    def kernel(self) -> "MLTConfig":
+        """The static part, the compile key of the kernels: the path length alone."""
+        return MLTConfig(max_depth=self.max_depth)
+
+    def mutations(self) -> "Mutations":
+        """The mutation mixture and sizes, as the kernels take them (traced)."""
+        return Mutations(self.p_large, self.p_lens, self.p_caustic, self.lens_r1, self.lens_r2,
+                         self.caustic_theta1, self.caustic_theta2)
 
 
 class Mutations(NamedTuple):
     """The mutation mixture and perturbation sizes: traced values, so changing them does not
-    recompile."""
+    recompile (fields and defaults: :class:`MLTConfig`'s)."""
 
-    p_large: float = 0.1
-    p_lens: float = 0.45
-    p_caustic: float = 0.45
-    lens_r1: float = 0.1          # smallest film displacement, pixels
-    lens_r2: float = 0.1          # largest film displacement, fraction of the image's larger side
-    caustic_theta1: float = 1e-4  # smallest turn of the caustic direction, radians
-    caustic_theta2: float = 0.5   # largest, radians (measured on mirror_caustic: relMSE at 2M
-    #                               mutations 0.0090 / 0.0041 / 0.0033 / 0.0028 for 0.1 / 0.3 / 0.5 / 1)
+    p_large: float = MLTConfig.p_large
+    p_lens: float = MLTConfig.p_lens
+    p_caustic: float = MLTConfig.p_caustic
+    lens_r1: float = MLTConfig.lens_r1
+    lens_r2: float = MLTConfig.lens_r2
+    caustic_theta1: float = MLTConfig.caustic_theta1
+    caustic_theta2: float = MLTConfig.caustic_theta2
 
     def arrays(self) -> "Mutations":
         return Mutations(*(jnp.float32(v) for v in self))
@@ -249,27 +276,27 @@ def evaluate(scene: Scene, cfg: MLTConfig, path: Path) -> PathValue:
 
 # --- large step: a fresh path from the unidirectional sampler ------------------------------------
 
-def _empty(scene: Scene, cfg: MLTConfig, C: int) -> Path:
+def _empty(scene: Scene, cfg: MLTConfig, n_chains: int) -> Path:
     K = cfg.max_depth
-    z = jnp.zeros((K + 1, C), jnp.float32)
+    z = jnp.zeros((K + 1, n_chains), jnp.float32)
     cam = scene.camera.position
     p = V3(z + cam.x, z + cam.y, z + cam.z)
-    zi = jnp.zeros((K + 1, C), jnp.int32)
-    return Path(p, V3(z, z, z + 1.0), zi, zi - 1, jnp.zeros(C, jnp.int32), z[0], z[0])
+    zi = jnp.zeros((K + 1, n_chains), jnp.int32)
+    return Path(p, V3(z, z, z + 1.0), zi, zi - 1, jnp.zeros(n_chains, jnp.int32), z[0], z[0])
 
 
 def sample_path(scene: Scene, cfg: MLTConfig, key: Array) -> Path:
     """One path per lane of ``key`` from the large step's density p (see module docstring)."""
     K = cfg.max_depth
     cam, lights, kinds = scene.camera, scene.lights, scene.materials.kinds
-    C = key.shape[0]
+    n_chains = key.shape[0]
     u = lambda d: rng.uniform(key, d)  # noqa: E731
     k = jnp.minimum(1 + jnp.floor(u(0) * K).astype(jnp.int32), K)
     fx, fy = u(1) * cam.width, u(2) * cam.height
     px = jnp.clip(jnp.floor(fx), 0, cam.width - 1).astype(jnp.int32)
     py = jnp.clip(jnp.floor(fy), 0, cam.height - 1).astype(jnp.int32)
-    o, d = CAM.sample_ray(cam, px, py, fx - px, fy - py)
-    path = _empty(scene, cfg, C)._replace(length=k, fx=fx, fy=fy)
+    o, d = C.sample_ray(cam, px, py, fx - px, fy - py)
+    path = _empty(scene, cfg, n_chains)._replace(length=k, fx=fx, fy=fy)
 
     def body(i, carry):
         path, o, d, alive = carry
@@ -288,7 +315,7 @@ def sample_path(scene: Scene, cfg: MLTConfig, key: Array) -> Path:
         alive = alive & (~(i < k) | jnp.where(nee, ls.valid, bs.valid))
         return path, G.offset_origin(hit.p, hit.n, wi), wi, alive
 
-    path, _, _, alive = jax.lax.fori_loop(1, K + 1, body, (path, o, d, jnp.ones(C, bool)))
+    path, _, _, alive = jax.lax.fori_loop(1, K + 1, body, (path, o, d, jnp.ones(n_chains, bool)))
     ok = alive & (_row(path.emitter, k) >= 0)
     return path._replace(length=jnp.where(ok, k, 0))
 
@@ -339,14 +366,14 @@ def retrace_lens(scene: Scene, cfg: MLTConfig, x: Path, fx: Array, fy: Array):
     retracing y through x's film point gives x back."""
     K = cfg.max_depth
     cam = scene.camera
-    C = x.length.shape[0]
+    n_chains = x.length.shape[0]
     k = x.length
     m, applicable = lens_vertex(scene, x)
     modes = transmits(x)
     inside = (fx >= 0) & (fx < cam.width) & (fy >= 0) & (fy < cam.height)
     px = jnp.clip(jnp.floor(fx), 0, cam.width - 1).astype(jnp.int32)
     py = jnp.clip(jnp.floor(fy), 0, cam.height - 1).astype(jnp.int32)
-    o, d = CAM.sample_ray(cam, px, py, fx - px, fy - py)
+    o, d = C.sample_ray(cam, px, py, fx - px, fy - py)
 
     def body(i, carry):
         y, o, d, ok = carry
@@ -359,7 +386,7 @@ def retrace_lens(scene: Scene, cfg: MLTConfig, x: Path, fx: Array, fy: Array):
         y = y._replace(p=_set3(y.p, i, hit.p, here), n=_set3(y.n, i, hit.n, here),
                        material=_set(y.material, i, hit.material, here),
                        emitter=_set(y.emitter, i, hit.emitter, here))
-        w, valid = specular_continue(mp, hit.n, -d, _row(modes, jnp.full((C,), i)))
+        w, valid = specular_continue(mp, hit.n, -d, _row(modes, jnp.full((n_chains,), i)))
         ok = ok & (~(i < m) | valid)
         return y, G.offset_origin(hit.p, hit.n, w), w, ok
 
@@ -433,7 +460,7 @@ def caustic_log_density(scene: Scene, mu: Mutations, x: Path, y: Path) -> Array:
 
 def _camera_weight(cam, p: V3, n: V3):
     """W(x_1) = W_e G(x_0, x_1) up to the film-area constant, the film position, visibility."""
-    pr = CAM.project(cam, p)
+    pr = C.project(cam, p)
     cos_c = -dot(pr.wi, cam.forward)
     w = pr.importance * cos_c * jnp.abs(dot(pr.wi, n)) / jnp.maximum(pr.dist * pr.dist, 1e-30)
     return jnp.where(pr.visible, w, 0.0), pr
@@ -469,7 +496,7 @@ def retrace_caustic(scene: Scene, cfg: MLTConfig, x: Path, w_new: V3):
     y, _, _, ok = jax.lax.fori_loop(0, K - 1, body, (x, o, w_new, applicable))
     one = jnp.ones_like(k)
     y1, n1 = _row3(y.p, one), _row3(y.n, one)
-    pr = CAM.project(cam, y1)
+    pr = C.project(cam, y1)
     o_s, d_s, t_s = G.shadow_ray(y1, n1, pr.wi, pr.dist)
     ok = ok & pr.visible & ~G.occluded(scene, o_s, d_s, t_s)
     return y._replace(length=jnp.where(ok, k, 0), fx=jnp.where(ok, pr.px, x.fx),
@@ -566,23 +593,30 @@ def normalisation_from_path_tracer(scene: Scene, cfg: MLTConfig, seed: int, path
     estimate of the integral of f* over the film."""
     W, H = scene.camera.width, scene.camera.height
     img = path_tracer.render(scene, path_tracer.PathTracerConfig(max_depth=cfg.max_depth),
-                             spp=max(1, -(-paths // (W * H))), seed=seed + 0x2F6B1D)
+                             spp=max(1, -(-paths // (W * H))), seed=seed + 0x2F6B1D).image
     return float(np.mean(np.asarray(img, np.float64) @ np.array([0.2126, 0.7152, 0.0722])))
 
 
-def render(scene: Scene, *, spp: int, seed: int, chains: int = 4096, bootstrap_samples: int = 65536,
-           steps_per_call: int = 16, progress: bool = False, cfg: MLTConfig = MLTConfig(),
-           mutations: Mutations = Mutations(), b_paths: int = 1 << 20,
-           stats: dict | None = None) -> np.ndarray:
-    """Path-space MLT image with spp * W * H mutations in total (the path tracer's path count)."""
+def render(scene: Scene, cfg: MLTConfig = MLTConfig(), *, spp: int, seed: int,
+           progress: bool = False) -> Render:
+    """Path-space MLT image with spp * W * H mutations in total (the path tracer's path count).
+
+    Stats: ``b`` (the normalisation used), ``b_bootstrap`` and its standard error
+    ``b_bootstrap_se``, ``mutations``, ``acceptance`` (accepted / proposed, all kinds), and per
+    mutation kind K in ``KERNELS``: ``K_proposed``, ``K_applicable`` (proposals the kind could
+    make from the current path) and ``K_acceptance`` (accepted / applicable)."""
     check_scene(scene)
     W, H = scene.camera.width, scene.camera.height
+    chains, bootstrap_samples, steps_per_call = cfg.chains, cfg.bootstrap_samples, cfg.steps_per_call
+    mu = cfg.mutations().arrays()
+    b_paths = cfg.b_paths
+    cfg = cfg.kernel()
     paths, c_star, _ = bootstrap(scene, cfg, jnp.uint32(seed), bootstrap_samples)
     c_np = np.asarray(c_star, np.float64)
     b_bootstrap = c_np.mean()
     b = normalisation_from_path_tracer(scene, cfg, seed, b_paths) if b_paths > 0 else b_bootstrap
     if not (b > 0 and b_bootstrap > 0):
-        return np.zeros((H, W, 3), np.float32)
+        return Render(np.zeros((H, W, 3), np.float32), {})
     cdf = np.cumsum(c_np) / c_np.sum()
     r = (np.arange(chains) + 0.5) / chains
     pick = jnp.asarray(np.minimum(np.searchsorted(cdf, r), bootstrap_samples - 1))
@@ -591,53 +625,30 @@ def render(scene: Scene, *, spp: int, seed: int, chains: int = 4096, bootstrap_s
     scale = jnp.float32(b * W * H / (n_steps_total * chains))
     img = np.zeros((W * H, 3), np.float64)
     counts = np.zeros((3, 3), np.int64)
-    mu = mutations.arrays()
     for done in range(0, n_steps_total, steps_per_call):
         n = min(steps_per_call, n_steps_total - done)  # the last block runs masked
         x, part, c = run_chains(scene, cfg, mu, jnp.uint32(seed), x, jnp.int32(done), steps_per_call,
                                 scale, jnp.int32(n))
         img += np.asarray(part, np.float64)
         counts += np.asarray(c, np.int64)
-    if stats is not None:
-        stats.update(b=b, b_bootstrap=b_bootstrap, mutations=n_steps_total * chains,
-                     b_bootstrap_se=c_np.std() / np.sqrt(c_np.size),
-                     acceptance=counts[:, 2].sum() / max(counts[:, 0].sum(), 1))
-        for i, name in enumerate(KERNELS):
-            stats[f"{name}_proposed"] = int(counts[i, 0])
-            stats[f"{name}_applicable"] = int(counts[i, 1])
-            stats[f"{name}_acceptance"] = counts[i, 2] / max(counts[i, 1], 1)
-    return img.reshape(H, W, 3).astype(np.float32)
+    stats = dict(b=b, b_bootstrap=b_bootstrap, mutations=n_steps_total * chains,
+                 b_bootstrap_se=c_np.std() / np.sqrt(c_np.size),
+                 acceptance=counts[:, 2].sum() / max(counts[:, 0].sum(), 1))
+    for i, name in enumerate(KERNELS):
+        stats[f"{name}_proposed"] = int(counts[i, 0])
+        stats[f"{name}_applicable"] = int(counts[i, 1])
+        stats[f"{name}_acceptance"] = counts[i, 2] / max(counts[i, 1], 1)
+    return Render(img.reshape(H, W, 3).astype(np.float32), stats)
 
 
-def render_with_stats(scene: Scene, *, spp: int, seed: int, stats: dict | None = None,
-                      progress: bool = False, chains=4096, bootstrap_samples=65536, max_depth=5,
-                      p_large=0.1, p_lens=0.45, p_caustic=0.45, lens_r2=0.1, caustic_theta2=0.5,
-                      b_paths=1 << 20):
-    mu = Mutations(p_large=p_large, p_lens=p_lens, p_caustic=p_caustic, lens_r2=lens_r2,
-                    caustic_theta2=caustic_theta2)
-    return render(scene, spp=spp, seed=seed, chains=chains, bootstrap_samples=bootstrap_samples,
-                  progress=progress, cfg=MLTConfig(max_depth), mutations=mu, b_paths=b_paths,
-                  stats=stats)
-
-
-def _run(scene: Scene, *, spp: int, seed: int, progress: bool = False, **params):
-    if params["p_large"] + params["p_lens"] + params["p_caustic"] <= 0:
+def _check(cfg: MLTConfig) -> None:
+    if cfg.p_large + cfg.p_lens + cfg.p_caustic <= 0:
         raise ParameterError("estimator 'mlt': p_large + p_lens + p_caustic must be positive")
-    if params["p_large"] <= 0:
+    if cfg.p_large <= 0:
         raise ParameterError("estimator 'mlt', parameter 'p_large': must be > 0 (the large step "
                              "keeps the chain ergodic)")
-    return render_with_stats(scene, spp=spp, seed=seed, progress=progress, **params)
 
 
 register(Estimator(
-    "mlt", "Veach's path-space MLT: lens and caustic perturbations mixed with large steps", _run,
-    (Param("chains", 4096, "Markov chains run in parallel", int, minimum=1),
-     Param("bootstrap_samples", 65536, "independent large-step paths to start the chains", int, minimum=16),
-     Param("b_paths", 1 << 20, "path-traced paths to estimate b (0: the bootstrap's mean)", int, minimum=0),
-     Param("max_depth", 5, "maximum path segments", int, minimum=1, maximum=32),
-     Param("p_large", 0.1, "probability of a large step (fresh path)", float, minimum=0.0, maximum=1.0),
-     Param("p_lens", 0.45, "probability of a lens perturbation", float, minimum=0.0, maximum=1.0),
-     Param("p_caustic", 0.45, "probability of a caustic perturbation", float, minimum=0.0, maximum=1.0),
-     Param("lens_r2", 0.1, "largest lens perturbation, fraction of the image size", float, minimum=1e-3, maximum=1.0),
-     Param("caustic_theta2", 0.5, "largest caustic perturbation angle, radians", float, minimum=1e-3, maximum=1.0)),
-))
+    "mlt", "Veach's path-space MLT: lens and caustic perturbations mixed with large steps", render,
+    MLTConfig, check=_check))

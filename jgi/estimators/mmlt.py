@@ -50,29 +50,41 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ..core import rng
 from ..core.vec import V3, luminance, where
 from ..scene.data import Scene
 from ..transport import mcmc
 from ..transport.subpath import LIGHT_DIMS0, LIGHT_DIMS_PER_STEP
 from .bdpt import CAMERA_DIMS0, CAMERA_DIMS_PER_STEP, BDPTConfig, contributions
 from .pssmlt import PrimarySample, kelemen_mutation, splat_at
-from .registry import Estimator, Param, register
+from .registry import Estimator, Render, param, register
 
-_SALT = 0x5F3759DF
+_SALT = rng.SALTS["mmlt"]
 
 
 @dataclass(frozen=True)
 class MMLTConfig:
-    max_depth: int = 5          # maximum path length (segments)
-    heuristic: str = "power"    # BDPT's MIS heuristic over the strategies of one length
-    beta: float = 2.0
-    p_large: float = 0.3
-    s1: float = 1.0 / 1024.0
+    """MMLT's parameters. The chain kernels see only heuristic, power, s1 and s2 (static):
+    :func:`render` passes them a copy with the rest at fixed values, so one compilation per path
+    length serves every max_depth, p_large (traced), chain and bootstrap count."""
+
+    max_depth: int = param(5, "maximum path length (segments)", minimum=1, maximum=16)
+    heuristic: str = param("power", "MIS heuristic over the strategies of one length",
+                           choices=("balance", "power"))
+    power: float = param(2.0, "power-heuristic exponent", minimum=0.1, maximum=16)
+    p_large: float = param(0.3, "probability of a large step (fresh sample)", minimum=0.0,
+                           maximum=1.0)
+    chains: int = param(2048, "Markov chains run in parallel (shared evenly by the path lengths)",
+                        minimum=1)
+    bootstrap_samples: int = param(16384, "independent samples per path length to estimate b_L",
+                                   minimum=16)
+    s1: float = 1.0 / 1024.0    # smallest and largest small-step sizes (Kelemen's)
     s2: float = 1.0 / 64.0
+    steps_per_call: int = 16    # mutations per chain and kernel call
 
     def bdpt(self, length: int) -> BDPTConfig:
         """BDPT restricted to one path length: subpaths just long enough for it."""
-        return BDPTConfig(max_depth=length, heuristic=self.heuristic, beta=self.beta,
+        return BDPTConfig(max_depth=length, heuristic=self.heuristic, power=self.power,
                           path_length=length)
 
 
@@ -201,23 +213,26 @@ def bootstrap(scene: Scene, cfg: MMLTConfig, length: int, seed: int, n: int, cha
     return (u, val, f, pix), np.asarray(f, np.float64)
 
 
-def render(scene: Scene, *, spp: int, seed: int, chains: int = 2048, bootstrap_samples: int = 16384,
-           steps_per_call: int = 16, progress: bool = False, cfg: MMLTConfig = MMLTConfig(),
-           stats: dict | None = None) -> np.ndarray:
+def render(scene: Scene, cfg: MMLTConfig = MMLTConfig(), *, spp: int, seed: int,
+           progress: bool = False) -> Render:
     """MMLT image with about spp * W * H mutations in total, shared between path lengths in
     proportion to b_L (whole blocks of ``steps_per_call`` steps of ``chains // max_depth``
-    chains per length; the image counts the mutations actually made, so it stays unbiased)."""
+    chains per length; the image counts the mutations actually made, so it stays unbiased).
+
+    Stats: ``b`` (sum of b_L), ``b_per_length``, ``blocks_per_length``, ``chains_per_length``,
+    ``acceptance`` (accepted / proposed mutations), ``mutations``, ``seconds``."""
     W, H = scene.camera.width, scene.camera.height
     img = np.zeros((W * H, 3), np.float64)
     t0 = time.perf_counter()
     if scene.lights.count == 0:
-        return img.reshape(H, W, 3).astype(np.float32)
+        return Render(img.reshape(H, W, 3).astype(np.float32), {})
+    chains, bootstrap_samples, steps_per_call = cfg.chains, cfg.bootstrap_samples, cfg.steps_per_call
     lengths = list(range(1, cfg.max_depth + 1))
     per_len = max(1, chains // len(lengths))
     p_large = jnp.float32(cfg.p_large)
-    # the kernels see neither max_depth nor p_large (a traced argument): one compilation per
-    # path length serves every max_depth and p_large
-    cfg = replace(cfg, max_depth=0, p_large=0.0)
+    # the kernels see neither max_depth nor p_large (a traced argument) nor the counts: one
+    # compilation per path length serves every max_depth and p_large
+    cfg = replace(cfg, max_depth=0, p_large=0.0, chains=0, bootstrap_samples=0, steps_per_call=0)
     boot = {}
     b = {}
     for L in lengths:
@@ -247,40 +262,15 @@ def render(scene: Scene, *, spp: int, seed: int, chains: int = 2048, bootstrap_s
             img += np.asarray(part, np.float64)
             accepted += int(acc)
         mutations += n_mut
-    if stats is not None:
-        stats.update(b=b_total, b_per_length=b, blocks_per_length=blocks,
-                     chains_per_length=per_len,
-                     acceptance=accepted / mutations if mutations else 0.0,
-                     mutations=mutations, seconds=time.perf_counter() - t0)
-    return img.reshape(H, W, 3).astype(np.float32)
-
-
-def render_with_stats(scene: Scene, *, spp: int, seed: int, stats: dict | None = None,
-                      progress: bool = False, p_large=0.3, chains=2048, bootstrap_samples=16384,
-                      max_depth=5, heuristic="power", beta=2.0) -> np.ndarray:
-    """The registered estimator's render, also filling ``stats`` (b, b per length, acceptance,
-    mutations, seconds)."""
-    cfg = MMLTConfig(max_depth=max_depth, heuristic=heuristic, beta=beta, p_large=p_large)
-    return render(scene, spp=spp, seed=seed, chains=chains, bootstrap_samples=bootstrap_samples,
-                  progress=progress, cfg=cfg, stats=stats)
-
-
-def _run(scene: Scene, *, spp: int, seed: int, progress: bool = False, **params):
-    return render_with_stats(scene, spp=spp, seed=seed, progress=progress, **params)
+    stats = dict(b=b_total, b_per_length=b, blocks_per_length=blocks, chains_per_length=per_len,
+                 acceptance=accepted / mutations if mutations else 0.0, mutations=mutations,
+                 seconds=time.perf_counter() - t0)
+    return Render(img.reshape(H, W, 3).astype(np.float32), stats)
 
 
 register(Estimator(
-    "mmlt", "multiplexed Metropolis light transport over BDPT (strategy in the chain state)", _run,
-    (Param("p_large", 0.3, "probability of a large step (fresh sample)", float, minimum=0.0, maximum=1.0),
-     Param("chains", 2048, "Markov chains run in parallel (shared evenly by the path lengths)", int,
-           minimum=1),
-     Param("bootstrap_samples", 16384, "independent samples per path length to estimate b_L",
-           int, minimum=16),
-     Param("max_depth", 5, "maximum path length (segments)", int, minimum=1, maximum=16),
-     Param("heuristic", "power", "MIS heuristic over the strategies of one length", str,
-           ("balance", "power")),
-     Param("beta", 2.0, "power-heuristic exponent", float, minimum=0.1, maximum=16)),
-))
+    "mmlt", "multiplexed Metropolis light transport over BDPT (strategy in the chain state)", render,
+    MMLTConfig, renamed={"beta": "power"}))
 
 
 def small_step_density(u, v, s1: float = MMLTConfig.s1, s2: float = MMLTConfig.s2):

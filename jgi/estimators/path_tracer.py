@@ -11,7 +11,7 @@ the camera is gathered by two strategies:
   draw n_g points on the lights and add (1/n_g) beta f L_i |cos| / p_g when unoccluded;
   emitters hit by BSDF rays then count only after a specular bounce (or straight from the camera).
 * **MIS** (``strategy="mis"``): both, weighted by the balance heuristic
-  w = n p / (n_f p_f + n_g p_g) or the power heuristic with exponent ``beta`` (jgi.transport.mis), n_f = 1.
+  w = n p / (n_f p_f + n_g p_g) or the power heuristic with exponent ``power`` (jgi.transport.mis), n_f = 1.
 
 beta (path throughput) is multiplied by f |cos| / p at every bounce. Russian roulette after
 ``rr_depth`` segments keeps the estimator unbiased (beta /= q). ``max_depth`` counts path
@@ -43,20 +43,23 @@ from ..physics import lights as LT
 from ..scene.data import Scene
 from ..transport import mis
 from ..transport.subpath import camera_ray, next_event_value, sample_next_event
-from .registry import Estimator, Param, register
+from .registry import Estimator, Render, param, register
 
 
 @dataclass(frozen=True)
 class PathTracerConfig:
-    """Static (compile-time) settings; hashable so one compile serves all renders with them."""
+    """The path tracer's parameters; all static (compile-time), hashable so one compile serves
+    all renders with them."""
 
-    strategy: str = "mis"       # "bsdf" | "light" | "mis"
-    heuristic: str = "balance"  # "balance" | "power"
-    beta: float = 2.0           # power-heuristic exponent
-    light_samples: int = 1      # n_g shadow rays per vertex
-    max_depth: int = 8          # maximum number of path segments
-    rr_depth: int = 5           # Russian roulette from this many segments on (-1: never)
-    path_length: int = 0        # > 0: keep only paths of exactly this many segments
+    strategy: str = param("mis", "which estimator gathers light", choices=("bsdf", "light", "mis"))
+    heuristic: str = param("balance", "MIS heuristic", choices=("balance", "power"))
+    power: float = param(2.0, "power-heuristic exponent", minimum=0.1, maximum=16)
+    light_samples: int = param(1, "n_g: light samples (shadow rays) per vertex", minimum=1, maximum=64)
+    max_depth: int = param(8, "maximum path segments (1 = emitters only, 2 = direct light)",
+                           minimum=1, maximum=1024)
+    rr_depth: int = param(5, "Russian roulette from this many segments (-1 = off)", minimum=-1)
+    path_length: int = param(0, "keep only paths with exactly this many segments (0 = all)",
+                             minimum=0, maximum=1024)
 
     @property
     def dims_per_bounce(self) -> int:
@@ -64,7 +67,7 @@ class PathTracerConfig:
 
     @property
     def exponent(self) -> float:
-        return 1.0 if self.heuristic == "balance" else float(self.beta)
+        return 1.0 if self.heuristic == "balance" else float(self.power)
 
 
 class PathState(NamedTuple):
@@ -242,24 +245,13 @@ def _step(scene: Scene, cfg: PathTracerConfig, lane: _Lane):
     return _Lane(s, depth, lane.key), alive, s.L
 
 
-def render(scene: Scene, cfg: PathTracerConfig, *, spp: int, seed: int, progress: bool = False):
-    """The path-traced image, (H, W, 3) float32, traced by the wavefront driver."""
-    return render_wavefront(scene, _start, Configured(_step, cfg), spp=spp, seed=seed,
-                            progress=progress)
+def render(scene: Scene, cfg: PathTracerConfig = PathTracerConfig(), *, spp: int, seed: int,
+           progress: bool = False) -> Render:
+    """The path-traced image, (H, W, 3) float32, traced by the wavefront driver (no stats)."""
+    image = render_wavefront(scene, _start, Configured(_step, cfg), spp=spp, seed=seed,
+                             progress=progress)
+    return Render(image, {})
 
 
-def _run(scene: Scene, *, spp: int, seed: int, progress: bool = False, **params):
-    return render(scene, PathTracerConfig(**params), spp=spp, seed=seed, progress=progress)
-
-
-PARAMS = (
-    Param("strategy", "mis", "which estimator gathers light", str, ("bsdf", "light", "mis")),
-    Param("heuristic", "balance", "MIS heuristic", str, ("balance", "power")),
-    Param("beta", 2.0, "power-heuristic exponent", float, minimum=0.1, maximum=16),
-    Param("light_samples", 1, "n_g: light samples (shadow rays) per vertex", int, minimum=1, maximum=64),
-    Param("max_depth", 8, "maximum path segments (1 = emitters only, 2 = direct light)", int, minimum=1, maximum=1024),
-    Param("rr_depth", 5, "Russian roulette from this many segments (-1 = off)", int, minimum=-1),
-    Param("path_length", 0, "keep only paths with exactly this many segments (0 = all)", int, minimum=0, maximum=1024),
-)
-
-register(Estimator("pt", "path tracing with BSDF sampling, light sampling or MIS", _run, PARAMS))
+register(Estimator("pt", "path tracing with BSDF sampling, light sampling or MIS", render,
+                   PathTracerConfig, renamed={"beta": "power"}))

@@ -14,17 +14,21 @@ All three start from the photon maps of :mod:`jgi.transport.photons` and the den
   gather rays are skipped: they are counted by the other terms).
 * ``ppm`` / ``sppm`` - progressive photon mapping: each pass shoots ``photons`` photons; every
   pixel keeps (N_i, R_i, tau_i) and, with M_i new photons within R_i,
-      N_i <- N_i + alpha M_i,  R_i^2 <- R_i^2 (N_i + alpha M_i) / (N_i + M_i),
+      N_i <- N_i + a M_i,  R_i^2 <- R_i^2 (N_i + a M_i) / (N_i + M_i),
       tau_i <- (tau_i + Phi_i) R_new^2 / R_old^2,
   so the radius shrinks and the estimate L_i = tau_i / (pi R_i^2 T) is consistent as the
-  number of passes T grows (alpha in (0, 1)). ``ppm`` keeps one visible point per pixel from
+  number of passes T grows (a = ``radius_alpha`` in (0, 1), Hachisuka's alpha). ``ppm`` keeps one visible point per pixel from
   the first pass (Hachisuka 2008); ``sppm`` traces a new jittered one every pass (2009), so
   anti-aliasing and glossy/depth effects converge too.
 Only the diffuse part (k_d / pi) of a surface reflects photons in the estimates.
+
+Parameters: :class:`PMConfig`, :class:`JensenConfig`, :class:`ProgressiveConfig`; each
+``render_*`` returns a :class:`~jgi.estimators.registry.Render` (image and stats).
 """
 
 from __future__ import annotations
 
+from dataclasses import dataclass, replace
 from functools import partial
 
 import jax
@@ -41,9 +45,64 @@ from ..transport import photon_map as PMap
 from ..transport.photons import trace_photons
 from ..transport.subpath import trace_to_diffuse, visible_points
 from . import irradiance_cache as IC
-from .registry import Estimator, Param, register
+from .registry import Estimator, Render, param, register
 
-_SALT = 0x1B873593
+_SALT = rng.SALTS["final_gather"]
+FILTERS = ("box", "cone", "gaussian", "epanechnikov")
+_MAX_DEPTH_DOC = "maximum bounces of photons and of specular chains"
+
+
+@dataclass(frozen=True)
+class PMConfig:
+    """``pm``: direct visualisation of the global photon map (host-side settings; the jitted
+    pieces take what they need as static arguments)."""
+
+    photons: int = param(200_000, "photons emitted", minimum=1)
+    radius: float = param(0.05, "estimate radius (k > 0: the maximum search radius)", minimum=1e-6)
+    k: int = param(0, "k nearest photons (0: fixed radius)", minimum=0, maximum=1024)
+    filter: str = param("box", "density filter", choices=FILTERS)
+    cone_k: float = param(1.1, "cone filter k >= 1", minimum=1.0)
+    gauss_alpha: float = param(PMap.JENSEN_ALPHA, "Gaussian filter alpha (Jensen's)", minimum=1e-3)
+    gauss_beta: float = param(PMap.JENSEN_BETA, "Gaussian filter beta (Jensen's)", minimum=1e-3)
+    max_depth: int = param(8, _MAX_DEPTH_DOC, minimum=1)
+    cap: int | None = None          # photons read per grid cell (None: 128 with k, else automatic)
+    thickness: float | None = None  # flattened-disc selection: reject photons this far off the plane
+
+
+@dataclass(frozen=True)
+class JensenConfig:
+    """``pm_jensen``: Jensen's two-pass method with the four-way split."""
+
+    photons: int = param(200_000, "global photons", minimum=1)
+    caustic_photons: int = param(50_000, "photons shot for the caustic map", minimum=1)
+    k: int = param(50, "photons in the global estimate", minimum=1, maximum=1024)
+    k_caustic: int = param(50, "photons in the caustic estimate", minimum=1, maximum=1024)
+    radius: float = param(0.08, "maximum global search radius", minimum=1e-6)
+    caustic_radius: float = param(0.05, "maximum caustic search radius", minimum=1e-6)
+    final_gather: int = param(32, "final-gather rays per shading point", minimum=1)
+    caustics: bool = param(True, "use the caustic map")
+    filter: str = param("box", "density filter", choices=FILTERS)
+    irradiance_cache: bool = param(False, "indirect diffuse term from an irradiance cache of "
+                                   "final gathers (Ward), not a gather per shading point")
+    cache_a: float = param(0.2, "the cache's error threshold a", minimum=1e-4, maximum=10.0)
+    cap: int | None = None          # photons read per grid cell (None: 128)
+    max_depth: int = 8              # maximum bounces of photons and of specular chains
+
+
+@dataclass(frozen=True)
+class ProgressiveConfig:
+    """``ppm`` / ``sppm``: progressive photon mapping (``stochastic``: SPPM)."""
+
+    passes: int = param(16, "photon passes", minimum=1)
+    photons: int = param(50_000, "photons per pass", minimum=1)
+    radius: float = param(0.1, "initial radius", minimum=1e-6)
+    radius_alpha: float = param(0.7, "radius reduction alpha in (0, 1)", minimum=1e-3,
+                                maximum=0.999)
+    max_depth: int = param(8, _MAX_DEPTH_DOC, minimum=1)
+    stochastic: bool = True         # a new visible point per pixel each pass (SPPM), or one (PPM)
+    cap: int | None = None          # photons read per grid cell (None: automatic)
+
+
 
 
 def _pixels(scene, spp):
@@ -57,26 +116,25 @@ def _to_image(scene, L, spp):
     return np.asarray(L, np.float32).reshape(3, spp, H, W).mean(1).transpose(1, 2, 0)
 
 
-def render_pm(scene: Scene, *, spp: int = 4, seed: int = 0, photons: int = 200_000, radius: float = 0.05,
-              k: int = 0, filter: str = "box", cone_k: float = 1.1,
-              alpha: float = PMap.JENSEN_ALPHA, beta: float = PMap.JENSEN_BETA,
-              cap: int | None = None, max_depth: int = 8, thickness: float | None = None,
-              stats: dict | None = None):
-    """Direct visualisation of the global photon map (see the module docstring)."""
+def render_pm(scene: Scene, cfg: PMConfig = PMConfig(), *, spp: int = 4, seed: int = 0) -> Render:
+    """Direct visualisation of the global photon map (see the module docstring).
+
+    Stats: ``stored`` (photons in the map), ``truncated`` (a grid cell held more than ``cap``)."""
+    photons, radius, k, filter, max_depth = cfg.photons, cfg.radius, cfg.k, cfg.filter, cfg.max_depth
+    cap, thickness = cfg.cap, cfg.thickness
     pm = trace_photons(scene, photons, seed=seed, max_depth=max_depth)
     grid = PMap.build_grid(pm, radius, cap=(cap or 128) if k > 0 else None)
     radius = float(grid.cell)
     pix, smp = _pixels(scene, spp)
     v = visible_points(scene, jnp.uint32(seed), pix, smp, max_depth=max_depth, light_samples=0)
-    fp = dict(k=cone_k) if filter == "cone" else dict(alpha=alpha, beta=beta) if filter == "gaussian" else {}
+    fp = (dict(k=cfg.cone_k) if filter == "cone" else
+          dict(gauss_alpha=cfg.gauss_alpha, gauss_beta=cfg.gauss_beta) if filter == "gaussian" else {})
     L, trunc = PMap.estimate_at_points(scene, grid, v.p, v.n, v.material, radius, cap=cap, k=k, kind=filter,
                                  thickness=thickness, filter_params=fp)
     found = np.asarray(v.found)
     beta_ = np.stack([np.asarray(c) for c in v.beta])
     total = np.stack([np.asarray(c) for c in v.L]) + np.where(found, beta_ * L, 0.0)
-    if stats is not None:
-        stats.update(stored=pm.count, truncated=trunc)
-    return _to_image(scene, total, spp)
+    return Render(_to_image(scene, total, spp), dict(stored=pm.count, truncated=trunc))
 
 
 @partial(jax.jit, static_argnames=("n_gather", "max_depth"))
@@ -96,12 +154,13 @@ def _gather_points(scene: Scene, seed, ids, x: V3, n: V3, n_gather: int, max_dep
     return v._replace(n=B.facing(v.n, v.wo))
 
 
-def render_jensen(scene: Scene, *, spp: int = 1, seed: int = 0, photons: int = 200_000,
-                  caustic_photons: int = 50_000, k: int = 50, k_caustic: int = 50,
-                  radius: float = 0.08, caustic_radius: float = 0.05, final_gather: int = 32,
-                  caustics: bool = True, cap: int | None = None, max_depth: int = 8, filter: str = "box",
-                  irradiance_cache: bool = False, cache_a: float = 0.2, stats: dict | None = None):
-    """Jensen's two-pass method with the four-way split (see the module docstring)."""
+def render_jensen(scene: Scene, cfg: JensenConfig = JensenConfig(), *, spp: int = 1,
+                  seed: int = 0) -> Render:
+    """Jensen's two-pass method with the four-way split (see the module docstring).
+
+    Stats: ``stored`` (photons in the global map)."""
+    photons, k, radius, final_gather = cfg.photons, cfg.k, cfg.radius, cfg.final_gather
+    cap, max_depth, filter = cfg.cap, cfg.max_depth, cfg.filter
     pm = trace_photons(scene, photons, seed=seed, max_depth=max_depth)
     grid = PMap.build_grid(pm, radius, cap=cap or 128)
     radius = float(grid.cell)
@@ -111,24 +170,25 @@ def render_jensen(scene: Scene, *, spp: int = 1, seed: int = 0, photons: int = 2
     beta_ = np.stack([np.asarray(c) for c in v.beta])
     total = np.stack([np.asarray(c) for c in v.L])  # emission along the chain + direct light
     kdx = np.stack([np.asarray(c) for c in PMap.diffuse_reflectance(scene, v.material)])
-    if caustics:
-        cpm = trace_photons(scene, caustic_photons, seed=seed + 7919, max_depth=max_depth)
+    if cfg.caustics:
+        cpm = trace_photons(scene, cfg.caustic_photons, seed=seed + 7919, max_depth=max_depth)
         cpm = cpm.select(cpm.caustic)
         if cpm.count:
-            cgrid = PMap.build_grid(cpm, caustic_radius, cap=cap or 128)
+            cgrid = PMap.build_grid(cpm, cfg.caustic_radius, cap=cap or 128)
             Lc, _ = PMap.estimate_at_points(scene, cgrid, v.p, v.n, v.material, float(cgrid.cell), cap=cap,
-                                      k=k_caustic, kind=filter, thickness=None, filter_params={})
+                                      k=cfg.k_caustic, kind=filter, thickness=None, filter_params={})
             total = total + np.where(found, beta_ * Lc, 0.0)
     # indirect diffuse by final gathering on the global map (at every point, or cached)
-    if irradiance_cache:
+    if cfg.irradiance_cache:
         m = max(1, int(round(np.sqrt(final_gather / 3))))  # Ward's strata: N ~ 3 M (phi vs theta)
-        cfg = IC.CacheConfig(a=cache_a, gather_m=m, gather_n=max(1, final_gather // m), max_depth=max_depth)
+        cache = IC.CacheConfig(a=cfg.cache_a, gather_m=m, gather_n=max(1, final_gather // m),
+                               max_depth=max_depth)
         pts = IC.ShadingPoints(np.stack([np.asarray(c) for c in v.p]), np.stack([np.asarray(c) for c in v.n]),
                                found)
         W = scene.camera.width
         pix = np.arange(len(found)) % (W * scene.camera.height)
-        E, _ = IC.irradiance(scene, pts, cfg=cfg, cached=True, seed=seed, raster=(pix % W, pix // W),
-                             source=IC.PhotonSource(grid, k, radius))
+        E = IC.irradiance(scene, pts, cfg=cache, seed=seed, raster=(pix % W, pix // W),
+                          source=IC.PhotonSource(grid, k, radius)).E
         ind = E / np.pi  # cosine-weighted gathering: the mean gathered radiance is E / pi
     else:
         idx = np.nonzero(found)[0]
@@ -146,9 +206,7 @@ def render_jensen(scene: Scene, *, spp: int = 1, seed: int = 0, photons: int = 2
             Lg = np.where(np.asarray(g.found), gb * Lg, 0.0).reshape(3, batch, final_gather).mean(-1)
             ind[:, sel] = Lg[:, : len(sel)]
     total = total + np.where(found, beta_ * kdx * ind, 0.0)
-    if stats is not None:
-        stats.update(stored=pm.count)
-    return _to_image(scene, total, spp)
+    return Render(_to_image(scene, total, spp), dict(stored=pm.count))
 
 
 @partial(jax.jit, static_argnames=("cap",))
@@ -161,13 +219,15 @@ def _ppm_gather(scene: Scene, grid, x: V3, n: V3, material, r2, cap: int):
     return M, phi, g.truncated
 
 
-def render_progressive(scene: Scene, *, spp: int = 1, seed: int = 0, passes: int = 16,
-                       photons: int = 50_000, radius: float = 0.1, alpha: float = 0.7,
-                       stochastic: bool = True, cap: int | None = None, max_depth: int = 8,
-                       stats: dict | None = None):
-    """PPM (``stochastic=False``) or SPPM; ``spp`` visible points per pixel per pass."""
-    if not 0.0 < alpha < 1.0:
-        raise ValueError(f"alpha must be in (0, 1), got {alpha}")
+def render_progressive(scene: Scene, cfg: ProgressiveConfig = ProgressiveConfig(), *, spp: int = 1,
+                       seed: int = 0) -> Render:
+    """PPM (``cfg.stochastic=False``) or SPPM; ``spp`` visible points per pixel per pass.
+
+    Stats: ``radius_final`` (root mean square of the final radii), ``truncated``."""
+    passes, photons, radius, radius_alpha = cfg.passes, cfg.photons, cfg.radius, cfg.radius_alpha
+    stochastic, cap, max_depth = cfg.stochastic, cfg.cap, cfg.max_depth
+    if not 0.0 < radius_alpha < 1.0:
+        raise ValueError(f"radius_alpha must be in (0, 1), got {radius_alpha}")
     pix, smp = _pixels(scene, spp)
     n_pts = pix.shape[0]
     N = np.zeros(n_pts, np.float64)
@@ -201,51 +261,38 @@ def render_progressive(scene: Scene, *, spp: int = 1, seed: int = 0, passes: int
             truncated |= bool(np.any(np.asarray(tr)))
         M = np.where(found, M, 0.0)
         phi = np.where(found, beta_ * phi, 0.0)
-        grow = N + alpha * M
+        grow = N + radius_alpha * M
         ratio = np.where(N + M > 0, grow / np.maximum(N + M, 1e-30), 1.0)
         tau = (tau + phi) * ratio
         R2 = R2 * ratio
         N = grow
     L = direct / passes + tau / (np.pi * R2 * passes)
     PMap.warn_truncated(truncated, cap_t, radius)
-    if stats is not None:
-        stats.update(radius_final=float(np.sqrt(R2.mean())), truncated=truncated)
-    return _to_image(scene, L, spp)
+    return Render(_to_image(scene, L, spp), dict(radius_final=float(np.sqrt(R2.mean())),
+                                                 truncated=truncated))
 
 
-FILTERS = ("box", "cone", "gaussian", "epanechnikov")
+def _pm(scene: Scene, cfg: PMConfig, *, spp: int, seed: int, progress: bool = False) -> Render:
+    return render_pm(scene, cfg, spp=spp, seed=seed)
 
-register(Estimator("pm", "photon mapping, direct visualisation of the global map",
-                   lambda scene, *, spp, seed, progress=False, **p: render_pm(scene, spp=spp, seed=seed, **p),
-                   (Param("photons", 200_000, "photons emitted", int, minimum=1),
-                    Param("radius", 0.05, "estimate radius (k > 0: the maximum search radius)", float, minimum=1e-6),
-                    Param("k", 0, "k nearest photons (0: fixed radius)", int, minimum=0, maximum=1024),
-                    Param("filter", "box", "density filter", str, FILTERS),
-                    Param("cone_k", 1.1, "cone filter k >= 1", float, minimum=1.0),
-                    Param("alpha", PMap.JENSEN_ALPHA, "Gaussian filter alpha", float, minimum=1e-3),
-                    Param("beta", PMap.JENSEN_BETA, "Gaussian filter beta", float, minimum=1e-3),
-                    Param("max_depth", 8, "maximum bounces of photons and of specular chains", int, minimum=1))))
-register(Estimator("pm_jensen", "photon mapping with Jensen's split (direct, specular, caustic map, final gathering)",
-                   lambda scene, *, spp, seed, progress=False, **p: render_jensen(scene, spp=spp, seed=seed, **p),
-                   (Param("photons", 200_000, "global photons", int, minimum=1),
-                    Param("caustic_photons", 50_000, "photons shot for the caustic map", int, minimum=1),
-                    Param("k", 50, "photons in the global estimate", int, minimum=1, maximum=1024),
-                    Param("k_caustic", 50, "photons in the caustic estimate", int, minimum=1, maximum=1024),
-                    Param("radius", 0.08, "maximum global search radius", float, minimum=1e-6),
-                    Param("caustic_radius", 0.05, "maximum caustic search radius", float, minimum=1e-6),
-                    Param("final_gather", 32, "final-gather rays per shading point", int, minimum=1),
-                    Param("caustics", True, "use the caustic map", bool),
-                    Param("filter", "box", "density filter", str, FILTERS),
-                    Param("irradiance_cache", False, "indirect diffuse term from an irradiance cache "
-                          "of final gathers (Ward), not a gather per shading point", bool),
-                    Param("cache_a", 0.2, "the cache's error threshold a", float, minimum=1e-4, maximum=10.0))))
-for _name, _stoch in (("ppm", False), ("sppm", True)):
-    register(Estimator(_name, ("progressive photon mapping (Hachisuka 2008)" if not _stoch else
-                               "stochastic progressive photon mapping (Hachisuka & Jensen 2009)"),
-                       (lambda st: lambda scene, *, spp, seed, progress=False, **p:
-                        render_progressive(scene, spp=spp, seed=seed, stochastic=st, **p))(_stoch),
-                       (Param("passes", 16, "photon passes", int, minimum=1),
-                        Param("photons", 50_000, "photons per pass", int, minimum=1),
-                        Param("radius", 0.1, "initial radius", float, minimum=1e-6),
-                        Param("alpha", 0.7, "radius reduction alpha in (0, 1)", float, minimum=1e-3, maximum=0.999),
-                        Param("max_depth", 8, "maximum bounces of photons and of specular chains", int, minimum=1))))
+
+def _jensen(scene: Scene, cfg: JensenConfig, *, spp: int, seed: int, progress: bool = False) -> Render:
+    return render_jensen(scene, cfg, spp=spp, seed=seed)
+
+
+def _ppm(scene: Scene, cfg: ProgressiveConfig, *, spp: int, seed: int, progress: bool = False) -> Render:
+    return render_progressive(scene, replace(cfg, stochastic=False), spp=spp, seed=seed)
+
+
+def _sppm(scene: Scene, cfg: ProgressiveConfig, *, spp: int, seed: int, progress: bool = False) -> Render:
+    return render_progressive(scene, replace(cfg, stochastic=True), spp=spp, seed=seed)
+
+
+register(Estimator("pm", "photon mapping, direct visualisation of the global map", _pm, PMConfig,
+                   renamed={"alpha": "gauss_alpha", "beta": "gauss_beta"}))
+register(Estimator("pm_jensen", "photon mapping with Jensen's split (direct, specular, caustic map, "
+                   "final gathering)", _jensen, JensenConfig))
+register(Estimator("ppm", "progressive photon mapping (Hachisuka 2008)", _ppm, ProgressiveConfig,
+                   renamed={"alpha": "radius_alpha"}))
+register(Estimator("sppm", "stochastic progressive photon mapping (Hachisuka & Jensen 2009)", _sppm,
+                   ProgressiveConfig, renamed={"alpha": "radius_alpha"}))

@@ -24,7 +24,7 @@ supplies the state (:class:`PrimarySample`), the mutation and the target.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from functools import partial
 from typing import NamedTuple
 
@@ -39,17 +39,32 @@ from ..physics import camera as C
 from ..scene.data import Scene
 from ..transport import mcmc
 from .path_tracer import PathTracerConfig, radiance
-from .registry import Estimator, Param, register
+from .registry import Estimator, Render, param, register
 
-_SALT = 0x2545F491
+_SALT = rng.SALTS["pssmlt"]
 
 
 @dataclass(frozen=True)
 class PSSMLTConfig:
-    pt: PathTracerConfig = PathTracerConfig()
-    p_large: float = 0.3
-    s1: float = 1.0 / 1024.0
+    """PSSMLT's parameters, all static: the path tracer's (``pt``) and the mutation's. The
+    kernels see a copy with the chain and bootstrap counts at fixed values (:func:`render`)."""
+
+    p_large: float = param(0.3, "probability of a large step (fresh sample)", minimum=0.0,
+                           maximum=1.0)
+    chains: int = param(4096, "Markov chains run in parallel", minimum=1)
+    bootstrap_samples: int = param(65536, "independent samples to estimate b = E[f]", minimum=16)
+    max_depth: int = param(8, "maximum path segments", minimum=1, maximum=64)
+    rr_depth: int = param(5, "Russian roulette from this many segments (-1 = off)", minimum=-1)
+    strategy: str = param("mis", "path tracer strategy inside MLT", choices=("bsdf", "light", "mis"))
+    s1: float = 1.0 / 1024.0    # smallest and largest small-step sizes (Kelemen's)
     s2: float = 1.0 / 64.0
+    steps_per_call: int = 16    # mutations per chain and kernel call
+
+    @property
+    def pt(self) -> PathTracerConfig:
+        """The path tracer whose primary samples the chains explore."""
+        return PathTracerConfig(strategy=self.strategy, max_depth=self.max_depth,
+                                rr_depth=self.rr_depth)
 
     @property
     def dims(self) -> int:
@@ -132,16 +147,20 @@ def run_chains(scene: Scene, cfg: PSSMLTConfig, seed, u0, step0, n_steps: int, s
     return x.u, img, jnp.sum(tally.accepted)
 
 
-def render(scene: Scene, *, spp: int, seed: int, chains: int = 4096, bootstrap_samples: int = 65536,
-           steps_per_call: int = 16, progress: bool = False, cfg: PSSMLTConfig = PSSMLTConfig(),
-           stats: dict | None = None) -> np.ndarray:
-    """PSSMLT image with spp * W * H mutations in total (the path tracer's path count)."""
+def render(scene: Scene, cfg: PSSMLTConfig = PSSMLTConfig(), *, spp: int, seed: int,
+           progress: bool = False) -> Render:
+    """PSSMLT image with spp * W * H mutations in total (the path tracer's path count).
+
+    Stats: ``b`` (the bootstrap estimate of E[f]), ``acceptance`` (accepted / proposed
+    mutations), ``mutations``."""
     W, H = scene.camera.width, scene.camera.height
+    chains, bootstrap_samples, steps_per_call = cfg.chains, cfg.bootstrap_samples, cfg.steps_per_call
+    cfg = replace(cfg, chains=0, bootstrap_samples=0, steps_per_call=0)  # the kernels' key
     u_b, f_b = bootstrap(scene, cfg, jnp.uint32(seed), bootstrap_samples)
     f_np = np.asarray(f_b, np.float64)
     b = f_np.mean()
     if not b > 0:
-        return np.zeros((H, W, 3), np.float32)
+        return Render(np.zeros((H, W, 3), np.float32), {})
     # start chains from the bootstrap samples, resampled in proportion to f
     cdf = np.cumsum(f_np) / f_np.sum()
     r = (np.arange(chains) + 0.5) / chains  # stratified resampling: deterministic given seed
@@ -161,32 +180,10 @@ def render(scene: Scene, *, spp: int, seed: int, chains: int = 4096, bootstrap_s
         img += np.asarray(part, np.float64)
         accepted += int(acc)
         done += n
-    if stats is not None:
-        stats.update(b=b, acceptance=accepted / (n_steps_total * chains),
-                     mutations=n_steps_total * chains)
-    return img.reshape(H, W, 3).astype(np.float32)
+    stats = dict(b=b, acceptance=accepted / (n_steps_total * chains),
+                 mutations=n_steps_total * chains)
+    return Render(img.reshape(H, W, 3).astype(np.float32), stats)
 
 
-def render_with_stats(scene: Scene, *, spp: int, seed: int, stats: dict | None = None, progress: bool = False,
-                      p_large=0.3, chains=4096, bootstrap_samples=65536, max_depth=8, rr_depth=5,
-                      strategy="mis") -> np.ndarray:
-    """The registered estimator's render, also filling ``stats`` (b, acceptance, mutations)."""
-    cfg = PSSMLTConfig(pt=PathTracerConfig(strategy=strategy, max_depth=max_depth, rr_depth=rr_depth),
-                       p_large=p_large)
-    return render(scene, spp=spp, seed=seed, chains=chains, bootstrap_samples=bootstrap_samples,
-                  progress=progress, cfg=cfg, stats=stats)
-
-
-def _run(scene: Scene, *, spp: int, seed: int, progress: bool = False, **params):
-    return render_with_stats(scene, spp=spp, seed=seed, progress=progress, **params)
-
-
-register(Estimator(
-    "pssmlt", "primary-sample-space Metropolis light transport over the path tracer", _run,
-    (Param("p_large", 0.3, "probability of a large step (fresh sample)", float, minimum=0.0, maximum=1.0),
-     Param("chains", 4096, "Markov chains run in parallel", int, minimum=1),
-     Param("bootstrap_samples", 65536, "independent samples to estimate b = E[f]", int, minimum=16),
-     Param("max_depth", 8, "maximum path segments", int, minimum=1, maximum=64),
-     Param("rr_depth", 5, "Russian roulette from this many segments (-1 = off)", int, minimum=-1),
-     Param("strategy", "mis", "path tracer strategy inside MLT", str, ("bsdf", "light", "mis"))),
-))
+register(Estimator("pssmlt", "primary-sample-space Metropolis light transport over the path tracer",
+                   render, PSSMLTConfig))

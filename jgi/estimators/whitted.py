@@ -23,13 +23,16 @@ from ..core.vec import V3
 from ..drivers.chunked import render_paths
 from ..scene.data import Scene
 from ..transport.subpath import camera_ray, trace_to_diffuse
-from .registry import Estimator, Param, register
+from .registry import Estimator, Render, param, register
 
 
 @dataclass(frozen=True)
 class WhittedConfig:
-    max_depth: int = 8        # maximum number of specular segments followed
-    light_samples: int = 1    # shadow rays per diffuse hit
+    """Whitted ray tracing's parameters (static)."""
+
+    max_depth: int = param(8, "maximum number of segments (specular chain length + 1)",
+                           minimum=1, maximum=256)
+    light_samples: int = param(1, "shadow rays per diffuse hit", minimum=1, maximum=64)
 
 
 def radiance(scene: Scene, cfg: WhittedConfig, uniform, o: V3, d: V3) -> V3:
@@ -46,15 +49,14 @@ def trace_pixels(scene: Scene, cfg: WhittedConfig, seed, pixel, sample) -> V3:
     return radiance(scene, cfg, uniform, o, d)
 
 
-def _run(scene: Scene, *, spp: int, seed: int, progress: bool = False, **params):
-    cfg = WhittedConfig(**params)
-    return render_paths(scene, Configured(trace_pixels, cfg), spp=spp, seed=seed,
-                        progress=progress)
+def render(scene: Scene, cfg: WhittedConfig = WhittedConfig(), *, spp: int, seed: int,
+           progress: bool = False) -> Render:
+    """The Whitted image, (H, W, 3) float32 (no stats)."""
+    image = render_paths(scene, Configured(trace_pixels, cfg), spp=spp, seed=seed,
+                         progress=progress)
+    return Render(image, {})
 
 
 register(Estimator(
     "whitted", "Whitted ray tracing: direct light at the first diffuse hit, specular chains",
-    _run,
-    (Param("max_depth", 8, "maximum number of segments (specular chain length + 1)", int, minimum=1, maximum=256),
-     Param("light_samples", 1, "shadow rays per diffuse hit", int, minimum=1, maximum=64)),
-))
+    render, WhittedConfig))

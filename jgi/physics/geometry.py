@@ -19,7 +19,7 @@ from jax import Array
 
 from .. import _xla as X
 from .._xla import materialize
-from ..core import bvh as B
+from ..core import bvh
 from ..core.vec import EDGE_ON_COS, V3, cross, dot, normalize, where
 from ..scene.data import Boxes, Quads, Rects, Scene, Spheres, Triangles
 
@@ -87,7 +87,7 @@ def triangle_t(v0: V3, e1: V3, e2: V3, normal: V3, o: V3, d: V3) -> tuple[Array,
     qvec = cross(tvec, e1)
     b2 = dot(d, qvec) * inv
     t = dot(e2, qvec) * inv
-    hit = (ok & (b1 >= -B.BARY_EPS) & (b2 >= -B.BARY_EPS) & (b1 + b2 <= 1.0 + B.BARY_EPS)
+    hit = (ok & (b1 >= -bvh.BARY_EPS) & (b2 >= -bvh.BARY_EPS) & (b1 + b2 <= 1.0 + bvh.BARY_EPS)
            & (t > T_MIN))
     return jnp.where(hit, t, INF), b1, b2
 
@@ -296,7 +296,7 @@ def _bvh_closest(tr: Triangles, o: V3, d: V3, t_max: Array) -> tuple[Array, Arra
     sg = jax.lax.stop_gradient
     of, df = V3(*(_flat(sg(a)) for a in o)), V3(*(_flat(sg(a)) for a in d))
     tm = _flat(jnp.broadcast_to(sg(t_max), shape))
-    h = B.intersect_closest(tr.bvh, of, df, T_MIN, tm)
+    h = bvh.intersect_closest(tr.bvh, of, df, T_MIN, tm)
     prim = jnp.reshape(h.prim, shape)
     t = jnp.reshape(h.t, shape)
     # t = e2 . ((o - v0) x e1) / (e1 . (d x e2)) of the hit triangle, for its gradient only
@@ -435,7 +435,7 @@ def occluded(scene: Scene, o: V3, d: V3, t_max: Array) -> Array:
         # rays already occluded get an empty interval: they leave the traversal at once
         sg = jax.lax.stop_gradient
         tm = _flat(jnp.where(occ, 0.0, sg(t_max)))
-        hit = B.intersect_any(tr.bvh, V3(*(_flat(sg(a)) for a in o)),
+        hit = bvh.intersect_any(tr.bvh, V3(*(_flat(sg(a)) for a in o)),
                               V3(*(_flat(sg(a)) for a in d)), T_MIN, tm)
         occ = occ | jnp.reshape(hit, shape)
     elif tr.count:

@@ -47,7 +47,7 @@ from jax import Array
 
 from ..core import rng
 
-_SALT = 0x27D4EB2F
+_SALT = rng.SALTS["mcmc"]
 _KIND_CHAIN = -1   # the chain index of the stream that picks each step's mutation kind
 
 

@@ -16,7 +16,9 @@ photon density is estimated without bias by every filter:
                 K = alpha pi r^2 [1 - (1 - (2/beta)(1 - e^{-beta/2})) / (1 - e^{-beta})]
                 (the lecture prints the sum without dividing by K: with Jensen's alpha = 0.918,
                 beta = 1.953 that constant makes the estimate unbiased only for r chosen so
-                that K = 1; jgi divides by the exact K)
+                that K = 1; jgi divides by the exact K). Jensen's alpha and beta are the
+                keyword arguments ``gauss_alpha``, ``gauss_beta`` (beta is path throughput
+                elsewhere in jgi)
   epanechnikov  W = 1 - d^2 / r^2                       K = pi r^2 / 2
 
 Photons are selected in a disc (|x - x_p| < r), or a flattened disc that also rejects photons
@@ -105,13 +107,17 @@ def query_chunk(cap: int, budget: int = 1 << 21) -> int:
     return int(max(64, 1 << int(np.floor(np.log2(max(budget // (27 * cap), 1))))))
 
 
-def gaussian_normaliser(alpha, beta):
+def gaussian_normaliser(gauss_alpha, gauss_beta):
     """K / (pi r^2) for the Gaussian filter (see the module docstring)."""
+    alpha, beta = gauss_alpha, gauss_beta
     return alpha * (1.0 - (1.0 - (2.0 / beta) * (1.0 - jnp.exp(-beta / 2.0))) / (1.0 - jnp.exp(-beta)))
 
 
-def filter_weight(kind: str, d2, r2, k=1.1, alpha=JENSEN_ALPHA, beta=JENSEN_BETA):
-    """(W(d), K / (pi r^2)) for a filter; d2, r2 squared distance and radius."""
+def filter_weight(kind: str, d2, r2, k=1.1, gauss_alpha=JENSEN_ALPHA,
+                  gauss_beta=JENSEN_BETA):
+    """(W(d), K / (pi r^2)) for a filter; d2, r2 squared distance and radius; ``k`` the cone's,
+    ``gauss_alpha``, ``gauss_beta`` the Gaussian's constants."""
+    alpha, beta = gauss_alpha, gauss_beta
     if kind == "box":
         return jnp.ones_like(d2), 1.0
     if kind == "cone":

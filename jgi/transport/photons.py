@@ -41,7 +41,7 @@ from ..physics import lights as LT
 from ..scene.data import DIFFUSE, PHONG, Scene
 
 DIMS_PER_BOUNCE = 4
-_SALT = 0x1E3779B1  # photon streams are independent of camera streams for the same seed
+_SALT = rng.SALTS["photons"]  # photon streams are independent of camera streams for the same seed
 
 
 class PhotonMap(NamedTuple):

@@ -58,7 +58,7 @@ from ..scene.data import (
     Scene,
 )
 
-LIGHT_SALT = 0x2C1B3C6D        # light subpaths: a stream independent of the camera path's
+LIGHT_SALT = rng.SALTS["light_subpath"]  # light subpaths: independent of the camera path's
 LIGHT_DIMS0 = 5                # dims 0..4: sample_emission (selection, position, direction)
 LIGHT_DIMS_PER_STEP = 3        # per bounce: lobe, u1, u2
 
