@@ -49,7 +49,8 @@ def main(argv=None) -> list[dict]:
     rows = []
     for L in a.lengths:
         t0 = time.perf_counter()
-        b = image_means(scene, "bdpt", a.bdpt_spp, range(25000 + 1000 * L, 25000 + 1000 * L + a.seeds),
+        b = image_means(scene, "bdpt", a.bdpt_spp,
+                        range(25000 + 1000 * L, 25000 + 1000 * L + a.seeds),
                         max_depth=L, path_length=L)
         p = image_means(scene, "pt", a.pt_spp, range(29000 + 1000 * L, 29000 + 1000 * L + a.seeds),
                         max_depth=L, path_length=L, rr_depth=-1)

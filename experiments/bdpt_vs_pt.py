@@ -1,18 +1,20 @@
 """Equal-time comparison of path tracing, BDPT and light tracing on the caustic Cornell box
 (or ``--scene``).
 
-    python experiments/bdpt_vs_pt.py [--scene cornell_box_caustics] [--resolution 32] [--budget 2 8] [--repetitions 3]
-                                     [--reference-spp 4096] [--out out/bdpt_vs_pt]
+    python experiments/bdpt_vs_pt.py [--scene cornell_box_caustics] [--resolution 32]
+                                     [--budget 2 8] [--repetitions 3] [--reference-spp 4096]
+                                     [--out out/bdpt_vs_pt]
 
 A long path-tracing render (max depth 5, no Russian roulette, ``--reference-spp``; cached in
 ``OUT/reference.npy`` with its per-pixel variance) is the reference. For every time budget T
-(seconds per render), each estimator's cost per sample is measured after compilation and the
-spp that fits T chosen; ``--repetitions`` independent renders then give the relative MSE
-(jgi.analysis.stats: (bias^2 + variance) / (ref^2 + 0.01), the reference's own variance removed, image
-average) of one render of T seconds, for the whole image and for the floor below the spheres
-(where the caustics are); ``relMSE@T`` rescales it by measured seconds / T (variance ~ 1 /
-time), which corrects for renders that did not take exactly T on a shared machine. Output: a table on stdout, ``OUT/results.json``, EXR/PNG of one
-render per estimator at the largest budget.
+(seconds per render), each estimator's cost per sample is measured after compilation and the spp
+that fits T chosen; ``--repetitions`` independent renders then give the relative MSE
+(jgi.analysis.stats: (bias^2 + variance) / (ref^2 + 0.01), the reference's own variance removed,
+image average) of one render of T seconds, for the whole image and for the floor below the
+spheres (where the caustics are); ``relMSE@T`` rescales it by measured seconds / T (variance
+~ 1 / time), which corrects for renders that did not take exactly T on a shared machine.
+Output: a table on stdout, ``OUT/results.json``, EXR/PNG of one render per estimator at the
+largest budget.
 """
 
 from __future__ import annotations

@@ -124,7 +124,8 @@ def bench_triangles(quick: bool) -> list[dict]:
 
 
 def bench_bvh(quick: bool) -> list[dict]:
-    """experiments/bench_bvh.py: BVH build, traversal rays/s, brute-force crossover, mesh renders."""
+    """experiments/bench_bvh.py: BVH build, traversal rays/s, brute-force crossover, mesh
+    renders."""
     import bench_bvh as bb
 
     return bb.run(quick)
@@ -149,10 +150,12 @@ def bench_density(quick: bool) -> list[dict]:
 
     sizes = ["100000", "1000000"] + ([] if quick else ["10000000"])
     rows = []
-    for r in bd.main(["--sizes", *sizes, "--kinds", "uniform", "--queries", "16384" if quick else "65536"]):
+    for r in bd.main(["--sizes", *sizes, "--kinds", "uniform",
+                      "--queries", "16384" if quick else "65536"]):
         rows.append(dict(bench="density", photons=r["photons"], grid_build_s=r["jgi"]["build_s"],
                          mqueries_per_s=r["jgi"]["queries_per_s"] / 1e6,
-                         ckdtree_mqueries_per_s=r["ckdtree"]["queries_per_s"] / 1e6, ratio=r["ratio"]))
+                         ckdtree_mqueries_per_s=r["ckdtree"]["queries_per_s"] / 1e6,
+                         ratio=r["ratio"]))
     return rows
 
 
@@ -165,14 +168,17 @@ def main(argv=None) -> dict:
     import bench_pt
 
     out = {"cornell_vs_mitsuba": bench_pt.main(
-        ["--spp", "8" if a.quick else "64", "--repeats", "2"] + (["--no-mitsuba"] if a.no_mitsuba else []))}
+        ["--spp", "8" if a.quick else "64", "--repeats", "2"]
+        + (["--no-mitsuba"] if a.no_mitsuba else []))}
     rows = []
-    for fn in (bench_pt_scaling, bench_pt_scenes, bench_photons, bench_triangles, bench_bvh, bench_optional, bench_density):
+    for fn in (bench_pt_scaling, bench_pt_scenes, bench_photons, bench_triangles, bench_bvh,
+               bench_optional, bench_density):
         rows += fn(a.quick)
     out["rows"] = rows
     out["peak_rss_mb"] = peak_rss_mb()
     for r in rows:
-        print("  ".join(f"{k}={v:.3g}" if isinstance(v, float) else f"{k}={v}" for k, v in r.items()))
+        print("  ".join(f"{k}={v:.3g}" if isinstance(v, float) else f"{k}={v}"
+                        for k, v in r.items()))
     print(f"peak resident memory: {out['peak_rss_mb']:.0f} MB")
     if a.json:
         Path(a.json).parent.mkdir(parents=True, exist_ok=True)

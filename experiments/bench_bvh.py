@@ -12,8 +12,8 @@ after a warm-up call (compile time is reported separately).
   * traversal: closest-hit and any-hit rays/s of :func:`jgi.core.bvh.intersect_closest` and
     :func:`jgi.core.bvh.intersect_any`;
   * crossover: rays/s of :func:`jgi.physics.geometry.intersect` followed by
-    :func:`jgi.physics.geometry.occluded` (the path tracer's two queries per segment) for small meshes
-    with and without a BVH, which is what ``jgi.scene.BVH_MIN_TRIANGLES`` is chosen from;
+    :func:`jgi.physics.geometry.occluded` (the path tracer's two queries per segment) for small
+    meshes with and without a BVH, which is what ``jgi.scene.BVH_MIN_TRIANGLES`` is chosen from;
   * render: path tracing Mpaths/s of the mesh above a floor under an area light, 128 x 128 at
     4 spp (the wavefront renderer's full 2^14 lanes; a 32 x 32 image has only 1024, and then
     every traversal loop runs half-empty: about 6 kpaths/s at 10^5 triangles).
@@ -207,7 +207,8 @@ def table(rows: list[dict]) -> str:
                 f"{r['hit_fraction']:>5.2f}" for r in b]
     c = [r for r in rows if r["bench"] == "crossover"]
     if c:
-        out.append(f"\n{'triangles':>10} {'brute Mrays/s':>14} {'BVH Mrays/s':>12} {'BVH/brute':>10}"
+        out.append(f"\n{'triangles':>10} {'brute Mrays/s':>14} {'BVH Mrays/s':>12} "
+                   f"{'BVH/brute':>10}"
                    "   (intersect + occluded)")
         out += [f"{r['triangles']:>10} {r['brute_mrays_s']:>14.3f} {r['bvh_mrays_s']:>12.3f} "
                 f"{r['speedup']:>10.2f}" for r in c]

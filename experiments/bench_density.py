@@ -42,7 +42,8 @@ def bench_jgi(p: np.ndarray, q: np.ndarray, radius: float) -> dict:
     ones = np.full(n, 1.0 / n, np.float32)
     up = np.zeros((n, 3), np.float32)
     up[:, 2] = 1
-    pm = PhotonMap(col(p), V3(ones, ones, ones), col(up), col(up), np.zeros(n, bool), np.zeros(n, np.int32))
+    pm = PhotonMap(col(p), V3(ones, ones, ones), col(up), col(up), np.zeros(n, bool),
+                   np.zeros(n, np.int32))
     t0 = time.perf_counter()
     grid = PMap.build_grid(pm, radius)
     jax.block_until_ready(grid.start)
@@ -94,20 +95,23 @@ def main(argv=None) -> list[dict]:
     a = ap.parse_args(argv)
     rng = np.random.default_rng(0)
     rows = []
-    print(f"{'photons':>10} {'kind':>9} | {'grid build s':>12} {'jgi Mq/s':>9} | {'kd build s':>10} "
-          f"{'kd Mq/s':>8} | ratio")
+    print(f"{'photons':>10} {'kind':>9} | {'grid build s':>12} {'jgi Mq/s':>9} | "
+          f"{'kd build s':>10} {'kd Mq/s':>8} | ratio")
     for n in a.sizes:
         for kind in a.kinds:
             p = photons(n, kind, rng)
-            q = np.concatenate([rng.random((a.queries, 2)), np.zeros((a.queries, 1))], 1).astype(np.float32)
+            q = np.concatenate([rng.random((a.queries, 2)), np.zeros((a.queries, 1))],
+                               1).astype(np.float32)
             radius = float(np.sqrt(a.k / (np.pi * n)))  # k photons in the disc at uniform density
             ours = bench_jgi(p, q, radius)
             theirs = bench_kdtree(p, q, a.k)
             row = dict(photons=n, kind=kind, k=a.k, radius=radius, jgi=ours, ckdtree=theirs,
                        ratio=ours["queries_per_s"] / theirs["queries_per_s"])
             rows.append(row)
-            print(f"{n:>10} {kind:>9} | {ours['build_s']:>12.3f} {ours['queries_per_s'] / 1e6:>9.3f} | "
-                  f"{theirs['build_s']:>10.3f} {theirs['queries_per_s'] / 1e6:>8.3f} | {row['ratio']:.2f}x")
+            print(f"{n:>10} {kind:>9} | {ours['build_s']:>12.3f} "
+                  f"{ours['queries_per_s'] / 1e6:>9.3f} | "
+                  f"{theirs['build_s']:>10.3f} {theirs['queries_per_s'] / 1e6:>8.3f} | "
+                  f"{row['ratio']:.2f}x")
             print(json.dumps(row))
     return rows
 

@@ -73,7 +73,8 @@ def bench_mitsuba(resolution: int, spp: int, repeats: int, objects: str = "block
             os.environ["DRJIT_LIBLLVM_PATH"] = found[0]
     if not os.environ.get("DRJIT_LIBLLVM_PATH", "").endswith(".so.19.1"):
         # An older LLVM aborts the whole process inside Mitsuba (not an exception we can catch).
-        print("mitsuba skipped: libLLVM.so.19.1 not found (apt-get install libllvm19)", file=sys.stderr)
+        print("mitsuba skipped: libLLVM.so.19.1 not found (apt-get install libllvm19)",
+              file=sys.stderr)
         return None
     try:
         import mitsuba as mi
@@ -132,7 +133,8 @@ def main(argv=None) -> dict:
         if r:
             print(f"{r['name']:24s} {r['mpaths_per_s']:8.2f} Mpaths/s  "
                   f"({r['mpaths_per_cpu_s']:.2f} per CPU-s; {r['seconds']:.2f} s render, "
-                  f"{r['compile_s']:.1f} s first call)  mean rgb {np.round(r['mean_rgb'], 4).tolist()}")
+                  f"{r['compile_s']:.1f} s first call)  "
+                  f"mean rgb {np.round(r['mean_rgb'], 4).tolist()}")
     if out.get("mitsuba"):
         out["ratio"] = out["jgi"]["mpaths_per_s"] / out["mitsuba"]["mpaths_per_s"]
         print(f"jgi / Mitsuba 3 throughput: {out['ratio']:.2f}x")

@@ -30,7 +30,7 @@ def _cells(domain) -> int:
     return (len(domain.a_edges) - 1) * (len(domain.b_edges) - 1)
 
 
-# --- cases: each returns (jgi.analysis.chi2.Result, number of grid cells or categories) ----------------------
+# --- cases: each returns (jgi.analysis.chi2.Result, number of grid cells or categories) -----------
 
 def warp_cases(n):
     from jgi.analysis.chi2 import PlaneDomain, SphereDomain, chi2_test
@@ -45,7 +45,8 @@ def warp_cases(n):
     def sphere():
         d = T.stack(T._sphere(*T.uniforms(2, n)))
         dom = SphereDomain()
-        return chi2_test(d, lambda p: np.full(len(p), float(warps.pdf_uniform_sphere())), dom), _cells(dom)
+        return (chi2_test(d, lambda p: np.full(len(p), float(warps.pdf_uniform_sphere())), dom),
+                _cells(dom))
 
     def cone(cos_max):
         def run():
@@ -76,7 +77,8 @@ def warp_cases(n):
         b1, b2 = T._triangle(*T.uniforms(9, n))
         b = np.stack([np.asarray(b1), np.asarray(b2)], axis=-1)
         dom = PlaneDomain(np.linspace(0, 1, 32), np.linspace(0, 1, 32))
-        return chi2_test(b, lambda q: np.where(q.sum(1) <= 1.0, 2.0, 0.0), dom, nodes=24), _cells(dom)
+        return (chi2_test(b, lambda q: np.where(q.sum(1) <= 1.0, 2.0, 0.0), dom, nodes=24),
+                _cells(dom))
 
     return [("warp", "sample\\_cosine\\_hemisphere", cosine),
             ("warp", "sample\\_uniform\\_sphere", sphere),
@@ -124,13 +126,15 @@ def bsdf_cases(n):
         return run
 
     cases = [
-        ("BSDF", "diffuse, $\\theta_o=50^\\circ$", lobe(T.material(DIFFUSE, kd=(0.2, 0.5, 0.8)), 50.0, 1)),
+        ("BSDF", "diffuse, $\\theta_o=50^\\circ$",
+         lobe(T.material(DIFFUSE, kd=(0.2, 0.5, 0.8)), 50.0, 1)),
         ("BSDF", "diffuse, $\\theta_o=89^\\circ$", lobe(T.material(DIFFUSE, kd=0.7), 89.0, 2)),
         ("BSDF", "Phong $n=1$, $\\theta_o=30^\\circ$",
          lobe(T.material(PHONG, kd=(0.5, 0.4, 0.3), ks=0.3, n=1.0), 30.0, 3)),
         ("BSDF", "Phong $n=10$, $\\theta_o=70^\\circ$",
          lobe(T.material(PHONG, kd=0.2, ks=(0.7, 0.6, 0.5), n=10.0), 70.0, 4)),
-        ("BSDF", "Phong $n=100$, $\\theta_o=89^\\circ$", lobe(T.material(PHONG, kd=0.4, ks=0.4, n=100.0), 89.0, 5)),
+        ("BSDF", "Phong $n=100$, $\\theta_o=89^\\circ$",
+         lobe(T.material(PHONG, kd=0.4, ks=0.4, n=100.0), 89.0, 5)),
         ("BSDF", "Phong $n=1000$, $\\theta_o=45^\\circ$",
          lobe(T.material(PHONG, kd=(0.05, 0.1, 0.0), ks=0.9, n=1000.0), 45.0, 6)),
         ("BSDF", "dielectric (Fresnel split), outside, $30^\\circ$", fresnel(30.0, True, 1.5)),
@@ -225,12 +229,14 @@ def light_cases(n):
         return chi2_test(loc, lambda w: np.maximum(w[:, 2], 0) / np.pi, dom), _cells(dom)
 
     def sphere_emission():
-        e = T.sample_emission(T.build(lambda b: b.sphere((0.1, 0.2, 0.3), 0.7, "m", emission=T.L_RGB)), 14, n)
+        e = T.sample_emission(T.build(lambda b: b.sphere((0.1, 0.2, 0.3), 0.7, "m",
+                                                         emission=T.L_RGB)), 14, n)
         dom = SphereDomain()
         return chi2_test(e["n"], lambda w: np.full(len(w), 1 / (4 * np.pi)), dom), _cells(dom)
 
     def point_emission():
-        e = T.sample_emission(T.build(lambda b: b.point_light((0.0, 1.0, 0.0), (5.0, 4.0, 3.0))), 15, n)
+        e = T.sample_emission(T.build(lambda b: b.point_light((0.0, 1.0, 0.0), (5.0, 4.0, 3.0))),
+                              15, n)
         dom = SphereDomain()
         return chi2_test(e["d"], lambda w: np.full(len(w), 1 / (4 * np.pi)), dom), _cells(dom)
 
@@ -289,7 +295,8 @@ def camera_cases(n):
             axis, a_max = T.frame_cone(cam)
             dom = SphereDomain(axis=axis, a_edges=np.linspace(0.0, 1.02 * a_max, 25), n_phi=32)
             pos = T.vec(cam.position)
-            return chi2_test(d, lambda w: T.project(cam, pos + w)["pdf_dir"], dom, total=1.0), _cells(dom)
+            return (chi2_test(d, lambda w: T.project(cam, pos + w)["pdf_dir"], dom, total=1.0),
+                    _cells(dom))
         return run
 
     return [("camera", "sample\\_ray (square film)", primary("square")),
@@ -313,7 +320,8 @@ def main(argv=None) -> dict:
     for group, label, run in cases:
         t = time.perf_counter()
         r, cells = run()
-        rows.append(dict(group=group, routine=label, samples=n, cells=int(cells), statistic=r.statistic,
+        rows.append(dict(group=group, routine=label, samples=n, cells=int(cells),
+                         statistic=r.statistic,
                          dof=r.dof, p_value=r.p_value, passed=bool(r.p_value >= level),
                          seconds=round(time.perf_counter() - t, 2)))
         print(f"[chi2] {group:6s} {label:55s} chi2={r.statistic:9.1f} dof={r.dof:5d} "

@@ -68,7 +68,8 @@ def main(argv=None) -> dict:
             continue
         params = dict(params, max_depth=a.max_depth)
         if name not in jgi.REGISTRY:
-            print(f"[equal_time] {label}: estimator '{name}' not available, skipped", file=sys.stderr)
+            print(f"[equal_time] {label}: estimator '{name}' not available, skipped",
+                  file=sys.stderr)
             continue
         # time = fixed + per_spp * spp (fixed: e.g. MLT's bootstrap), fitted from two probes
         # after a compiling call; then a render at the predicted spp corrects it once
@@ -102,19 +103,23 @@ def main(argv=None) -> dict:
             if acc and f"{kind}_acceptance" in acc[0]:
                 row[f"{kind}_acceptance"] = float(np.mean([st[f"{kind}_acceptance"] for st in acc]))
                 row[f"{kind}_applicable"] = float(np.mean([st[f"{kind}_applicable"] /
-                                                           max(st[f"{kind}_proposed"], 1) for st in acc]))
+                                                           max(st[f"{kind}_proposed"], 1)
+                                                           for st in acc]))
         rows.append(row)
         images[label] = (imgs[0], s)
-        print(f"[equal_time] {label:14s} spp {spp:5d}  {row['seconds']:.1f}s  relMSE {row['rel_mse']:.4g}"
+        print(f"[equal_time] {label:14s} spp {spp:5d}  {row['seconds']:.1f}s  "
+              f"relMSE {row['rel_mse']:.4g}"
               + (f"  acceptance {row['acceptance']:.3f}" if acc else "")
-              + "".join(f"  {k} {row[k + '_acceptance']:.3f} (applicable {row[k + '_applicable']:.2f})"
+              + "".join(f"  {k} {row[k + '_acceptance']:.3f} "
+                        f"(applicable {row[k + '_applicable']:.2f})"
                         for k in ("large", "lens", "caustic") if k + "_acceptance" in row),
               file=sys.stderr)
     summary = dict(scene=a.scene, resolution=a.res, budget_s=a.budget, reference_spp=a.ref_spp,
                    max_depth=a.max_depth,
                    repetitions=a.reps, rows=rows)
     (out / "equal_time.json").write_text(json.dumps(summary, indent=2))
-    fig, axes = plt.subplots(2, len(images) + 1, figsize=(2.6 * (len(images) + 1), 5.2), squeeze=False)
+    fig, axes = plt.subplots(2, len(images) + 1, figsize=(2.6 * (len(images) + 1), 5.2),
+                             squeeze=False)
     axes[0, 0].imshow(tonemap(ref))
     axes[0, 0].set_title("reference", fontsize=8)
     axes[1, 0].axis("off")

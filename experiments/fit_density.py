@@ -1,8 +1,8 @@
 """Differentiable fitting of photon-density parameters on the point light over a plane (exact
-irradiance, see jgi.analysis.density_fit): the MSE-optimal radius as a function of photon count and its
-scaling exponent (theory: -1/6), the optimal cone k, a Gaussian filter fitted by gradient
-beside Jensen's constants (gauss_alpha = 0.918, gauss_beta = 1.953), and progressive photon
-mapping's radius_alpha.
+irradiance, see jgi.analysis.density_fit): the MSE-optimal radius as a function of photon count
+and its scaling exponent (theory: -1/6), the optimal cone k, a Gaussian filter fitted by
+gradient beside Jensen's constants (gauss_alpha = 0.918, gauss_beta = 1.953), and progressive
+photon mapping's radius_alpha.
 
     python experiments/fit_density.py [--out runs/fit_density] [--reps 8] [--photons 2500 5000 ...]
 
@@ -28,7 +28,8 @@ def problem_for(photons: int, reps: int, seed: int):
     from jgi.analysis import density_fit as D
 
     r_max = 2.0 * radius_guess(photons)
-    return D.point_light_problem(photons, reps, r_max=r_max, candidates=_candidates(photons, r_max), seed=seed)
+    return D.point_light_problem(photons, reps, r_max=r_max,
+                                 candidates=_candidates(photons, r_max), seed=seed)
 
 
 def _candidates(photons: int, r_max: float) -> int:
@@ -68,7 +69,8 @@ def main(argv=None) -> dict:
         b2, var = (float(v) for v in D.mse_terms(p, r_star))
         rows.append(dict(photons=n, r_star=r_star, rel_mse=float(fit.value), bias2=b2, variance=var,
                          converged=fit.converged, steps=fit.steps))
-        print(f"N={n:7d}  r*={r_star:.4f}  relMSE={float(fit.value):.3e}  (bias² {b2:.2e}, variance {var:.2e})",
+        print(f"N={n:7d}  r*={r_star:.4f}  relMSE={float(fit.value):.3e}  "
+              f"(bias² {b2:.2e}, variance {var:.2e})",
               file=sys.stderr)
     ns = np.array([r["photons"] for r in rows], float)
     slope_r, _, se_r = F.power_law(ns, [r["r_star"] for r in rows])
@@ -107,8 +109,10 @@ def main(argv=None) -> dict:
                                         integral=float(gaussian_normaliser(0.918, 1.953))),
                    gaussian_fitted=dict(gauss_alpha=gauss_alpha, gauss_beta=gauss_beta,
                                         rel_mse=float(g.value),
-                                        integral=float(gaussian_normaliser(gauss_alpha, gauss_beta))))
-    summary = dict(rows=rows, r_star_exponent=slope_r, r_star_exponent_se=se_r, theory_r_exponent=-1 / 6,
+                                        integral=float(gaussian_normaliser(gauss_alpha,
+                                                                           gauss_beta))))
+    summary = dict(rows=rows, r_star_exponent=slope_r, r_star_exponent_se=se_r,
+                   theory_r_exponent=-1 / 6,
                    mse_exponent=slope_m, mse_exponent_se=se_m, theory_mse_exponent=-2 / 3,
                    filters=filters, progressive=progressive, repetitions=a.reps,
                    seconds=time.perf_counter() - t0)
@@ -127,7 +131,8 @@ def main(argv=None) -> dict:
     ax[1].legend(fontsize=7)
     fig.tight_layout()
     fig.savefig(out / "fit_density.png", dpi=130)
-    print(f"r* ~ N^{slope_r:.3f} ± {se_r:.3f} (theory -0.167); relMSE* ~ N^{slope_m:.3f} ± {se_m:.3f} "
+    print(f"r* ~ N^{slope_r:.3f} ± {se_r:.3f} (theory -0.167); "
+          f"relMSE* ~ N^{slope_m:.3f} ± {se_m:.3f} "
           f"(theory -0.667)")
     print(f"at N={mid['photons']}, r={r:.3f}: box {box:.3e}, Epanechnikov {mid['rel_mse']:.3e}, "
           f"cone k={cone_k:.3f} {float(cone.value):.3e}, Gaussian Jensen {jensen:.3e}, "

@@ -34,13 +34,15 @@ def main(argv=None):
                            np.stack([np.asarray(c) for c in v.n]), np.asarray(v.found))
     pix = np.arange(len(pts.found))
     raster = (pix % a.res, pix // a.res)
-    ref = IC.irradiance(scene, pts, cfg=IC.CacheConfig(gather_m=24, gather_n=64, cached=False), seed=99).E
+    ref = IC.irradiance(scene, pts, cfg=IC.CacheConfig(gather_m=24, gather_n=64, cached=False),
+                        seed=99).E
     lum = lambda E: 0.2126 * E[0] + 0.7152 * E[1] + 0.0722 * E[2]
     f = pts.found
     err = lambda E: float(np.sqrt(np.mean((lum(E)[f] - lum(ref)[f]) ** 2)) / lum(ref)[f].mean())
     plain, cached = [], []
     for m, n in [(2, 6), (4, 12), (8, 24), (12, 32)]:
-        E, _, st = IC.irradiance(scene, pts, cfg=IC.CacheConfig(gather_m=m, gather_n=n, cached=False), seed=1)
+        E, _, st = IC.irradiance(scene, pts, cfg=IC.CacheConfig(gather_m=m, gather_n=n,
+                                                                cached=False), seed=1)
         plain.append((st.gather_rays, err(E)))
     records = None
     for a_ in (0.6, 0.4, 0.2, 0.1):
@@ -55,13 +57,15 @@ def main(argv=None):
     ax0.set_title(f"{len(records)} records (a = 0.4)")
     ax0.axis("off")
     ax1.loglog(*zip(*plain), "o-", label="final gathering at every point")
-    ax1.loglog([c[0] for c in cached], [c[1] for c in cached], "s-", label="irradiance cache (a = 0.6 .. 0.1)")
+    ax1.loglog([c[0] for c in cached], [c[1] for c in cached], "s-",
+               label="irradiance cache (a = 0.6 .. 0.1)")
     ax1.set_xlabel("gather rays")
     ax1.set_ylabel("relative RMS error of E")
     ax1.legend(fontsize=7)
     fig.tight_layout()
     fig.savefig(out / "irradiance_cache.png", dpi=150)
-    (out / "irradiance_cache.json").write_text(json.dumps({"plain": plain, "cached": cached}, indent=2))
+    (out / "irradiance_cache.json").write_text(json.dumps({"plain": plain, "cached": cached},
+                                                          indent=2))
     for r, e in plain:
         print(f"plain   rays={r:8d}  error={e:.4f}")
     for r, e, a_ in cached:

@@ -60,7 +60,8 @@ def main(argv=None):
     axes[0].set_title("target f")
     for ax, steps in zip(axes[1:], (20, 2000)):
         s, hist = jax.jit(lambda x: mcmc.run_chains(target, prop, x, steps, seed=1, burn_in=0,
-                                                    record=record, record_init=jnp.zeros(H * W)))(x0)
+                                                    record=record,
+                                                    record_init=jnp.zeros(H * W)))(x0)
         h = np.asarray(hist)
         p = h / h.sum()
         tv = 0.5 * np.abs(p - target_p).sum()
@@ -68,7 +69,8 @@ def main(argv=None):
         ax.imshow(p.reshape(H, W), cmap="gray")
         ax.set_title(f"{'short' if steps < 100 else 'long'} walk: {steps} steps x {a.chains}\n"
                      f"TV distance {tv:.3f}, acceptance {rate:.2f}")
-        print(f"{steps:5d} steps: total-variation distance to f {tv:.4f}, acceptance rate {rate:.3f}")
+        print(f"{steps:5d} steps: total-variation distance to f {tv:.4f}, "
+              f"acceptance rate {rate:.3f}")
     for ax in axes:
         ax.axis("off")
     fig.tight_layout()

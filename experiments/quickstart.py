@@ -66,7 +66,8 @@ def main(argv=None) -> dict:
     # the reference's own noise adds var/ref_spp to every MSE: estimate it from spp = 1
     summary = {}
     for name in strategies:
-        m = {s: np.mean([r["mse"] for r in rows if r["strategy"] == name and r["spp"] == s]) for s in spps}
+        m = {s: np.mean([r["mse"] for r in rows if r["strategy"] == name and r["spp"] == s])
+             for s in spps}
         ref_var = m[1] / ref_spp
         corrected = [max(m[s] - ref_var, 1e-30) for s in spps]
         slope, c, se = fitting.power_law(spps, corrected)
@@ -79,7 +80,8 @@ def main(argv=None) -> dict:
 
     fig, ax = plt.subplots(figsize=(4.5, 3.2))
     for name in strategies:
-        m = [np.mean([r["mse"] for r in rows if r["strategy"] == name and r["spp"] == s]) for s in spps]
+        m = [np.mean([r["mse"] for r in rows if r["strategy"] == name and r["spp"] == s])
+             for s in spps]
         s = summary[name]
         ax.loglog(spps, m, "o-", label=f"{name}: slope {s['slope']:.2f} ± {s['slope_se']:.2f}")
     ax.set_xlabel("samples per pixel")
@@ -106,7 +108,8 @@ def main(argv=None) -> dict:
     for name, s in summary.items():
         print(f"{name:6s} MSE slope {s['slope']:+.3f} ± {s['slope_se']:.3f}   "
               f"MSE at {spps[-1]} spp {s['mse_at_max_spp']:.3e}")
-    print(f"wrote {out}/ (metrics.csv, convergence.png, images.png, EXRs) in {prov['seconds']:.0f} s")
+    print(f"wrote {out}/ (metrics.csv, convergence.png, images.png, EXRs) "
+          f"in {prov['seconds']:.0f} s")
     return summary
 
 

@@ -25,16 +25,17 @@
    scalar call that also splits the vectorised kernel); a polynomial is a dozen vector ops.
 
 5. :func:`recip` (and :func:`recip_normal`), :func:`div`, :func:`rsqrt`, :func:`sqrt`: float
-   division, square root and reciprocal square root are "expensive" to XLA's fusion pass: one whose value is used in more
-   than one place, or whose operand is also used directly (v / |v|), is never duplicated and
-   usually never fused either, so each splits the bounce into separate kernels that store and
-   reload their inputs (the light-sampling code alone was 10 kernels). Written as a bit-trick
-   seed and Newton steps (multiplies and adds, which XLA fuses and duplicates freely) they stay
-   inside one kernel. Accuracy: max relative error 1.2e-7 (recip) and 1.3e-7 (rsqrt) over the
-   whole normal float32 range, with mean error below 3e-9 (no bias: the Newton steps converge
-   to the rounding level, unlike a one- or two-step reciprocal, which measurably darkens
-   images); inf, 0, NaN and negative arguments behave like the exact operations, denormal
-   arguments and results are flushed to zero (like the CPU backend's fast-math mode).
+   division, square root and reciprocal square root are "expensive" to XLA's fusion pass: one
+   whose value is used in more than one place, or whose operand is also used directly (v / |v|),
+   is never duplicated and usually never fused either, so each splits the bounce into separate
+   kernels that store and reload their inputs (the light-sampling code alone was 10 kernels).
+   Written as a bit-trick seed and Newton steps (multiplies and adds, which XLA fuses and
+   duplicates freely) they stay inside one kernel. Accuracy: max relative error 1.2e-7 (recip)
+   and 1.3e-7 (rsqrt) over the whole normal float32 range, with mean error below 3e-9 (no bias:
+   the Newton steps converge to the rounding level, unlike a one- or two-step reciprocal, which
+   measurably darkens images); inf, 0, NaN and negative arguments behave like the exact
+   operations, denormal arguments and results are flushed to zero (like the CPU backend's
+   fast-math mode).
    ``JGI_NO_FAST_DIVISION=1`` turns them back into the plain operations.
 
 6. :func:`pow_positive`: ``x ** y`` with a traced exponent lowers to the C library's ``powf``,
@@ -45,8 +46,9 @@ What is guaranteed (measured with tests/test_cpu.py, which runs its cases under 
 below in a subprocess; ``--xla_cpu_max_isa`` makes XLA generate code for a lesser CPU, so any
 machine can check the others):
 
-* The same machine, seed and parameters give the same image, bit for bit (the drivers add
-  their parts in a fixed order, whatever the timing of threads; tests/test_wavefront.py, test_photons.py).
+* The same machine, seed and parameters give the same image, bit for bit (the drivers add their
+  parts in a fixed order, whatever the timing of threads; tests/test_wavefront.py,
+  test_photons.py).
 * x86-64 CPUs with FMA (every CPU with AVX2: Intel since Haswell, AMD since Zen), with or
   without AVX-512: the same image bit for bit. The vector width changes no result, since every
   operation is element-wise IEEE and no reduction order depends on it (measured: AVX-512 against

@@ -34,7 +34,8 @@ def _convert(param, text: str):
         try:
             v = float(text)
         except ValueError:
-            raise SystemExit(f"jgi: parameter '{param.name}' expects a number, got '{text}'") from None
+            raise SystemExit(f"jgi: parameter '{param.name}' expects a number, "
+                             f"got '{text}'") from None
         return int(v) if param.type is int and v.is_integer() else v
     return text
 
@@ -45,7 +46,8 @@ def _render(argv) -> int:
     ap.add_argument("-e", "--estimator", default="pt")
     ap.add_argument("--spp", type=int, default=16, help="samples per pixel")
     ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--out", default="out/image.exr", help="EXR path; a tone-mapped PNG is written beside it")
+    ap.add_argument("--out", default="out/image.exr",
+                    help="EXR path; a tone-mapped PNG is written beside it")
     ap.add_argument("--width", type=int, default=None)
     ap.add_argument("--height", type=int, default=None)
     ap.add_argument("--exposure", type=float, default=0.0, help="PNG exposure in stops")

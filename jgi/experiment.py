@@ -85,23 +85,27 @@ def load_config(path) -> dict:
         _fail(path, "experiment", "missing [experiment] table")
     bad = sorted(set(exp) - EXPERIMENT_KEYS)
     if bad:
-        _fail(path, f"experiment.{bad[0]}", f"unknown key; allowed: {', '.join(sorted(EXPERIMENT_KEYS))}")
+        _fail(path, f"experiment.{bad[0]}",
+              f"unknown key; allowed: {', '.join(sorted(EXPERIMENT_KEYS))}")
     for key in ("name", "scene"):
         if not isinstance(exp.get(key), str) or not exp.get(key):
             _fail(path, f"experiment.{key}", "required, a non-empty string")
     for key, lo in (("repetitions", 2), ("seed", 0), ("resolution", 1)):
-        if key in exp and (isinstance(exp[key], bool) or not isinstance(exp[key], int) or exp[key] < lo):
+        if key in exp and (isinstance(exp[key], bool) or not isinstance(exp[key], int)
+                           or exp[key] < lo):
             _fail(path, f"experiment.{key}", f"must be an integer >= {lo}, got {exp[key]!r}")
     ref = exp.get("reference")
     if not isinstance(ref, dict) or not ({"estimator", "spp"} <= set(ref) or "closed_form" in ref):
-        _fail(path, "experiment.reference", "required: { estimator, spp, params } or { closed_form }")
+        _fail(path, "experiment.reference",
+              "required: { estimator, spp, params } or { closed_form }")
     if "closed_form" in ref:
         if set(ref) != {"closed_form"} or not isinstance(ref["closed_form"], (int, float, list)):
             _fail(path, "experiment.reference.closed_form", "a number or [r, g, b], alone")
     else:
         bad = sorted(set(ref) - {"estimator", "spp", "params", "match"})
         if bad:
-            _fail(path, f"experiment.reference.{bad[0]}", "unknown key; allowed: estimator, spp, params, match")
+            _fail(path, f"experiment.reference.{bad[0]}",
+                  "unknown key; allowed: estimator, spp, params, match")
         match = ref.get("match", [])
         if not isinstance(match, list) or not all(isinstance(k, str) for k in match):
             _fail(path, "experiment.reference.match", "a list of swept parameter names")
@@ -113,7 +117,8 @@ def load_config(path) -> dict:
         key = f"estimator[{i}]"
         bad = sorted(set(e) - ESTIMATOR_KEYS)
         if bad:
-            _fail(path, f"{key}.{bad[0]}", f"unknown key; allowed: {', '.join(sorted(ESTIMATOR_KEYS))}")
+            _fail(path, f"{key}.{bad[0]}",
+                  f"unknown key; allowed: {', '.join(sorted(ESTIMATOR_KEYS))}")
         if "name" not in e:
             _fail(path, f"{key}.name", "required")
         sweep = e.get("sweep", {})
@@ -130,7 +135,8 @@ def load_config(path) -> dict:
             if "match" in ref:
                 missing = [k for k in ref["match"] if k not in point]
                 if missing:
-                    _fail(path, "experiment.reference.match", f"{missing[0]!r} is not a parameter of {key}")
+                    _fail(path, "experiment.reference.match",
+                          f"{missing[0]!r} is not a parameter of {key}")
                 _check_estimator(path, "experiment.reference.match", ref["estimator"],
                                  {**ref.get("params", {}), **{k: point[k] for k in ref["match"]}})
             spp = point["spp"]
@@ -190,7 +196,8 @@ def smoke(doc: dict) -> dict:
     exp["name"] = exp["name"] + "-smoke"
 
     def cap(params):
-        return {k: (min(v, SMOKE_MAX[k]) if k in SMOKE_MAX and isinstance(v, int) and not isinstance(v, bool) else v)
+        return {k: (min(v, SMOKE_MAX[k]) if k in SMOKE_MAX and isinstance(v, int)
+                    and not isinstance(v, bool) else v)
                 for k, v in params.items()}
 
     ref = exp["reference"]
@@ -246,7 +253,8 @@ def run(config_path, *, out_root="runs", dry_run: bool = False, reduced: bool = 
     if dry_run:
         total = sum(r["point"]["spp"] for r in runs)
         print(f"{exp['name']}: {len(runs)} renders ({len(doc['estimator'])} estimators, "
-              f"{exp.get('repetitions', 4)} repetitions), {total} samples per pixel in total -> {out}/")
+              f"{exp.get('repetitions', 4)} repetitions), {total} samples per pixel in total "
+              f"-> {out}/")
         for r in runs[: 50]:
             print(f"  {r['label']:16s} {r['point']} rep {r['rep']} seed {r['seed']}")
         return out
@@ -271,15 +279,16 @@ def run(config_path, *, out_root="runs", dry_run: bool = False, reduced: bool = 
             references[rkey] = (img, np.zeros_like(img))
             return references[rkey]
         params = {**cfg.get("params", {}), **matched}
-        key = _hash(dict(scene=scene_id, res=exp.get("resolution"), est=cfg["estimator"], spp=cfg["spp"],
-                         params=params, v=__version__))
+        key = _hash(dict(scene=scene_id, res=exp.get("resolution"), est=cfg["estimator"],
+                         spp=cfg["spp"], params=params, v=__version__))
         cache = Path(out_root) / ".cache" / f"reference-{key}.npz"
         if cache.exists():
             with np.load(cache) as z:
                 references[rkey] = (z["image"], z["variance"])
         else:
             cache.parent.mkdir(parents=True, exist_ok=True)
-            halves = [render(scene, cfg["estimator"], spp=max(1, cfg["spp"] // 2), seed=900_001 + h, **params)
+            halves = [render(scene, cfg["estimator"], spp=max(1, cfg["spp"] // 2),
+                             seed=900_001 + h, **params)
                       for h in range(2)]
             img = 0.5 * (halves[0] + halves[1])
             var = 0.25 * (halves[0] - halves[1]) ** 2  # variance of the mean of two halves
@@ -306,7 +315,8 @@ def run(config_path, *, out_root="runs", dry_run: bool = False, reduced: bool = 
         img = render(scene, r["name"], spp=r["point"]["spp"], seed=r["seed"], **params)
         _atomic_save(path, image=img, seconds=np.float64(time.perf_counter() - ts))
         done += 1
-        if progress and (sys.stderr.isatty() or done % max(1, len(runs) // 10) == 0 or done == len(runs)):
+        if progress and (sys.stderr.isatty() or done % max(1, len(runs) // 10) == 0
+                         or done == len(runs)):
             el = time.perf_counter() - t0
             end = "\r" if sys.stderr.isatty() else "\n"
             sys.stderr.write(f"{end}[{done}/{len(runs)}] {r['label']} {r['point']} ETA "
@@ -324,7 +334,8 @@ def run(config_path, *, out_root="runs", dry_run: bool = False, reduced: bool = 
             with np.load(r["file"]) as z:
                 imgs.append(z["image"])
                 secs.append(float(z["seconds"]))
-        render_seconds[rs[0]["label"]] = render_seconds.get(rs[0]["label"], 0.0) + float(np.sum(secs))
+        render_seconds[rs[0]["label"]] = (render_seconds.get(rs[0]["label"], 0.0)
+                                          + float(np.sum(secs)))
         ref, ref_var = reference_for(rs[0]["point"])
         s = stats.error_stats(np.stack(imgs), ref, ref_var)
         mse = float(s.mse.mean())
@@ -340,7 +351,8 @@ def run(config_path, *, out_root="runs", dry_run: bool = False, reduced: bool = 
         write_exr(out / name, s.mean.astype(np.float32))
         row["image"] = name
         means.append((row, s))
-    fields = sorted({k for row in rows for k in row}, key=lambda k: (k not in ("estimator", "label"), k))
+    fields = sorted({k for row in rows for k in row},
+                    key=lambda k: (k not in ("estimator", "label"), k))
     with open(out / "metrics.csv.tmp", "w", newline="") as fh:
         w = csv.DictWriter(fh, fieldnames=fields)
         w.writeheader()
@@ -376,8 +388,8 @@ def _git_commit():
 
 
 def _numeric(values) -> bool:
-    return len(values) >= 2 and all(isinstance(x, (int, float)) and not isinstance(x, bool) and x > 0
-                                    for x in values)
+    return len(values) >= 2 and all(isinstance(x, (int, float)) and not isinstance(x, bool)
+                                    and x > 0 for x in values)
 
 
 def _plots(out: Path, rows, doc) -> list[dict]:
@@ -387,7 +399,8 @@ def _plots(out: Path, rows, doc) -> list[dict]:
 
     swept_all = {k for e in doc["estimator"] for k in e.get("sweep", {})}
     numeric = sorted(k for k in swept_all
-                     if _numeric([x for e in doc["estimator"] for x in e.get("sweep", {}).get(k, [])]))
+                     if _numeric([x for e in doc["estimator"]
+                                  for x in e.get("sweep", {}).get(k, [])]))
     slopes = []
     for key in numeric:
         fig, ax = plt.subplots(figsize=(5, 3.6))
@@ -425,9 +438,11 @@ def _plots(out: Path, rows, doc) -> list[dict]:
     # MSE against render time: equal-time comparisons read off vertically.
     fig, ax = plt.subplots(figsize=(5, 3.6))
     for n, label in enumerate(dict.fromkeys(r["label"] for r in rows)):
-        rs = sorted((r for r in rows if r["label"] == label and r["mse"] > 0), key=lambda r: r["seconds"])
+        rs = sorted((r for r in rows if r["label"] == label and r["mse"] > 0),
+                    key=lambda r: r["seconds"])
         if rs:
-            ax.loglog([r["seconds"] for r in rs], [r["mse"] for r in rs], "o-", color=f"C{n % 10}", label=label)
+            ax.loglog([r["seconds"] for r in rs], [r["mse"] for r in rs], "o-",
+                      color=f"C{n % 10}", label=label)
     ax.set_xlabel("render time per image (s)")
     ax.set_ylabel("MSE")
     if ax.get_legend_handles_labels()[0]:
@@ -451,12 +466,14 @@ def _maps(out: Path, means, ref, max_rows: int = 12):
     var_max = max(float(np.percentile(lum(s.variance), 99)) for _, s in means) or 1.0
     fig, axes = plt.subplots(len(means) + 1, 4, figsize=(8, 2 * (len(means) + 1)), squeeze=False)
     panels = [("reference", ref, None)] + [(r["label"] + " " + ", ".join(
-        f"{k}={v}" for k, v in r.items() if k in ("spp", "photons", "radius", "k", "passes", "radius_alpha")), s.mean, s)
+        f"{k}={v}" for k, v in r.items()
+        if k in ("spp", "photons", "radius", "k", "passes", "radius_alpha")), s.mean, s)
         for r, s in means]
     for row, (title, img, s) in zip(axes, panels):
         row[0].imshow(tonemap(img))
         row[0].set_title(title, fontsize=6)
-        row[1].imshow(tonemap(img[cy - ch // 2: cy + ch, cx - cw // 2: cx + cw]), interpolation="nearest")
+        row[1].imshow(tonemap(img[cy - ch // 2: cy + ch, cx - cw // 2: cx + cw]),
+                      interpolation="nearest")
         row[1].set_title("crop", fontsize=6)
         if s is not None:
             im = row[2].imshow(lum(np.maximum(s.mse, 0)), cmap="inferno", vmin=0, vmax=mse_max)
@@ -477,7 +494,8 @@ def main_run(argv) -> int:
     ap.add_argument("--dry-run", action="store_true")
     ap.add_argument("--out", default="runs")
     ap.add_argument("--reduced", action="store_true",
-                    help="run the study at a tiny size (resolution 8, 2 repetitions, capped counts)")
+                    help="run the study at a tiny size (resolution 8, 2 repetitions, "
+                         "capped counts)")
     a = ap.parse_args(argv)
     try:
         run(a.config, out_root=a.out, dry_run=a.dry_run, reduced=a.reduced)

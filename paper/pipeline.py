@@ -91,7 +91,8 @@ def pt_convergence(scale, out: Path):
     spps = [1, 2, 4, 8, 16, 32]
     mse = []
     for n in spps:
-        errs = [np.mean((jgi.render(scene, "pt", spp=n, seed=r) - ref) ** 2) for r in range(s["reps"])]
+        errs = [np.mean((jgi.render(scene, "pt", spp=n, seed=r) - ref) ** 2)
+                for r in range(s["reps"])]
         mse.append(np.mean(errs))
     # the reference's own variance adds a constant ~ mse(1)/ref_spp: subtract it
     mse = np.array(mse) - mse[0] / ref_spp
@@ -184,10 +185,13 @@ def density_fit(scale, out: Path):
                   dfGaussAlpha=f"{f['gaussian_fitted']['gauss_alpha']:.3f}",
                   dfGaussBeta=f"{f['gaussian_fitted']['gauss_beta']:.3f}",
                   dfGauss=f"{f['gaussian_fitted']['rel_mse']:.2e}",
-                  dfGaussIntegral=f"{f['gaussian_fitted']['integral']:.3f}", dfReps=str(r["repetitions"]),
-                  dfPpmPasses=str(r["progressive"]["passes"]), dfPpmAlpha=f"{r['progressive']['radius_alpha']:.3f}",
+                  dfGaussIntegral=f"{f['gaussian_fitted']['integral']:.3f}",
+                  dfReps=str(r["repetitions"]),
+                  dfPpmPasses=str(r["progressive"]["passes"]),
+                  dfPpmAlpha=f"{r['progressive']['radius_alpha']:.3f}",
                   dfPpmMse=f"{r['progressive']['rel_mse']:.2e}",
-                  dfPpmCurve=", ".join(f"{v:.2e} ($\\alpha={al:.2f}$)" for al, v in r["progressive"]["curve"][::6]))
+                  dfPpmCurve=", ".join(f"{v:.2e} ($\\alpha={al:.2f}$)"
+                                       for al, v in r["progressive"]["curve"][::6]))
     _write(out / "density_fit_macros.tex",
            "".join(f"\\newcommand{{\\{k}}}{{{v}}}\n" for k, v in macros.items()))
 
@@ -199,7 +203,8 @@ def equal_time(scale, out: Path):
 
     # the reference needs many more paths than the fastest estimator traces in the budget (the
     # path tracer: ~28k spp at 16^2 in 2 s), else its variance dominates the error estimate
-    args = (["--res", "16", "--budget", "2", "--reps", "2", "--ref-spp", "262144"] if scale == "small"
+    args = (["--res", "16", "--budget", "2", "--reps", "2", "--ref-spp", "262144"]
+            if scale == "small"
             else ["--res", "64", "--budget", "30", "--reps", "4", "--ref-spp", "262144"])
     r = et.main(["--out", str(out / "equal_time_run")] + args)
     shutil.copy(out / "equal_time_run" / "equal_time.png", out / "equal_time.png")
@@ -210,7 +215,8 @@ def equal_time(scale, out: Path):
         acc = "--" if row["acceptance"] is None else f"{row['acceptance']:.3f}"
         per_kind = (f"{row['lens_acceptance']:.2f} / {row['caustic_acceptance']:.2f}"
                     if "lens_acceptance" in row else "--")
-        lines.append(f"{row['label']} & {row['spp']} & {row['seconds']:.1f} & {row['rel_mse']:.3g} & {acc}"
+        lines.append(f"{row['label']} & {row['spp']} & {row['seconds']:.1f} & "
+                     f"{row['rel_mse']:.3g} & {acc}"
                      f" & {per_kind} \\\\")
     lines += [r"\bottomrule", r"\end{tabular}"]
     _write(out / "equal_time_table.tex", "\n".join(lines) + "\n")
@@ -242,9 +248,11 @@ def chi2(scale, out: Path):
     p = r["worst_p"]
     macros = dict(chiRoutines=str(len(r["rows"])), chiSamples=str(r["samples"]),
                   chiAlpha=f"{r['alpha']:g}", chiLevel=_tex_sci(r["level"]),
-                  chiWorstP=f"{p:.2g}" if p >= 1e-3 else _tex_sci(p), chiFailures=str(r["failures"]),
+                  chiWorstP=f"{p:.2g}" if p >= 1e-3 else _tex_sci(p),
+                  chiFailures=str(r["failures"]),
                   chiMirrorAngle=_tex_sci(r["mirror_max_angle"]), chiSeconds=f"{r['seconds']:.0f}")
-    _write(out / "chi2_macros.tex", "".join(f"\\newcommand{{\\{k}}}{{{v}}}\n" for k, v in macros.items()))
+    _write(out / "chi2_macros.tex",
+           "".join(f"\\newcommand{{\\{k}}}{{{v}}}\n" for k, v in macros.items()))
 
 
 AGREEMENT = [  # label, registry name, parameters, unbiased?  (every path has <= 5 segments)
@@ -284,7 +292,8 @@ def agreement(scale, out: Path):
                             lum=rgb @ lum, seconds=time.perf_counter() - t0)
         stats[label]["lum_mean"] = stats[label]["lum"].mean()
         stats[label]["lum_se"] = stats[label]["lum"].std(ddof=1) / np.sqrt(reps)
-        print(f"[agreement] {label}: {stats[label]['lum_mean']:.5f} +- {stats[label]['lum_se']:.5f} "
+        print(f"[agreement] {label}: {stats[label]['lum_mean']:.5f} "
+              f"+- {stats[label]['lum_se']:.5f} "
               f"({stats[label]['seconds']:.1f} s)", file=sys.stderr, flush=True)
     ref = stats[AGREEMENT_REFERENCE]
     lines = [r"\begin{tabular}{lrrrr}", r"\toprule",
@@ -329,11 +338,13 @@ def bdpt_pyramid(scale, out: Path):
     res, spp = (48, 64) if scale == "small" else (128, 1024)
     max_depth = 4
     scene = jgi.scenes.cornell_box_caustics(resolution=res)
-    imgs = render_strategies(scene, BDPTConfig(max_depth=max_depth, heuristic="power"), spp=spp, seed=5)
+    imgs = render_strategies(scene, BDPTConfig(max_depth=max_depth, heuristic="power"), spp=spp,
+                             seed=5)
     full = sum(w for _, w in imgs.values())
     cols = max_depth + 1                       # row L holds s = 0 .. L (t = L + 1 - s)
     size, pad, top, left = 1.0, 0.08, 0.22, 0.25   # inches
-    fig = plt.figure(figsize=(left + cols * (size + pad) + pad, max_depth * (size + top) + top + size + 0.1))
+    fig = plt.figure(figsize=(left + cols * (size + pad) + pad,
+                              max_depth * (size + top) + top + size + 0.1))
     W_in, H_in = fig.get_size_inches()
     for L in range(1, max_depth + 1):
         y = H_in - L * (size + top)
@@ -351,7 +362,8 @@ def bdpt_pyramid(scale, out: Path):
             ax.set_title(f"$s={s_},\\ t={t}$", fontsize=6, pad=2)
         fig.text(0.05 / W_in, (y + 0.5 * size) / H_in, f"$L={L}$", fontsize=7, rotation=90,
                  va="center")
-    ax = fig.add_axes([(left + pad + 0.5 * (cols - 1) * (size + pad)) / W_in, 0.05 / H_in, size / W_in, size / H_in])
+    ax = fig.add_axes([(left + pad + 0.5 * (cols - 1) * (size + pad)) / W_in, 0.05 / H_in,
+                       size / W_in, size / H_in])
     ax.imshow(tonemap(full), interpolation="nearest")
     ax.set_xticks([])
     ax.set_yticks([])

@@ -55,9 +55,11 @@ def _weights_reference(p_L, p_E, delta, delta_light, power):
     out = {}
     for s in range(0, n):
         t = n - s
-        cam = [(jnp.asarray(p_E[n - 1 - i]), jnp.asarray(p_L[n - 1 - i]), jnp.asarray(delta[n - 1 - i]))
+        cam = [(jnp.asarray(p_E[n - 1 - i]), jnp.asarray(p_L[n - 1 - i]),
+                jnp.asarray(delta[n - 1 - i]))
                for i in range(t)]
-        light = [(jnp.asarray(p_L[i]), jnp.asarray(p_E[i]), jnp.asarray(delta[i])) for i in range(s)]
+        light = [(jnp.asarray(p_L[i]), jnp.asarray(p_E[i]), jnp.asarray(delta[i]))
+                 for i in range(s)]
         out[s] = np.asarray(BD.mis_weight(cam, light, jnp.asarray(delta_light), power))
     return out
 
@@ -122,7 +124,7 @@ def test_mis_weight_gradients_are_finite():
     assert np.all(np.isfinite(np.asarray(g)))
 
 
-# --- the Cornell box: per-strategy images ----------------------------------------------------------
+# --- the Cornell box: per-strategy images ---------------------------------------------------------
 
 @pytest.fixture(scope="module")
 def cornell():

@@ -168,7 +168,7 @@ def test_phong_lobe_choice_follows_albedo_luminance():
     assert abs(near_axis.mean() - expect) < 5 * se, (near_axis.mean(), expect)
 
 
-# --- Dirac lobes ------------------------------------------------------------------------------------
+# --- Dirac lobes ----------------------------------------------------------------------------------
 
 @pytest.mark.parametrize("backside", [False, True])
 def test_mirror_gives_the_exact_reflection(backside):
@@ -230,8 +230,8 @@ def test_dielectric_branches_fresnel_and_snell(theta, outside, ior):
     F = float(fresnel_reference(cos_i, np.float32(eta_t / eta_i)))
     refl = (s["wi"] @ n_side) > 0
     # reflection: the mirror direction; fraction = Fresnel reflectance (binomial z-test)
-    np.testing.assert_allclose(s["wi"][refl], np.broadcast_to(reflect_np(wo, n_side), (refl.sum(), 3)),
-                               atol=3e-6)
+    np.testing.assert_allclose(s["wi"][refl],
+                               np.broadcast_to(reflect_np(wo, n_side), (refl.sum(), 3)), atol=3e-6)
     se = np.sqrt(max(F * (1 - F), 1.0 / count) / count)
     assert abs(refl.mean() - F) < 5 * se, (refl.mean(), F, se)
     if F == 1.0:  # total internal reflection
@@ -345,11 +345,12 @@ def test_albedo_at_normal_incidence_is_kd_plus_ks(kd, ks, n_exp):
     np.testing.assert_allclose(m, kd, rtol=1e-5)  # diffuse: weight = k_d exactly
 
 
-# --- degenerate inputs ------------------------------------------------------------------------------
+# --- degenerate inputs ----------------------------------------------------------------------------
 
 DEGENERATE_MATERIALS = [material(DIFFUSE, kd=0.5), material(PHONG, kd=0.3, ks=0.6, n=50.0),
                         material(PHONG, kd=0.0, ks=0.0, n=0.0), material(MIRROR, ks=1.0),
-                        material(DIELECTRIC, ks=1.0, ior=1.5), material(DIELECTRIC, ks=1.0, ior=1.0)]
+                        material(DIELECTRIC, ks=1.0, ior=1.5),
+                        material(DIELECTRIC, ks=1.0, ior=1.0)]
 
 
 def _exact_cos(n, wo) -> float:

@@ -97,8 +97,10 @@ def test_raster_orientation():
         cam = camera(name)
         fwd, up = vec(cam.forward), vec(cam.up)
         right = np.cross(fwd, up / np.linalg.norm(up)) * sign  # geometric right of the view
-        _, d_top = _rays(cam, jnp.int32([cam.width // 2]), jnp.int32([0]), jnp.float32([0.5]), jnp.float32([0.5]))
-        _, d_left = _rays(cam, jnp.int32([0]), jnp.int32([cam.height // 2]), jnp.float32([0.5]), jnp.float32([0.5]))
+        _, d_top = _rays(cam, jnp.int32([cam.width // 2]), jnp.int32([0]), jnp.float32([0.5]),
+                         jnp.float32([0.5]))
+        _, d_left = _rays(cam, jnp.int32([0]), jnp.int32([cam.height // 2]), jnp.float32([0.5]),
+                          jnp.float32([0.5]))
         assert float(np.asarray(d_top)[0] @ up) > 0
         assert float(np.asarray(d_left)[0] @ right) < 0
 
@@ -171,7 +173,8 @@ def test_outside_the_frame_and_degenerate_points():
     for k, v in pr.items():
         assert np.all(np.isfinite(v)), k
     np.testing.assert_array_equal(pr["visible"], [False, False, False, False, False, True, False])
-    assert np.all(pr["importance"][~pr["visible"]] == 0) and np.all(pr["pdf_dir"][~pr["visible"]] == 0)
+    assert (np.all(pr["importance"][~pr["visible"]] == 0)
+            and np.all(pr["pdf_dir"][~pr["visible"]] == 0))
     # rays through the film's edges stay finite
     o, d = _rays(cam, jnp.int32([0, cam.width - 1]), jnp.int32([0, cam.height - 1]),
                  jnp.float32([0.0, 0.99999994]), jnp.float32([0.0, 0.99999994]))

@@ -70,9 +70,9 @@ GRAZING_OUT = [(Z, np.array([1.0, 0.0, c], f32)) for c in (4e-6, -4e-6)]
 _N = np.array([0.3, -0.5, 0.8], f32) / f32(np.linalg.norm([0.3, -0.5, 0.8]))
 _T = np.array([0.6, 0.8, 0.0], f32)
 ORDINARY = [(_N, _N), (Z, Z), (_N, (0.5 * _N + 0.866 * _T).astype(f32)), (-_N, _N)]
-MATERIALS = [(DIFFUSE, 0.5, 0.0, 1.0, 1.5), (PHONG, 0.3, 0.6, 50.0, 1.5), (PHONG, 0.0, 0.0, 1.0, 1.5),
-             (MIRROR, 0.0, 1.0, 1.0, 1.5), (DIELECTRIC, 0.0, 1.0, 1.0, 1.5),
-             (DIELECTRIC, 0.0, 1.0, 1.0, 1.0)]
+MATERIALS = [(DIFFUSE, 0.5, 0.0, 1.0, 1.5), (PHONG, 0.3, 0.6, 50.0, 1.5),
+             (PHONG, 0.0, 0.0, 1.0, 1.5), (MIRROR, 0.0, 1.0, 1.0, 1.5),
+             (DIELECTRIC, 0.0, 1.0, 1.0, 1.5), (DIELECTRIC, 0.0, 1.0, 1.0, 1.0)]
 KINDS = (DIFFUSE, MIRROR, DIELECTRIC, PHONG)
 # uniforms including the ends of [0, 1): the warps' edges (concentric centre, rim)
 U_EDGES = np.array([0.0, 0.5, 0.25, 0.75, f32(1 - 2**-24)], f32)
@@ -176,7 +176,8 @@ def _plane_rays():
 def _hit_decisions(scene, o, d):
     v3 = lambda a: V3(a[:, 0], a[:, 1], a[:, 2])  # noqa: E731
     h = G.intersect(scene, v3(o), v3(d))
-    return {"hit": h.valid, "occluded": G.occluded(scene, v3(o), v3(d), jnp.full(o.shape[0], 100.0))}
+    return {"hit": h.valid,
+            "occluded": G.occluded(scene, v3(o), v3(d), jnp.full(o.shape[0], 100.0))}
 
 
 RENDERS = [("cornell_box_caustics", "pt", dict(strategy="mis")), ("veach_plates", "pt", {}),

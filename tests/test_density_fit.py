@@ -28,7 +28,8 @@ def test_estimate_matches_the_kernel_smoothed_irradiance(problem):
     R, P = np.meshgrid(rho, phi, indexing="ij")
     area = (r / 200) * (2 * np.pi / 256) * R  # polar area elements
     w = (1 - (R / r) ** 2) * area / (0.5 * np.pi * r * r)
-    smoothed = np.array([np.sum(w * D.irradiance(np.hypot(x + R * np.cos(P), z + R * np.sin(P)), 10.0, 1.0))
+    smoothed = np.array([np.sum(w * D.irradiance(np.hypot(x + R * np.cos(P), z + R * np.sin(P)),
+                                                 10.0, 1.0))
                          for x, z in zip(px, pz)])
     expected = (smoothed / np.asarray(problem.exact)).mean()
     ratio = np.asarray(D.estimate(problem, r)) / np.asarray(problem.exact)
@@ -54,7 +55,8 @@ def test_fitted_radius_is_the_minimum_of_the_objective(problem):
     grid = np.geomspace(0.2, 0.95, 200)
     values = np.array([float(loss(r)) for r in grid])
     best = grid[values.argmin()]
-    assert abs(float(fit.theta) - best) <= 2 * (grid[1] - grid[0]) * best / grid[0], (float(fit.theta), best)
+    assert (abs(float(fit.theta) - best)
+            <= 2 * (grid[1] - grid[0]) * best / grid[0]), (float(fit.theta), best)
     assert float(fit.value) <= values.min() * (1 + 1e-3)
     # an interior optimum: bias dominates above it, variance below
     b2_hi, v_hi = (float(x) for x in D.mse_terms(problem, 0.9))
@@ -81,7 +83,8 @@ def test_fitted_gaussian_is_no_worse_than_jensens(problem):
 
 def test_progressive_single_pass_is_the_kernel_estimate(problem):
     one = D.progressive_estimate(problem, 1, 0.5, 0.7)
-    np.testing.assert_allclose(np.asarray(one), np.asarray(D.estimate(problem, 0.5)), rtol=2e-5, atol=1e-6)
+    np.testing.assert_allclose(np.asarray(one), np.asarray(D.estimate(problem, 0.5)), rtol=2e-5,
+                               atol=1e-6)
 
 
 def test_progressive_alpha_gradient_and_fit():

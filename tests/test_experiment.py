@@ -56,7 +56,8 @@ BAD = [
     (FURNACE.replace('name = "pt"', 'name = "nope"'), "estimator[0]"),
     (FURNACE.replace("rr_depth = -1", "rr_dpth = -1"), "rr_dpth"),
     (FURNACE.replace("repetitions = 3", "repetitions = 1"), "experiment.repetitions"),
-    (FURNACE.replace('strategy = ["bsdf", "light"]', 'strategy = ["bsdf", "sideways"]'), "sideways"),
+    (FURNACE.replace('strategy = ["bsdf", "light"]', 'strategy = ["bsdf", "sideways"]'),
+     "sideways"),
     (FURNACE.replace("spp = [1, 4]", "spp = [1, -4]"), "estimator[0].spp"),
     (FURNACE.replace("spp = [1, 4]", "spp = []"), "estimator[0].sweep.spp"),
     (FURNACE.replace("reference = { closed_form = 1.9921875 }", "reference = { spp = 4 }"),
@@ -143,9 +144,11 @@ def test_outputs_and_provenance(tmp_path):
         assert (out / f).exists(), f
     with open(out / "metrics.csv") as fh:
         rows = list(csv.DictReader(fh))
-    assert len(rows) == 4 and {"mse", "bias2", "variance", "rel_mse", "seconds", "spp"} <= set(rows[0])
+    assert len(rows) == 4 and ({"mse", "bias2", "variance", "rel_mse", "seconds", "spp"}
+                               <= set(rows[0]))
     prov = json.loads((out / "provenance.json").read_text())
-    assert prov["jax_version"] and prov["jgi_version"] == jgi.__version__ and len(prov["seeds"]) == 3
+    assert (prov["jax_version"] and prov["jgi_version"] == jgi.__version__
+            and len(prov["seeds"]) == 3)
     slopes = json.loads((out / "slopes.json").read_text())
     # Only the light-sampled curve has nonzero MSE; with two spp values its slope is a secant.
     assert [s["fixed"] for s in slopes] == [{"strategy": "light"}]

@@ -21,14 +21,16 @@ def setup():
     return scene, pixel, sample
 
 
-@pytest.mark.parametrize("what, strategy", [("albedo", "bsdf"), ("albedo", "mis"), ("emission", "mis")])
+@pytest.mark.parametrize("what, strategy",
+                         [("albedo", "bsdf"), ("albedo", "mis"), ("emission", "mis")])
 def test_gradient_matches_central_differences(setup, strategy, what):
     scene, pixel, sample = setup
     cfg = PathTracerConfig(strategy=strategy, max_depth=4, rr_depth=-1)
 
     def estimate(scale):
         if what == "albedo":
-            sc = eqx.tree_at(lambda s: s.materials.diffuse.x, scene, scene.materials.diffuse.x * scale)
+            sc = eqx.tree_at(lambda s: s.materials.diffuse.x, scene,
+                             scene.materials.diffuse.x * scale)
         else:
             sc = eqx.tree_at(lambda s: s.lights.emission, scene,
                              jax.tree_util.tree_map(lambda c: c * scale, scene.lights.emission))
@@ -39,7 +41,8 @@ def test_gradient_matches_central_differences(setup, strategy, what):
     g = float(jax.grad(estimate)(jnp.float32(1.0)))
     h = 1e-2
     fd = (float(f(jnp.float32(1 + h))) - float(f(jnp.float32(1 - h)))) / (2 * h)
-    # float32 rounding of the estimate (~1e-7 relative) over 2h bounds the difference quotient's error;
-    # the albedo enters as a polynomial, so h^2 curvature terms are below 1e-4 relative as well
+    # float32 rounding of the estimate (~1e-7 relative) over 2h bounds the difference quotient's
+    # error; the albedo enters as a polynomial, so h^2 curvature terms are below 1e-4 relative
+    # as well
     assert g == pytest.approx(fd, rel=2e-3), (g, fd)
     assert g > 0

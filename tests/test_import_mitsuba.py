@@ -47,23 +47,33 @@ SENSOR = ('<sensor type="perspective"><float name="fov" value="45"/><transform n
 
 def test_lights_materials_and_transforms(tmp_path):
     body = SENSOR + """
-    <bsdf type="twosided" id="m"><bsdf type="diffuse"><rgb name="reflectance" value="0.2,0.4,0.6"/></bsdf></bsdf>
-    <bsdf type="dielectric" id="g"><string name="int_ior" value="water"/><float name="ext_ior" value="1.0"/></bsdf>
+    <bsdf type="twosided" id="m"><bsdf type="diffuse">
+      <rgb name="reflectance" value="0.2,0.4,0.6"/></bsdf></bsdf>
+    <bsdf type="dielectric" id="g"><string name="int_ior" value="water"/>
+      <float name="ext_ior" value="1.0"/></bsdf>
     <bsdf type="conductor" id="mirror"/>
     <shape type="sphere"><point name="center" value="1,2,3"/><float name="radius" value="0.5"/>
-      <transform name="to_world"><scale value="2"/><translate x="1"/></transform><ref id="g"/></shape>
+      <transform name="to_world"><scale value="2"/><translate x="1"/></transform>
+      <ref id="g"/></shape>
     <shape type="rectangle"><ref id="mirror"/></shape>
-    <shape type="rectangle"><transform name="to_world"><rotate x="1" y="1" angle="30"/></transform><ref id="m"/></shape>
-    <emitter type="point"><point name="position" value="0,3,0"/><rgb name="intensity" value="5"/></emitter>
+    <shape type="rectangle"><transform name="to_world"><rotate x="1" y="1" angle="30"/></transform>
+      <ref id="m"/></shape>
+    <emitter type="point"><point name="position" value="0,3,0"/>
+      <rgb name="intensity" value="5"/></emitter>
     <emitter type="spot"><rgb name="intensity" value="2"/><float name="cutoff_angle" value="25"/>
-      <float name="beam_width" value="25"/><transform name="to_world"><lookat origin="0,4,0" target="0,0,0" up="0,0,1"/></transform></emitter>
-    <emitter type="directional"><vector name="direction" value="0,-1,0"/><rgb name="irradiance" value="3"/></emitter>
+      <float name="beam_width" value="25"/>
+      <transform name="to_world"><lookat origin="0,4,0" target="0,0,0" up="0,0,1"/>
+      </transform></emitter>
+    <emitter type="directional"><vector name="direction" value="0,-1,0"/>
+      <rgb name="irradiance" value="3"/></emitter>
     <emitter type="constant"><rgb name="radiance" value="0.25"/></emitter>
     """
     s = load_mitsuba_xml(write(tmp_path, body))
-    np.testing.assert_allclose([s.spheres.center.x[0], s.spheres.center.y[0], s.spheres.center.z[0]], [3, 4, 6])
+    np.testing.assert_allclose([s.spheres.center.x[0], s.spheres.center.y[0],
+                                s.spheres.center.z[0]], [3, 4, 6])
     np.testing.assert_allclose(s.spheres.radius, [1.0])
-    np.testing.assert_allclose(s.materials.ior, [1.5, 1.3330, 1.5], rtol=1e-6)  # diffuse rows keep the default
+    # diffuse rows keep the default
+    np.testing.assert_allclose(s.materials.ior, [1.5, 1.3330, 1.5], rtol=1e-6)
     assert s.rects.count == 1 and s.quads.count == 1   # the rotated rectangle is a general quad
     assert sorted(s.lights.kinds) == [3, 4, 5, 6]
     assert s.camera.width == 8 and s.camera.height == 6
@@ -71,13 +81,16 @@ def test_lights_materials_and_transforms(tmp_path):
 
 
 @pytest.mark.parametrize("body, message", [
-    ('<shape type="disk"/>', "shape plugin 'disk' is not supported.*rectangle, cube, sphere, obj, ply"),
+    ('<shape type="disk"/>',
+     "shape plugin 'disk' is not supported.*rectangle, cube, sphere, obj, ply"),
     ('<bsdf type="roughconductor" id="x"/>', "bsdf plugin 'roughconductor'.*diffuse, conductor"),
-    ('<bsdf type="conductor" id="x"><string name="material" value="Au"/></bsdf>', "material='none'"),
+    ('<bsdf type="conductor" id="x"><string name="material" value="Au"/></bsdf>',
+     "material='none'"),
     ('<emitter type="spot"><float name="cutoff_angle" value="30"/></emitter>', "beam_width"),
     ('<shape type="rectangle"><ref id="nope"/></shape>', "unknown bsdf 'nope'"),
     ('<shape type="obj"><string name="filename" value="missing.obj"/></shape>', "does not exist"),
-    ('<shape type="rectangle"><bsdf type="diffuse"><texture type="bitmap" name="reflectance"/></bsdf></shape>', "textures"),
+    ('<shape type="rectangle"><bsdf type="diffuse"><texture type="bitmap" name="reflectance"/>'
+     '</bsdf></shape>', "textures"),
     ('<volume/>', "<volume> is not supported"),
     ('<shape type="rectangle"', "XML syntax error"),
 ])
@@ -135,5 +148,6 @@ def test_cornell_box_renders_like_mitsuba(tmp_path):
     ours = load_mitsuba_xml(xml)
     seeds = range(16)
     theirs = np.stack([np.asarray(mi.render(scene_mi, spp=32, seed=s))[..., :3] for s in seeds])
-    mine = np.stack([jgi.render(ours, "pt", spp=32, seed=s, max_depth=8, rr_depth=5) for s in seeds])
+    mine = np.stack([jgi.render(ours, "pt", spp=32, seed=s, max_depth=8, rr_depth=5)
+                     for s in seeds])
     assert_agree(mine, theirs, regions=4, label="jgi vs Mitsuba 3")

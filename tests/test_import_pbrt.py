@@ -39,7 +39,8 @@ def test_scene_data_matches_the_builder(tmp_path):
       Shape "sphere" "float radius" 0.5
     AttributeEnd
     NamedMaterial "red"
-    Shape "trianglemesh" "point3 P" [-1 0 -1  1 0 -1  1 0 1  -1 0 1] "integer indices" [0 1 2  0 2 3]
+    Shape "trianglemesh" "point3 P" [-1 0 -1  1 0 -1  1 0 1  -1 0 1]
+      "integer indices" [0 1 2  0 2 3]
     LightSource "point" "rgb I" [2 2 2] "point3 from" [0 3 0]
     LightSource "distant" "point3 from" [0 1 0] "point3 to" [0 0 0] "rgb L" [1 0.5 0.25]
     LightSource "uniform" "rgb L" [0.1 0.1 0.1] "float scale" 2
@@ -56,9 +57,11 @@ def test_scene_data_matches_the_builder(tmp_path):
     b.camera((0, 1, 5), (0, 0, 0), up=(0, 1, 0), fov=40, width=8, height=6, fov_axis="smaller")
     expected = b.build()
     # material rows are ordered differently (named materials are created at definition)
-    np.testing.assert_allclose(sorted(np.asarray(got.materials.ior)), sorted(np.asarray(expected.materials.ior)))
+    np.testing.assert_allclose(sorted(np.asarray(got.materials.ior)),
+                               sorted(np.asarray(expected.materials.ior)))
     for field in ("spheres", "triangles", "lights", "camera"):
-        leaves_equal(_strip_material(getattr(got, field)), _strip_material(getattr(expected, field)))
+        leaves_equal(_strip_material(getattr(got, field)),
+                     _strip_material(getattr(expected, field)))
 
 
 def _strip_material(table):
@@ -71,7 +74,8 @@ def _strip_material(table):
 def test_power_and_scale_conventions(tmp_path):
     body = """
     LightSource "point" "rgb I" [1 2 3] "float power" 100
-    LightSource "spot" "rgb I" [1 1 1] "point3 from" [0 4 0] "point3 to" [0 0 0] "float coneangle" 30 "float conedelta" 10 "float power" 50
+    LightSource "spot" "rgb I" [1 1 1] "point3 from" [0 4 0] "point3 to" [0 0 0]
+      "float coneangle" 30 "float conedelta" 10 "float power" 50
     AttributeBegin
       AreaLightSource "diffuse" "rgb L" [1 1 1] "float power" 20
       Shape "trianglemesh" "point3 P" [0 2 0  1 2 0  0 2 1] "integer indices" [0 2 1]
@@ -91,7 +95,8 @@ def test_power_and_scale_conventions(tmp_path):
 
 
 @pytest.mark.parametrize("body, message", [
-    ('Shape "disk" "float radius" 1', 'Shape "disk" is not supported.*sphere, trianglemesh, plymesh'),
+    ('Shape "disk" "float radius" 1',
+     'Shape "disk" is not supported.*sphere, trianglemesh, plymesh'),
     ('Material "coateddiffuse"', "material 'coateddiffuse' is not supported"),
     ('Material "conductor" "spectrum eta" "metal-Cu-eta"', "spectrum values are not supported"),
     ('Material "conductor"', "perfect mirror"),
@@ -101,7 +106,8 @@ def test_power_and_scale_conventions(tmp_path):
     ('AreaLightSource "diffuse" "bool twosided" true', "two-sided"),
     ('ObjectBegin "x"', "directive 'ObjectBegin' is not supported"),
     ('NamedMaterial "nope"', 'unknown named material "nope"'),
-    ('Shape "trianglemesh" "point3 P" [0 0 0 1 0 0 0 1 0] "normal N" [0 0 1 0 0 1 0 0 1]', "shading normals"),
+    ('Shape "trianglemesh" "point3 P" [0 0 0 1 0 0 0 1 0] "normal N" [0 0 1 0 0 1 0 0 1]',
+     "shading normals"),
     ('Shape "plymesh" "string filename" "missing.ply"', "does not exist"),
     ('AttributeEnd', "without a matching begin"),
 ])
@@ -124,15 +130,18 @@ def cornell_pbrt(res, flip):
     T, R, S = xf.translate, xf.rotate, xf.scale
 
     def quad(m, rgb, emit=None):
-        corners = xf.apply_point(m, np.array([[-1, -1, 0], [1, -1, 0], [1, 1, 0], [-1, 1, 0]], float))
-        out = ["AttributeBegin", f'Material "diffuse" "rgb reflectance" [{rgb[0]} {rgb[1]} {rgb[2]}]']
+        corners = xf.apply_point(m, np.array([[-1, -1, 0], [1, -1, 0], [1, 1, 0], [-1, 1, 0]],
+                                             float))
+        out = ["AttributeBegin",
+               f'Material "diffuse" "rgb reflectance" [{rgb[0]} {rgb[1]} {rgb[2]}]']
         if emit:
             out.append(f'AreaLightSource "diffuse" "rgb L" [{emit[0]} {emit[1]} {emit[2]}]')
         out.append('Shape "trianglemesh" "point3 P" [' + " ".join(map(str, corners.ravel())) +
                    '] "integer indices" [0 1 2 0 2 3]')
         out.append("AttributeEnd")
         return out
-    lines += quad(T([0, 0.99, 0.01]) @ R([1, 0, 0], 90) @ S([0.23, 0.19, 0.19]), WHITE, CORNELL_LIGHT)
+    lines += quad(T([0, 0.99, 0.01]) @ R([1, 0, 0], 90) @ S([0.23, 0.19, 0.19]), WHITE,
+                  CORNELL_LIGHT)
     lines += quad(T([0, -1, 0]) @ R([1, 0, 0], -90), WHITE)
     lines += quad(T([0, 1, 0]) @ R([1, 0, 0], 90), WHITE)
     lines += quad(T([0, 0, -1]), WHITE)

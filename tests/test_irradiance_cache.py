@@ -47,7 +47,8 @@ def test_cache_reaches_the_same_error_with_several_times_fewer_gather_rays():
     E_u, _, plain_stats = IC.irradiance(scene, pts, cfg=IC.CacheConfig(gather_m=8, gather_n=24,
                                                                        cached=False), seed=1)
     assert plain_stats.gather_rays >= 3 * cached_stats.gather_rays
-    assert err(E_c) <= err(E_u), (err(E_c), err(E_u), cached_stats.gather_rays, plain_stats.gather_rays)
+    assert err(E_c) <= err(E_u), (err(E_c), err(E_u), cached_stats.gather_rays,
+                                  plain_stats.gather_rays)
 
 
 def test_records_never_interpolate_across_opposed_normals():
@@ -82,18 +83,20 @@ def test_thin_plate_sides_stay_separate():
     top = IC.ShadingPoints(np.stack([xs, np.full(n, 1.0), np.zeros(n)]),
                            np.stack([np.zeros(n), np.ones(n), np.zeros(n)]), np.ones(n, bool))
     bottom = IC.ShadingPoints(top.p, -top.n, np.ones(n, bool))
-    both = IC.ShadingPoints(np.concatenate([top.p, bottom.p], 1), np.concatenate([top.n, bottom.n], 1),
-                            np.ones(2 * n, bool))
+    both = IC.ShadingPoints(np.concatenate([top.p, bottom.p], 1),
+                            np.concatenate([top.n, bottom.n], 1), np.ones(2 * n, bool))
     E = IC.irradiance(scene, both, cfg=IC.CacheConfig(a=0.5, passes=0), seed=0).E
     E_plain = IC.irradiance(scene, both, cfg=IC.CacheConfig(cached=False), seed=0).E
     # the top (facing the lit ceiling region and light) and bottom differ; each side's cached
     # value stays close to its own plain gather
-    assert np.abs(E[1, n:].mean() - E_plain[1, n:].mean()) < 0.25 * abs(E_plain[1, :n].mean() - E_plain[1, n:].mean())
+    assert (np.abs(E[1, n:].mean() - E_plain[1, n:].mean())
+            < 0.25 * abs(E_plain[1, :n].mean() - E_plain[1, n:].mean()))
 
 
 def test_final_gathering_matches_the_path_tracer(cornell):
     seeds = range(12)
-    fg = np.stack([IC.render(cornell, IC.CacheConfig(cached=False), spp=1, seed=s).image for s in seeds])
+    fg = np.stack([IC.render(cornell, IC.CacheConfig(cached=False), spp=1, seed=s).image
+                   for s in seeds])
     pt = np.stack([jgi.render(cornell, "pt", spp=16, seed=100 + s) for s in seeds])
     assert_agree(fg, pt, regions=4, label="final gathering vs path tracing")
 
@@ -118,6 +121,8 @@ def test_jensen_with_irradiance_cache_agrees_with_plain_final_gathering():
     params = dict(spp=2, photons=20_000, caustic_photons=2_000, final_gather=24, k=20)
     seeds = range(4)
     plain = np.stack([jgi.render(scene, "pm_jensen", seed=s, **params) for s in seeds])
-    cached = np.stack([jgi.render(scene, "pm_jensen", seed=s, irradiance_cache=True, **params) for s in seeds])
+    cached = np.stack([jgi.render(scene, "pm_jensen", seed=s, irradiance_cache=True, **params)
+                       for s in seeds])
     assert not np.allclose(plain, cached)  # the option is wired: a different estimator ran
-    assert_agree(cached, plain, regions=2, label="Jensen: irradiance cache vs plain final gathering")
+    assert_agree(cached, plain, regions=2,
+                 label="Jensen: irradiance cache vs plain final gathering")

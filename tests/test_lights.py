@@ -1,4 +1,5 @@
-"""Lights (:mod:`jgi.physics.lights`): next-event sampling, its pdf, emission sampling and selection.
+"""Lights (:mod:`jgi.physics.lights`): next-event sampling, its pdf, emission sampling and
+selection.
 
 * ``sample_li`` from a reference point: directions follow ``pdf_li`` (chi-square over the
   sphere of directions, zoomed on the light; ``pdf_li`` evaluated where an independent float64
@@ -87,7 +88,8 @@ def sample_li(lights, x, seed, n=N):
 
 
 def sample_emission(lights, seed, n=N):
-    return {k: v[:n] for k, v in _numpy(_sample_emission(lights, uniforms(seed, 5, bucket(n)))).items()}
+    return {k: v[:n]
+            for k, v in _numpy(_sample_emission(lights, uniforms(seed, 5, bucket(n)))).items()}
 
 
 def normalize(v):
@@ -149,8 +151,8 @@ def direction_pdf(lights, k, x, cast):
     def pdf(w):
         w = normalize(np.asarray(w, np.float64))
         hit, y, n = cast(np.asarray(x, float), w)
-        p = np.asarray(_pdf_li(lights, np.int32(k), np.float32(x), np.float32(np.where(hit[:, None], y, 0)),
-                               np.float32(n)))
+        p = np.asarray(_pdf_li(lights, np.int32(k), np.float32(x),
+                               np.float32(np.where(hit[:, None], y, 0)), np.float32(n)))
         return np.where(hit, p, 0.0)
     return pdf
 
@@ -199,7 +201,8 @@ def check_area_light(lights, cast, corners_or_none, seed, label, x=X_REF):
 
 def irradiance_estimate(s, n_x):
     cos = np.maximum(s["wi"] @ n_x, 0.0)
-    e = np.where(s["valid"][:, None], s["Li"] * (cos / np.where(s["valid"], s["pdf"], 1.0))[:, None], 0.0)
+    e = np.where(s["valid"][:, None],
+                 s["Li"] * (cos / np.where(s["valid"], s["pdf"], 1.0))[:, None], 0.0)
     return e.mean(0), e.std(0) / np.sqrt(len(e))
 
 
@@ -271,7 +274,8 @@ def test_sphere_light_from_inside_and_on_it_gives_nothing():
     outer = _emitted(lights, np.int32(0), np.float32(n_y), np.float32([[0.0, 0.0, 1.0]]))
     assert np.all(np.asarray(inner) == 0) and np.allclose(np.asarray(outer), L_RGB)
     y = c + np.array([[0.0, 0.0, r]])
-    assert float(_pdf_li(lights, np.int32(0), np.float32(c), np.float32(y), np.float32(n_y))[0]) == 0
+    assert float(_pdf_li(lights, np.int32(0), np.float32(c), np.float32(y),
+                         np.float32(n_y))[0]) == 0
 
 
 def test_one_sided_area_light_seen_from_behind():
@@ -282,7 +286,8 @@ def test_one_sided_area_light_seen_from_behind():
     p0, e1, e2 = QUAD
     y = (p0 + 0.5 * e1 + 0.5 * e2)[None]
     n_q = normalize(np.cross(e1, e2))
-    assert float(_pdf_li(lights, np.int32(0), np.float32(x_behind), np.float32(y), np.float32(n_q))[0]) == 0
+    assert float(_pdf_li(lights, np.int32(0), np.float32(x_behind), np.float32(y),
+                         np.float32(n_q))[0]) == 0
 
 
 def test_environment_sample_li():
@@ -303,7 +308,8 @@ def test_pdf_li_includes_selection_pmf():
     """Two emitters in different directions: the returned pdf (and pdf_li with the element
     that was hit) is pmf_k times the element's own density; irradiance adds up."""
     c, rad = np.array([-1.5, 0.0, 1.5]), 0.4
-    lights = build(lambda b: (b.quad(*QUAD, "m", emission=L_RGB), b.sphere(c, rad, "m", emission=2 * L_RGB)))
+    lights = build(lambda b: (b.quad(*QUAD, "m", emission=L_RGB),
+                              b.sphere(c, rad, "m", emission=2 * L_RGB)))
     pmf = np.asarray(lights.pmf)
     s = sample_li(lights, X_REF, seed=7)
     w = normalize(s["wi"].astype(np.float64))
@@ -357,7 +363,8 @@ def test_spot_light_falloff():
     dist = 1.7
     th = np.radians(angles)
     xs = pos + dist * np.stack([np.sin(th), np.zeros_like(th), -np.cos(th)], axis=1)
-    out = {k: np.asarray(v) for k, v in _sample_li(lights, np.float32(xs), uniforms(10, 3, len(xs))).items()}
+    out = {k: np.asarray(v)
+           for k, v in _sample_li(lights, np.float32(xs), uniforms(10, 3, len(xs))).items()}
     fall = smoothstep_falloff(np.cos(th), np.cos(np.radians(30.0)), np.cos(np.radians(20.0)))
     np.testing.assert_allclose(out["Li"], I * fall[:, None] / dist ** 2, rtol=2e-5, atol=1e-5)
     np.testing.assert_array_equal(out["valid"], fall > 0)
@@ -443,7 +450,8 @@ def test_point_and_spot_emission():
     pos, I = np.array([0.0, 1.0, 0.0]), np.array([5.0, 4.0, 3.0])
     e = sample_emission(build(lambda b: b.point_light(pos, I)), seed=15)
     np.testing.assert_allclose(e["p"], np.broadcast_to(pos, e["p"].shape), atol=1e-6)
-    assert_chi2(e["d"], lambda w: np.full(len(w), 1 / (4 * np.pi)), SphereDomain(), "point emission")
+    assert_chi2(e["d"], lambda w: np.full(len(w), 1 / (4 * np.pi)), SphereDomain(),
+                "point emission")
     np.testing.assert_allclose(e["weight"].mean(0), 4 * np.pi * I, rtol=1e-5)
     assert e["delta_pos"].all() and not e["delta_dir"].any()
     # spot: uniform in the cutoff cone, weighted by the falloff; power has a closed form
@@ -537,7 +545,7 @@ def test_selection_is_proportional_to_power_and_total_power():
     assert r_.ok(), r_.message
 
 
-# --- degenerate inputs ------------------------------------------------------------------------------
+# --- degenerate inputs ----------------------------------------------------------------------------
 
 def all_finite(d):
     for k, v in d.items():

@@ -59,7 +59,8 @@ def test_detailed_balance_on_sampled_pairs(rng_np):
     x = jnp.asarray(rng_np.random((2, 2000)), jnp.float32)
     u = jnp.asarray(rng_np.random((9, 2000)), jnp.float32)
     f = lambda z: 1.0 + jnp.sin(6 * z[0]) ** 2 + z[1]
-    for prop in (mcmc.torus_random_walk(0.01, 0.3), mcmc.mixture(0.3, mcmc.torus_random_walk(), mcmc.independent_uniform())):
+    for prop in (mcmc.torus_random_walk(0.01, 0.3),
+                 mcmc.mixture(0.3, mcmc.torus_random_walk(), mcmc.independent_uniform())):
         y = prop.sample(x, u)
         t_xy, t_yx = prop.log_density(x, y), prop.log_density(y, x)
         a_xy = mcmc.acceptance_probability(f(x), f(y), t_xy, t_yx)
@@ -70,8 +71,12 @@ def test_detailed_balance_on_sampled_pairs(rng_np):
     prop = mcmc.log_normal_step(0.5)
     xp = x + 0.1
     y = prop.sample(xp, u)
-    lhs = gamma3(xp) * jnp.exp(prop.log_density(xp, y)) * mcmc.acceptance_probability(gamma3(xp), gamma3(y), prop.log_density(xp, y), prop.log_density(y, xp))
-    rhs = gamma3(y) * jnp.exp(prop.log_density(y, xp)) * mcmc.acceptance_probability(gamma3(y), gamma3(xp), prop.log_density(y, xp), prop.log_density(xp, y))
+    lhs = (gamma3(xp) * jnp.exp(prop.log_density(xp, y))
+           * mcmc.acceptance_probability(gamma3(xp), gamma3(y), prop.log_density(xp, y),
+                                         prop.log_density(y, xp)))
+    rhs = (gamma3(y) * jnp.exp(prop.log_density(y, xp))
+           * mcmc.acceptance_probability(gamma3(y), gamma3(xp), prop.log_density(y, xp),
+                                         prop.log_density(xp, y)))
     np.testing.assert_allclose(np.asarray(lhs), np.asarray(rhs), rtol=2e-4, atol=1e-30)
 
 
@@ -87,7 +92,8 @@ def test_torus_walk_samples_its_own_density(rng_np):
     assert stats.chisquare(h, np.full(20, len(t) / 20)).pvalue > 1e-3
     # and log_density integrates to one over the step
     grid = np.linspace(-s2, s2, 200001)
-    dens = np.exp(np.asarray(prop.log_density(jnp.zeros((1, 1)), jnp.asarray(grid[None] % 1.0, jnp.float32))))
+    dens = np.exp(np.asarray(prop.log_density(jnp.zeros((1, 1)),
+                                              jnp.asarray(grid[None] % 1.0, jnp.float32))))
     assert abs(np.trapezoid(dens, grid) - 1) < 1e-2
 
 

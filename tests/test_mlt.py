@@ -136,7 +136,8 @@ def test_lens_mlt_matches_path_tracer_per_region():
     """Lens perturbations and large steps on the Cornell box (mostly lens steps, so an error in
     the lens acceptance shows: dropping G(x'_m, x_{m+1}) gives |t| = 9 here)."""
     scene = jgi.scenes.cornell_box(resolution=16)
-    cfg = replace(CFG, chains=1024, bootstrap_samples=65536, p_large=0.05, p_lens=0.95, p_caustic=0.0)
+    cfg = replace(CFG, chains=1024, bootstrap_samples=65536, p_large=0.05, p_lens=0.95,
+                  p_caustic=0.0)
     results = [mlt.render(scene, cfg, spp=128, seed=10 + s) for s in range(8)]
     imgs = np.stack([r.image for r in results])
     stats_ = results[0].stats

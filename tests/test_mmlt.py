@@ -109,7 +109,8 @@ def test_mmlt_matches_path_tracer_per_region(cornell, mmlt_renders):
     t = assert_agree(imgs, pt, regions=4, label="mmlt vs pt")
     # whole-image mean, per channel, within statistical error
     a, b = imgs.mean(axis=(1, 2)), pt.mean(axis=(1, 2))
-    z = np.abs(a.mean(0) - b.mean(0)) / np.sqrt(a.var(0, ddof=1) / len(a) + b.var(0, ddof=1) / len(b))
+    z = np.abs(a.mean(0) - b.mean(0)) / np.sqrt(a.var(0, ddof=1) / len(a)
+                                                + b.var(0, ddof=1) / len(b))
     print(f"mmlt vs pt: whole-image z {np.round(z, 2)}, worst region t {t.max():.2f}")
     assert np.all(z < 4.5)
 

@@ -44,5 +44,6 @@ def test_tables_and_macros_come_from_the_pipeline():
     tex = (PAPER / "jgi.tex").read_text()
     assert r"\begin{tabular}" not in tex
     inputs = set(re.findall(r"\\input\{generated/([^}]+)\}", tex))
-    unused = sorted(f for f in pipeline.declared_outputs() if f.endswith("_macros.tex") and f not in inputs)
+    unused = sorted(f for f in pipeline.declared_outputs()
+                    if f.endswith("_macros.tex") and f not in inputs)
     assert not unused, f"macro files written by the pipeline but not read by jgi.tex: {unused}"

@@ -52,7 +52,8 @@ def test_white_furnace_russian_roulette_is_unbiased(furnace):
     imgs = renders(furnace, spp=16, strategy="bsdf", max_depth=8, rr_depth=2)
     mean, se = region_stats(imgs, regions=2)
     assert np.all(se > 0), "Russian roulette should add variance"
-    assert np.all(np.abs(mean - expected) <= critical_t(len(imgs) - 1, mean.size) * se), (mean, se, expected)
+    assert np.all(np.abs(mean - expected)
+                  <= critical_t(len(imgs) - 1, mean.size) * se), (mean, se, expected)
 
 
 def point_light_reference(scene, rho, intensity, height, sub=12):
@@ -137,9 +138,11 @@ def test_mis_weights_sum_to_one(rng_np):
     from jgi.transport import mis
 
     for power in (1.0, 2.0, 3.5):
-        p = rng_np.exponential(size=(3, 1000)).astype(np.float32) * 10.0 ** rng_np.uniform(-6, 6, (3, 1000))
+        p = (rng_np.exponential(size=(3, 1000)).astype(np.float32)
+             * 10.0 ** rng_np.uniform(-6, 6, (3, 1000)))
         n = np.array([1.0, 3.0, 2.0])
-        total = sum(mis.heuristic_weight(n[i], p[i], [(n[j], p[j]) for j in range(3) if j != i], power)
+        total = sum(mis.heuristic_weight(n[i], p[i], [(n[j], p[j]) for j in range(3) if j != i],
+                                         power)
                     for i in range(3))
         np.testing.assert_allclose(np.asarray(total), 1.0, rtol=1e-5)
     # extreme ratios stay finite and in [0, 1]
@@ -200,7 +203,8 @@ def test_scene_values_are_arguments_not_constants(cornell):
     before = compilations()
     brighter = jax.tree_util.tree_map(lambda x: x, cornell)
     import equinox as eqx
-    brighter = eqx.tree_at(lambda s: s.materials.diffuse.x, brighter, cornell.materials.diffuse.x * 0.5)
+    brighter = eqx.tree_at(lambda s: s.materials.diffuse.x, brighter,
+                           cornell.materials.diffuse.x * 0.5)
     a = jgi.render(cornell, "pt", spp=2, seed=0, max_depth=5)
     b = jgi.render(brighter, "pt", spp=2, seed=0, max_depth=5)
     assert b[..., 0].mean() < a[..., 0].mean()
@@ -226,7 +230,8 @@ def degenerate_scene():
     b.spot_light((2, 3, 0), (0, 0, 0), (5, 5, 5), cutoff_deg=30)
     b.directional_light((0.3, -1, 0.1), (0.5, 0.5, 0.5))
     b.environment_light((0.1, 0.1, 0.1))
-    b.camera(position=(0, 0.0, 4), look_at=(0, 0.0, 0), fov=60, width=12, height=12)  # eye in the floor plane
+    # eye in the floor plane
+    b.camera(position=(0, 0.0, 4), look_at=(0, 0.0, 0), fov=60, width=12, height=12)
     return b.build()
 
 

@@ -30,7 +30,8 @@ def plane_photons(rng, n, size=1.0, power=1.0, clustered=False):
 
 def queries(xy):
     n = len(xy)
-    return (V3(jnp.asarray(xy[:, 0], jnp.float32), jnp.asarray(xy[:, 1], jnp.float32), jnp.zeros(n)),
+    return (V3(jnp.asarray(xy[:, 0], jnp.float32), jnp.asarray(xy[:, 1], jnp.float32),
+               jnp.zeros(n)),
             V3(jnp.zeros(n), jnp.zeros(n), jnp.ones(n)))
 
 
@@ -47,7 +48,8 @@ def test_knn_and_ball_queries_agree_with_ckdtree(rng_np, clustered):
     d_ref, _ = tree.query(q, k=k)
     r2 = np.asarray(PMap.knn_radius2(g, k, float(grid.cell)))
     have = d_ref[:, -1] < float(grid.cell)  # the k-th neighbour lies within the search radius
-    np.testing.assert_allclose(np.sqrt(r2[have] / (1 + 1e-6)), d_ref[have, -1], rtol=1e-4, atol=1e-6)
+    np.testing.assert_allclose(np.sqrt(r2[have] / (1 + 1e-6)), d_ref[have, -1], rtol=1e-4,
+                               atol=1e-6)
     rb = 0.9 * float(grid.cell)  # fixed-radius queries see every photon within one cell
     counts = np.asarray(jnp.sum(g.d2 < rb**2, axis=-1))
     ref_counts = np.array([len(c) for c in tree.query_ball_point(q, rb - 1e-6)])
@@ -66,15 +68,16 @@ def test_constant_density_is_estimated_without_bias(rng_np, kind, params):
     g1 = np.arange(0.1, 0.9, 0.09)
     q = np.stack(np.meshgrid(g1, g1), -1).reshape(-1, 2)
     x, nrm = queries(q)
-    est, _ = PMap.estimate(PMap.gather(grid, x, nrm, cap=256), jnp.float32(r * r), jnp.float32(1.0), kind, **params)
+    est, _ = PMap.estimate(PMap.gather(grid, x, nrm, cap=256), jnp.float32(r * r),
+                           jnp.float32(1.0), kind, **params)
     e = np.asarray(est.x)
     density = n / size**2
     se = e.std(ddof=1) / np.sqrt(len(e))
     assert abs(e.mean() - density) < critical_t(len(e) - 1, 1) * se, (kind, e.mean(), density, se)
 
 
-@pytest.mark.parametrize("kind, name", [("gaussian", "gauss_alpha"), ("gaussian", "gauss_beta"), ("cone", "k"),
-                                        ("epanechnikov", "r"), ("gaussian", "r")])
+@pytest.mark.parametrize("kind, name", [("gaussian", "gauss_alpha"), ("gaussian", "gauss_beta"),
+                                        ("cone", "k"), ("epanechnikov", "r"), ("gaussian", "r")])
 def test_gradients_match_central_differences(rng_np, kind, name):
     pm, _ = plane_photons(rng_np, 5000)
     grid = PMap.build_grid(pm, 0.1)
@@ -93,7 +96,8 @@ def test_gradients_match_central_differences(rng_np, kind, name):
     from jax import enable_x64
 
     with enable_x64():
-        g64 = jax.tree_util.tree_map(lambda a: jnp.asarray(a, jnp.float64) if a.dtype == jnp.float32 else a, g)
+        g64 = jax.tree_util.tree_map(
+            lambda a: jnp.asarray(a, jnp.float64) if a.dtype == jnp.float32 else a, g)
 
         def f64(v):
             p = dict(base, **{name: v})
@@ -162,6 +166,7 @@ def test_sppm_is_consistent():
     ref = np.mean([jgi.render(scene, "pt", spp=128, seed=s) for s in range(4)], 0)
     rel = []
     for passes in (1, 6, 36):
-        img = jgi.render(scene, "sppm", spp=1, seed=3, passes=passes, photons=10_000, radius=0.15, radius_alpha=0.7)
+        img = jgi.render(scene, "sppm", spp=1, seed=3, passes=passes, photons=10_000,
+                         radius=0.15, radius_alpha=0.7)
         rel.append(float(np.mean((img - ref) ** 2 / (ref**2 + 1e-2))))
     assert rel[0] > rel[1] > rel[2], rel

@@ -70,13 +70,15 @@ def test_no_parameter_list_is_written_by_hand():
         if path.name == "registry.py":
             continue
         calls = [n for n in ast.walk(ast.parse(path.read_text()))
-                 if isinstance(n, ast.Call) and getattr(n.func, "id", getattr(n.func, "attr", "")) == "Param"]
+                 if isinstance(n, ast.Call)
+                 and getattr(n.func, "id", getattr(n.func, "attr", "")) == "Param"]
         assert not calls, f"{path.name}: Param(...) written by hand"
 
 
 def test_resolve_returns_the_config_with_checked_values():
     cfg = jgi.REGISTRY["pt"].resolve(dict(heuristic="power", power=3, max_depth=4.0))
-    assert cfg == jgi.estimators.path_tracer.PathTracerConfig(heuristic="power", power=3.0, max_depth=4)
+    assert cfg == jgi.estimators.path_tracer.PathTracerConfig(heuristic="power", power=3.0,
+                                                              max_depth=4)
     assert type(cfg.power) is float and type(cfg.max_depth) is int
     # a setting the registry does not offer stays a field only Python callers set
     assert "s1" not in {p.name for p in jgi.REGISTRY["pssmlt"].params}
@@ -97,11 +99,14 @@ def test_a_config_declares_parameters_with_param():
     est = Estimator("toy", "a toy", lambda scene, cfg, *, spp, seed, progress=False: None, Toy,
                     renamed={"count": "n"})
     assert est.resolve(dict(n=5)) == Toy(n=5)
-    with pytest.raises(jgi.ParameterError, match=r"estimator 'toy', parameter 'n': 10 is above the maximum 9"):
+    with pytest.raises(jgi.ParameterError,
+                       match=r"estimator 'toy', parameter 'n': 10 is above the maximum 9"):
         est.resolve(dict(n=10))
-    with pytest.raises(jgi.ParameterError, match=r"estimator 'toy': parameter 'count' was renamed 'n'"):
+    with pytest.raises(jgi.ParameterError,
+                       match=r"estimator 'toy': parameter 'count' was renamed 'n'"):
         est.resolve(dict(count=5))
-    with pytest.raises(jgi.ParameterError, match=r"estimator 'toy' has no parameter 'hidden'; allowed: mode, n, on"):
+    with pytest.raises(jgi.ParameterError,
+                       match=r"estimator 'toy' has no parameter 'hidden'; allowed: mode, n, on"):
         est.resolve(dict(hidden=1.0))
     assert "n = 3 in [1, 9]" in est.describe() and "one of ['a', 'b']" in est.describe()
 
@@ -140,7 +145,7 @@ def test_cross_field_checks_run_with_validation():
         jgi.REGISTRY["mlt"].resolve(dict(p_large=0.0, p_lens=0.0, p_caustic=0.0))
 
 
-# --- former names -----------------------------------------------------------------------------------
+# --- former names ---------------------------------------------------------------------------------
 
 @pytest.mark.parametrize("name, old, new", RENAMED)
 def test_former_names_are_refused_naming_the_new_one(name, old, new):
@@ -184,13 +189,15 @@ spp = 1
     ('params = {{ {old} = 2.0 }}', "estimator[0]"),
     ('sweep = {{ {old} = [1.0, 2.0] }}', "estimator[0]"),
 ])
-@pytest.mark.parametrize("name, old, new", [("pt", "beta", "power"), ("sppm", "alpha", "radius_alpha")])
+@pytest.mark.parametrize("name, old, new",
+                         [("pt", "beta", "power"), ("sppm", "alpha", "radius_alpha")])
 def test_experiment_configs_name_the_new_key(tmp_path, name, old, new, where, key):
     path = tmp_path / "exp.toml"
     path.write_text(CONFIG.format(name=name, where=where.format(old=old)))
     calls = []
     with pytest.raises(ConfigError) as err:
-        run(path, out_root=tmp_path / "runs", render=lambda *a, **k: calls.append(1), progress=False)
+        run(path, out_root=tmp_path / "runs", render=lambda *a, **k: calls.append(1),
+            progress=False)
     message = str(err.value)
     assert str(path) in message and key in message, message
     assert f"estimator '{name}': parameter '{old}' was renamed '{new}'" in message
@@ -203,8 +210,8 @@ def test_experiment_reference_params_name_the_new_key(tmp_path):
         "reference = { closed_form = 1.0 }",
         'reference = { estimator = "pt", spp = 4, params = { heuristic = "power", beta = 2.0 } }')
     path.write_text(text)
-    with pytest.raises(ConfigError, match=r"experiment\.reference: estimator 'pt': parameter 'beta' "
-                                          r"was renamed 'power'"):
+    with pytest.raises(ConfigError, match=r"experiment\.reference: estimator 'pt': "
+                                          r"parameter 'beta' was renamed 'power'"):
         run(path, out_root=tmp_path / "runs", progress=False)
 
 
@@ -228,7 +235,7 @@ def test_cli_renders_with_the_new_key(tmp_path, capsys):
     assert out.exists() and out.with_suffix(".png").exists()
 
 
-# --- results ------------------------------------------------------------------------------------------
+# --- results --------------------------------------------------------------------------------------
 
 def test_render_result_returns_image_and_stats():
     scene = jgi.scenes.cornell_box(resolution=8)
@@ -257,7 +264,7 @@ def test_stats_of_photon_mapping_and_the_irradiance_cache():
     assert dataclasses.asdict(irradiance_cache.CacheStats(**ic)) == ic
 
 
-# --- random-stream salts --------------------------------------------------------------------------------
+# --- random-stream salts --------------------------------------------------------------------------
 
 def test_salts_are_one_table_and_distinct_where_streams_meet():
     salts = rng.SALTS
@@ -268,7 +275,8 @@ def test_salts_are_one_table_and_distinct_where_streams_meet():
     assert subpath.LIGHT_SALT == salts["light_subpath"]
     # every salt an estimator derives with (offsets included), by stream
     used = {"photons": [salts["photons"]], "light_subpath": [salts["light_subpath"]],
-            "final_gather": [salts["final_gather"]], "irradiance_gather": [salts["irradiance_gather"]],
+            "final_gather": [salts["final_gather"]],
+            "irradiance_gather": [salts["irradiance_gather"]],
             "mcmc": [salts["mcmc"]], "pssmlt": [salts["pssmlt"], salts["pssmlt"] + 1],
             "mmlt": [salts["mmlt"] + 1 + L for L in range(1, 17)],
             "mlt": [salts["mlt"], salts["mlt"] + 1]}

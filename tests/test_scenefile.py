@@ -124,7 +124,8 @@ def test_the_documented_example_loads(tmp_path):
     doc = (ROOT / "docs" / "scene-format.md").read_text()
     example = doc.split("## A complete example")[1].split("```toml")[1].split("```")[0]
     (tmp_path / "meshes").mkdir()
-    (tmp_path / "meshes" / "torus.ply").write_bytes((ROOT / "scenes" / "meshes" / "torus.ply").read_bytes())
+    (tmp_path / "meshes" / "torus.ply").write_bytes(
+        (ROOT / "scenes" / "meshes" / "torus.ply").read_bytes())
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         s = load(tmp_path, example)
@@ -197,7 +198,8 @@ def test_rectangle_translate_rotate_scale_corners(tmp_path):
 [[shape]]
 type = "rectangle"
 material = "m"
-transform = { translate = [1, 2, 3], rotate = [{ axis = [0, 0, 1], angle = 30 }, { axis = [1, 1, 0], angle = 50 }], scale = [2, 0.5, 7] }
+transform = { translate = [1, 2, 3], rotate = [{ axis = [0, 0, 1], angle = 30 }, """
+    """{ axis = [1, 1, 0], angle = 50 }], scale = [2, 0.5, 7] }
 """)
     assert s.quads.count == 1  # a general orientation: not an axis-aligned rectangle
     M = rot([1, 1, 0], 50) @ rot([0, 0, 1], 30) @ np.diag([2, 0.5, 7])
@@ -220,8 +222,10 @@ edge_u = [1, 0, 0]
 edge_v = [0, 1, 0]
 transform = {{ rotate = {r} }}
 """
-    ab = load(tmp_path, text.format(r="[{ axis = [0, 0, 1], angle = 90 }, { axis = [1, 0, 0], angle = 90 }]"))
-    ba = load(tmp_path, text.format(r="[{ axis = [1, 0, 0], angle = 90 }, { axis = [0, 0, 1], angle = 90 }]"))
+    ab = load(tmp_path, text.format(r="[{ axis = [0, 0, 1], angle = 90 }, "
+                                      "{ axis = [1, 0, 0], angle = 90 }]"))
+    ba = load(tmp_path, text.format(r="[{ axis = [1, 0, 0], angle = 90 }, "
+                                      "{ axis = [0, 0, 1], angle = 90 }]"))
     one = load(tmp_path, text.format(r="{ axis = [0, 0, 1], angle = 90 }"))
     A, B = rot([0, 0, 1], 90), rot([1, 0, 0], 90)
     for s, M, axis in ((ab, B @ A, 1), (ba, A @ B, 0), (one, A, 2)):
@@ -258,10 +262,12 @@ transform = { translate = [5, 0, 0], scale = 0.5 }
     em = np.asarray(s.rects.emitter)
     assert np.all(em >= 0) and np.all(np.asarray(s.lights.kind)[em] == AREA_QUAD)
     np.testing.assert_allclose(np.asarray(s.lights.area)[em], 1.0, rtol=1e-6)
-    centers = np.asarray(s.lights.p0.x)[em] + 0.5 * (np.asarray(s.lights.e1.x)[em] + np.asarray(s.lights.e2.x)[em])
+    centers = np.asarray(s.lights.p0.x)[em] + 0.5 * (np.asarray(s.lights.e1.x)[em]
+                                                     + np.asarray(s.lights.e2.x)[em])
     normals_x = np.asarray(s.lights.normal.x)[em]
     # faces at x = 5.5 point to +x, at x = 4.5 to -x
-    assert np.all(normals_x[np.isclose(centers, 5.5)] == 1) and np.all(normals_x[np.isclose(centers, 4.5)] == -1)
+    assert (np.all(normals_x[np.isclose(centers, 5.5)] == 1)
+            and np.all(normals_x[np.isclose(centers, 4.5)] == -1))
 
 
 OBJ = """# a unit square (one quad face, triangulated by trimesh) and a triangle
@@ -331,7 +337,8 @@ transform = {{ translate = [0, 1, 0], scale = 3 }}
     assert triangle_set(s.triangles) == triangle_set(ref.build().triangles)
     em = np.asarray(s.triangles.emitter)
     assert np.all(np.asarray(s.lights.kind)[em] == AREA_TRIANGLE)
-    areas = [0.5 * np.linalg.norm(np.cross(world[b] - world[a], world[c] - world[a])) for a, b, c in tris]
+    areas = [0.5 * np.linalg.norm(np.cross(world[b] - world[a], world[c] - world[a]))
+             for a, b, c in tris]
     np.testing.assert_allclose(sorted(np.asarray(s.lights.area)[em]), sorted(areas), rtol=1e-5)
 
 
@@ -467,7 +474,8 @@ def test_load_scene_options(tmp_path):
     assert jgi.load_scene(p, resolution=16).resolution == (16, 12)
     assert jgi.load_scene(p, height=3).resolution == (4, 3)
     assert jgi.load_scene(p, width=5, height=5).resolution == (5, 5)
-    with pytest.raises(SceneError, match="unknown option 'spp' for a scene file; allowed: resolution, width, height"):
+    with pytest.raises(SceneError, match="unknown option 'spp' for a scene file; allowed: "
+                                         "resolution, width, height"):
         jgi.load_scene(p, spp=4)
     with pytest.raises(SceneError, match="width: expected a positive integer"):
         jgi.load_scene(p, width=0)
@@ -500,13 +508,15 @@ def test_warnings_for_a_scene_without_light_and_degenerate_mesh_triangles(tmp_pa
 def sphere(**kw):
     d = dict(material="'m'", center="[0, 0, 0]", radius="1")
     d.update(kw)
-    return HEAD + "[[shape]]\ntype = 'sphere'\n" + "".join(f"{k} = {v}\n" for k, v in d.items() if v is not None)
+    return (HEAD + "[[shape]]\ntype = 'sphere'\n"
+            + "".join(f"{k} = {v}\n" for k, v in d.items() if v is not None))
 
 
 def quad(**kw):
     d = dict(material="'m'", origin="[0, 0, 0]", edge_u="[1, 0, 0]", edge_v="[0, 1, 0]")
     d.update(kw)
-    return HEAD + "[[shape]]\ntype = 'quad'\n" + "".join(f"{k} = {v}\n" for k, v in d.items() if v is not None)
+    return (HEAD + "[[shape]]\ntype = 'quad'\n"
+            + "".join(f"{k} = {v}\n" for k, v in d.items() if v is not None))
 
 
 def cube(transform):
@@ -524,7 +534,8 @@ def light(body):
 def camera(**kw):
     d = dict(position="[0, 1, 5]", look_at="[0, 0, 0]")
     d.update(kw)
-    return MAT + LIGHT + "[camera]\n" + "".join(f"{k} = {v}\n" for k, v in d.items() if v is not None)
+    return (MAT + LIGHT + "[camera]\n"
+            + "".join(f"{k} = {v}\n" for k, v in d.items() if v is not None))
 
 
 def mesh(file):
@@ -536,7 +547,8 @@ BAD = {
     # unknown tables and keys (typos), with a suggestion where one is close
     "top-level table": (HEAD + "[renderer]\nspp = 3\n", "renderer",
                         "allowed: name, camera, material, shape, light"),
-    "top-level typo": (HEAD + "[[materials]]\nname = 'y'\n", "materials", "did you mean 'material'?"),
+    "top-level typo": (HEAD + "[[materials]]\nname = 'y'\n", "materials",
+                       "did you mean 'material'?"),
     "camera key": (camera(lookat="[0, 0, 0]"), "camera.lookat", "did you mean 'look_at'?"),
     "material key for its type": (material("type = 'mirror'\nior = 1.5\n"), "material[0].ior",
                                   "allowed: name, specular, type"),
@@ -558,43 +570,51 @@ BAD = {
     "phong exponent": (material("type = 'phong'\nspecular = 0.5\n"), "material[0].exponent",
                        "required keys: name, specular, exponent"),
     "shape material": (sphere(material=None), "shape[0].material", "missing"),
-    "sphere radius": (sphere(radius=None), "shape[0].radius", "required keys: type, material, center, radius"),
+    "sphere radius": (sphere(radius=None), "shape[0].radius",
+                      "required keys: type, material, center, radius"),
     "quad edge": (quad(edge_v=None), "shape[0].edge_v", "missing"),
-    "mesh file key": (HEAD + "[[shape]]\ntype = 'mesh'\nmaterial = 'm'\n", "shape[0].file", "missing"),
+    "mesh file key": (HEAD + "[[shape]]\ntype = 'mesh'\nmaterial = 'm'\n", "shape[0].file",
+                      "missing"),
     "light intensity": (light("type = 'point'\nposition = [0, 1, 0]\n"), "light[0].intensity",
                         "required keys: position, intensity"),
-    "rotate angle": (cube("{ rotate = [{ axis = [0, 1, 0] }] }"), "shape[0].transform.rotate[0].angle",
-                     "missing"),
+    "rotate angle": (cube("{ rotate = [{ axis = [0, 1, 0] }] }"),
+                     "shape[0].transform.rotate[0].angle", "missing"),
     # wrong types and vector lengths
-    "string for a number": (sphere(radius="'big'"), "shape[0].radius", "expected a number, got 'big' (a string)"),
+    "string for a number": (sphere(radius="'big'"), "shape[0].radius",
+                            "expected a number, got 'big' (a string)"),
     "boolean for a number": (sphere(radius="true"), "shape[0].radius", "expected a number"),
     "short vector": (sphere(center="[0, 0]"), "shape[0].center", "expected 3 numbers [x, y, z]"),
     "rgb of 4": (sphere(emission="[1, 1, 1, 1]"), "shape[0].emission",
                  "expected 3 numbers [r, g, b] or one number"),
-    "vector of strings": (camera(position="['0', '1', '5']"), "camera.position", "expected 3 numbers"),
+    "vector of strings": (camera(position="['0', '1', '5']"), "camera.position",
+                          "expected 3 numbers"),
     "float width": (camera(width="2.5"), "camera.width", "expected an integer"),
     "transform not a table": (cube("3"), "shape[0].transform", "expected a table"),
-    "matrix shape": (cube("{ matrix = [[1, 0, 0], [0, 1, 0], [0, 0, 1]] }"), "shape[0].transform.matrix",
-                     "expected 4 rows of 4 numbers"),
-    "matrix strings": (cube("{ matrix = [['a', 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]] }"),
+    "matrix shape": (cube("{ matrix = [[1, 0, 0], [0, 1, 0], [0, 0, 1]] }"),
+                     "shape[0].transform.matrix", "expected 4 rows of 4 numbers"),
+    "matrix strings": (cube("{ matrix = [['a', 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], "
+                            "[0, 0, 0, 1]] }"),
                        "shape[0].transform.matrix", "expected 4 rows of 4 numbers"),
     "single [material]": (CAMERA + LIGHT + "[material]\nname = 'x'\ntype = 'diffuse'\n", "material",
                           "write [[material]]"),
     "name not a string": ("name = 3\n" + HEAD, "name", "expected a string"),
-    "type not a string": (HEAD + "[[shape]]\ntype = 3\n", "shape[0].type", "allowed: sphere, quad, rectangle, cube, mesh"),
+    "type not a string": (HEAD + "[[shape]]\ntype = 3\n", "shape[0].type",
+                          "allowed: sphere, quad, rectangle, cube, mesh"),
     # non-finite numbers
     "nan radius": (sphere(radius="nan"), "shape[0].radius", "expected a finite number"),
     "inf in a vector": (sphere(center="[0, inf, 0]"), "shape[0].center", "expected finite numbers"),
-    "inf in a matrix": (cube("{ matrix = [[inf, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]] }"),
+    "inf in a matrix": (cube("{ matrix = [[inf, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], "
+                             "[0, 0, 0, 1]] }"),
                         "shape[0].transform.matrix", "expected finite numbers"),
-    "nan angle": (cube("{ rotate = { axis = [0, 1, 0], angle = nan } }"), "shape[0].transform.rotate.angle",
-                  "expected a finite number"),
+    "nan angle": (cube("{ rotate = { axis = [0, 1, 0], angle = nan } }"),
+                  "shape[0].transform.rotate.angle", "expected a finite number"),
     # out-of-range values
     "negative radius": (sphere(radius="-1"), "shape[0].radius", "must be > 0"),
     "zero radius": (sphere(radius="0"), "shape[0].radius", "must be > 0"),
-    "negative emission": (sphere(emission="[1, -1, 1]"), "shape[0].emission", "must be non-negative"),
-    "albedo above 1": (material("type = 'diffuse'\ndiffuse = [0.5, 1.5, 0.5]\n"), "material[0].diffuse",
-                       "reflectance must be in [0, 1]"),
+    "negative emission": (sphere(emission="[1, -1, 1]"), "shape[0].emission",
+                          "must be non-negative"),
+    "albedo above 1": (material("type = 'diffuse'\ndiffuse = [0.5, 1.5, 0.5]\n"),
+                       "material[0].diffuse", "reflectance must be in [0, 1]"),
     "phong energy": (material("type = 'phong'\ndiffuse = 0.6\nspecular = 0.6\nexponent = 10\n"),
                      "material[0].specular", "diffuse + specular must be <= 1"),
     "negative exponent": (material("type = 'phong'\nspecular = 0.5\nexponent = -1\n"),
@@ -602,31 +622,40 @@ BAD = {
     "zero ior": (material("type = 'dielectric'\nior = 0\n"), "material[0].ior", "must be > 0"),
     "fov": (camera(fov="200"), "camera.fov", "must be in (0, 180) degrees"),
     "width": (camera(width="0"), "camera.width", "must be a positive number of pixels"),
-    "spot cutoff": (light("type = 'spot'\nposition = [0, 1, 0]\ntarget = [0, 0, 0]\nintensity = 1\ncutoff = 120\n"),
+    "spot cutoff": (light("type = 'spot'\nposition = [0, 1, 0]\ntarget = [0, 0, 0]\n"
+                          "intensity = 1\ncutoff = 120\n"),
                     "light[0].cutoff", "must be in (0, 90] degrees"),
-    "spot falloff": (light("type = 'spot'\nposition = [0, 1, 0]\ntarget = [0, 0, 0]\nintensity = 1\ncutoff = 20\nfalloff = 30\n"),
+    "spot falloff": (light("type = 'spot'\nposition = [0, 1, 0]\ntarget = [0, 0, 0]\n"
+                           "intensity = 1\ncutoff = 20\nfalloff = 30\n"),
                      "light[0].falloff", "must be in [0, cutoff = 20.0] degrees"),
     # degenerate geometry (refused)
     "zero-area quad": (quad(edge_v="[2, 0, 0]"), "shape[0]", "allowed: two non-parallel edges"),
     "zero edge": (quad(edge_u="[0, 0, 0]"), "shape[0]", "the quad has no area"),
     "zero scale": (cube("{ scale = 0 }"), "shape[0].transform", "allowed: an invertible transform"),
-    "flattening scale": (cube("{ scale = [1, 0, 1] }"), "shape[0].transform", "the transform is singular"),
-    "projective matrix": (cube("{ matrix = [[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 1, 1]] }"),
+    "flattening scale": (cube("{ scale = [1, 0, 1] }"), "shape[0].transform",
+                         "the transform is singular"),
+    "projective matrix": (cube("{ matrix = [[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], "
+                               "[0, 0, 1, 1]] }"),
                           "shape[0].transform.matrix", "the last row must be [0, 0, 0, 1]"),
-    "matrix and translate": (cube("{ matrix = [[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]], translate = [1, 0, 0] }"),
+    "matrix and translate": (cube("{ matrix = [[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], "
+                                  "[0, 0, 0, 1]], translate = [1, 0, 0] }"),
                              "shape[0].transform", "either matrix or translate/rotate/scale"),
     "zero rotation axis": (cube("{ rotate = { axis = [0, 0, 0], angle = 3 } }"),
                            "shape[0].transform.rotate.axis", "must be non-zero"),
     "non-uniform sphere": (sphere(transform="{ scale = [1, 2, 1] }"), "shape[0].transform",
                            "a sphere allows only uniform scaling"),
-    "camera look_at = position": (camera(look_at="[0, 1, 5]"), "camera.look_at", "allowed: any other point"),
-    "camera up parallel": (camera(up="[0, -1, -5]"), "camera.up", "parallel to the viewing direction"),
-    "spot target = position": (light("type = 'spot'\nposition = [0, 1, 0]\ntarget = [0, 1, 0]\nintensity = 1\n"),
+    "camera look_at = position": (camera(look_at="[0, 1, 5]"), "camera.look_at",
+                                  "allowed: any other point"),
+    "camera up parallel": (camera(up="[0, -1, -5]"), "camera.up",
+                           "parallel to the viewing direction"),
+    "spot target = position": (light("type = 'spot'\nposition = [0, 1, 0]\n"
+                                     "target = [0, 1, 0]\nintensity = 1\n"),
                                "light[0].target", "allowed: any other point"),
     "directional zero": (light("type = 'directional'\ndirection = [0, 0, 0]\nirradiance = 1\n"),
                          "light[0].direction", "must be non-zero"),
     # names and type values
-    "unknown material": (sphere(material="'gold'"), "shape[0].material", "unknown material 'gold'; defined: m"),
+    "unknown material": (sphere(material="'gold'"), "shape[0].material",
+                         "unknown material 'gold'; defined: m"),
     "duplicate material": (HEAD + MAT, "material[1].name", "defined twice"),
     "material type": (material("type = 'plastic'\n"), "material[0].type",
                       "unknown type 'plastic'; allowed: diffuse, mirror, dielectric, phong"),
@@ -635,16 +664,20 @@ BAD = {
     "light type": (light("type = 'area'\n"), "light[0].type",
                    "unknown type 'area'; allowed: point, spot, directional, environment"),
     "fov_axis": (camera(fov_axis="'diagonal'"), "camera.fov_axis", "allowed: x, y, smaller"),
-    "two environments": (light("type = 'environment'\nradiance = 1\n[[light]]\ntype = 'environment'\nradiance = 1\n"),
+    "two environments": (light("type = 'environment'\nradiance = 1\n[[light]]\n"
+                               "type = 'environment'\nradiance = 1\n"),
                          "light[1]", "allowed: at most one"),
     # mesh files
-    "missing mesh": (mesh("missing.obj"), "shape[0].file", "does not exist (paths are relative to the scene file)"),
+    "missing mesh": (mesh("missing.obj"), "shape[0].file",
+                     "does not exist (paths are relative to the scene file)"),
     "mesh is a directory": (mesh("dir.obj"), "shape[0].file", "is not a file"),
     "mesh format": (mesh("m.txt"), "shape[0].file", "allowed: .obj, .ply, .stl, .off, .glb, .gltf"),
-    "garbage ply": (mesh("bad.ply"), "shape[0].file", "expected a valid PLY file that trimesh can read"),
+    "garbage ply": (mesh("bad.ply"), "shape[0].file",
+                    "expected a valid PLY file that trimesh can read"),
     "empty obj": (mesh("empty.obj"), "shape[0].file", "has no faces"),
     # TOML syntax (with the line from tomllib and the offending line quoted)
-    "syntax": (CAMERA + "[[shape]\n", "TOML syntax error", "(at line 7, column 8)\n    7 | [[shape]"),
+    "syntax": (CAMERA + "[[shape]\n", "TOML syntax error",
+               "(at line 7, column 8)\n    7 | [[shape]"),
 }
 
 
@@ -653,7 +686,8 @@ def test_bad_scene_files_name_the_file_the_key_and_what_is_allowed(tmp_path, cas
     text, key, allowed = BAD[case]
     (tmp_path / "dir.obj").mkdir()
     (tmp_path / "m.txt").write_text("v 0 0 0\n")
-    (tmp_path / "bad.ply").write_bytes(b"ply\nformat binary_little_endian 1.0\nelement vertex 3\ngarbage")
+    (tmp_path / "bad.ply").write_bytes(b"ply\nformat binary_little_endian 1.0\nelement vertex 3\n"
+                                       b"garbage")
     (tmp_path / "empty.obj").write_text("# nothing\n")
     path = write(tmp_path, text)
     with warnings.catch_warnings():

@@ -219,7 +219,8 @@ def test_newton_reciprocals_match_float64():
     special = np.float32([0.0, -0.0, np.inf, -np.inf, np.nan, 1e-45, 3e38])
     with np.errstate(divide="ignore", over="ignore"):
         want = np.where(np.abs(special) < 1.1754944e-38, np.copysign(np.inf, special),
-                        np.where(np.abs(special) > 8.507059e37, np.copysign(0.0, special), 1 / special))
+                        np.where(np.abs(special) > 8.507059e37, np.copysign(0.0, special),
+                                 1 / special))
     np.testing.assert_array_equal(np.asarray(jax.jit(X.recip)(special)), want.astype(np.float32))
     r = np.asarray(jax.jit(X.rsqrt)(np.float32([0.0, np.inf, -1.0, 4.0])))
     assert np.isinf(r[0]) and r[1] == 0 and np.isnan(r[2]) and abs(r[3] - 0.5) < 1e-7
@@ -238,7 +239,8 @@ def test_safe_reciprocal_shares_one_reciprocal_accurately():
         got = np.asarray(got, np.float64)
         big = np.abs(c) >= G.SLAB_MIN
         assert np.abs(got[big] * c[big] - 1).max() < 6 * 2.0 ** -24
-        assert np.all(np.isfinite(got)) and np.all(got[~big] == np.float32(1 / np.float32(G.SLAB_MIN)))
+        assert (np.all(np.isfinite(got))
+                and np.all(got[~big] == np.float32(1 / np.float32(G.SLAB_MIN))))
 
 
 def test_concentric_disc_matches_the_float64_map():

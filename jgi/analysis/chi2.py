@@ -194,7 +194,7 @@ def histogram(samples, domain) -> tuple[np.ndarray, int]:
     return counts, int(len(a) - counts.sum())
 
 
-# --- the statistic ----------------------------------------------------------------------------------
+# --- the statistic --------------------------------------------------------------------------------
 
 @dataclass
 class Result:

@@ -4,8 +4,8 @@ The test bed is the lecture's point light over a diffuse plane: a point light of
 height h gives the plane the irradiance E(rho) = I h / (h^2 + rho^2)^(3/2) at distance rho from
 the foot point, so the error of every photon estimate E_hat(x; theta) is exact, not measured
 against a noisy reference. For a parameter vector theta (radius, cone k, the Gaussian's
-gauss_alpha and gauss_beta) and R photon maps traced with fixed seeds (common random numbers) the objective is the
-sample-average relative MSE over query points x_j:
+gauss_alpha and gauss_beta) and R photon maps traced with fixed seeds (common random numbers)
+the objective is the sample-average relative MSE over query points x_j:
 
     MSE_R(theta) = (1 / (R J)) sum_r sum_j (E_hat_r(x_j; theta) - E(x_j))^2 / E(x_j)^2
 
@@ -49,7 +49,8 @@ def irradiance(rho, intensity: float, height: float):
     return intensity * height / (height * height + rho * rho) ** 1.5
 
 
-def point_light_problem(photons: int, repetitions: int, *, intensity: float = 10.0, height: float = 1.0,
+def point_light_problem(photons: int, repetitions: int, *, intensity: float = 10.0,
+                        height: float = 1.0,
                         extent: float = 0.8, points: int = 8, r_max: float = 0.6,
                         candidates: int = 2048, seed: int = 0) -> DensityProblem:
     """Trace ``repetitions`` photon maps of the point-light plane and gather, around a
@@ -59,7 +60,8 @@ def point_light_problem(photons: int, repetitions: int, *, intensity: float = 10
     scene = point_light_plane(resolution=4, intensity=intensity, height=height, albedo=0.5)
     u = np.linspace(-extent, extent, points)
     px, pz = (a.ravel() for a in np.meshgrid(u, u))
-    x = V3(jnp.asarray(px, jnp.float32), jnp.zeros(px.size, jnp.float32), jnp.asarray(pz, jnp.float32))
+    x = V3(jnp.asarray(px, jnp.float32), jnp.zeros(px.size, jnp.float32),
+           jnp.asarray(pz, jnp.float32))
     n = V3(jnp.zeros(px.size), jnp.ones(px.size), jnp.zeros(px.size))
     d2s, pows = [], []
     for r in range(repetitions):
@@ -67,18 +69,21 @@ def point_light_problem(photons: int, repetitions: int, *, intensity: float = 10
         grid = PMap.build_grid(pm, r_max)
         g = PMap.gather(grid, x, n, PMap.auto_cap(grid, limit=1 << 14))
         if bool(jnp.any(g.truncated)):
-            raise ValueError(f"a grid cell holds more photons than the gather cap: lower r_max ({r_max})")
+            raise ValueError(f"a grid cell holds more photons than the gather cap: "
+                             f"lower r_max ({r_max})")
         neg, idx = jax.lax.top_k(-g.d2, candidates)
         d2 = -neg
         if bool(jnp.any(d2[:, -1] <= r_max * r_max)):
-            raise ValueError(f"{candidates} candidates do not cover r_max = {r_max}; raise candidates")
+            raise ValueError(f"{candidates} candidates do not cover r_max = {r_max}; "
+                             f"raise candidates")
         d2s.append(d2)
         pows.append(jnp.take_along_axis(g.power.x, idx, axis=1))
     exact = irradiance(jnp.sqrt(jnp.asarray(px * px + pz * pz, jnp.float32)), intensity, height)
     return DensityProblem(jnp.stack(d2s), jnp.stack(pows), exact, photons, r_max)
 
 
-def estimate(problem: DensityProblem, r, kind: str = "epanechnikov", normalised: bool = True, **filter_params):
+def estimate(problem: DensityProblem, r, kind: str = "epanechnikov", normalised: bool = True,
+             **filter_params):
     """[R, J] irradiance estimates sum_p W(d_p) Phi_p / K; with ``normalised=False`` the Gaussian
     is used as Jensen wrote it, divided by pi r^2 only (``gauss_alpha`` then sets its scale)."""
     gathered = PMap.Gathered(problem.d2, V3(problem.power, problem.power, problem.power), None,

@@ -64,7 +64,8 @@ def least_squares(residuals: Callable[[Array], Array], theta0, *, rtol: float = 
                   atol: float = 1e-10, max_steps: int = 256) -> FitResult:
     """Levenberg-Marquardt on ``residuals(theta) -> vector`` (optimistix)."""
     theta0 = jnp.asarray(theta0, jnp.float32)
-    sol = optx.least_squares(lambda y, _: residuals(y), optx.LevenbergMarquardt(rtol=rtol, atol=atol),
+    sol = optx.least_squares(lambda y, _: residuals(y),
+                             optx.LevenbergMarquardt(rtol=rtol, atol=atol),
                              theta0, max_steps=max_steps, throw=False)
     r = residuals(sol.value)
     return FitResult(sol.value, 0.5 * jnp.sum(r * r), int(sol.stats["num_steps"]),

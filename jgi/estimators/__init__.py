@@ -14,5 +14,5 @@ from . import (
 )
 from .registry import REGISTRY, Estimator, Param, Render, get, param, params_of, register
 
-__all__ = ["REGISTRY", "Estimator", "Param", "ParameterError", "Render", "get", "param", "params_of",
-           "register"]
+__all__ = ["REGISTRY", "Estimator", "Param", "ParameterError", "Render", "get", "param",
+           "params_of", "register"]

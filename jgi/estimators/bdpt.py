@@ -124,7 +124,7 @@ class BDPTConfig:
         return out
 
 
-# --- MIS: Veach's ratios of strategy densities -----------------------------------------------------
+# --- MIS: Veach's ratios of strategy densities ----------------------------------------------------
 
 def _log_remap0(pdf: Array) -> Array:
     """log of pbrt's remap0 (a zero density, from a Dirac lobe, counts as 1), floored."""
@@ -206,7 +206,8 @@ def _camera_visit(scene: Scene, exponent: float):
         n_y, y_surface = light_normal(lights, k, y)
         out["s1_fwd_y"] = pdf_light_origin(lights, k)                        # p_fwd(y_0)
         out["s1_rev_y"] = convert_density(pdf_p_fwd, d2, dot(n_y, ls.wi), y_surface)
-        out["s1_rev_pt"] = convert_density(pdf_emission_dir(lights, k, n_y, -ls.wi), d2, cos_p, True)
+        out["s1_rev_pt"] = convert_density(pdf_emission_dir(lights, k, n_y, -ls.wi), d2, cos_p,
+                                           True)
         out["s1_rev_ptm"] = convert_density(pdf_p_rev, v.d2_prev, dot(s.prev_n, s.d),
                                             s.prev_surface)
         out["s1_delta_light"] = ls.delta
@@ -240,7 +241,7 @@ def camera_subpath(scene: Scene, cfg: BDPTConfig, key: Array, pixel: Array, unif
     return concat_rows(z0, verts), rec
 
 
-# --- all strategies of one sample -------------------------------------------------------------------
+# --- all strategies of one sample -----------------------------------------------------------------
 
 def _interior(scene: Scene, q: Vertices, qm: Vertices, p: Vertices, pm: Vertices):
     """Connection y_{s-1} = q <-> z_{t-1} = p (s, t >= 2) for stacked rows of pairs."""
@@ -388,7 +389,8 @@ def contributions(scene: Scene, cfg: BDPTConfig, seed, pixel: Array, sample: Arr
             for i in range(s - 1, -1, -1):  # y_i becomes a camera vertex: (i, s + t - i)
                 fwd = s1_fwd_y + t - 2 if s == 1 else light_fwd + i
                 a = false_row if i == s - 1 else light_delta + i
-                b = light_delta + i - 1 if i > 0 else (s1_delta_light + t - 2 if s == 1 else delta_light)
+                b = (light_delta + i - 1 if i > 0
+                     else (s1_delta_light + t - 2 if s == 1 else delta_light))
                 light_steps.append((light_over.get(i, light_rev + i), fwd, a, b))
         chains.append((cam_steps, light_steps))
     weights = mis_weights_batched([_log_remap0(r) for r in P.rows], F.rows, chains, cfg.exponent)

@@ -151,7 +151,8 @@ def gather(scene: Scene, cfg: CacheConfig, seed, ids, p: V3, n: V3):
     K = p.x.shape[0]
     of, df, kf, angles, frame = _gather_rays(scene, cfg, seed, ids, p, n)
     hit = G.intersect(scene, of, df)
-    Le = LT.emitted(scene.lights, hit.emitter, hit.n, -df) if scene.lights.count else V3(*(0 * of.x,) * 3)
+    Le = (LT.emitted(scene.lights, hit.emitter, hit.n, -df) if scene.lights.count
+          else V3(*(0 * of.x,) * 3))
     L = radiance(scene, cfg.pt, lambda dim: rng.uniform(kf, dim + 2), of, df)
     L = V3(*(jnp.maximum(jnp.where(jnp.isfinite(a), a - b, 0.0), 0.0) for a, b in zip(L, Le)))
     r = jnp.where(hit.valid, hit.t, jnp.inf)
@@ -168,8 +169,9 @@ def _gather_hits(scene: Scene, cfg: CacheConfig, seed, ids, p: V3, n: V3):
     return v._replace(n=B.facing(v.n, v.wo)), jnp.where(hit.valid, hit.t, jnp.inf), angles, frame
 
 
-_record_jit = jax.jit(lambda scene, cfg, K, L, r, angles, frame: _record(scene, cfg, K, L, r, angles, frame),
-                      static_argnames=("cfg", "K"))
+_record_jit = jax.jit(
+    lambda scene, cfg, K, L, r, angles, frame: _record(scene, cfg, K, L, r, angles, frame),
+    static_argnames=("cfg", "K"))
 
 
 def gather_photons(scene: Scene, cfg: CacheConfig, seed, ids, p: V3, n: V3, grid, *, k: int,
@@ -178,8 +180,8 @@ def gather_photons(scene: Scene, cfg: CacheConfig, seed, ids, p: V3, n: V3, grid
     is the photon estimate of the light reflected at the diffuse surface it reaches."""
     K = p.x.shape[0]
     v, r, angles, frame = _gather_hits(scene, cfg, seed, ids, p, n)
-    Lp, _ = PMap.estimate_at_points(scene, grid, v.p, v.n, v.material, radius, cap=cap, k=k, kind="box",
-                              thickness=None, filter_params={})
+    Lp, _ = PMap.estimate_at_points(scene, grid, v.p, v.n, v.material, radius, cap=cap, k=k,
+                                    kind="box", thickness=None, filter_params={})
     found = np.asarray(v.found)
     L = V3(*(jnp.asarray(np.where(found, np.asarray(b) * c, 0.0)) for b, c in zip(v.beta, Lp)))
     return _record_jit(scene, cfg, K, L, r, angles, frame)
@@ -269,16 +271,19 @@ def interpolate(rec: Records, x: V3, n: V3, a):
     return E, wsum
 
 
-# --- the estimator ---------------------------------------------------------------------------------
+# --- the estimator --------------------------------------------------------------------------------
 
 def _pad_records(recs: list[tuple], capacity: int) -> Records:
     """Concatenate record batches (numpy) and pad to ``capacity`` rows."""
     cat = lambda xs: np.concatenate(xs) if xs else np.zeros(0, np.float32)
     parts = list(zip(*recs)) if recs else [[] for _ in range(7)]
     def v3(items):
-        return V3(*(np.pad(cat([np.asarray(it[c]) for it in items]), (0, capacity - n)) for c in range(3)))
+        return V3(*(np.pad(cat([np.asarray(it[c]) for it in items]), (0, capacity - n))
+                    for c in range(3)))
     n = sum(len(np.asarray(r[3])) for r in recs)
-    p, nn, E, R = v3(parts[0]), v3(parts[1]), v3(parts[2]), np.pad(cat([np.asarray(x) for x in parts[3]]), (0, capacity - n), constant_values=1.0)
+    p, nn, E, R = (v3(parts[0]), v3(parts[1]), v3(parts[2]),
+                   np.pad(cat([np.asarray(x) for x in parts[3]]), (0, capacity - n),
+                          constant_values=1.0))
     gr = tuple(v3([it[c] for it in parts[4]]) for c in range(3))
     gt = tuple(v3([it[c] for it in parts[5]]) for c in range(3))
     valid = np.arange(capacity) < n
@@ -306,7 +311,8 @@ class PhotonSource(NamedTuple):
 def photon_source(scene: Scene, photons: int, seed: int, *, k: int = 50, radius: float = 0.08,
                   max_depth: int = 8) -> PhotonSource:
 
-    grid = PMap.build_grid(trace_photons(scene, photons, seed=seed, max_depth=max_depth), radius, cap=128)
+    grid = PMap.build_grid(trace_photons(scene, photons, seed=seed, max_depth=max_depth), radius,
+                           cap=128)
     return PhotonSource(grid, k, float(grid.cell))
 
 
@@ -335,7 +341,8 @@ def irradiance(scene: Scene, pts: ShadingPoints, *, cfg: CacheConfig, seed: int 
             sel = idx[s0:s0 + batch]
             pad = np.pad(sel, (0, batch - len(sel)), mode="edge")
             take = lambda a: V3(*(jnp.asarray(c[pad]) for c in a))
-            args = (scene, gather_cfg, jnp.uint32(seed), jnp.asarray(pad, jnp.int32), take(pts.p), take(pts.n))
+            args = (scene, gather_cfg, jnp.uint32(seed), jnp.asarray(pad, jnp.int32), take(pts.p),
+                    take(pts.n))
             if source is None:
                 E, R, gr, gt = gather(*args)
             else:

@@ -79,7 +79,8 @@ def trace_light_paths(scene: Scene, cfg: LightTracerConfig, seed, pixel: Array, 
     ok0 = y0.valid & y0.on_surface & proj.visible & (pdf0 > 0)
     val0 = where(ok0, le * (proj.importance * g / jnp.where(ok0, pdf0, 1.0)), V3.full(0.0, g))
     W = scene.camera.width
-    pix0 = jnp.where(ok0, jnp.clip(jnp.floor(proj.py).astype(jnp.int32), 0, scene.camera.height - 1) * W
+    pix0 = jnp.where(ok0, jnp.clip(jnp.floor(proj.py).astype(jnp.int32), 0,
+                                   scene.camera.height - 1) * W
                      + jnp.clip(jnp.floor(proj.px).astype(jnp.int32), 0, W - 1), -1)
     rays = [G.shadow_ray(y0.p, y0.n, proj.wi, proj.dist)]
     # ---- s >= 2: every surface vertex of the light subpath, all at once ([max_depth - 1, N]) ----

@@ -93,7 +93,8 @@ class MLTConfig:
                                    minimum=16)
     b_paths: int = param(1 << 20, "path-traced paths to estimate b (0: the bootstrap's mean)",
                          minimum=0)
-    p_large: float = param(0.1, "probability of a large step (fresh path)", minimum=0.0, maximum=1.0)
+    p_large: float = param(0.1, "probability of a large step (fresh path)", minimum=0.0,
+                           maximum=1.0)
     p_lens: float = param(0.45, "probability of a lens perturbation", minimum=0.0, maximum=1.0)
     p_caustic: float = param(0.45, "probability of a caustic perturbation", minimum=0.0,
                              maximum=1.0)
@@ -209,8 +210,10 @@ def specular_continue(mp: B.MaterialParams, n: V3, w_from: V3, transmit: Array):
     eta = jnp.where(cos_f > 0, mp.ior, 1.0 / mp.ior)
     wt, can_refract = B.refract(w_from, nside, eta)
     d = where(transmit, wt, reflect(w_from, nside))
-    ok = jnp.where(transmit, (mp.kind == DIELECTRIC) & can_refract, (mp.kind == MIRROR) | (mp.kind == DIELECTRIC))
-    return d, ok & (jnp.abs(cos_f) > EDGE_ON_COS)   # edge-on: nothing scattered, as in jgi.physics.bsdf
+    ok = jnp.where(transmit, (mp.kind == DIELECTRIC) & can_refract,
+                   (mp.kind == MIRROR) | (mp.kind == DIELECTRIC))
+    # edge-on: nothing scattered, as in jgi.physics.bsdf
+    return d, ok & (jnp.abs(cos_f) > EDGE_ON_COS)
 
 
 def transmits(path: Path) -> Array:
@@ -607,7 +610,8 @@ def render(scene: Scene, cfg: MLTConfig = MLTConfig(), *, spp: int, seed: int,
     make from the current path) and ``K_acceptance`` (accepted / applicable)."""
     check_scene(scene)
     W, H = scene.camera.width, scene.camera.height
-    chains, bootstrap_samples, steps_per_call = cfg.chains, cfg.bootstrap_samples, cfg.steps_per_call
+    chains, bootstrap_samples, steps_per_call = (cfg.chains, cfg.bootstrap_samples,
+                                                 cfg.steps_per_call)
     mu = cfg.mutations().arrays()
     b_paths = cfg.b_paths
     cfg = cfg.kernel()
@@ -627,8 +631,8 @@ def render(scene: Scene, cfg: MLTConfig = MLTConfig(), *, spp: int, seed: int,
     counts = np.zeros((3, 3), np.int64)
     for done in range(0, n_steps_total, steps_per_call):
         n = min(steps_per_call, n_steps_total - done)  # the last block runs masked
-        x, part, c = run_chains(scene, cfg, mu, jnp.uint32(seed), x, jnp.int32(done), steps_per_call,
-                                scale, jnp.int32(n))
+        x, part, c = run_chains(scene, cfg, mu, jnp.uint32(seed), x, jnp.int32(done),
+                                steps_per_call, scale, jnp.int32(n))
         img += np.asarray(part, np.float64)
         counts += np.asarray(c, np.int64)
     stats = dict(b=b, b_bootstrap=b_bootstrap, mutations=n_steps_total * chains,

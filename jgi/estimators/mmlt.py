@@ -226,7 +226,8 @@ def render(scene: Scene, cfg: MMLTConfig = MMLTConfig(), *, spp: int, seed: int,
     t0 = time.perf_counter()
     if scene.lights.count == 0:
         return Render(img.reshape(H, W, 3).astype(np.float32), {})
-    chains, bootstrap_samples, steps_per_call = cfg.chains, cfg.bootstrap_samples, cfg.steps_per_call
+    chains, bootstrap_samples, steps_per_call = (cfg.chains, cfg.bootstrap_samples,
+                                                 cfg.steps_per_call)
     lengths = list(range(1, cfg.max_depth + 1))
     per_len = max(1, chains // len(lengths))
     p_large = jnp.float32(cfg.p_large)
@@ -269,8 +270,8 @@ def render(scene: Scene, cfg: MMLTConfig = MMLTConfig(), *, spp: int, seed: int,
 
 
 register(Estimator(
-    "mmlt", "multiplexed Metropolis light transport over BDPT (strategy in the chain state)", render,
-    MMLTConfig, renamed={"beta": "power"}))
+    "mmlt", "multiplexed Metropolis light transport over BDPT (strategy in the chain state)",
+    render, MMLTConfig, renamed={"beta": "power"}))
 
 
 def small_step_density(u, v, s1: float = MMLTConfig.s1, s2: float = MMLTConfig.s2):

@@ -11,7 +11,8 @@ the camera is gathered by two strategies:
   draw n_g points on the lights and add (1/n_g) beta f L_i |cos| / p_g when unoccluded;
   emitters hit by BSDF rays then count only after a specular bounce (or straight from the camera).
 * **MIS** (``strategy="mis"``): both, weighted by the balance heuristic
-  w = n p / (n_f p_f + n_g p_g) or the power heuristic with exponent ``power`` (jgi.transport.mis), n_f = 1.
+  w = n p / (n_f p_f + n_g p_g) or the power heuristic with exponent ``power``
+  (jgi.transport.mis), n_f = 1.
 
 beta (path throughput) is multiplied by f |cos| / p at every bounce. Russian roulette after
 ``rr_depth`` segments keeps the estimator unbiased (beta /= q). ``max_depth`` counts path
@@ -54,7 +55,8 @@ class PathTracerConfig:
     strategy: str = param("mis", "which estimator gathers light", choices=("bsdf", "light", "mis"))
     heuristic: str = param("balance", "MIS heuristic", choices=("balance", "power"))
     power: float = param(2.0, "power-heuristic exponent", minimum=0.1, maximum=16)
-    light_samples: int = param(1, "n_g: light samples (shadow rays) per vertex", minimum=1, maximum=64)
+    light_samples: int = param(1, "n_g: light samples (shadow rays) per vertex", minimum=1,
+                               maximum=64)
     max_depth: int = param(8, "maximum path segments (1 = emitters only, 2 = direct light)",
                            minimum=1, maximum=1024)
     rr_depth: int = param(5, "Russian roulette from this many segments (-1 = off)", minimum=-1)

@@ -17,9 +17,9 @@ All three start from the photon maps of :mod:`jgi.transport.photons` and the den
       N_i <- N_i + a M_i,  R_i^2 <- R_i^2 (N_i + a M_i) / (N_i + M_i),
       tau_i <- (tau_i + Phi_i) R_new^2 / R_old^2,
   so the radius shrinks and the estimate L_i = tau_i / (pi R_i^2 T) is consistent as the
-  number of passes T grows (a = ``radius_alpha`` in (0, 1), Hachisuka's alpha). ``ppm`` keeps one visible point per pixel from
-  the first pass (Hachisuka 2008); ``sppm`` traces a new jittered one every pass (2009), so
-  anti-aliasing and glossy/depth effects converge too.
+  number of passes T grows (a = ``radius_alpha`` in (0, 1), Hachisuka's alpha). ``ppm`` keeps
+  one visible point per pixel from the first pass (Hachisuka 2008); ``sppm`` traces a new
+  jittered one every pass (2009), so anti-aliasing and glossy/depth effects converge too.
 Only the diffuse part (k_d / pi) of a surface reflects photons in the estimates.
 
 Parameters: :class:`PMConfig`, :class:`JensenConfig`, :class:`ProgressiveConfig`; each
@@ -66,7 +66,8 @@ class PMConfig:
     gauss_beta: float = param(PMap.JENSEN_BETA, "Gaussian filter beta (Jensen's)", minimum=1e-3)
     max_depth: int = param(8, _MAX_DEPTH_DOC, minimum=1)
     cap: int | None = None          # photons read per grid cell (None: 128 with k, else automatic)
-    thickness: float | None = None  # flattened-disc selection: reject photons this far off the plane
+    thickness: float | None = None  # flattened-disc selection: reject photons this far off
+                                    # the plane
 
 
 @dataclass(frozen=True)
@@ -120,7 +121,8 @@ def render_pm(scene: Scene, cfg: PMConfig = PMConfig(), *, spp: int = 4, seed: i
     """Direct visualisation of the global photon map (see the module docstring).
 
     Stats: ``stored`` (photons in the map), ``truncated`` (a grid cell held more than ``cap``)."""
-    photons, radius, k, filter, max_depth = cfg.photons, cfg.radius, cfg.k, cfg.filter, cfg.max_depth
+    photons, radius, k, filter, max_depth = (cfg.photons, cfg.radius, cfg.k, cfg.filter,
+                                             cfg.max_depth)
     cap, thickness = cfg.cap, cfg.thickness
     pm = trace_photons(scene, photons, seed=seed, max_depth=max_depth)
     grid = PMap.build_grid(pm, radius, cap=(cap or 128) if k > 0 else None)
@@ -128,9 +130,10 @@ def render_pm(scene: Scene, cfg: PMConfig = PMConfig(), *, spp: int = 4, seed: i
     pix, smp = _pixels(scene, spp)
     v = visible_points(scene, jnp.uint32(seed), pix, smp, max_depth=max_depth, light_samples=0)
     fp = (dict(k=cfg.cone_k) if filter == "cone" else
-          dict(gauss_alpha=cfg.gauss_alpha, gauss_beta=cfg.gauss_beta) if filter == "gaussian" else {})
-    L, trunc = PMap.estimate_at_points(scene, grid, v.p, v.n, v.material, radius, cap=cap, k=k, kind=filter,
-                                 thickness=thickness, filter_params=fp)
+          dict(gauss_alpha=cfg.gauss_alpha, gauss_beta=cfg.gauss_beta) if filter == "gaussian"
+          else {})
+    L, trunc = PMap.estimate_at_points(scene, grid, v.p, v.n, v.material, radius, cap=cap, k=k,
+                                       kind=filter, thickness=thickness, filter_params=fp)
     found = np.asarray(v.found)
     beta_ = np.stack([np.asarray(c) for c in v.beta])
     total = np.stack([np.asarray(c) for c in v.L]) + np.where(found, beta_ * L, 0.0)
@@ -140,7 +143,8 @@ def render_pm(scene: Scene, cfg: PMConfig = PMConfig(), *, spp: int = 4, seed: i
 @partial(jax.jit, static_argnames=("n_gather", "max_depth"))
 def _gather_points(scene: Scene, seed, ids, x: V3, n: V3, n_gather: int, max_depth: int):
     """Final-gather rays from x: the diffuse points they reach and the chain throughput."""
-    key = rng.derive(rng.path_key(seed, ids[:, None] * n_gather + jnp.arange(n_gather)[None, :], 0), _SALT)
+    key = rng.derive(
+        rng.path_key(seed, ids[:, None] * n_gather + jnp.arange(n_gather)[None, :], 0), _SALT)
     u1, u2 = rng.uniform(key, 0), rng.uniform(key, 1)
     local = sample_cosine_hemisphere(u1, u2)
     s, t = coordinate_system(n)
@@ -175,16 +179,17 @@ def render_jensen(scene: Scene, cfg: JensenConfig = JensenConfig(), *, spp: int 
         cpm = cpm.select(cpm.caustic)
         if cpm.count:
             cgrid = PMap.build_grid(cpm, cfg.caustic_radius, cap=cap or 128)
-            Lc, _ = PMap.estimate_at_points(scene, cgrid, v.p, v.n, v.material, float(cgrid.cell), cap=cap,
-                                      k=cfg.k_caustic, kind=filter, thickness=None, filter_params={})
+            Lc, _ = PMap.estimate_at_points(scene, cgrid, v.p, v.n, v.material, float(cgrid.cell),
+                                            cap=cap, k=cfg.k_caustic, kind=filter, thickness=None,
+                                            filter_params={})
             total = total + np.where(found, beta_ * Lc, 0.0)
     # indirect diffuse by final gathering on the global map (at every point, or cached)
     if cfg.irradiance_cache:
         m = max(1, int(round(np.sqrt(final_gather / 3))))  # Ward's strata: N ~ 3 M (phi vs theta)
         cache = IC.CacheConfig(a=cfg.cache_a, gather_m=m, gather_n=max(1, final_gather // m),
                                max_depth=max_depth)
-        pts = IC.ShadingPoints(np.stack([np.asarray(c) for c in v.p]), np.stack([np.asarray(c) for c in v.n]),
-                               found)
+        pts = IC.ShadingPoints(np.stack([np.asarray(c) for c in v.p]),
+                               np.stack([np.asarray(c) for c in v.n]), found)
         W = scene.camera.width
         pix = np.arange(len(found)) % (W * scene.camera.height)
         E = IC.irradiance(scene, pts, cfg=cache, seed=seed, raster=(pix % W, pix // W),
@@ -198,12 +203,13 @@ def render_jensen(scene: Scene, cfg: JensenConfig = JensenConfig(), *, spp: int 
             sel = idx[s0:s0 + batch]
             pad = np.pad(sel, (0, batch - len(sel)), mode="edge")
             take = lambda vv: V3(*(jnp.asarray(np.asarray(c)[pad]) for c in vv))
-            g = _gather_points(scene, jnp.uint32(seed), jnp.asarray(pad, jnp.int32), take(v.p), take(v.n),
-                               final_gather, max_depth)
+            g = _gather_points(scene, jnp.uint32(seed), jnp.asarray(pad, jnp.int32), take(v.p),
+                               take(v.n), final_gather, max_depth)
             Lg, _ = PMap.estimate_at_points(scene, grid, g.p, g.n, g.material, radius, cap=cap, k=k,
                                       kind=filter, thickness=None, filter_params={})
             gb = np.stack([np.asarray(c) for c in g.beta])
-            Lg = np.where(np.asarray(g.found), gb * Lg, 0.0).reshape(3, batch, final_gather).mean(-1)
+            Lg = (np.where(np.asarray(g.found), gb * Lg, 0.0)
+                  .reshape(3, batch, final_gather).mean(-1))
             ind[:, sel] = Lg[:, : len(sel)]
     total = total + np.where(found, beta_ * kdx * ind, 0.0)
     return Render(_to_image(scene, total, spp), dict(stored=pm.count))
@@ -215,7 +221,8 @@ def _ppm_gather(scene: Scene, grid, x: V3, n: V3, material, r2, cap: int):
     inside = g.d2 < r2[:, None]
     kd = PMap.diffuse_reflectance(scene, material)
     M = jnp.sum(inside, axis=-1).astype(jnp.float32)
-    phi = V3(*(jnp.sum(jnp.where(inside, p, 0.0), axis=-1) * c / jnp.pi for p, c in zip(g.power, kd)))
+    phi = V3(*(jnp.sum(jnp.where(inside, p, 0.0), axis=-1) * c / jnp.pi
+               for p, c in zip(g.power, kd)))
     return M, phi, g.truncated
 
 
@@ -238,7 +245,8 @@ def render_progressive(scene: Scene, cfg: ProgressiveConfig = ProgressiveConfig(
     truncated = False
     for t in range(passes):
         if stochastic or v is None:
-            v = visible_points(scene, jnp.uint32(rng.lowbias32(jnp.uint32(seed * 65599 + t)).item()),
+            v = visible_points(scene,
+                               jnp.uint32(rng.lowbias32(jnp.uint32(seed * 65599 + t)).item()),
                                pix, smp, max_depth=max_depth, light_samples=0)
             found = np.asarray(v.found)
             beta_ = np.stack([np.asarray(c) for c in v.beta])
@@ -276,22 +284,25 @@ def _pm(scene: Scene, cfg: PMConfig, *, spp: int, seed: int, progress: bool = Fa
     return render_pm(scene, cfg, spp=spp, seed=seed)
 
 
-def _jensen(scene: Scene, cfg: JensenConfig, *, spp: int, seed: int, progress: bool = False) -> Render:
+def _jensen(scene: Scene, cfg: JensenConfig, *, spp: int, seed: int,
+            progress: bool = False) -> Render:
     return render_jensen(scene, cfg, spp=spp, seed=seed)
 
 
-def _ppm(scene: Scene, cfg: ProgressiveConfig, *, spp: int, seed: int, progress: bool = False) -> Render:
+def _ppm(scene: Scene, cfg: ProgressiveConfig, *, spp: int, seed: int,
+         progress: bool = False) -> Render:
     return render_progressive(scene, replace(cfg, stochastic=False), spp=spp, seed=seed)
 
 
-def _sppm(scene: Scene, cfg: ProgressiveConfig, *, spp: int, seed: int, progress: bool = False) -> Render:
+def _sppm(scene: Scene, cfg: ProgressiveConfig, *, spp: int, seed: int,
+          progress: bool = False) -> Render:
     return render_progressive(scene, replace(cfg, stochastic=True), spp=spp, seed=seed)
 
 
 register(Estimator("pm", "photon mapping, direct visualisation of the global map", _pm, PMConfig,
                    renamed={"alpha": "gauss_alpha", "beta": "gauss_beta"}))
-register(Estimator("pm_jensen", "photon mapping with Jensen's split (direct, specular, caustic map, "
-                   "final gathering)", _jensen, JensenConfig))
+register(Estimator("pm_jensen", "photon mapping with Jensen's split (direct, specular, "
+                   "caustic map, final gathering)", _jensen, JensenConfig))
 register(Estimator("ppm", "progressive photon mapping (Hachisuka 2008)", _ppm, ProgressiveConfig,
                    renamed={"alpha": "radius_alpha"}))
 register(Estimator("sppm", "stochastic progressive photon mapping (Hachisuka & Jensen 2009)", _sppm,

@@ -55,7 +55,8 @@ class PSSMLTConfig:
     bootstrap_samples: int = param(65536, "independent samples to estimate b = E[f]", minimum=16)
     max_depth: int = param(8, "maximum path segments", minimum=1, maximum=64)
     rr_depth: int = param(5, "Russian roulette from this many segments (-1 = off)", minimum=-1)
-    strategy: str = param("mis", "path tracer strategy inside MLT", choices=("bsdf", "light", "mis"))
+    strategy: str = param("mis", "path tracer strategy inside MLT",
+                          choices=("bsdf", "light", "mis"))
     s1: float = 1.0 / 1024.0    # smallest and largest small-step sizes (Kelemen's)
     s2: float = 1.0 / 64.0
     steps_per_call: int = 16    # mutations per chain and kernel call
@@ -154,7 +155,8 @@ def render(scene: Scene, cfg: PSSMLTConfig = PSSMLTConfig(), *, spp: int, seed: 
     Stats: ``b`` (the bootstrap estimate of E[f]), ``acceptance`` (accepted / proposed
     mutations), ``mutations``."""
     W, H = scene.camera.width, scene.camera.height
-    chains, bootstrap_samples, steps_per_call = cfg.chains, cfg.bootstrap_samples, cfg.steps_per_call
+    chains, bootstrap_samples, steps_per_call = (cfg.chains, cfg.bootstrap_samples,
+                                                 cfg.steps_per_call)
     cfg = replace(cfg, chains=0, bootstrap_samples=0, steps_per_call=0)  # the kernels' key
     u_b, f_b = bootstrap(scene, cfg, jnp.uint32(seed), bootstrap_samples)
     f_np = np.asarray(f_b, np.float64)

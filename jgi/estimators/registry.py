@@ -108,7 +108,8 @@ def params_of(config: type) -> tuple[Param, ...]:
         if kind not in _TYPES:
             raise TypeError(f"{config.__name__}.{f.name}: a parameter is bool, int, float or str, "
                             f"not {kind!r}")
-        out.append(Param(f.name, f.default, spec.doc, kind, spec.choices, spec.minimum, spec.maximum))
+        out.append(Param(f.name, f.default, spec.doc, kind, spec.choices, spec.minimum,
+                         spec.maximum))
     return tuple(out)
 
 

@@ -159,7 +159,8 @@ def sample_li(lights: Lights, x: V3, u_sel: Array, u1: Array, u2: Array) -> Ligh
         closest = oc - d_cone * b
         disc = jnp.maximum(r * r - dot(closest, closest), 0.0)
         t = -b - jnp.sqrt(disc)
-        pdf_cone = jnp.where(one_minus > 0, 1.0 / (2.0 * jnp.pi * jnp.where(one_minus > 0, one_minus, 1.0)), 0.0)
+        pdf_cone = jnp.where(one_minus > 0,
+                             1.0 / (2.0 * jnp.pi * jnp.where(one_minus > 0, one_minus, 1.0)), 0.0)
         ok = outside & (pdf_cone > 0)
         cone = LightSample(d_cone, t, where(ok, emission, V3(zero, zero, zero)), pdf_cone * pmf,
                            zero > 0, ok)
@@ -212,7 +213,8 @@ def pdf_li(lights: Lights, k: Array, x: V3, y: V3, n_y: V3) -> Array:
     kinds = lights.kinds
     if AREA_SPHERE in kinds:
         _, _, one_minus, outside = _sphere_cone(_take(lights.p0, kk), take(lights.radius, kk), x)
-        pdf_cone = jnp.where(one_minus > 0, 1.0 / (2.0 * jnp.pi * jnp.where(one_minus > 0, one_minus, 1.0)), 0.0)
+        pdf_cone = jnp.where(one_minus > 0,
+                             1.0 / (2.0 * jnp.pi * jnp.where(one_minus > 0, one_minus, 1.0)), 0.0)
         pdf = jnp.where(kind == AREA_SPHERE, jnp.where(outside, pdf_cone, 0.0), pdf)
     if ENVIRONMENT in kinds:
         pdf = jnp.where(kind == ENVIRONMENT, warps.INV_4PI, pdf)
@@ -287,7 +289,8 @@ def sample_emission(lights: Lights, u_sel, u1, u2, u3, u4) -> EmissionSample:
         d = to_world(warps.sample_uniform_cone(u3, u4, ct), axis)
         pdf_dir = warps.pdf_uniform_cone(ct)
         fall = spot_falloff(dot(d, axis), ct, cf)
-        w = emission * (fall * jnp.where(pdf_dir > 0, 1.0 / jnp.where(pdf_dir > 0, pdf_dir, 1.0), 0.0) * inv_pmf)
+        w = emission * (fall * jnp.where(pdf_dir > 0, 1.0 / jnp.where(pdf_dir > 0, pdf_dir, 1.0),
+                                         0.0) * inv_pmf)
         s = EmissionSample(p0, Z, d, w, pmf, pdf_dir, zero == 0, zero > 0, k)
         out = choose(kind == SPOT, s, out)
     if DIRECTIONAL in kinds or ENVIRONMENT in kinds:

@@ -74,7 +74,8 @@ def glass_sphere(resolution: int = 256) -> Scene:
     b.quad((-4, 0, -4), (0, 0, 8), (8, 0, 0), "floor")
     b.sphere((0, 1, 0), 1.0, "glass")
     s = 0.25  # a small square light, facing down
-    b.quad((-s + 1.0, 4.0, -s), (2 * s, 0, 0), (0, 0, 2 * s), "lamp", emission=(200.0, 200.0, 200.0))
+    b.quad((-s + 1.0, 4.0, -s), (2 * s, 0, 0), (0, 0, 2 * s), "lamp",
+           emission=(200.0, 200.0, 200.0))
     b.camera(position=(0, 4.5, 7.5), look_at=(0, 0.6, 0), fov=35, width=resolution,
              height=resolution)
     return b.build()
@@ -141,7 +142,8 @@ def veach_plates(resolution: int = 256) -> Scene:
         n /= np.linalg.norm(n)
         along = np.cross(np.array([1.0, 0.0, 0.0]), n)  # in the plate, perpendicular to x
         u, v = np.array([8.0, 0.0, 0.0]), along * 1.25
-        b.material(f"plate{i}", "phong", diffuse=(0.0, 0.0, 0.0), specular=(0.4, 0.4, 0.4), exponent=e)
+        b.material(f"plate{i}", "phong", diffuse=(0.0, 0.0, 0.0), specular=(0.4, 0.4, 0.4),
+                   exponent=e)
         b.quad(c - u / 2 - v / 2, u, v, f"plate{i}")
     for i, r in enumerate((0.9, 0.3, 0.1, 0.03)):
         radiance = 4.0 * (0.3 / r) ** 2  # equal power
@@ -200,5 +202,6 @@ def get(name: str, **kwargs) -> Scene:
     try:
         fn = BUILTINS[name]
     except KeyError:
-        raise KeyError(f"unknown built-in scene '{name}'; available: {', '.join(BUILTINS)}") from None
+        raise KeyError(f"unknown built-in scene '{name}'; available: "
+                       f"{', '.join(BUILTINS)}") from None
     return fn(**kwargs)

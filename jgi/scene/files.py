@@ -417,7 +417,8 @@ class _TomlLoader:
             b.sphere(xf.apply_point(m, t["center"]), t["radius"] * sv[0], mat, e)
         elif kind == "quad":
             u, v = t["edge_u"], t["edge_v"]
-            if np.linalg.norm(np.cross(u, v)) <= SINGULAR_RTOL * np.linalg.norm(u) * np.linalg.norm(v) \
+            if np.linalg.norm(np.cross(u, v)) \
+                    <= SINGULAR_RTOL * np.linalg.norm(u) * np.linalg.norm(v) \
                     or not np.any(u) or not np.any(v):
                 self.fail(key, "edge_u and edge_v are zero or parallel: the quad has no area; "
                                "allowed: two non-parallel edges")

@@ -12,9 +12,10 @@ One transition of a chain (Veach 1997, ch. 11; Kelemen et al. 2002; Hachisuka et
    the mutations together are ergodic;
 3. *expected-value splatting* (Veach 1997 and Kelemen et al. 2002 alike): the step records the
    current state with weight 1 - a and the proposal with weight a, the expected value of
-   recording only the state the chain moves to, at the same cost and with less variance. In an image estimator, state z with weight w adds w (b M' / M) C(z) / f(z) to the
-   pixel z lands on: C the contribution, f the target (its luminance), b = integral of f, M the
-   number of mutations and M' the number of pixels;
+   recording only the state the chain moves to, at the same cost and with less variance. In an
+   image estimator, state z with weight w adds w (b M' / M) C(z) / f(z) to the pixel z lands on:
+   C the contribution, f the target (its luminance), b = integral of f, M the number of
+   mutations and M' the number of pixels;
 4. a uniform u decides the move: the chain goes to y if u < a.
 
 :func:`metropolis` runs this for many chains at once (one lane each, chain axis last in every
@@ -58,7 +59,8 @@ def acceptance_probability(f_x, f_y, log_t_xy, log_t_yx) -> Array:
     state of zero value at once). A ratio that is not finite (an overflow, 0/0, inf/inf) gives
     a = 0: rejecting the move in both directions keeps detailed balance, where accepting could
     trap a chain at a state of infinite f."""
-    ratio = jnp.where(f_x > 0, f_y / jnp.where(f_x > 0, f_x, 1.0), 1.0) * jnp.exp(log_t_yx - log_t_xy)
+    ratio = (jnp.where(f_x > 0, f_y / jnp.where(f_x > 0, f_x, 1.0), 1.0)
+             * jnp.exp(log_t_yx - log_t_xy))
     return jnp.clip(jnp.where(jnp.isfinite(ratio), ratio, 0.0), 0.0, 1.0)
 
 
@@ -205,7 +207,8 @@ def independent_uniform() -> Proposal:
 
 
 def log_normal_step(sigma: float) -> Proposal:
-    """x' = x exp(sigma N(0,1)) on positive reals: asymmetric, T(x -> y) = N(log y; log x, s) / y."""
+    """x' = x exp(sigma N(0,1)) on positive reals: asymmetric,
+    T(x -> y) = N(log y; log x, s) / y."""
     def sample(x, u):
         d = x.shape[0]
         r = jnp.sqrt(-2.0 * jnp.log(jnp.maximum(u[:d], 1e-12)))
@@ -222,7 +225,8 @@ def mixture(p_large: float, small: Proposal, large: Proposal) -> Proposal:
     def sample(x, u):
         d = x.shape[0]
         choose_large = u[0] < p_large
-        return jnp.where(choose_large[None], large.sample(x, u[1:2 * d + 1]), small.sample(x, u[2 * d + 1:]))
+        return jnp.where(choose_large[None], large.sample(x, u[1:2 * d + 1]),
+                         small.sample(x, u[2 * d + 1:]))
     def log_density(x, y):
         return jnp.logaddexp(jnp.log1p(-p_large) + small.log_density(x, y),
                              jnp.log(p_large) + large.log_density(x, y))

@@ -4,7 +4,8 @@ For strategies i = 1..k with n_i samples each and densities p_i(x), the one-samp
 strategy s that produced x is
 
     balance heuristic:  w_s(x) = n_s p_s(x) / sum_i n_i p_i(x)
-    power heuristic:    w_s(x) = (n_s p_s(x))^b / sum_i (n_i p_i(x))^b   (exponent b = ``power``, 2 usual)
+    power heuristic:    w_s(x) = (n_s p_s(x))^b / sum_i (n_i p_i(x))^b
+                        (exponent b = ``power``, 2 usual)
 
 and the combined estimator is sum_i (1/n_i) sum_j f(X_ij) w_i(X_ij) / p_i(X_ij) (the lecture's
 two-strategy formula with n_f BSDF and n_g light samples). Weights are evaluated as

@@ -91,8 +91,8 @@ def build_grid(pm, cell: float, table_size: int | None = None, cap: int | None =
                           for c in v))
     return HashGrid(take(pm.position), take(pm.power), take(pm.wi), take(pm.normal),
                     jnp.asarray(start), jnp.asarray(count),
-                    V3(*(jnp.asarray(np.float32(c)) for c in origin)), jnp.asarray(np.float32(cell)),
-                    table_size)
+                    V3(*(jnp.asarray(np.float32(c)) for c in origin)),
+                    jnp.asarray(np.float32(cell)), table_size)
 
 
 def auto_cap(grid: HashGrid, limit: int = 1024) -> int:
@@ -110,7 +110,8 @@ def query_chunk(cap: int, budget: int = 1 << 21) -> int:
 def gaussian_normaliser(gauss_alpha, gauss_beta):
     """K / (pi r^2) for the Gaussian filter (see the module docstring)."""
     alpha, beta = gauss_alpha, gauss_beta
-    return alpha * (1.0 - (1.0 - (2.0 / beta) * (1.0 - jnp.exp(-beta / 2.0))) / (1.0 - jnp.exp(-beta)))
+    return alpha * (1.0 - (1.0 - (2.0 / beta) * (1.0 - jnp.exp(-beta / 2.0)))
+                          / (1.0 - jnp.exp(-beta)))
 
 
 def filter_weight(kind: str, d2, r2, k=1.1, gauss_alpha=JENSEN_ALPHA,
@@ -232,7 +233,8 @@ def estimate_at_points(scene, grid, x, n, m, r, *, cap, k, kind, thickness, filt
         xs, ns = V3(*(c[sl] for c in x)), V3(*(c[sl] for c in n))
         pad = chunk - xs.x.shape[0]
         padv = lambda v: V3(*(jnp.pad(c, (0, pad), mode="edge") for c in v))
-        L, _, t = radiance_estimate(scene, grid, padv(xs), padv(ns), jnp.pad(m[sl], (0, pad), mode="edge"),
+        L, _, t = radiance_estimate(scene, grid, padv(xs), padv(ns),
+                                    jnp.pad(m[sl], (0, pad), mode="edge"),
                                     jnp.float32(r), cap, k, kind, thickness, filter_params)
         out.append(np.stack([np.asarray(c)[: chunk - pad] for c in L]))
         trunc |= bool(np.any(np.asarray(t)[: chunk - pad]))

@@ -63,7 +63,8 @@ class PhotonMap(NamedTuple):
 
 
 def _storable(mp: B.MaterialParams) -> Array:
-    return (mp.kind == DIFFUSE) | ((mp.kind == PHONG) & (jnp.maximum(jnp.maximum(mp.kd.x, mp.kd.y), mp.kd.z) > 0))
+    return (mp.kind == DIFFUSE) | ((mp.kind == PHONG)
+                                   & (jnp.maximum(jnp.maximum(mp.kd.x, mp.kd.y), mp.kd.z) > 0))
 
 
 def trace_photon_paths(scene: Scene, seed, photon_index: Array, n_emitted, max_depth: int):
@@ -76,7 +77,8 @@ def trace_photon_paths(scene: Scene, seed, photon_index: Array, n_emitted, max_d
     inv_n = 1.0 / jnp.asarray(n_emitted, jnp.float32)
     power = em.weight * inv_n
     z = jnp.zeros_like(power.x)
-    state = (em.p, em.d, power, power.x >= 0, z > 0, z == 0)  # o, d, power, alive, specular_seen, only_specular
+    # o, d, power, alive, specular_seen, only_specular
+    state = (em.p, em.d, power, power.x >= 0, z > 0, z == 0)
 
     def bounce(state, depth):
         o, d, pw, alive, spec_seen, only_spec = state
@@ -86,7 +88,8 @@ def trace_photon_paths(scene: Scene, seed, photon_index: Array, n_emitted, max_d
         store = alive & _storable(mp)
         record = (hit.p, pw, -d, hit.n, store & spec_seen & only_spec, store)
         base = 5 + depth * DIMS_PER_BOUNCE
-        bs = B.sample(mats.kinds, mp, hit.n, -d, u(base), u(base + 1), u(base + 2), mode=B.IMPORTANCE)
+        bs = B.sample(mats.kinds, mp, hit.n, -d, u(base), u(base + 1), u(base + 2),
+                      mode=B.IMPORTANCE)
         q = jnp.clip(max_component(bs.weight), 0.0, 1.0)
         survive = alive & bs.valid & (u(base + 3) < q)
         pw = where(survive, pw * bs.weight / jnp.where(q > 0, q, 1.0), pw)

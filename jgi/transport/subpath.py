@@ -63,7 +63,7 @@ LIGHT_DIMS0 = 5                # dims 0..4: sample_emission (selection, position
 LIGHT_DIMS_PER_STEP = 3        # per bounce: lobe, u1, u2
 
 
-# --- streams and the camera ray ---------------------------------------------------------------------
+# --- streams and the camera ray -------------------------------------------------------------------
 
 def light_key(seed, pixel, sample) -> Array:
     """The stream of the light subpath of path (seed, pixel, sample)."""
@@ -282,7 +282,7 @@ def light_subpath(scene: Scene, key: Array, max_depth: int, infinite: bool = Fal
     return LightPath(concat_rows(v0, verts), delta_light, em.element)
 
 
-# --- next-event estimation (s = 1): a light sample seen from a surface point -----------------------
+# --- next-event estimation (s = 1): a light sample seen from a surface point ----------------------
 
 class NextEvent(NamedTuple):
     """A light sample y for the surface point x (the light-sampling strategy p_light of Veach
@@ -304,7 +304,8 @@ def sample_next_event(scene: Scene, mp: B.MaterialParams, p: V3, n: V3, wo: V3, 
     ls = LT.sample_li(scene.lights, p, u_select, u1, u2)
     f, pdf_bsdf = B.evaluate(scene.materials.kinds, mp, n, wo, ls.wi)
     ok = active & ~B.is_delta(mp) & ls.valid & (ls.pdf > 0)
-    return NextEvent(ls, f, pdf_bsdf, jnp.abs(dot(ls.wi, n)), G.shadow_ray(p, n, ls.wi, ls.dist), ok)
+    return NextEvent(ls, f, pdf_bsdf, jnp.abs(dot(ls.wi, n)),
+                     G.shadow_ray(p, n, ls.wi, ls.dist), ok)
 
 
 def next_event_value(ne: NextEvent, beta: V3, weight: Array | None = None,
@@ -316,7 +317,7 @@ def next_event_value(ne: NextEvent, beta: V3, weight: Array | None = None,
     return where(ne.ok, beta * ne.f * ne.light.Li * scale, V3.full(0.0, scale))
 
 
-# --- t = 1: connecting a light vertex to the pinhole ------------------------------------------------
+# --- t = 1: connecting a light vertex to the pinhole ----------------------------------------------
 
 class CameraConnection(NamedTuple):
     pixel: Array       # flat pixel index (-1 outside the frame)

@@ -60,7 +60,8 @@ def _parse(path: Path, source: dict) -> ET.Element:
         p.Parse(path.read_bytes(), True)
         return builder.close()
     except expat.ExpatError as e:
-        raise ImportError_(f"{path}:{e.lineno}: XML syntax error: {expat.errors.messages[e.code]}") from None
+        raise ImportError_(f"{path}:{e.lineno}: XML syntax error: "
+                           f"{expat.errors.messages[e.code]}") from None
     except OSError as e:
         raise ImportError_(f"{path}: cannot read: {e}") from None
 
@@ -233,8 +234,9 @@ class _Importer:
             elif c.tag == "ref":
                 rid = c.get("id")
                 if rid not in self.b.material_names:
-                    self.fail(c, f"reference to unknown bsdf '{rid}'; defined: "
-                                 f"{', '.join(k for k in self.b.material_names if not k.startswith('_')) or '(none)'}")
+                    defined = ", ".join(k for k in self.b.material_names
+                                        if not k.startswith("_")) or "(none)"
+                    self.fail(c, f"reference to unknown bsdf '{rid}'; defined: {defined}")
                 material = rid
             elif c.tag == "emitter":
                 if c.get("type") != "area":

@@ -166,12 +166,13 @@ class _Importer:
         if self._get(p, "roughness", 0.0, where, 1) != 0 or "uroughness" in p:
             self.fail(where, f"material '{kind}': only smooth (roughness 0) surfaces are supported")
         if kind == "diffuse":
-            self.b.material(name, "diffuse", diffuse=self._get(p, "reflectance", np.full(3, 0.5), where, 3))
+            self.b.material(name, "diffuse",
+                            diffuse=self._get(p, "reflectance", np.full(3, 0.5), where, 3))
         elif kind == "conductor":
             refl = self._get(p, "reflectance", None, where, 3)
             if refl is None or not np.allclose(refl, 1.0):
-                self.fail(where, "conductor: only a perfect mirror (\"rgb reflectance\" [1 1 1]) is "
-                                 "supported; jgi has no complex-IOR Fresnel")
+                self.fail(where, "conductor: only a perfect mirror (\"rgb reflectance\" [1 1 1]) "
+                                 "is supported; jgi has no complex-IOR Fresnel")
             self.b.material(name, "mirror", specular=(1.0, 1.0, 1.0))
         elif kind == "dielectric":
             self.b.material(name, "dielectric", ior=float(self._get(p, "eta", 1.5, where, 1)))
@@ -201,7 +202,8 @@ class _Importer:
                 cone = float(self._get(p, "coneangle", 30.0, where, 1))
                 delta = float(self._get(p, "conedelta", 5.0, where, 1))
                 if power > 0:
-                    c_end, c_start = math.cos(math.radians(cone)), math.cos(math.radians(cone - delta))
+                    c_end, c_start = (math.cos(math.radians(cone)),
+                                      math.cos(math.radians(cone - delta)))
                     I = I * power / (2 * math.pi * (1 - 0.5 * (c_start + c_end)) * _lum(I / scale))
                 self.b.spot_light(frm, to, I, cutoff_deg=cone, falloff_deg=max(cone - delta, 0.0))
         elif kind == "distant":
@@ -233,7 +235,8 @@ class _Importer:
                 self.fail(where, "sphere under a non-uniform scale is not supported")
             r = float(self._get(p, "radius", 1.0, where, 1)) * s[0]
             if emission is not None and self.area[1] > 0:
-                emission = emission * self.area[1] / (math.pi * 4 * math.pi * r * r * _lum(emission))
+                emission = emission * self.area[1] / (math.pi * 4 * math.pi * r * r
+                                                      * _lum(emission))
             self.b.sphere(xf.apply_point(self.ctm, np.zeros(3)), r, mat, emission)
             return
         if kind == "trianglemesh":
@@ -262,7 +265,8 @@ class _Importer:
         v = xf.apply_point(self.ctm, v)
         if emission is not None and self.area[1] > 0:
             tri = v[f]
-            area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1).sum()
+            area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]),
+                                        axis=1).sum()
             emission = emission * self.area[1] / (math.pi * area * _lum(emission))
         self.b.mesh(v, f, mat, emission)
 
@@ -353,8 +357,10 @@ class _Importer:
                 self.check("AreaLightSource", k, where)
                 p = self.params(toks, where)
                 if self._get(p, "twosided", [False], where)[0]:
-                    self.fail(where, "two-sided area lights are not supported (jgi's emit on one side)")
-                L = self._get(p, "L", np.ones(3), where, 3) * float(self._get(p, "scale", 1.0, where, 1))
+                    self.fail(where, "two-sided area lights are not supported "
+                                     "(jgi's emit on one side)")
+                L = (self._get(p, "L", np.ones(3), where, 3)
+                     * float(self._get(p, "scale", 1.0, where, 1)))
                 self.area = (L, float(self._get(p, "power", -1.0, where, 1)), where)
             elif tok == "LightSource":
                 k = kind()
@@ -369,7 +375,8 @@ class _Importer:
                 self.run_file(path.parent / f.strip('"'))
             elif tok in IGNORED:
                 if tok not in ("WorldEnd",):
-                    k, _ = toks.next() if toks.peek()[0] and toks.peek()[0].startswith('"') else (None, None)
+                    k, _ = (toks.next() if toks.peek()[0] and toks.peek()[0].startswith('"')
+                            else (None, None))
                     self.params(toks, where)
             else:
                 self.fail(where, f"directive '{tok}' is not supported; supported: transforms, "
