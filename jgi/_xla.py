@@ -85,13 +85,10 @@ import os
 import jax
 import jax.numpy as jnp
 
-# LLVM's unroll threshold: the bounce kernels' 2-iteration loops (the size-2 reduce of
-# materialize, below) must be unrolled whole for the loop over lanes to vectorise, and that
-# costs more than a large kernel's size (Cornell box path tracing, 256^2: 13-15 Mpaths/s at 2000,
-# 4000 and 8000; 2.5 at 1000). Veach's plates need more than 2000 (6.1 against 1.3 Mpaths/s at
-# 128^2) and BDPT runs 1.5x faster at 4000, but compiles 3-4x slower (Cornell box: 25-32 s
-# against 7-9 s). JGI_UNROLL_THRESHOLD sets it; the test suite, which is compile-bound, uses
-# 1000 (tests/conftest.py). Unrolling changes no result (test_xla checks a render bit for bit).
+# LLVM's unroll threshold, high enough for the bounce kernels to vectorise, at a cost in compile
+# time (perf: docs/performance.md#unroll-threshold). JGI_UNROLL_THRESHOLD sets it; the test
+# suite, which is compile-bound, uses 1000 (tests/conftest.py). Unrolling changes no result
+# (test_xla checks a render bit for bit).
 DEFAULT_UNROLL_THRESHOLD = 4000
 UNROLL_THRESHOLD = int(os.environ.get("JGI_UNROLL_THRESHOLD", DEFAULT_UNROLL_THRESHOLD))
 

@@ -5,19 +5,15 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
-# One persistent XLA compilation cache for the whole run, shared by the pytest-xdist workers:
-# many tests compile the same kernels (the Cornell box path tracer above all), and a worker
-# that finds one the other has compiled loads it instead (measured: 7% less wall time on the
-# path-tracer, wavefront, gradient, PSSMLT and Whitted tests from an empty cache). Set before
-# any test module imports JAX; results do not depend on it.
+# One persistent XLA compilation cache for the whole run, shared by the pytest-xdist workers
+# (perf: docs/performance.md#test-suite-settings). Set before any test module imports JAX;
+# results do not depend on it.
 os.environ.setdefault("JAX_COMPILATION_CACHE_DIR",
                       str(Path(__file__).resolve().parents[1] / ".cache" / "jax-tests"))
 os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", "0.5")
-# The suite is compile-bound (from an empty cache, XLA's backend compile took 934 of the 1,286
-# worker-seconds): LLVM's unroll threshold 1000 instead of jgi's 4000 (see jgi._xla) compiles BDPT
-# 3-4x and photon mapping 2x faster, and runs the suite in 8:05 against 10:43-12:23 (2 cores),
-# though kernels that need the full unroll run slower. It changes no result: tests/test_xla.py
-# renders with both and compares bit for bit.
+# The suite is compile-bound: LLVM's unroll threshold 1000 instead of jgi's 4000 (see jgi._xla)
+# compiles faster (perf: docs/performance.md#test-suite-settings). It changes no result:
+# tests/test_xla.py renders with both and compares bit for bit.
 os.environ.setdefault("JGI_UNROLL_THRESHOLD", "1000")
 
 import numpy as np  # noqa: E402

@@ -59,9 +59,8 @@ MAX_LEAF = 4          # default leaf size: triangles tested per leaf visit
 STACK_SIZE = 64       # traversal stack entries; the build keeps the tree depth below this
 C_TRAV = 1.0          # SAH cost of a node visit, relative to one triangle test (C_isect = 1)
 LANES = 4096          # traversal lanes (rays in flight) of the batched loop
-MIN_LANES = 2048      # fewer rays still get this many lanes (the extra ones idle): with the
-                      # LLVM unroll threshold of jgi._xla, loops of 1024 lanes or fewer are
-                      # unrolled, and the traversal then compiles 3-4x slower (15 s vs 4 s)
+# smaller loops are unrolled and compile slower (perf: docs/performance.md#bvh-lanes)
+MIN_LANES = 2048      # fewer rays still get this many lanes (the extra ones idle)
 REFILL = 0.25         # refill lanes once this fraction of them is free
 BARY_EPS = 2.0**-20   # barycentric tolerance (about 1e-6 of the triangle's size)
 DET_EPS = 1e-6        # |det| below DET_EPS |d| |e1| |e2| counts as parallel or degenerate

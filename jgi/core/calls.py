@@ -17,8 +17,7 @@ from typing import Callable, Iterator
 
 import numpy as np
 
-# calls in flight at once (two cores, Cornell box at 128^2: BDPT 1.4x, light tracing 1.3x,
-# photon tracing 1.5x, the wavefront path tracer 1.2x; more streams than cores measured slower);
+# calls in flight: each fills the others' idle cores (perf: docs/performance.md#concurrent-calls);
 # the environment variable JGI_CALL_STREAMS overrides it (1: one call at a time)
 CALL_STREAMS = max(1, int(os.environ.get("JGI_CALL_STREAMS", "2")))
 

@@ -32,24 +32,14 @@ from ..core.vec import V3
 from ..scene.data import Scene
 from .chunked import progress_line
 
-WAVEFRONT_LANES = 1 << 12   # lanes per loop. With two loops in flight (jgi.core.calls), 2^12 was
-                            # fastest of 2^10..2^14 at 128^2, 16 spp (Cornell box 1.2x, its
-                            # caustic variant 1.5x, the glass sphere 1.9x, the metal ring 1.7x
-                            # against one loop of 2^14, the best single loop: a loop's last
-                            # paths leave its lanes idle, and the other loop fills the cores
-                            # meanwhile) and as fast as 2^13 and 2^14 at 256^2, 64 spp
+# two loops of 2^12 lanes in flight beat one of 2^14 (perf: docs/performance.md#wavefront-lanes)
+WAVEFRONT_LANES = 1 << 12   # lanes per loop
 WAVEFRONT_SAMPLES = 16      # samples per work slot (one pixel's paths traced by one lane in a row)
 WAVEFRONT_CALL_SLOTS = 64   # work slots per lane and call (on average): bounds a call's length
-WAVEFRONT_STREAM_SLOTS = 1  # least work slots per lane for a call of its own: any render with
-                            # at least twice as many slots as lanes runs as concurrent loops
-WAVEFRONT_UNROLL = 2        # segments per inner-loop iteration: with 1, each iteration ends in
-                            # ~20 copies of the state into the loop buffers (the materialised
-                            # state cannot be written in place); with 2 the second segment writes
-                            # into the buffers the first one has finished reading (1.09x). Only
-                            # for images of at least WAVEFRONT_UNROLL_PIXELS: two segments take
-                            # 2-2.5x as long to compile (8^2 Cornell box: 4.2 s against 2.7 s;
-                            # Veach's plates: 9.0 s against 3.7 s), which small renders never
-                            # win back
+# 2+ slots per lane: concurrent loops (perf: docs/performance.md#wavefront-stream-slots)
+WAVEFRONT_STREAM_SLOTS = 1  # least work slots per lane for a call of its own
+# 2 segments save state copies, cost compile time (perf: docs/performance.md#wavefront-unroll)
+WAVEFRONT_UNROLL = 2        # segments per inner-loop iteration, for images of at least
 WAVEFRONT_UNROLL_PIXELS = 1 << 14
 
 
@@ -90,8 +80,8 @@ def wavefront_call(scene: Scene, seed, slot0, n_call, spp, per_slot, n_inner, *,
     selects ``start_fn``'s state in those lanes as its input. The start is then computed inside
     the step's own kernels (the estimator stores, with its first results, what several of its
     kernels read), instead of in a kernel that rewrote every leaf of every lane's state after
-    each segment for the quarter of the lanes whose path had ended (Cornell box: 1.04x fewer
-    CPU-seconds on one core)."""
+    each segment for the quarter of the lanes whose path had ended
+    (perf: docs/performance.md#lazy-path-starts)."""
     W, H = scene.camera.width, scene.camera.height
     P = W * H
     lane = jnp.arange(lanes, dtype=jnp.int32)
@@ -146,8 +136,7 @@ def wavefront_call(scene: Scene, seed, slot0, n_call, spp, per_slot, n_inner, *,
 
     def outer(carry):
         c, img, nxt = carry
-        # segments between refills run in a loop of their own: the refill (a prefix sum and a
-        # scatter, about 0.25 ms for 2^14 lanes) then costs a few percent
+        # a refill once per n_inner segments is cheap (perf: docs/performance.md#refill-interval)
         return refill(jax.lax.fori_loop(0, n_inner, inner, c), img, nxt)
 
     out, img, _ = jax.lax.while_loop(lambda c: jnp.any(c[0].alive) | (c[2] < n_call), outer,
@@ -170,8 +159,7 @@ def render_wavefront(scene: Scene, start_fn: Callable, step_fn: Callable, *, spp
     kernels read. Work is split into slots of (pixel, up to ``per_slot`` samples,
     default ``WAVEFRONT_SAMPLES``) that lanes take from a queue as they finish (see
     :func:`wavefront_call`): lanes stay busy whatever the spread of path lengths over the
-    image (Cornell box, 256^2, 64 spp: 91% of lane-segments trace a path, against 78% when each
-    lane had a fixed list of four pixels; 1.07x fewer CPU-seconds, 1.26x on the glass sphere).
+    image (perf: docs/performance.md#work-queue).
     Each inner-loop iteration advances every lane by ``unroll`` segments (default
     ``WAVEFRONT_UNROLL`` for images of at least ``WAVEFRONT_UNROLL_PIXELS``, else 1). Renders
     of at least ``WAVEFRONT_STREAM_SLOTS`` slots per lane are split into calls enough for

@@ -273,9 +273,8 @@ def _interior(scene: Scene, q: Vertices, qm: Vertices, p: Vertices, pm: Vertices
 
 class _Rows:
     """Named [N] rows (a Python list, indexed by static ints): every density and Dirac flag
-    that some strategy's MIS chain reads. Kept as separate arrays, not one stacked table:
-    slicing rows out of a stacked table made XLA re-derive it inside every consumer (measured
-    6x slower)."""
+    that some strategy's MIS chain reads. Kept as separate arrays, not one stacked table,
+    which XLA re-derived inside every consumer (perf: docs/performance.md#bdpt-mis-rows)."""
 
     def __init__(self):
         self.rows: list = []
@@ -295,8 +294,8 @@ def mis_weights_batched(log_pdf: list[Array], delta: list[Array],
     Dirac flag (rows of [N]). ``chains[j] = (camera_steps, light_steps)``, each step a tuple of rows
     (p_rev, p_fwd, delta_a, delta_b) in walking order (outwards from the connection):
     r_i = exp(b * running sum of (log p_rev - log p_fwd)), counted where neither delta_a nor
-    delta_b is set. Rows are read by static index (measured 30x faster on the CPU backend
-    than one gather of all steps)."""
+    delta_b is set. Rows are read by static index, not by one gather of all steps
+    (perf: docs/performance.md#bdpt-mis-rows)."""
     weights = []
     for chain in chains:
         sum_r = jnp.zeros_like(log_pdf[0])
@@ -441,8 +440,7 @@ def pixel_contributions(scene, cfg, seed, pixel, sample):
 def strategy_contributions(scene, cfg, seed, pixel, sample):
     """The splat list of :func:`render_strategies`: every strategy's unweighted value (image
     2k) and weighted value (image 2k + 1)."""
-    # both values of every strategy, computed once and stored (otherwise XLA re-derives the
-    # shared unweighted value inside both consumers: measured 2.5x slower)
+    # stored once, not re-derived per consumer (perf: docs/performance.md#bdpt-strategy-images)
     out = materialize(contributions(scene, cfg, seed, pixel, sample))
     items = []
     for k, st in enumerate(cfg.strategies()):

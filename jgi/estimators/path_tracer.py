@@ -158,21 +158,13 @@ def _shade(scene: Scene, cfg: PathTracerConfig, s: PathState, hit: G.Hit, depth,
     o_next = G.offset_origin(hit.p, hit.n, bs.wi)
 
     # ---- Shadow rays: add the light samples that are unoccluded ----
-    # the shadow rays and their values are stored before the occlusion test, which then runs in
-    # the kernel that stores the vertex's results: in one kernel with the light sampling, scenes
-    # with several sphere lights and Phong plates (Veach's) made XLA outline shared pieces of the
-    # kernel as functions LLVM would not inline, and the kernel ran unvectorised, 15x slower
-    # (1.33 against 0.09 Mpaths per CPU-second at 128^2); the caustic Cornell box gains 1.2x,
-    # the plain one loses about 3%
+    # kept out of the light-sampling kernel (vectorisation; perf: docs/performance.md#shadow-rays)
     if shadow:
         shadow = materialize(shadow)
     for o_s, d_s, t_max, value in shadow:
         L = L + where(~G.occluded(scene, o_s, d_s, t_max), value, Z)
 
-    # everything the vertex computes (the next ray, throughput and RR decision, the radiance
-    # with the shadow tests done) computed once and stored, in one kernel: 1.06-1.13x fewer
-    # CPU-seconds than materialising only the BSDF sample, 40% less compile time, and the lane
-    # bookkeeping downstream reads the path's fate instead of recomputing it
+    # computed once; downstream reads the path's fate (perf: docs/performance.md#vertex-results)
     wi, pdf, delta, throughput, active, o_next, L = materialize(
         (bs.wi, bs.pdf, bs.delta, throughput, active, o_next, L))
     return PathState(o_next, wi, throughput, L, active, pdf, delta, hit.p)
@@ -230,10 +222,7 @@ def _step(scene: Scene, cfg: PathTracerConfig, lane: _Lane):
     loop, with the lane's own depth, so paths are identical to :func:`trace_pixels`'."""
     max_depth = cfg.path_length if cfg.path_length > 0 else cfg.max_depth
     s = lane.path
-    # stored with the hit: in a lane whose path starts here (render_wavefront), the camera ray
-    # and the stream key are computed in this kernel and would otherwise be recomputed in each
-    # kernel that reads them; stored before the hit when the query runs loops, whose every
-    # iteration would recompute the ray (metal ring: 1.07x)
+    # stored: not recomputed per reading kernel (perf: docs/performance.md#ray-and-stream-key)
     if G.traversal_loops(scene):
         o, d, key = materialize((s.o, s.d, lane.key))
         hit = G.intersect(scene, o, d)

@@ -25,6 +25,7 @@ from ..scene.data import Boxes, Quads, Rects, Scene, Spheres, Triangles
 
 INF = jnp.float32(jnp.inf)
 T_MIN = 1e-6          # reject hits this close to the origin (origins are also offset, see spawn)
+# one fused kernel for small tables, blocks for larger (perf: docs/performance.md#scan-blocks)
 UNROLL_LIMIT = 32     # primitive tables up to this size are unrolled into the kernel
 
 SPHERE, QUAD, TRIANGLE, RECT, BOX = 0, 1, 2, 3, 4
@@ -180,11 +181,9 @@ SCAN_BLOCK = 8        # rows per iteration of the loop over a larger table
 
 def _scan(count: int, body, carry):
     """Unrolled for small tables (fuses into one kernel); for larger ones a loop over blocks of
-    SCAN_BLOCK rows, each block unrolled and stored by one kernel, then the remaining rows.
-    One row per iteration made every row a kernel launch over all rays, and every carried value
-    a kernel of its own: the 192-triangle ring (brute force, below BVH_MIN_TRIANGLES) path
-    traced at 0.12 Mpaths per CPU-second at 128^2, 0.39 with blocks of 8. Blocks of 16 ran at
-    0.07: the larger kernel was left unvectorised (see jgi.estimators.path_tracer)."""
+    SCAN_BLOCK rows, each block unrolled and stored by one kernel, then the remaining rows
+    (one row per iteration made every row a kernel launch over all rays;
+    perf: docs/performance.md#scan-blocks)."""
     if count <= UNROLL_LIMIT:
         for i in range(count):
             carry = body(i, carry)
@@ -193,8 +192,7 @@ def _scan(count: int, body, carry):
     def block(b, c):
         for j in range(SCAN_BLOCK):
             c = body(b * SCAN_BLOCK + j, c)
-        # one kernel per block: each carried value would otherwise get a kernel of its own,
-        # every one repeating the block's tests (0.17 against 0.39 Mpaths per CPU-second)
+        # one kernel per block, not one per carried value (perf: docs/performance.md#scan-blocks)
         return materialize(c)
 
     n_blocks = count // SCAN_BLOCK
