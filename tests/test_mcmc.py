@@ -114,7 +114,7 @@ def test_same_seed_same_chain(rng_np):
     assert not np.array_equal(np.asarray(a.x), np.asarray(c.x))
 
 
-# --- the kernel shared by the estimators (jgi.mcmc.metropolis) -----------------------------------
+# --- the kernel shared by the estimators (jgi.transport.mcmc.metropolis) -------------------------
 
 W6 = jnp.array([1.0, 2.0, 3.0, 4.0, 5.0, 6.0])
 

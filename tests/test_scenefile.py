@@ -1,4 +1,4 @@
-"""TOML scene files (jgi/scenefile.py, docs/scene-format.md).
+"""TOML scene files (jgi/scene/files.py, docs/scene-format.md).
 
 * ``scenes/cornell_box.toml`` is the built-in ``cornell_box()`` leaf for leaf;
 * every shape, light, material and transform form gives the arrays computed independently here

@@ -2,7 +2,7 @@
 
 Each sampler is jitted once and fed float32 uniforms from a fixed-seed numpy generator; the
 claimed density is integrated over every cell of the test grid by Gauss-Legendre quadrature
-(jgi/chi2.py), which also checks that it integrates to one. Negative controls (a sampler
+(jgi/analysis/chi2.py), which also checks that it integrates to one. Negative controls (a sampler
 tested against a slightly wrong pdf) show that the tests have the power to reject.
 """
 

@@ -166,7 +166,8 @@ def render_wavefront(scene: Scene, start_fn: Callable, step_fn: Callable, *, spp
     ``streams`` (default ``jgi.core.calls.CALL_STREAMS``) loops per device to run at once, sharing
     one compiled function (:func:`jgi.core.calls.sum_calls`). None of these settings changes the
     image beyond float rounding of the sums, and none depends on the machine's core count.
-    Non-finite path values are dropped with a warning, as in :func:`render_paths`."""
+    Non-finite path values are dropped with a warning, as in
+    :func:`jgi.drivers.chunked.render_paths`."""
     W, H = scene.camera.width, scene.camera.height
     P = W * H
     lanes = lanes or min(WAVEFRONT_LANES, 1 << max(int(np.ceil(np.log2(P))), 8))

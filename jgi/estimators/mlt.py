@@ -45,8 +45,8 @@ chains also start (resampled in proportion to C*, so there is no start-up bias).
 applies one mutation kind to all chains, chosen at random with probabilities
 (p_large, p_lens, p_caustic): a random mixture of kernels that each preserve f*, so the mixture
 does too, and only the chosen kind's code runs. That step (kind choice, acceptance, splatting,
-acceptance counts per kind) is the Metropolis kernel :func:`jgi.mcmc.metropolis`; this module
-supplies the path state, the mutations and the targets in their coordinates.
+acceptance counts per kind) is the Metropolis kernel :func:`jgi.transport.mcmc.metropolis`; this
+module supplies the path state, the mutations and the targets in their coordinates.
 
 Only area emitters (quads, triangles, spheres) are supported: a point or directional light has no
 area measure for x_k. Where two emitters lie along one ray the large step's light-sampling
@@ -562,8 +562,9 @@ def run_chains(scene: Scene, cfg: MLTConfig, mu: Mutations, seed, x: Path, step0
     W, H = scene.camera.width, scene.camera.height
 
     def kind(mutate):
-        """A kind for :func:`jgi.mcmc.metropolis`: each is symmetric in its own coordinates,
-        so log T cancels and the acceptance is the ratio of the target written in them."""
+        """A kind for :func:`jgi.transport.mcmc.metropolis`: each is symmetric in its own
+        coordinates, so log T cancels and the acceptance is the ratio of the target written in
+        them."""
         def mutation(state, key) -> mcmc.Move:
             x, xv = state
             y, yv, num, den, applicable = mutate(scene, cfg, mu, x, xv, rng.derive(key, 3))

@@ -30,7 +30,7 @@ with Kelemen's small steps (every coordinate, the strategy choice included, move
 +- s2 exp(-log(s2/s1) xi) on the torus: symmetric) and large steps (a fresh vector) as in
 :mod:`jgi.estimators.pssmlt` (:func:`~jgi.estimators.pssmlt.kelemen_mutation`), acceptance
 min(1, f'/f), and expected-value splatting of the current state (weight 1 - a) and the proposal
-(weight a), all in the Metropolis kernel :func:`jgi.mcmc.metropolis`.
+(weight a), all in the Metropolis kernel :func:`jgi.transport.mcmc.metropolis`.
 
 Cost: every mutation evaluates all strategies of its length and keeps one (simple, not
 pbrt's single-strategy evaluation). Compilation dominates small renders: one chain kernel per

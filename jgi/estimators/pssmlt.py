@@ -18,7 +18,7 @@ radiance L(u) (the lecture's "once we find a good path, perturb it"):
 Chains start from a resampling of the bootstrap samples in proportion to f (no start-up bias)
 and run in parallel (one lane per chain). The image is consistent: its expectation equals the
 path tracer's up to the error of b, which the bootstrap makes small. The Metropolis step itself
-(acceptance, splatting, the accept decision) is :func:`jgi.mcmc.metropolis`; this module
+(acceptance, splatting, the accept decision) is :func:`jgi.transport.mcmc.metropolis`; this module
 supplies the state (:class:`PrimarySample`), the mutation and the target.
 """
 
@@ -93,9 +93,10 @@ def kelemen_small_step(u, xi_size, xi_sign, s1: float, s2: float):
 
 def kelemen_mutation(u, key, p_large, s1: float, s2: float):
     """Kelemen's mutation of primary samples u [d, chains], from the step's stream ``key`` of
-    :func:`jgi.mcmc.metropolis`: with probability p_large (dimension 0) a large step, a fresh
-    vector (sub-stream 11); else a small step of every coordinate, sizes from dimensions
-    3 .. d + 2 and directions from sub-stream 7. Both are symmetric, so T cancels in a(u -> v)."""
+    :func:`jgi.transport.mcmc.metropolis`: with probability p_large (dimension 0) a large step,
+    a fresh vector (sub-stream 11); else a small step of every coordinate, sizes from dimensions
+    3 .. d + 2 and directions from sub-stream 7. Both are symmetric, so T cancels in
+    a(u -> v)."""
     d = u.shape[0]
     large = rng.uniform(key, 0) < p_large
     small = kelemen_small_step(u, rng.uniforms(key, 3, d), rng.uniforms(rng.derive(key, 7), 0, d),
@@ -113,7 +114,7 @@ class PrimarySample(NamedTuple):
 
 
 def splat_at(x: PrimarySample):
-    """(pixel, value, f) of a primary sample, for :func:`jgi.mcmc.splatting`."""
+    """(pixel, value, f) of a primary sample, for :func:`jgi.transport.mcmc.splatting`."""
     return x.pixel, x.value, x.f
 
 
