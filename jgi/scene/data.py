@@ -32,6 +32,8 @@ from jax import Array
 from ..core import transform as xf
 from ..core.bvh import BVH, build_bvh
 from ..core.vec import V3
+from .metals import METALS
+from .rough_coating import BECKMANN, GGX, TABLE_SIZE, plastic_tables
 
 # Triangle tables at least this large get a BVH. Measured (experiments/bench_bvh.py, CPU, one
 # closest-hit and one shadow ray per ray, 2^16 rays, interleaved best-of-3 timings) since the
@@ -42,9 +44,20 @@ from ..core.vec import V3
 # at 250-280.) The BVH traversal also adds compile time.
 BVH_MIN_TRIANGLES = 1400
 
-# Material kinds (jgi.physics.bsdf implements each).
-DIFFUSE, MIRROR, DIELECTRIC, PHONG = 0, 1, 2, 3
-MATERIAL_KINDS = {"diffuse": DIFFUSE, "mirror": MIRROR, "dielectric": DIELECTRIC, "phong": PHONG}
+# Material kinds (jgi.physics.bsdf implements each). Mitsuba's smooth "conductor" is the
+# mirror with a complex index of refraction (eta = k = 0, the mirror's, reflects everything).
+DIFFUSE, MIRROR, DIELECTRIC, PHONG, ROUGH_CONDUCTOR, ROUGH_DIELECTRIC, ROUGH_PLASTIC = range(7)
+MATERIAL_KINDS = {"diffuse": DIFFUSE, "mirror": MIRROR, "dielectric": DIELECTRIC, "phong": PHONG,
+                  "conductor": MIRROR, "roughconductor": ROUGH_CONDUCTOR,
+                  "roughdielectric": ROUGH_DIELECTRIC, "roughplastic": ROUGH_PLASTIC}
+ROUGH_KINDS = (ROUGH_CONDUCTOR, ROUGH_DIELECTRIC, ROUGH_PLASTIC)
+# Microfacet normal distributions of the rough kinds (jgi.physics.bsdf.microfacet).
+MICROFACET_DISTRIBUTIONS = {"ggx": GGX, "beckmann": BECKMANN}
+NAMED_METALS = METALS  # Mitsuba's conductor names -> (eta, k) per RGB channel (jgi.scene.metals)
+# Defaults taken from Mitsuba 3: roughness alpha 0.1; roughplastic's int_ior (polypropylene)
+# and ext_ior (air); a missing int_ior of a dielectric is bk7's.
+DEFAULT_ALPHA = 0.1
+IOR_POLYPROPYLENE, IOR_BK7, IOR_AIR = 1.49, 1.5046, 1.000277
 
 # Light element kinds (jgi.physics.lights implements each).
 AREA_QUAD, AREA_TRIANGLE, AREA_SPHERE, POINT, SPOT, DIRECTIONAL, ENVIRONMENT = range(7)
@@ -155,12 +168,26 @@ class Triangles(eqx.Module):
 
 
 class Materials(eqx.Module):
+    """One row per material. Every float is a pytree leaf (differentiable), except the
+    roughplastic tables, which are computed from alpha and ior at build time."""
+
     kind: Array       # int32 [M]
-    diffuse: V3       # Lambertian albedo k_d (diffuse, phong)
-    specular: V3      # k_s: mirror reflectance, dielectric tint, Phong specular albedo
+    diffuse: V3       # Lambertian albedo k_d (diffuse, phong, roughplastic)
+    specular: V3      # k_s: mirror/conductor reflectance, dielectric tint, Phong specular albedo,
+                      # the specular factor of the rough kinds
     exponent: Array   # Phong exponent n
-    ior: Array        # dielectric index of refraction (inside / outside)
+    ior: Array        # relative index of refraction inside / outside (dielectrics, roughplastic)
+    alpha_u: Array    # microfacet roughness along the tangent s of the shading frame
+    alpha_v: Array    # ... along the bitangent t (= alpha_u when isotropic)
+    distribution: Array  # int32 [M]: GGX or BECKMANN
+    eta: V3           # conductor index of refraction eta + i k per channel (0, 0: a perfect
+    k: V3             # mirror, F = 1)
+    transmittance: Array  # [M, 64] roughplastic coating's external transmittance T(cos theta)
+    internal_reflectance: Array  # [M] roughplastic coating's internal reflectance
+    nonlinear: Array  # bool [M]: roughplastic's ``nonlinear`` (k_d Ri instead of Ri)
     kinds: tuple[int, ...] = eqx.field(static=True)  # kinds present, to skip dead code
+    # distributions used by rough rows (empty without rough materials), to skip the absent one
+    distributions: tuple[int, ...] = eqx.field(static=True, default=())
 
 
 class Lights(eqx.Module):
@@ -253,6 +280,12 @@ class _Material:
     specular: tuple = (0.0, 0.0, 0.0)
     exponent: float = 1.0
     ior: float = 1.5
+    alpha_u: float = DEFAULT_ALPHA
+    alpha_v: float = DEFAULT_ALPHA
+    distribution: int = GGX
+    eta: tuple = (0.0, 0.0, 0.0)
+    k: tuple = (0.0, 0.0, 0.0)
+    nonlinear: bool = False
 
 
 @dataclass
@@ -271,18 +304,123 @@ class SceneBuilder:
     bvh: bool | None = None   # BVH over the triangles: None = when >= BVH_MIN_TRIANGLES
 
     # --- materials --------------------------------------------------------------------------
-    def material(self, name: str, kind: str, *, diffuse=(0.0, 0.0, 0.0), specular=(1.0, 1.0, 1.0),
-                 exponent: float = 1.0, ior: float = 1.5) -> int:
+    def material(self, name: str, kind: str, *, diffuse=(0.0, 0.0, 0.0),
+                 specular=(1.0, 1.0, 1.0), exponent: float = 1.0, ior: float | None = None,
+                 alpha: float | None = None, alpha_u: float | None = None,
+                 alpha_v: float | None = None, distribution: str = "ggx", eta=None, k=None,
+                 metal: str | None = None, int_ior: float | None = None,
+                 ext_ior: float | None = None, nonlinear: bool = False) -> int:
+        """Define material ``name``; returns its row. Parameters by ``kind``:
+
+        * ``"diffuse"``: ``diffuse`` (k_d).
+        * ``"mirror"``: ``specular`` (k_s), a perfect mirror.
+        * ``"conductor"``: Mitsuba's smooth conductor: ``specular`` (its specular_reflectance)
+          times the Fresnel reflectance of the complex index eta + i k, given as ``metal`` (a
+          name of :data:`NAMED_METALS`, Mitsuba's) or as ``eta`` and ``k`` (RGB or scalars,
+          >= 0; a missing one is Mitsuba's default, eta 0 or k 1). Neither: Mitsuba's
+          "none", a perfect mirror. Stored as the mirror kind.
+        * ``"dielectric"``: ``specular`` (tint), ``ior`` = inside / outside (default 1.5), or
+          ``int_ior`` / ``ext_ior`` (defaults bk7 1.5046 / air 1.000277).
+        * ``"phong"``: ``diffuse``, ``specular``, ``exponent``.
+        * ``"roughconductor"``: as ``"conductor"``, plus the roughness: ``alpha`` (isotropic)
+          or ``alpha_u`` and ``alpha_v`` (along the tangent s and bitangent t of the shading
+          frame), all > 0 (default 0.1; values below 1e-4 act as 1e-4, as in Mitsuba), and
+          ``distribution`` "ggx" or "beckmann" (alpha is the RMS slope for Beckmann).
+        * ``"roughdielectric"``: as ``"dielectric"``, plus the roughness as above.
+        * ``"roughplastic"`` (Mitsuba's): ``diffuse`` (diffuse_reflectance), ``specular``
+          (specular_reflectance), ``ior`` or ``int_ior`` / ``ext_ior`` (defaults
+          polypropylene 1.49 / air 1.000277; must differ), isotropic ``alpha``,
+          ``distribution``, ``nonlinear``.
+
+        Raises :class:`SceneError` naming the material and what is allowed."""
         if kind not in MATERIAL_KINDS:
             raise SceneError(f"material '{name}': unknown type '{kind}'; allowed: "
                              f"{', '.join(MATERIAL_KINDS)}")
         if name in self.material_names:
             raise SceneError(f"material '{name}' is defined twice")
-        k = MATERIAL_KINDS[kind]
-        m = _Material(k, _rgb(diffuse), _rgb(specular), float(exponent), float(ior))
-        if k == DIFFUSE:
+        k_ = MATERIAL_KINDS[kind]
+
+        def fail(msg):
+            raise SceneError(f"material '{name}' ({kind}): {msg}")
+
+        def refuse(**given):
+            for key, v in given.items():
+                if v is not None and v is not False:
+                    fail(f"'{key}' does not apply to this type")
+
+        rough = k_ in ROUGH_KINDS
+        conductor = kind in ("conductor", "roughconductor")
+        dielectric_like = k_ in (DIELECTRIC, ROUGH_DIELECTRIC, ROUGH_PLASTIC)
+        if not rough:
+            refuse(alpha=alpha, alpha_u=alpha_u, alpha_v=alpha_v)
+        if not conductor:
+            refuse(metal=metal, eta=eta, k=k)
+        if not dielectric_like:
+            refuse(int_ior=int_ior, ext_ior=ext_ior)
+        if k_ != ROUGH_PLASTIC:
+            refuse(nonlinear=nonlinear)
+        m = _Material(k_, _rgb(diffuse), _rgb(specular), float(exponent))
+        # roughness
+        if distribution not in MICROFACET_DISTRIBUTIONS:
+            fail(f"unknown distribution '{distribution}'; allowed: "
+                 f"{', '.join(MICROFACET_DISTRIBUTIONS)}")
+        m.distribution = MICROFACET_DISTRIBUTIONS[distribution]
+        if alpha is not None and (alpha_u is not None or alpha_v is not None):
+            fail("give either alpha or alpha_u and alpha_v, not both")
+        if (alpha_u is None) != (alpha_v is None):
+            fail("give both alpha_u and alpha_v (or alpha)")
+        au = av = DEFAULT_ALPHA if alpha is None else alpha
+        if alpha_u is not None:
+            au, av = alpha_u, alpha_v
+        names = ("alpha", "alpha") if alpha_u is None else ("alpha_u", "alpha_v")
+        for key, v in zip(names, (au, av)):
+            if not np.isfinite(float(v)) or float(v) <= 0:
+                fail(f"{key} must be a finite number > 0, got {v}")
+        m.alpha_u, m.alpha_v = float(au), float(av)
+        if k_ == ROUGH_PLASTIC and m.alpha_u != m.alpha_v:
+            fail("roughplastic is isotropic (as in Mitsuba): give alpha, not alpha_u / alpha_v")
+        # conductor optics
+        if metal is not None:
+            if eta is not None or k is not None:
+                fail("give either metal or eta / k, not both")
+            if metal not in NAMED_METALS:
+                fail(f"unknown metal '{metal}'; allowed: {', '.join(NAMED_METALS)}")
+            m.eta, m.k = NAMED_METALS[metal]
+        elif conductor:
+            if eta is None and k is None:   # Mitsuba's "none": a perfect mirror
+                m.eta, m.k = NAMED_METALS["none"]
+            else:
+                m.eta = _rgb(0.0 if eta is None else eta)
+                m.k = _rgb(1.0 if k is None else k)
+            for key, v in (("eta", m.eta), ("k", m.k)):
+                if min(v) < 0:
+                    fail(f"{key} must be >= 0 in every channel, got {list(v)}")
+        # index of refraction
+        if dielectric_like:
+            if ior is not None and (int_ior is not None or ext_ior is not None):
+                fail("give either ior or int_ior / ext_ior, not both")
+            plastic = k_ == ROUGH_PLASTIC
+            if ior is None and int_ior is None and ext_ior is None:
+                m.ior = IOR_POLYPROPYLENE / IOR_AIR if plastic else 1.5
+            elif ior is not None:
+                m.ior = float(ior)
+            else:
+                i = float((IOR_POLYPROPYLENE if plastic else IOR_BK7)
+                          if int_ior is None else int_ior)
+                e = float(IOR_AIR if ext_ior is None else ext_ior)
+                if not (np.isfinite(i) and np.isfinite(e) and i > 0 and e > 0):
+                    fail(f"int_ior and ext_ior must be finite and > 0, got {i}, {e}")
+                m.ior = i / e
+            if not np.isfinite(m.ior) or m.ior <= 0:
+                fail(f"ior must be finite and > 0 (inside / outside), got {m.ior}")
+            if plastic and m.ior == 1.0:
+                fail("the interior and exterior indices of refraction must differ")
+        elif ior is not None:   # stored and unused, as before
+            m.ior = float(ior)
+        m.nonlinear = bool(nonlinear)
+        if k_ == DIFFUSE:
             m.specular = (0.0, 0.0, 0.0)
-        if k in (MIRROR, DIELECTRIC):
+        if k_ in (MIRROR, DIELECTRIC, ROUGH_CONDUCTOR, ROUGH_DIELECTRIC):
             m.diffuse = (0.0, 0.0, 0.0)
         self.material_names[name] = len(self.materials)
         self.materials.append(m)
@@ -557,13 +695,33 @@ class SceneBuilder:
                 raise SceneError("phong exponent must be >= 0")
             if m.kind == DIELECTRIC and m.ior <= 0:
                 raise SceneError("dielectric ior must be > 0")
+        # roughplastic coatings: T(cos theta) and Ri, once per (distribution, alpha, eta)
+        table = np.ones((len(ms), TABLE_SIZE), np.float64)
+        internal = np.zeros(len(ms), np.float64)
+        cache: dict = {}
+        for i, m in enumerate(ms):
+            if m.kind == ROUGH_PLASTIC:
+                key = (m.distribution, np.float32(m.alpha_u), np.float32(m.ior))
+                if key not in cache:
+                    cache[key] = plastic_tables(*key)
+                table[i], internal[i] = cache[key]
+        f32 = lambda x: jnp.asarray(np.asarray(x, np.float32))  # noqa: E731
         return Materials(
             kind=jnp.asarray([m.kind for m in ms], jnp.int32),
             diffuse=_v3([m.diffuse for m in ms]),
             specular=_v3([m.specular for m in ms]),
-            exponent=jnp.asarray([m.exponent for m in ms], jnp.float32),
-            ior=jnp.asarray([m.ior for m in ms], jnp.float32),
+            exponent=f32([m.exponent for m in ms]),
+            ior=f32([m.ior for m in ms]),
+            alpha_u=f32([m.alpha_u for m in ms]),
+            alpha_v=f32([m.alpha_v for m in ms]),
+            distribution=jnp.asarray([m.distribution for m in ms], jnp.int32),
+            eta=_v3([m.eta for m in ms]),
+            k=_v3([m.k for m in ms]),
+            transmittance=f32(table),
+            internal_reflectance=f32(internal),
+            nonlinear=jnp.asarray([m.nonlinear for m in ms], bool),
             kinds=tuple(sorted({m.kind for m in ms})),
+            distributions=tuple(sorted({m.distribution for m in ms if m.kind in ROUGH_KINDS})),
         )
 
 

@@ -6,24 +6,53 @@ from __future__ import annotations
 from typing import NamedTuple
 
 import jax.numpy as jnp
+import numpy as np
 from jax import Array
 
 from ..._xla import take
 from ...core.vec import EDGE_ON_COS, V3, dot
-from ...scene.data import DIELECTRIC, DIFFUSE, MIRROR, PHONG, Materials
+from ...scene.data import (
+    DIELECTRIC,
+    DIFFUSE,
+    GGX,
+    MIRROR,
+    PHONG,
+    ROUGH_CONDUCTOR,
+    ROUGH_DIELECTRIC,
+    ROUGH_KINDS,
+    ROUGH_PLASTIC,
+    Materials,
+)
 
 # Transport modes: camera paths carry radiance, light paths importance (Veach 1997, 5.2).
 RADIANCE, IMPORTANCE = 0, 1
 
+# Rough kinds with roughness below this are "glossy" (is_glossy): sharp enough that density
+# estimation should sample through them rather than look photons up there.
+GLOSSY_ALPHA = 0.1
+
+_ZERO3 = V3(0.0, 0.0, 0.0)
+
 
 class MaterialParams(NamedTuple):
-    """One material row per lane (see :class:`jgi.scene.Materials`)."""
+    """One material row per lane (see :class:`jgi.scene.Materials`). The fields after ``ior``
+    have defaults, so code that builds the first five (the kinds that existed before the
+    microfacet ones) keeps working; the defaults make a mirror perfect (eta = k = 0)."""
 
     kind: Array
     kd: V3
     ks: V3
     exponent: Array
     ior: Array
+    alpha_u: Array = 0.1              # roughness along s of the shading frame
+    alpha_v: Array = 0.1              # roughness along t
+    distribution: Array = GGX        # int: GGX or BECKMANN
+    eta: V3 = _ZERO3                  # conductor index of refraction eta + i k (mirror and
+    k: V3 = _ZERO3                    # roughconductor; eta = 0 reflects everything)
+    row: Array = 0                    # material row (roughplastic's table lookup)
+    transmittance: Array = np.ones((1, 64), np.float32)  # [M, 64] roughplastic T(cos), whole
+    internal_reflectance: Array = 0.0  # roughplastic coating's Ri (per lane)
+    nonlinear: Array = False          # roughplastic's nonlinear option (per lane)
 
 
 class BSDFSample(NamedTuple):
@@ -35,10 +64,13 @@ class BSDFSample(NamedTuple):
 
 
 def lookup(mats: Materials, m: Array) -> MaterialParams:
-    """Rows ``m`` (any index array) of the material table."""
-    return MaterialParams(mats.kind[m], V3(mats.diffuse.x[m], mats.diffuse.y[m], mats.diffuse.z[m]),
-                          V3(mats.specular.x[m], mats.specular.y[m], mats.specular.z[m]),
-                          mats.exponent[m], mats.ior[m])
+    """Rows ``m`` (any index array) of the material table (the roughplastic table whole: the
+    BSDF reads two entries of row ``m`` per lane)."""
+    row3 = lambda v: V3(v.x[m], v.y[m], v.z[m])  # noqa: E731
+    return MaterialParams(mats.kind[m], row3(mats.diffuse), row3(mats.specular),
+                          mats.exponent[m], mats.ior[m], mats.alpha_u[m], mats.alpha_v[m],
+                          mats.distribution[m], row3(mats.eta), row3(mats.k), m,
+                          mats.transmittance, mats.internal_reflectance[m], mats.nonlinear[m])
 
 
 def lookup_specialised(mats: Materials, m: Array) -> MaterialParams:
@@ -50,17 +82,48 @@ def lookup_specialised(mats: Materials, m: Array) -> MaterialParams:
     kinds = mats.kinds
     kind = (jnp.full(m.shape, kinds[0], jnp.int32) if len(kinds) == 1 else take(mats.kind, m))
     zero = jnp.zeros(m.shape, jnp.float32)
-    uses_ks = any(k in kinds for k in (MIRROR, DIELECTRIC, PHONG))
-    kd = V3(*(take(c, m) for c in mats.diffuse)) if (DIFFUSE in kinds or PHONG in kinds) else V3(zero, zero, zero)
-    ks = V3(*(take(c, m) for c in mats.specular)) if uses_ks else V3(zero, zero, zero)
+    zero3 = V3(zero, zero, zero)
+    has = lambda *ks: any(k in kinds for k in ks)  # noqa: E731
+    col3 = lambda v: V3(*(take(c, m) for c in v))  # noqa: E731
+    kd = col3(mats.diffuse) if has(DIFFUSE, PHONG, ROUGH_PLASTIC) else zero3
+    ks = col3(mats.specular) if has(MIRROR, DIELECTRIC, PHONG, *ROUGH_KINDS) else zero3
     exponent = take(mats.exponent, m) if PHONG in kinds else zero
-    ior = take(mats.ior, m) if DIELECTRIC in kinds else zero + 1.0
-    return MaterialParams(kind, kd, ks, exponent, ior)
+    ior = take(mats.ior, m) if has(DIELECTRIC, ROUGH_DIELECTRIC, ROUGH_PLASTIC) else zero + 1.0
+    rough = has(*ROUGH_KINDS)
+    alpha_u = take(mats.alpha_u, m) if rough else zero + 0.1
+    alpha_v = take(mats.alpha_v, m) if rough else zero + 0.1
+    dists = mats.distributions
+    distribution = (take(mats.distribution, m) if len(dists) > 1 else
+                    jnp.full(m.shape, dists[0] if dists else GGX, jnp.int32))
+    conductor = has(MIRROR, ROUGH_CONDUCTOR)
+    eta = col3(mats.eta) if conductor else zero3
+    k = col3(mats.k) if conductor else zero3
+    plastic = ROUGH_PLASTIC in kinds
+    return MaterialParams(
+        kind, kd, ks, exponent, ior, alpha_u, alpha_v, distribution, eta, k,
+        m if plastic else jnp.zeros(m.shape, jnp.int32),
+        mats.transmittance if plastic else np.ones((1, 64), np.float32),
+        take(mats.internal_reflectance, m) if plastic else zero,
+        take(mats.nonlinear, m) if plastic else zero > 0)
 
 
 def is_delta(mp: MaterialParams) -> Array:
-    """True for purely specular materials (no lobe that ``evaluate`` or NEE can use)."""
+    """True for purely specular materials (no lobe that ``evaluate`` or NEE can use). The rough
+    kinds are never Dirac, however small their roughness."""
     return (mp.kind == MIRROR) | (mp.kind == DIELECTRIC)
+
+
+def is_rough(mp: MaterialParams) -> Array:
+    """True for the microfacet kinds (roughconductor, roughdielectric, roughplastic)."""
+    return (mp.kind == ROUGH_CONDUCTOR) | (mp.kind == ROUGH_DIELECTRIC) | (mp.kind == ROUGH_PLASTIC)
+
+
+def is_glossy(mp: MaterialParams) -> Array:
+    """True for microfacet materials whose larger roughness is below ``GLOSSY_ALPHA``: lobes so
+    sharp that density estimation (photon lookups) there is hopeless and sampling through them
+    is better. roughplastic counts too (its diffuse base would allow lookups; callers that want
+    them can test the kind)."""
+    return is_rough(mp) & (jnp.maximum(mp.alpha_u, mp.alpha_v) < GLOSSY_ALPHA)
 
 
 def facing(n: V3, w: V3) -> V3:

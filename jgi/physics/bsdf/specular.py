@@ -1,4 +1,5 @@
-"""Dirac lobes: the perfect mirror (wi = reflect(wo), weight k_s) and the smooth dielectric
+"""Dirac lobes: the mirror / smooth conductor (wi = reflect(wo), weight k_s F_conductor(cos_o),
+F = 1 for the perfect mirror's eta = k = 0) and the smooth dielectric
 (reflect with probability F, the unpolarised Fresnel reflectance, else refract by Snell's law;
 total internal reflection gives F = 1). Radiance is scaled by (eta_i / eta_t)^2 across the
 interface for camera paths (``mode=RADIANCE``), not for light paths (Veach 1997, 5.2)."""
@@ -10,13 +11,20 @@ from jax import Array
 
 from ...core.vec import V3, reflect, where
 from .common import IMPORTANCE, BSDFSample, MaterialParams, lit
-from .fresnel import fresnel_dielectric, refract
+from .fresnel import fresnel_conductor_rgb, fresnel_dielectric, refract
+
+
+def mirror_reflectance(mp: MaterialParams, cos_o: Array) -> V3:
+    """The mirror's Dirac coefficient k_s F(cos_o) (Mitsuba's smooth ``conductor``): k_s
+    exactly when eta = 0 (the perfect mirror)."""
+    return mp.ks * fresnel_conductor_rgb(cos_o, mp.eta, mp.k)
 
 
 def sample_mirror(mp: MaterialParams, nf: V3, wo: V3, cos_o: Array) -> BSDFSample:
     zero = jnp.zeros_like(cos_o)
     ok = lit(cos_o)
-    return BSDFSample(reflect(wo, nf), where(ok, mp.ks, V3(zero, zero, zero)), zero, ok, ok)
+    return BSDFSample(reflect(wo, nf), where(ok, mirror_reflectance(mp, cos_o),
+                                             V3(zero, zero, zero)), zero, ok, ok)
 
 
 def sample_dielectric(mp: MaterialParams, nf: V3, wo: V3, cos_o: Array, flipped: Array,

@@ -1,0 +1,139 @@
+"""The rough dielectric coating of ``roughplastic``, precomputed at scene build (float64 numpy).
+
+Mitsuba 3's ``roughplastic`` (``src/bsdfs/roughplastic.cpp``, ``parameters_changed``) tabulates,
+once per material, two properties of its rough dielectric interface (relative index
+eta = int_ior / ext_ior, distribution and alpha of the specular lobe):
+
+* the *external transmittance* T(mu): the fraction of light arriving from outside at
+  cos(theta) = mu that the rough interface transmits into the coating, at
+  mu_i = max(1e-6, i / 63), i = 0 .. 63 (``MI_ROUGH_TRANSMITTANCE_RES`` = 64 entries):
+  T(mu) = integral over the visible normals m of wi of G1(wt, m) (1 - F(wi.m, eta)), wt the
+  refracted direction, counted where wt is below the surface (``eval_transmittance`` in
+  ``include/mitsuba/render/microfacet.h``);
+* the *internal reflectance* Ri: the same interface seen from inside (index 1 / eta) reflecting
+  back, R(mu) = integral of G1(wr, m) F(wi.m, 1 / eta) over the visible normals, wr the mirror
+  direction, counted where it stays inside; Ri = 2 * mean_i(R(mu_i) mu_i) over the same 64
+  cosines (Mitsuba's discrete cosine-weighted hemispherical average, reproduced as it is).
+
+The BSDF reads T at cos(theta_o) and cos(theta_i) by linear interpolation between the entries
+(Mitsuba's ``lerp_gather``). These tables are computed from the *numbers* alpha and eta at build
+time: they are not differentiable (``jax.grad`` with respect to a roughplastic's alpha or ior
+sees the specular lobe's dependence only; rebuild the scene to change them).
+
+Quadrature: Mitsuba integrates over its visible-normal sampler's unit square with 32^2
+Gauss-Legendre nodes (128^2 for eta < 1) in float32. Here the integrals are the same, over the
+unit square of an exact sampler, in float64 with more nodes: GGX through its visible-normal
+sampler (Heitz 2018), whose integrand is smooth; Beckmann through D(m) cos(theta_m) sampling
+(Walter et al. 2007) weighted by VNDF / pdf, whose integrand has a kink where microfacets turn
+away from wi, hence more nodes. Smith's G1 is the exact one (Beckmann's through erf; Mitsuba uses
+a rational approximation within 0.35 %).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy import special
+
+TABLE_SIZE = 64        # Mitsuba's MI_ROUGH_TRANSMITTANCE_RES
+GGX, BECKMANN = 0, 1   # microfacet distributions (jgi.scene.data re-exports them)
+_NODES = {GGX: 96, BECKMANN: 256}   # Gauss-Legendre nodes per axis of the unit square
+
+
+def table_cosines() -> np.ndarray:
+    """The 64 cosines mu_i = max(1e-6, i / 63) at which T is tabulated."""
+    return np.maximum(1e-6, np.linspace(0.0, 1.0, TABLE_SIZE))
+
+
+def smith_lambda(dist: int, v: np.ndarray, alpha: float) -> np.ndarray:
+    """Smith's Lambda(v) for an isotropic distribution, v [..., 3] with v_z != 0."""
+    t2 = alpha * alpha * (v[..., 0] ** 2 + v[..., 1] ** 2) / (v[..., 2] ** 2)
+    if dist == GGX:
+        return 0.5 * (np.sqrt(1.0 + t2) - 1.0)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        a = 1.0 / np.sqrt(t2)
+        lam = 0.5 * (np.exp(-a * a) / (a * np.sqrt(np.pi)) - special.erfc(a))
+    return np.where(t2 > 0, lam, 0.0)
+
+
+def smith_g1(dist: int, v: np.ndarray, m: np.ndarray, alpha: float) -> np.ndarray:
+    """G1(v, m) = 1 / (1 + Lambda(v)), zero where v sees the back of m."""
+    ok = np.sum(v * m, axis=-1) * v[..., 2] > 0
+    return np.where(ok, 1.0 / (1.0 + smith_lambda(dist, v, alpha)), 0.0)
+
+
+def fresnel(cos_i: np.ndarray, eta: float) -> np.ndarray:
+    """Unpolarised dielectric Fresnel reflectance, cos_i >= 0, eta = eta_t / eta_i."""
+    cos2_t = 1.0 - (1.0 - cos_i * cos_i) / (eta * eta)
+    cos_t = np.sqrt(np.maximum(cos2_t, 0.0))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        rs = (cos_i - eta * cos_t) / (cos_i + eta * cos_t)
+        rp = (eta * cos_i - cos_t) / (eta * cos_i + cos_t)
+    return np.where(cos2_t <= 0, 1.0, 0.5 * (rs * rs + rp * rp))
+
+
+def _normals(dist: int, wi: np.ndarray, alpha: float, u1, u2):
+    """Microfacet normals m [..., 3] over the unit square (u1, u2) and the weight VNDF / pdf
+    of the map, for wi [..., 3] with wi_z > 0."""
+    if dist == GGX:   # Heitz 2018: visible normals directly (weight 1)
+        vh = wi * np.array([alpha, alpha, 1.0])
+        vh = vh / np.linalg.norm(vh, axis=-1, keepdims=True)
+        lensq = vh[..., 0] ** 2 + vh[..., 1] ** 2
+        inv = np.where(lensq > 0, 1.0 / np.sqrt(np.where(lensq > 0, lensq, 1.0)), 0.0)
+        t1 = np.stack([-vh[..., 1] * inv, vh[..., 0] * inv, np.zeros_like(inv)], -1)
+        t1 = np.where((lensq > 0)[..., None], t1, np.array([1.0, 0.0, 0.0]))
+        t2 = np.cross(vh, t1)
+        r, phi = np.sqrt(u1), 2.0 * np.pi * u2
+        p1, p2 = r * np.cos(phi), r * np.sin(phi)
+        s = 0.5 * (1.0 + vh[..., 2])
+        p2 = (1.0 - s) * np.sqrt(1.0 - p1 * p1) + s * p2
+        nh = (p1[..., None] * t1 + p2[..., None] * t2
+              + np.sqrt(np.maximum(0.0, 1.0 - p1 * p1 - p2 * p2))[..., None] * vh)
+        m = nh * np.array([alpha, alpha, 1.0])
+        m[..., 2] = np.maximum(m[..., 2], 0.0)
+        m = m / np.linalg.norm(m, axis=-1, keepdims=True)
+        return m, np.ones(m.shape[:-1])
+    # Beckmann: slopes from the (scaled) Gaussian, D(m) cos(theta_m) dm = P22 dslope
+    r, phi = np.sqrt(-np.log1p(-u1)), 2.0 * np.pi * u2
+    m = np.stack(np.broadcast_arrays(-alpha * r * np.cos(phi), -alpha * r * np.sin(phi),
+                                     np.ones_like(r)), -1)
+    m = m / np.linalg.norm(m, axis=-1, keepdims=True)
+    m = np.broadcast_to(m, np.broadcast_shapes(m.shape, wi.shape))
+    cos_im = np.sum(wi * m, axis=-1)
+    weight = (smith_g1(dist, wi, m, alpha) * np.maximum(cos_im, 0.0)
+              / (wi[..., 2] * m[..., 2]))
+    return m, weight
+
+
+def _integrate(dist: int, alpha: float, eta: float, transmit: bool) -> np.ndarray:
+    """T(mu_i) (``transmit``) or R(mu_i) for the 64 table cosines."""
+    n = _NODES[dist]
+    x, w = np.polynomial.legendre.leggauss(n)
+    x, w = 0.5 * (x + 1.0), 0.5 * w
+    u1, u2 = (a.ravel() for a in np.meshgrid(x, x, indexing="ij"))
+    ww = np.outer(w, w).ravel()
+    mu = table_cosines()
+    wi = np.stack([np.sqrt(1.0 - mu * mu), np.zeros_like(mu), mu], -1)[:, None, :]
+    m, weight = _normals(dist, wi, alpha, u1[None, :], u2[None, :])
+    cos_im = np.sum(wi * m, axis=-1)
+    F = fresnel(np.maximum(cos_im, 0.0), eta)
+    if transmit:
+        cos2_t = 1.0 - (1.0 - cos_im ** 2) / (eta * eta)
+        cos_t = np.sqrt(np.maximum(cos2_t, 0.0))
+        wo = -wi / eta + m * (cos_im / eta - cos_t)[..., None]
+        ok = (wo[..., 2] < 0) & (cos2_t > 0)
+        value = (1.0 - F) * smith_g1(dist, wo, m, alpha)
+    else:
+        wo = 2.0 * cos_im[..., None] * m - wi
+        ok = wo[..., 2] > 0
+        value = F * smith_g1(dist, wo, m, alpha)
+    return np.sum(np.where(ok & (cos_im > 0), value * weight, 0.0) * ww, axis=-1)
+
+
+def plastic_tables(dist: int, alpha: float, eta: float) -> tuple[np.ndarray, float]:
+    """(external transmittance T [64], internal reflectance Ri) of a roughplastic coating with
+    relative index eta = int_ior / ext_ior (alpha clamped to >= 1e-4 as the BSDF does)."""
+    alpha = max(float(alpha), 1e-4)
+    transmittance = _integrate(dist, alpha, float(eta), transmit=True)
+    reflect = _integrate(dist, alpha, 1.0 / float(eta), transmit=False)
+    internal = 2.0 * float(np.mean(reflect * table_cosines()))
+    return transmittance, internal
