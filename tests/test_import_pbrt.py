@@ -9,7 +9,8 @@ import pytest
 
 import jgi
 from jgi.scene import SceneBuilder, SceneError
-from jgi.scene.importers import load_pbrt
+from jgi.scene.data import DIELECTRIC, GGX, MIRROR, NAMED_METALS, ROUGH_CONDUCTOR, ROUGH_DIELECTRIC
+from jgi.scene.importers import load_pbrt, pbrt
 from tests.conftest import assert_agree
 from tests.test_import_mitsuba import leaves_equal
 
@@ -94,13 +95,92 @@ def test_power_and_scale_conventions(tmp_path):
     np.testing.assert_allclose(float(s.lights.emission.x[4]), 7.0, rtol=1e-5)
 
 
+def test_microfacet_materials_give_the_builder_rows(tmp_path):
+    body = """
+    MakeNamedMaterial "copper" "string type" "conductor"
+    MakeNamedMaterial "gold" "string type" "conductor" "spectrum eta" "metal-Au-eta"
+      "spectrum k" "metal-Au-k" "float roughness" 0.01
+    MakeNamedMaterial "brushed" "string type" "conductor" "rgb eta" [0.2 0.9 1.1]
+      "rgb k" [3.9 2.4 2.2] "float uroughness" 0.09 "float vroughness" 0.09
+    MakeNamedMaterial "raw" "string type" "conductor" "float roughness" 0.3
+      "bool remaproughness" false
+    MakeNamedMaterial "albedo" "string type" "conductor" "rgb reflectance" [0.9 0.5 0.2]
+    MakeNamedMaterial "almost_smooth" "string type" "conductor" "float roughness" 5e-7
+    MakeNamedMaterial "flat_spectra" "string type" "conductor" "spectrum eta" [400 0.5 700 0.5]
+      "spectrum k" [400 3 700 3]
+    MakeNamedMaterial "frosted" "string type" "dielectric" "float eta" 1.33
+      "float roughness" 0.04
+    MakeNamedMaterial "glass" "string type" "dielectric" "spectrum eta" [300 1.4 800 1.4]
+    """
+    imp = pbrt._Importer(write(tmp_path, body))
+    scene = imp.run()
+    m = scene.materials
+
+    def row(name):
+        i = imp.b.material_names[imp.named[name]]
+        return dict(kind=int(m.kind[i]), alpha=(float(m.alpha_u[i]), float(m.alpha_v[i])),
+                    distribution=int(m.distribution[i]), ior=float(m.ior[i]),
+                    eta=[float(c[i]) for c in (m.eta.x, m.eta.y, m.eta.z)],
+                    k=[float(c[i]) for c in (m.k.x, m.k.y, m.k.z)])
+
+    r = np.array([0.9, 0.5, 0.2])
+    cu, au = NAMED_METALS["Cu"], NAMED_METALS["Au"]
+    expect = {   # alpha = sqrt(roughness) (pbrt-v4's RoughnessToAlpha); pbrt's default is copper
+        "copper": dict(kind=MIRROR, eta=cu[0], k=cu[1]),
+        "gold": dict(kind=ROUGH_CONDUCTOR, alpha=(0.1, 0.1), distribution=GGX, eta=au[0],
+                     k=au[1]),
+        "brushed": dict(kind=ROUGH_CONDUCTOR, alpha=(0.3, 0.3), eta=[0.2, 0.9, 1.1],
+                        k=[3.9, 2.4, 2.2]),
+        "raw": dict(kind=ROUGH_CONDUCTOR, alpha=(0.3, 0.3), eta=cu[0], k=cu[1]),
+        "albedo": dict(kind=MIRROR, eta=[1, 1, 1], k=2 * np.sqrt(r) / np.sqrt(1 - r)),
+        "almost_smooth": dict(kind=MIRROR),   # alpha 7e-4 < 1e-3: pbrt's EffectivelySmooth
+        "flat_spectra": dict(kind=MIRROR, eta=[0.5] * 3, k=[3] * 3),
+        "frosted": dict(kind=ROUGH_DIELECTRIC, alpha=(0.2, 0.2), distribution=GGX, ior=1.33),
+        "glass": dict(kind=DIELECTRIC, ior=1.4),
+    }
+    for name, want in expect.items():
+        got = row(name)
+        for key, value in want.items():
+            np.testing.assert_allclose(got[key], value, rtol=1e-6, err_msg=f"{name}.{key}")
+    # the reflectance form reflects r at normal incidence: |(eta - 1 + i k) / (eta + 1 + i k)|^2
+    k = np.array(row("albedo")["k"])
+    np.testing.assert_allclose(k**2 / (4 + k**2), r, rtol=1e-5)
+
+
 @pytest.mark.parametrize("body, message", [
     ('Shape "disk" "float radius" 1',
      'Shape "disk" is not supported.*sphere, trianglemesh, plymesh'),
-    ('Material "coateddiffuse"', "material 'coateddiffuse' is not supported"),
-    ('Material "conductor" "spectrum eta" "metal-Cu-eta"', "spectrum values are not supported"),
-    ('Material "conductor"', "perfect mirror"),
-    ('Material "dielectric" "float roughness" 0.1', "roughness 0"),
+    ('Material "coateddiffuse"', "material 'coateddiffuse' is not supported: pbrt-v4's "
+     "coateddiffuse is a stochastic layered BSDF.*Use a Mitsuba XML or TOML scene with a "
+     "roughplastic instead"),
+    ('Material "coateddiffuse" "float roughness" 0 "float thickness" 0.0001',
+     "no choice of its parameters equals a jgi material"),
+    ('Material "coatedconductor"', "material 'coatedconductor' is not supported; supported: "
+     "diffuse, conductor, dielectric"),
+    ('Material "conductor" "spectrum eta" "metal-CuZn-eta" "spectrum k" "metal-CuZn-k"',
+     "named spectrum 'metal-CuZn-eta' is not supported; supported: metal-Ag-eta/-k"),
+    ('Material "conductor" "spectrum eta" "metal-Au-eta" "spectrum k" "metal-Ag-k"',
+     "must name the same metal"),
+    ('Material "conductor" "spectrum eta" "metal-Au-eta" "rgb k" [3 2 1]',
+     "cannot be mixed with an rgb value"),
+    ('Material "conductor" "spectrum eta" [400 0.2 700 1.1] "spectrum k" [400 3 700 3]',
+     "only named or constant spectra are supported"),
+    ('Material "conductor" "rgb reflectance" [0.9 0.9 0.9] "rgb eta" [1 1 1]',
+     "give either \"reflectance\" or \"eta\" and \"k\""),
+    ('Material "conductor" "float roughness" -0.1', "roughness must be >= 0"),
+    ('Material "conductor" "float uroughness" 0.01 "float vroughness" 0.04',
+     "anisotropic roughness \\(uroughness != vroughness\\) is not supported"),
+    ('Material "conductor" "float displacement" 0.1', "displacement is not supported"),
+    ('Material "diffuse" "float roughness" 0.5',
+     "material 'diffuse': unknown parameter 'roughness'; diffuse takes: reflectance"),
+    ('Material "dielectric" "spectrum eta" "glass-BK7"', "varies with wavelength \\(dispersion\\)"),
+    ('Material "diffuse" "texture reflectance" "wood"', "textures are not supported"),
+    ('Texture "wood" "spectrum" "imagemap" "string filename" "wood.png"',
+     'Texture "wood" \\("imagemap"\\): textures are not supported'),
+    ('Texture "checks" "float" "checkerboard" "float uscale" 8',
+     'Texture "checks" \\("checkerboard"\\): textures are not supported'),
+    ('LightSource "point" "spectrum I" "stdillum-D65"', "spectrum values are not supported here"),
+    ('LightSource "point" "blackbody I" 3000', "blackbody values are not supported"),
     ('LightSource "goniometric"', 'LightSource "goniometric" is not supported'),
     ('LightSource "infinite" "string filename" "sky.exr"', "environment map"),
     ('AreaLightSource "diffuse" "bool twosided" true', "two-sided"),

@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 import trimesh
 
-from ..data import SceneError
+from ..data import NAMED_METALS, SceneError
 
 # Indices of refraction by name (Mitsuba 3's documented table; facts, not code).
 NAMED_IOR = {
@@ -18,6 +18,41 @@ NAMED_IOR = {
     "pyrex": 1.470, "acrylic glass": 1.49, "polypropylene": 1.49, "bk7": 1.5046,
     "sodium chloride": 1.544, "amber": 1.55, "pet": 1.5750, "diamond": 2.419,
 }
+
+
+def tangent_frame(n) -> tuple[np.ndarray, np.ndarray]:
+    """The tangents (s, t) jgi's microfacet BSDFs orient anisotropic roughness by (alpha_u along
+    s): ``jgi.core.vec.coordinate_system`` of the unit geometric normal n (Duff et al. 2017),
+    here in numpy. Mitsuba 3 uses the same construction on meshes without texture
+    coordinates."""
+    x, y, z = (float(c) for c in np.asarray(n, float) / np.linalg.norm(n))
+    sign = 1.0 if z >= 0 else -1.0
+    a = -1.0 / (sign + z)
+    b = x * y * a
+    return (np.array([1.0 + sign * x * x * a, sign * b, -sign * x]),
+            np.array([b, sign + y * y * a, -y]))
+
+
+def has_texture_coordinates(path: Path) -> bool:
+    """Whether an OBJ or PLY file carries texture coordinates (Mitsuba then orients the
+    shading frame, and anisotropic roughness, along dp/du)."""
+    suffix = path.suffix.lower()
+    if suffix == ".obj":
+        with open(path, "rb") as fh:
+            return any(line.startswith(b"vt ") for line in fh)
+    if suffix == ".ply":
+        with open(path, "rb") as fh:
+            header = fh.read(4096).split(b"end_header")[0].decode("latin-1")
+        names = {line.split()[-1] for line in header.splitlines()
+                 if line.startswith("property") and len(line.split()) >= 3}
+        return bool(names & {"u", "v", "s", "t", "texture_u", "texture_v", "texture_s",
+                             "texture_t"})
+    return True
+
+
+def named_metals() -> tuple[str, ...]:
+    """The metal names the builder's conductors accept (Mitsuba's names, "none" included)."""
+    return tuple(NAMED_METALS)
 
 
 class ImportError_(SceneError):

@@ -1,15 +1,34 @@
 """Mitsuba 3 XML scenes -> jgi scenes, for the subset jgi represents exactly.
 
-Supported (anything else is refused with the file, the line, the plugin and this list):
+Supported (anything else is refused with the file, the line, the plugin and what is
+supported):
 
   sensor     perspective: fov, fov_axis (x | y | smaller | larger | diagonal), to_world;
              film hdrfilm: width, height (pixel filter, sampler and integrator are ignored:
              jgi uses box pixel filtering and its own estimators)
-  bsdf       diffuse (reflectance), conductor with material="none" (perfect mirror,
-             specular_reflectance), dielectric (int_ior / ext_ior as numbers or Mitsuba's
-             names; ior = int / ext), twosided (unwrapped: jgi's opaque BSDFs are two-sided)
+  bsdf       diffuse (reflectance); conductor and roughconductor (material: a name from jgi's
+             table of metals, or eta / k as rgb, float or constant spectrum;
+             specular_reflectance; material "none" without eta and k is a 100 % reflector);
+             dielectric and roughdielectric (int_ior / ext_ior as numbers or Mitsuba's names,
+             ior = int / ext; one tint: specular_reflectance equal to specular_transmittance);
+             roughplastic (diffuse_reflectance, specular_reflectance, int_ior, ext_ior,
+             nonlinear); twosided (unwrapped: jgi's opaque BSDFs are two-sided, Mitsuba's are
+             one-sided, so a one-sided Mitsuba surface seen from the back renders black there
+             and not in jgi).
+             rough plugins: distribution beckmann | ggx, alpha or alpha_u / alpha_v (not for
+             roughplastic; anisotropic only where Mitsuba's shading frame is jgi's, see
+             check_anisotropy_frame: meshes without texture coordinates, rectangles whose
+             to_world x axis is jgi's tangent); sample_visible is accepted and ignored (it
+             changes Mitsuba's sampling, not the BSDF). Omitted parameters take Mitsuba's
+             defaults: distribution beckmann, alpha 0.1 (values below 1e-4 are raised to 1e-4,
+             as Mitsuba does), specular_reflectance 1, conductor material "none", dielectric
+             int_ior bk7 (1.5046), roughplastic diffuse_reflectance 0.5, int_ior polypropylene
+             (1.49), nonlinear false, ext_ior air (1.000277). Unknown parameters are refused
+             (Mitsuba refuses unreferenced properties too). Refused: plastic (smooth; use
+             roughplastic), every texture (bitmap, checkerboard, ...), and the other plugins.
   shape      rectangle, cube, sphere (center/radius or a uniform-scale to_world), obj, ply
-             (meshes with vertex normals need face_normals="true": jgi shades flat)
+             (only with face_normals="true": otherwise Mitsuba shades with vertex normals, read
+             from the file or computed, and jgi shades flat)
   emitter    area (radiance), point (intensity, position or to_world), spot (intensity,
              cutoff_angle; only with beam_width equal to cutoff_angle, since Mitsuba's falloff
              curve differs from jgi's), directional (direction, irradiance), constant (radiance)
@@ -32,15 +51,45 @@ import numpy as np
 
 from ...core import transform as xf
 from ..data import Scene, SceneBuilder
-from ._common import NAMED_IOR, ImportError_, load_mesh
+from ._common import (
+    NAMED_IOR,
+    ImportError_,
+    has_texture_coordinates,
+    load_mesh,
+    named_metals,
+    tangent_frame,
+)
 
 SUPPORTED = {
     "sensor": ("perspective",),
-    "bsdf": ("diffuse", "conductor", "dielectric", "twosided"),
+    "bsdf": ("diffuse", "conductor", "roughconductor", "dielectric", "roughdielectric",
+             "roughplastic", "twosided"),
     "shape": ("rectangle", "cube", "sphere", "obj", "ply"),
     "emitter": ("area", "point", "spot", "directional", "constant"),
 }
 IGNORED_TAGS = ("integrator", "sampler", "rfilter")
+
+_ROUGH = ("distribution", "alpha", "alpha_u", "alpha_v", "sample_visible")
+# The parameters each BSDF plugin takes (Mitsuba refuses unreferenced properties too).
+# sample_visible only changes how Mitsuba samples, not the BSDF: it is accepted and ignored.
+BSDF_PARAMETERS = {
+    "diffuse": ("reflectance",),
+    "conductor": ("material", "eta", "k", "specular_reflectance"),
+    "roughconductor": ("material", "eta", "k", "specular_reflectance") + _ROUGH,
+    "dielectric": ("int_ior", "ext_ior", "specular_reflectance", "specular_transmittance"),
+    "roughdielectric": ("int_ior", "ext_ior", "specular_reflectance",
+                        "specular_transmittance") + _ROUGH,
+    "roughplastic": ("diffuse_reflectance", "specular_reflectance", "int_ior", "ext_ior",
+                     "nonlinear") + _ROUGH,   # alpha_u / alpha_v: refused as Mitsuba does
+    "twosided": (),
+}
+DISTRIBUTIONS = ("beckmann", "ggx")
+MIN_ALPHA = 1e-4   # Mitsuba's MicrofacetDistribution clamps alpha_u, alpha_v to at least this
+# Plugins refused with a pointer to what jgi has instead.
+ALTERNATIVES = {
+    "plastic": "smooth plastic is not supported; use roughplastic (a small alpha comes close) "
+               "or diffuse",
+}
 
 
 def _parse(path: Path, source: dict) -> ET.Element:
@@ -72,6 +121,7 @@ class _Importer:
         self.defaults: dict[str, str] = {}
         self.b = SceneBuilder(path.stem)
         self.bsdfs: dict[str, tuple] = {}   # id -> (kind, kwargs)
+        self.anisotropic: set[str] = set()  # BSDFs with alpha_u != alpha_v
         self.n_anon = 0
         self.sensor_done = False
         self.source: dict = {}
@@ -141,7 +191,9 @@ class _Importer:
             elif c.tag == "transform":
                 out[name] = self.transform(c)
             elif c.tag == "texture":
-                self.fail(c, f"textures are not supported (parameter '{name}')")
+                self.fail(c, f"texture plugin '{c.get('type')}' (parameter '{name}'): textures "
+                             "are not supported by jgi; give a constant <rgb>, <float> or "
+                             "<spectrum>")
         return out
 
     def transform(self, el) -> np.ndarray:
@@ -176,7 +228,8 @@ class _Importer:
         kind = el.get("type")
         allowed = SUPPORTED[el.tag]
         if kind not in allowed:
-            self.fail(el, f"{el.tag} plugin '{kind}' is not supported by jgi; supported "
+            hint = f" ({ALTERNATIVES[kind]})" if el.tag == "bsdf" and kind in ALTERNATIVES else ""
+            self.fail(el, f"{el.tag} plugin '{kind}' is not supported by jgi{hint}; supported "
                           f"{el.tag} plugins: {', '.join(allowed)}")
         return kind
 
@@ -185,6 +238,14 @@ class _Importer:
         """Register a BSDF, return its material name in the builder."""
         kind = self.check_type(el)
         p = self.props(el)
+        for c in el:
+            if c.tag == "ref" and c.get("name"):
+                self.fail(c, f"bsdf '{kind}': parameter '{c.get('name')}' refers to "
+                             f"'{c.get('id')}'; jgi takes only constant values (no textures)")
+        for key in p:
+            if key not in BSDF_PARAMETERS[kind]:
+                self.fail(el, f"bsdf '{kind}': unknown parameter '{key}'; {kind} takes: "
+                              f"{', '.join(BSDF_PARAMETERS[kind]) or '(none)'}")
         name = el.get("id") or f"_bsdf{self.n_anon}"
         self.n_anon += 1
         if kind == "twosided":
@@ -192,35 +253,121 @@ class _Importer:
             if len(inner) != 1:
                 self.fail(el, "twosided needs exactly one nested bsdf")
             inner_name = self.bsdf(inner[0])
+            if inner_name in self.anisotropic:
+                self.anisotropic.add(name)
             self.bsdfs[name] = self.bsdfs[inner_name]
             self.b.material_names[name] = self.b.material_names[inner_name]
             return name
         if kind == "diffuse":
-            self.b.material(name, "diffuse", diffuse=p.get("reflectance", np.full(3, 0.5)))
-        elif kind == "conductor":
-            material = p.get("material", "none")
-            if material != "none" or "eta" in p or "k" in p:
-                self.fail(el, "conductor: only material='none' (a perfect mirror) is supported; "
-                              "jgi has no complex-IOR Fresnel")
-            self.b.material(name, "mirror", specular=p.get("specular_reflectance", np.ones(3)))
-        elif kind == "dielectric":
-            def ior(key, default):
-                v = p.get(key, default)
-                if isinstance(v, str):
-                    if v not in NAMED_IOR:
-                        self.fail(el, f"dielectric {key} '{v}' is unknown; names: "
-                                      f"{', '.join(NAMED_IOR)}")
-                    return NAMED_IOR[v]
-                return float(v)
-            refl = p.get("specular_reflectance", np.ones(3))
-            trans = p.get("specular_transmittance", np.ones(3))
+            self.b.material(name, "diffuse", diffuse=self.rgb(el, p, "reflectance", 0.5))
+        elif kind in ("conductor", "roughconductor"):
+            self.conductor(el, name, kind, p)
+        elif kind in ("dielectric", "roughdielectric"):
+            refl = self.rgb(el, p, "specular_reflectance", 1.0)
+            trans = self.rgb(el, p, "specular_transmittance", 1.0)
             if not np.allclose(refl, trans):
-                self.fail(el, "dielectric: jgi needs equal specular_reflectance and "
+                self.fail(el, f"{kind}: jgi needs equal specular_reflectance and "
                               "specular_transmittance (one tint)")
-            self.b.material(name, "dielectric", specular=refl,
-                            ior=ior("int_ior", "bk7") / ior("ext_ior", "air"))
+            int_ior, ext_ior = self.ior(el, p, "int_ior", "bk7"), self.ior(el, p, "ext_ior", "air")
+            if kind == "dielectric":
+                self.b.material(name, "dielectric", specular=refl, ior=int_ior / ext_ior)
+            else:
+                if int_ior == ext_ior:
+                    self.fail(el, f"{kind}: int_ior and ext_ior must differ (Mitsuba refuses "
+                                  "equal indices)")
+                self.b.material(name, "roughdielectric", specular=refl, ior=int_ior / ext_ior,
+                                **self.roughness(el, kind, p))
+        elif kind == "roughplastic":
+            int_ior = self.ior(el, p, "int_ior", "polypropylene")
+            ext_ior = self.ior(el, p, "ext_ior", "air")
+            if int_ior == ext_ior:
+                self.fail(el, f"{kind}: int_ior and ext_ior must differ (Mitsuba refuses equal "
+                              "indices)")
+            nonlinear = p.get("nonlinear", False)
+            if not isinstance(nonlinear, bool):
+                self.fail(el, f"{kind}: 'nonlinear' must be a <boolean>")
+            self.b.material(name, "roughplastic",
+                            diffuse=self.rgb(el, p, "diffuse_reflectance", 0.5),
+                            specular=self.rgb(el, p, "specular_reflectance", 1.0),
+                            int_ior=int_ior, ext_ior=ext_ior, nonlinear=nonlinear,
+                            **self.roughness(el, kind, p, anisotropic=False))
+        if "alpha_u" in p and p["alpha_u"] != p["alpha_v"]:
+            self.anisotropic.add(name)
         self.bsdfs[name] = (kind, p)
         return name
+
+    def conductor(self, el, name: str, kind: str, p: dict):
+        """conductor / roughconductor: Mitsuba's rules for ``material`` versus ``eta`` / ``k``
+        (``material`` "none" without eta and k is a 100 % reflector)."""
+        material = p.get("material", "none")
+        if not isinstance(material, str):
+            self.fail(el, f"{kind}: 'material' must be a <string>")
+        spec = self.rgb(el, p, "specular_reflectance", 1.0)
+        rough = self.roughness(el, kind, p) if kind == "roughconductor" else {}
+        jgi_kind = "conductor" if kind == "conductor" else "roughconductor"
+        if material != "none":
+            if "eta" in p or "k" in p:
+                self.fail(el, f"{kind}: give either material='{material}' or eta/k, not both")
+            metals = named_metals()
+            if material not in metals:
+                self.fail(el, f"{kind}: material '{material}' is not in jgi's table of metals; "
+                              f"supported: {', '.join(metals)} (or give eta and k)")
+            self.b.material(name, jgi_kind, specular=spec, metal=material, **rough)
+        elif "eta" not in p and "k" not in p:   # Mitsuba's "none": eta 0, k 1, F = 1
+            self.b.material(name, jgi_kind, specular=spec, metal="none", **rough)
+        else:  # Mitsuba's defaults for a missing one of the two: eta 0, k 1
+            eta, k = self.rgb(el, p, "eta", 0.0), self.rgb(el, p, "k", 1.0)
+            if np.any(eta < 0) or np.any(k < 0):
+                self.fail(el, f"{kind}: eta and k must be >= 0, got eta {eta.tolist()}, "
+                              f"k {k.tolist()}")
+            self.b.material(name, jgi_kind, specular=spec, eta=eta, k=k, **rough)
+
+    def roughness(self, el, kind: str, p: dict, anisotropic: bool = True) -> dict:
+        """distribution (beckmann | ggx, default beckmann) and alpha or alpha_u / alpha_v
+        (default 0.1), checked as Mitsuba does; Mitsuba clamps alpha below 1e-4 to 1e-4."""
+        dist = p.get("distribution", "beckmann")
+        if not isinstance(dist, str) or dist.lower() not in DISTRIBUTIONS:
+            self.fail(el, f"{kind}: unknown distribution '{dist}'; supported: "
+                          f"{', '.join(DISTRIBUTIONS)}")
+        out = {"distribution": dist.lower()}
+        has_uv = "alpha_u" in p or "alpha_v" in p
+        if has_uv and not anisotropic:
+            self.fail(el, f"{kind}: alpha_u / alpha_v are not supported (Mitsuba's {kind} is "
+                          "isotropic); give alpha")
+        if has_uv and "alpha" in p:
+            self.fail(el, f"{kind}: give either alpha or alpha_u / alpha_v, not both")
+        if has_uv and not ("alpha_u" in p and "alpha_v" in p):
+            self.fail(el, f"{kind}: alpha_u and alpha_v must be given together")
+        keys = ("alpha_u", "alpha_v") if has_uv else ("alpha",)
+        for key in keys:
+            a = p.get(key, 0.1)
+            if isinstance(a, (str, bool, np.ndarray)):
+                self.fail(el, f"{kind}: '{key}' must be a <float>")
+            if not a >= 0:
+                self.fail(el, f"{kind}: {key} must be >= 0, got {a}")
+            out[key] = max(float(a), MIN_ALPHA)
+        return out
+
+    def ior(self, el, p: dict, key: str, default: str) -> float:
+        """An index of refraction given as a number or by one of Mitsuba's names."""
+        v = p.get(key, default)
+        if isinstance(v, str):
+            if v.lower() not in NAMED_IOR:
+                self.fail(el, f"{el.get('type')}: {key} '{v}' is unknown; names: "
+                              f"{', '.join(NAMED_IOR)}")
+            return NAMED_IOR[v.lower()]
+        if isinstance(v, (bool, np.ndarray)):
+            self.fail(el, f"{el.get('type')}: {key} must be a <float> or a <string> name")
+        if not v > 0:
+            self.fail(el, f"{el.get('type')}: {key} must be > 0, got {v}")
+        return float(v)
+
+    def rgb(self, el, p: dict, key: str, default: float) -> np.ndarray:
+        """A colour parameter given as <rgb>, <float> or a constant <spectrum>."""
+        v = p.get(key, default)
+        if isinstance(v, (str, bool)):
+            self.fail(el, f"{el.get('type')}: '{key}' must be an <rgb>, <float> or <spectrum>")
+        return np.broadcast_to(np.asarray(v, float), (3,)).copy()
 
     def shape(self, el):
         kind = self.check_type(el)
@@ -242,6 +389,8 @@ class _Importer:
                 if c.get("type") != "area":
                     self.fail(c, f"a shape's emitter must be 'area', got '{c.get('type')}'")
                 emission = self.props(c).get("radiance", np.ones(3))
+        if material in self.anisotropic:
+            self.check_anisotropy_frame(el, kind, p, m, material)
         if material is None:  # Mitsuba's default: diffuse, reflectance 0.5
             material = f"_default{self.n_anon}"
             self.n_anon += 1
@@ -263,10 +412,49 @@ class _Importer:
             if not fname:
                 self.fail(el, f"{kind} shape needs a 'filename'")
             base = self.file_of(el).parent
-            v, f = load_mesh(base / fname, self.where(el), bool(p.get("face_normals", False)))
+            v, f = load_mesh(base / fname, self.where(el), allow_vertex_normals=True)
+            if not p.get("face_normals", False):
+                # Mitsuba 3 reads the file's vertex normals, or computes smooth ones when there
+                # are none (PLYMesh / OBJMesh: recompute_vertex_normals), unless face_normals
+                self.fail(el, f"{kind} mesh '{fname}': Mitsuba shades it with vertex normals "
+                              "(the file's, or computed ones when it has none) unless "
+                              "face_normals is true; jgi shades flat (geometric normals). Add "
+                              "<boolean name=\"face_normals\" value=\"true\"/>")
             if p.get("flip_normals", False):
                 f = f[:, ::-1]
             self.b.mesh(v, f, material, emission, to_world=m)
+
+    def check_anisotropy_frame(self, el, kind, p, m, material):
+        """Anisotropic roughness is oriented by the shading frame: Mitsuba's follows dp/du of
+        the shape's (u, v) parametrisation, jgi's is built from the normal alone
+        (:func:`._common.tangent_frame`). They agree on meshes without texture coordinates
+        (Mitsuba builds the same frame there) and on rectangles whose dp/du (to_world's x)
+        happens to be jgi's tangent s; anything else would rotate the highlight and is
+        refused."""
+        why = None
+        if kind == "rectangle":
+            du, dv = m[:3, 0], m[:3, 1]
+            n = np.cross(du, dv)
+            s, _ = tangent_frame(n)
+            du = du - n * np.dot(n, du) / np.dot(n, n)
+            if abs(np.dot(s, du)) < (1 - 1e-6) * np.linalg.norm(du):
+                why = (f"this rectangle's dp/du {np.round(du / np.linalg.norm(du), 4).tolist()} "
+                       f"is not jgi's tangent {np.round(s, 4).tolist()}")
+        elif kind in ("obj", "ply"):
+            fname = p.get("filename")
+            path = self.file_of(el).parent / fname if fname else None
+            if p.get("flip_normals", False):
+                why = "flip_normals changes Mitsuba's frame"
+            elif path is not None and path.is_file() and has_texture_coordinates(path):
+                why = f"'{fname}' has texture coordinates, which orient Mitsuba's frame"
+        else:
+            why = f"a {kind}'s frame follows its (u, v) parametrisation"
+        if why:
+            self.fail(el, f"bsdf '{material}' is anisotropic (alpha_u != alpha_v), and {why}: "
+                          "jgi orients anisotropy by a frame built from the normal, so the "
+                          "highlight would turn. Supported: meshes without texture coordinates, "
+                          "rectangles whose to_world x axis is that frame's tangent; or give "
+                          "alpha")
 
     def emitter(self, el):
         kind = self.check_type(el)
@@ -333,6 +521,9 @@ class _Importer:
                 self.emitter(el)
             elif tag == "sensor":
                 self.sensor(el)
+            elif tag == "texture":
+                self.fail(el, f"texture plugin '{el.get('type')}': textures are not supported by "
+                              "jgi; give constant <rgb>, <float> or <spectrum> parameters")
             elif tag in IGNORED_TAGS:
                 continue
             else:

@@ -1,6 +1,7 @@
-"""pbrt-v4 scene files -> jgi scenes, for the subset jgi represents exactly.
+"""pbrt-v4 scene files -> jgi scenes, for the subset jgi represents (see "Approximations").
 
-Supported (anything else is refused with the file, the line, the directive/plugin and this list):
+Supported (anything else is refused with the file, the line, the directive/plugin and what is
+supported):
 
   camera     Camera "perspective" ("float fov": the shorter image axis, as in pbrt), placed by
              the transform current at the Camera directive (LookAt etc.); Film "rgb"/"gbuffer"
@@ -8,9 +9,20 @@ Supported (anything else is refused with the file, the line, the directive/plugi
              Accelerator are ignored (jgi has its own estimators and box pixel filtering).
   transforms Identity, Translate, Scale, Rotate, LookAt, Transform, ConcatTransform,
              AttributeBegin/End (and pbrt-v3's TransformBegin/End), ReverseOrientation
-  materials  Material / MakeNamedMaterial + NamedMaterial: "diffuse" (reflectance),
-             "conductor" only as a perfect mirror ("rgb reflectance" [1 1 1], roughness 0),
-             "dielectric" (eta, roughness 0)
+  materials  Material / MakeNamedMaterial + NamedMaterial: "diffuse" (reflectance);
+             "conductor" (eta and k as rgb, constant spectra or pbrt's named metal spectra
+             "metal-X-eta" / "metal-X-k" of one metal X, default copper, mapped to jgi's metal X;
+             or "reflectance" r, which pbrt turns into eta 1, k = 2 sqrt(r) / sqrt(1 - r));
+             "dielectric" ("float eta" or a constant spectrum; named glass spectra are
+             dispersive and refused). Both with roughness (or equal uroughness and vroughness:
+             anisotropy is refused, as pbrt orients it along dp/du and jgi along a frame built
+             from the normal) and remaproughness (default true: alpha = sqrt(roughness),
+             pbrt-v4's TrowbridgeReitzDistribution::RoughnessToAlpha): GGX (Trowbridge-Reitz)
+             microfacets, jgi's roughconductor / roughdielectric; where pbrt treats the surface
+             as smooth (the smaller alpha below 1e-3) jgi's smooth conductor / dielectric.
+             Refused: "coateddiffuse" (a stochastic layered BSDF that no jgi material equals;
+             use a Mitsuba or TOML roughplastic), the other materials, displacement and normal
+             maps, and every Texture (imagemap, checkerboard, ...).
   shapes     "sphere" (radius), "trianglemesh" (P, indices; no shading normals N),
              "plymesh" (filename), inside AreaLightSource "diffuse" (L, scale, power; one-sided)
   lights     LightSource "point" (I, from, scale, power), "spot" (I, from, to, coneangle,
@@ -25,6 +37,13 @@ I becomes P / (2 pi (1 - (cos_start + cos_end) / 2)), an area light's L becomes 
 sided), each divided by the luminance of the given RGB so that the *luminous* power is P (as
 pbrt divides by the spectrum's photometric integral). A distant light's "illuminance" E sets
 its irradiance to E / luminance(rgb) times the rgb.
+
+Approximations: pbrt-v4 renders spectrally and jgi in RGB, so a named metal spectrum becomes the
+RGB eta / k of jgi's metal of that name (Mitsuba's RGB-mode values of the measured data, which
+Mitsuba's documentation says is pbrt's); and pbrt-v4's rough conductor and dielectric use the
+height-correlated Smith masking-shadowing G = 1 / (1 + Lambda(wo) + Lambda(wi)) where jgi's
+microfacet BSDFs (Mitsuba's) use the separable G1(wo) G1(wi), which is a little darker at
+grazing angles.
 """
 
 from __future__ import annotations
@@ -37,7 +56,7 @@ import numpy as np
 
 from ...core import transform as xf
 from ..data import Scene, SceneBuilder
-from ._common import ImportError_, load_mesh
+from ._common import ImportError_, load_mesh, named_metals
 
 _TOKEN = re.compile(r'"[^"]*"|\[|\]|[^\s\[\]"]+')
 IGNORED = {"Sampler", "Integrator", "PixelFilter", "ColorSpace", "Option", "Accelerator",
@@ -49,6 +68,25 @@ SUPPORTED = {
     "LightSource": ("point", "spot", "distant", "uniform", "infinite"),
     "AreaLightSource": ("diffuse",),
 }
+
+
+_ROUGH = ("roughness", "uroughness", "vroughness", "remaproughness")
+MATERIAL_PARAMETERS = {
+    "diffuse": ("reflectance",),
+    "conductor": ("eta", "k", "reflectance") + _ROUGH,
+    "dielectric": ("eta",) + _ROUGH,
+}
+PBRT_SMOOTH_ALPHA = 1e-3   # TrowbridgeReitzDistribution::EffectivelySmooth: min(alpha) < 1e-3
+# pbrt-v4's named metal spectra (util/spectrum.cpp), mapped to the builder's metal of that name
+PBRT_METALS = ("Ag", "Al", "Au", "Cu", "CuZn", "MgO", "TiO2")
+PBRT_METAL = re.compile(r"metal-(\w+)-(eta|k)")
+COATEDDIFFUSE_REFUSAL = (
+    "material 'coateddiffuse' is not supported: pbrt-v4's coateddiffuse is a stochastic "
+    "layered BSDF (a random walk, truncated at maxdepth, between a dielectric coating and a "
+    "diffuse base through a medium of the given thickness and albedo), and no choice of its "
+    "parameters equals a jgi material: Mitsuba's roughplastic (jgi's 'roughplastic') is an "
+    "analytic approximation of such a layer. Use a Mitsuba XML or TOML scene with a "
+    "roughplastic instead.")
 
 
 def _lum(rgb) -> float:
@@ -142,9 +180,14 @@ class _Importer:
                 vals = [v.strip('"') == "true" for v in vals]
             elif typ in ("string", "texture"):
                 vals = [v.strip('"') for v in vals]
-            elif typ in ("spectrum", "blackbody"):
-                self.fail((toks.path, line), f"parameter '{name}': {typ} values are not supported "
-                                             "(use rgb)")
+            elif typ == "spectrum":   # a named spectrum, a file name, or (lambda, value) pairs
+                try:
+                    vals = [float(v) for v in vals]
+                except ValueError:
+                    vals = [v.strip('"') for v in vals]
+            elif typ == "blackbody":
+                self.fail((toks.path, line), f"parameter '{name}': blackbody values are not "
+                                             "supported (use rgb)")
             out[name] = (typ, vals)
 
     def _get(self, p, name, default, where, n=None):
@@ -152,7 +195,11 @@ class _Importer:
             return default
         typ, vals = p[name]
         if typ == "texture":
-            self.fail(where, f"parameter '{name}': textures are not supported")
+            self.fail(where, f"parameter '{name}': textures are not supported (jgi has no "
+                             "textures; give a constant value)")
+        if typ == "spectrum":
+            self.fail(where, f"parameter '{name}': spectrum values are not supported here (use "
+                             "rgb)")
         if n == 1:
             return vals[0]
         if n is not None and len(vals) != n:
@@ -163,23 +210,129 @@ class _Importer:
     def material_from(self, kind, p, where) -> str:
         name = f"_pbrt_material{self.n_mat}"
         self.n_mat += 1
-        if self._get(p, "roughness", 0.0, where, 1) != 0 or "uroughness" in p:
-            self.fail(where, f"material '{kind}': only smooth (roughness 0) surfaces are supported")
+        if kind == "coateddiffuse":
+            self.fail(where, COATEDDIFFUSE_REFUSAL)
+        if kind not in MATERIAL_PARAMETERS:
+            self.fail(where, f"material '{kind}' is not supported; supported: "
+                             f"{', '.join(SUPPORTED['Material'])}")
+        for key in p:
+            if key in ("displacement", "normalmap"):
+                self.fail(where, f"material '{kind}': {key} is not supported (jgi shades with "
+                                 "geometric normals)")
+            if key != "type" and key not in MATERIAL_PARAMETERS[kind]:
+                self.fail(where, f"material '{kind}': unknown parameter '{key}'; {kind} takes: "
+                                 f"{', '.join(MATERIAL_PARAMETERS[kind])}")
         if kind == "diffuse":
             self.b.material(name, "diffuse",
                             diffuse=self._get(p, "reflectance", np.full(3, 0.5), where, 3))
         elif kind == "conductor":
-            refl = self._get(p, "reflectance", None, where, 3)
-            if refl is None or not np.allclose(refl, 1.0):
-                self.fail(where, "conductor: only a perfect mirror (\"rgb reflectance\" [1 1 1]) "
-                                 "is supported; jgi has no complex-IOR Fresnel")
-            self.b.material(name, "mirror", specular=(1.0, 1.0, 1.0))
-        elif kind == "dielectric":
-            self.b.material(name, "dielectric", ior=float(self._get(p, "eta", 1.5, where, 1)))
-        else:
-            self.fail(where, f"material '{kind}' is not supported; supported: "
-                             f"{', '.join(SUPPORTED['Material'])}")
+            rough = self.roughness(kind, p, where)
+            jgi_kind = "conductor" if rough is None else "roughconductor"
+            self.b.material(name, jgi_kind, **self.conductor_ior(p, where), **(rough or {}))
+        else:  # dielectric
+            eta = self.dielectric_eta(p, where)
+            rough = self.roughness(kind, p, where)
+            if rough is None:
+                self.b.material(name, "dielectric", ior=eta)
+            else:
+                self.b.material(name, "roughdielectric", ior=eta, **rough)
         return name
+
+    def roughness(self, kind, p, where) -> dict | None:
+        """GGX roughness from roughness / uroughness / vroughness, remapped by pbrt-v4's
+        TrowbridgeReitzDistribution::RoughnessToAlpha (alpha = sqrt(roughness)) unless
+        remaproughness is false; None where pbrt's EffectivelySmooth() holds (the smaller
+        alpha below 1e-3): pbrt then uses the smooth (Dirac) BSDF, and so does jgi."""
+        r = float(self._get(p, "roughness", 0.0, where, 1))
+        u = float(self._get(p, "uroughness", r, where, 1))
+        v = float(self._get(p, "vroughness", r, where, 1))
+        for key, x in (("roughness", r), ("uroughness", u), ("vroughness", v)):
+            if not x >= 0:
+                self.fail(where, f"material '{kind}': {key} must be >= 0, got {x}")
+        remap = self._get(p, "remaproughness", [True], where)[0]
+        au, av = (math.sqrt(u), math.sqrt(v)) if remap else (u, v)
+        if min(au, av) < PBRT_SMOOTH_ALPHA:
+            return None
+        if au != av:
+            self.fail(where, f"material '{kind}': anisotropic roughness (uroughness != "
+                             "vroughness) is not supported: pbrt orients it along the shape's "
+                             "dp/du, jgi along a frame built from the normal, so the highlight "
+                             "would turn; give one roughness")
+        return {"distribution": "ggx", "alpha": au}
+
+    def spectrum(self, p, name, where):
+        """An "rgb" value (3 numbers), a constant "spectrum" ((lambda, value) pairs with one
+        value, or a single number) as 3 equal numbers, or a named spectrum as its name."""
+        typ, vals = p[name]
+        if typ == "texture":
+            self.fail(where, f"parameter '{name}': textures are not supported (jgi has no "
+                             "textures; give a constant value)")
+        if typ == "rgb":
+            if len(vals) != 3:
+                self.fail(where, f"parameter '{name}' needs 3 values, got {len(vals)}")
+            return np.array(vals, float)
+        if typ == "spectrum":
+            if len(vals) == 1 and isinstance(vals[0], str):
+                return vals[0]
+            if all(isinstance(x, float) for x in vals):
+                values = vals[1::2] if len(vals) > 1 else vals
+                if len(vals) in (1,) or (len(vals) % 2 == 0 and len(set(values)) == 1):
+                    return np.full(3, values[0])
+            self.fail(where, f"parameter '{name}': only named or constant spectra are supported "
+                             "(jgi renders in RGB; give rgb values)")
+        self.fail(where, f"parameter '{name}': expected \"rgb\" or \"spectrum\", got \"{typ}\"")
+
+    def conductor_ior(self, p, where) -> dict:
+        """Builder arguments for pbrt's conductor: eta / k (rgb or pbrt's named metal spectra,
+        default copper) or the "reflectance" form (eta 1, k = 2 sqrt(r) / sqrt(1 - r) with r
+        clamped to [0, 0.9999], as pbrt-v4's ConductorMaterial does)."""
+        if "reflectance" in p:
+            if "eta" in p or "k" in p:
+                self.fail(where, "conductor: give either \"reflectance\" or \"eta\" and "
+                                 "\"k\", not both (pbrt refuses both)")
+            r = self.spectrum(p, "reflectance", where)
+            if isinstance(r, str):
+                self.fail(where, "conductor: \"reflectance\" must be rgb or a constant spectrum")
+            r = np.clip(r, 0.0, 0.9999)
+            return {"eta": np.ones(3), "k": 2 * np.sqrt(r) / np.sqrt(1 - r)}
+        eta = self.spectrum(p, "eta", where) if "eta" in p else "metal-Cu-eta"
+        k = self.spectrum(p, "k", where) if "k" in p else "metal-Cu-k"
+        metals = named_metals()
+        named = [x for x in (eta, k) if isinstance(x, str)]
+        for x in named:
+            m = PBRT_METAL.fullmatch(x)
+            if m is None or m.group(1) not in metals or m.group(1) == "none":
+                known = ", ".join(f"metal-{n}-eta/-k" for n in PBRT_METALS if n in metals)
+                self.fail(where, f"conductor: named spectrum '{x}' is not supported; supported: "
+                                 f"{known} (or rgb values)")
+        if len(named) == 2:
+            me, mk = PBRT_METAL.fullmatch(eta), PBRT_METAL.fullmatch(k)
+            if me.group(1) != mk.group(1) or me.group(2) != "eta" or mk.group(2) != "k":
+                self.fail(where, f"conductor: eta '{eta}' and k '{k}' must name the same metal "
+                                 "(metal-X-eta with metal-X-k)")
+            return {"metal": me.group(1)}
+        if named:
+            self.fail(where, f"conductor: '{named[0]}' cannot be mixed with an rgb value; give "
+                             "both eta and k as named spectra of one metal, or both as rgb")
+        if np.any(eta < 0) or np.any(k < 0):
+            self.fail(where, "conductor: eta and k must be >= 0")
+        return {"eta": eta, "k": k}
+
+    def dielectric_eta(self, p, where) -> float:
+        if "eta" not in p:
+            return 1.5
+        typ, vals = p["eta"]
+        if typ == "float":
+            eta = float(vals[0])
+        else:
+            v = self.spectrum(p, "eta", where)
+            if isinstance(v, str):
+                self.fail(where, f"dielectric: eta '{v}' varies with wavelength (dispersion), "
+                                 "which jgi's RGB renderer cannot reproduce; give \"float eta\"")
+            eta = float(v[0])
+        if not eta > 0:
+            self.fail(where, f"dielectric: eta must be > 0, got {eta}")
+        return eta
 
     def check(self, directive, kind, where):
         if kind not in SUPPORTED[directive]:
@@ -370,6 +523,10 @@ class _Importer:
                 k = kind()
                 self.check("Shape", k, where)
                 self.shape(k, self.params(toks, where), where)
+            elif tok == "Texture":
+                tex_name, _, tex_class = kind(), kind(), kind()
+                self.fail(where, f"Texture \"{tex_name}\" (\"{tex_class}\"): textures are not "
+                                 "supported by jgi; give materials constant rgb / float values")
             elif tok in ("Include", "Import"):
                 f, _ = toks.next()
                 self.run_file(path.parent / f.strip('"'))
