@@ -252,7 +252,8 @@ def _interior(scene: Scene, q: Vertices, qm: Vertices, p: Vertices, pm: Vertices
     w = v / jnp.where(dist > 0, dist, 1.0)            # from y_{s-1} towards z_{t-1}
     mq = B.lookup_specialised(scene.materials, q.material)
     mp = B.lookup_specialised(scene.materials, p.material)
-    f_q, pdf_q_fwd = B.evaluate(kinds, mq, q.n, q.wo, w)     # y_{s-2} -> y_{s-1} -> z_{t-1}
+    f_q, pdf_q_fwd = B.evaluate(kinds, mq, q.n, q.wo, w,     # y_{s-2} -> y_{s-1} -> z_{t-1}
+                                mode=B.IMPORTANCE)
     _, pdf_q_rev = B.evaluate(kinds, mq, q.n, w, q.wo)
     f_p, pdf_p_fwd = B.evaluate(kinds, mp, p.n, p.wo, -w)    # z_{t-2} -> z_{t-1} -> y_{s-1}
     _, pdf_p_rev = B.evaluate(kinds, mp, p.n, -w, p.wo)

@@ -165,7 +165,7 @@ def _gather_hits(scene: Scene, cfg: CacheConfig, seed, ids, p: V3, n: V3):
     of, df, kf, angles, frame = _gather_rays(scene, cfg, seed, ids, p, n)
     hit = G.intersect(scene, of, df)
     v = trace_to_diffuse(scene, lambda k: rng.uniform(kf, k + 2), of, df, max_depth=cfg.max_depth,
-                         light_samples=0)
+                         light_samples=0, lookup_rough=False)
     return v._replace(n=B.facing(v.n, v.wo)), jnp.where(hit.valid, hit.t, jnp.inf), angles, frame
 
 
@@ -180,7 +180,8 @@ def gather_photons(scene: Scene, cfg: CacheConfig, seed, ids, p: V3, n: V3, grid
     is the photon estimate of the light reflected at the diffuse surface it reaches."""
     K = p.x.shape[0]
     v, r, angles, frame = _gather_hits(scene, cfg, seed, ids, p, n)
-    Lp, _ = PMap.estimate_at_points(scene, grid, v.p, v.n, v.material, radius, cap=cap, k=k,
+    Lp, _ = PMap.estimate_at_points(scene, grid, v.p, v.n, v.wo, v.material, radius, cap=cap,
+                                    k=k,
                                     kind="box", thickness=None, filter_params={})
     found = np.asarray(v.found)
     L = V3(*(jnp.asarray(np.where(found, np.asarray(b) * c, 0.0)) for b, c in zip(v.beta, Lp)))
@@ -406,7 +407,7 @@ def shade(scene: Scene, cfg: CacheConfig, seed: int, spp: int):
     pixel = jnp.tile(jnp.arange(P, dtype=jnp.int32), spp)
     sample = jnp.repeat(jnp.arange(spp, dtype=jnp.int32), P)
     return visible_points(scene, jnp.uint32(seed), pixel, sample, max_depth=cfg.max_depth,
-                          light_samples=1)
+                          light_samples=1, lookup_rough=False)
 
 
 def render(scene: Scene, cfg: CacheConfig = CacheConfig(), *, spp: int = 1, seed: int = 0,

@@ -187,17 +187,21 @@ def _first(mask: Array, fallback: Array) -> Array:
 
 def specular_coefficient(mp: B.MaterialParams, n: V3, wo: V3, wi: V3):
     """The Dirac coefficient of a specular vertex (f |cos| without the delta) for the pair
-    (wo, wi), and the probability with which ``bsdf.sample`` picks that lobe. Mirror: k_s, 1.
-    Dielectric: F k_s with probability F (reflection), (1 - F) k_s / eta^2 with 1 - F
-    (transmission, radiance scaling as in jgi.physics.bsdf)."""
+    (wo, wi), and the probability with which ``bsdf.sample`` picks that lobe. Mirror (smooth
+    conductor): k_s F_conductor(cos_o) (k_s for the perfect mirror), 1. Dielectric: F k_s with
+    probability F (reflection), (1 - F) k_s / eta^2 with 1 - F (transmission, radiance scaling
+    as in jgi.physics.bsdf)."""
     cos_o = dot(wo, n)
     transmit = cos_o * dot(wi, n) < 0
     eta = jnp.where(cos_o > 0, mp.ior, 1.0 / mp.ior)
     F = B.fresnel_dielectric(jnp.abs(cos_o), eta)
     diel = jnp.where(transmit, (1.0 - F) / (eta * eta), F)
     prob = jnp.where(mp.kind == DIELECTRIC, jnp.where(transmit, 1.0 - F, F), 1.0)
-    coeff = jnp.where(mp.kind == DIELECTRIC, diel, jnp.where(transmit, 0.0, 1.0))
-    return mp.ks * coeff, prob
+    mirror = B.mirror_reflectance(mp, jnp.abs(cos_o))
+    zero = jnp.zeros_like(cos_o)
+    coeff = where(mp.kind == DIELECTRIC, mp.ks * diel,
+                  where(transmit, V3(zero, zero, zero), mirror))
+    return coeff, prob
 
 
 def specular_continue(mp: B.MaterialParams, n: V3, w_from: V3, transmit: Array):

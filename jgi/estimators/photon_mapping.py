@@ -20,7 +20,11 @@ All three start from the photon maps of :mod:`jgi.transport.photons` and the den
   number of passes T grows (a = ``radius_alpha`` in (0, 1), Hachisuka's alpha). ``ppm`` keeps
   one visible point per pixel from the first pass (Hachisuka 2008); ``sppm`` traces a new
   jittered one every pass (2009), so anti-aliasing and glossy/depth effects converge too.
-Only the diffuse part (k_d / pi) of a surface reflects photons in the estimates.
+Only the diffuse part (k_d / pi) of a diffuse or Phong surface reflects photons in the
+estimates; on microfacet surfaces the whole BSDF does. Glossy microfacet vertices (and rough
+dielectrics) are sampled through like specular ones, not looked up
+(:func:`jgi.transport.subpath.samples_through`); ``pm_jensen`` samples through every
+microfacet vertex (specular and glossy light by Monte Carlo, Jensen's split).
 
 Parameters: :class:`PMConfig`, :class:`JensenConfig`, :class:`ProgressiveConfig`; each
 ``render_*`` returns a :class:`~jgi.estimators.registry.Render` (image and stats).
@@ -132,7 +136,8 @@ def render_pm(scene: Scene, cfg: PMConfig = PMConfig(), *, spp: int = 4, seed: i
     fp = (dict(k=cfg.cone_k) if filter == "cone" else
           dict(gauss_alpha=cfg.gauss_alpha, gauss_beta=cfg.gauss_beta) if filter == "gaussian"
           else {})
-    L, trunc = PMap.estimate_at_points(scene, grid, v.p, v.n, v.material, radius, cap=cap, k=k,
+    L, trunc = PMap.estimate_at_points(scene, grid, v.p, v.n, v.wo, v.material, radius, cap=cap,
+                                       k=k,
                                        kind=filter, thickness=thickness, filter_params=fp)
     found = np.asarray(v.found)
     beta_ = np.stack([np.asarray(c) for c in v.beta])
@@ -154,7 +159,7 @@ def _gather_points(scene: Scene, seed, ids, x: V3, n: V3, n_gather: int, max_dep
     flat = lambda v: V3(*(c.reshape(-1) for c in v))
     kf = key.reshape(-1)
     v = trace_to_diffuse(scene, lambda k: rng.uniform(kf, k + 2), flat(o), flat(d),
-                         max_depth=max_depth, light_samples=0)
+                         max_depth=max_depth, light_samples=0, lookup_rough=False)
     return v._replace(n=B.facing(v.n, v.wo))
 
 
@@ -169,7 +174,8 @@ def render_jensen(scene: Scene, cfg: JensenConfig = JensenConfig(), *, spp: int 
     grid = PMap.build_grid(pm, radius, cap=cap or 128)
     radius = float(grid.cell)
     pix, smp = _pixels(scene, spp)
-    v = visible_points(scene, jnp.uint32(seed), pix, smp, max_depth=max_depth, light_samples=1)
+    v = visible_points(scene, jnp.uint32(seed), pix, smp, max_depth=max_depth, light_samples=1,
+                       lookup_rough=False)
     found = np.asarray(v.found)
     beta_ = np.stack([np.asarray(c) for c in v.beta])
     total = np.stack([np.asarray(c) for c in v.L])  # emission along the chain + direct light
@@ -179,7 +185,8 @@ def render_jensen(scene: Scene, cfg: JensenConfig = JensenConfig(), *, spp: int 
         cpm = cpm.select(cpm.caustic)
         if cpm.count:
             cgrid = PMap.build_grid(cpm, cfg.caustic_radius, cap=cap or 128)
-            Lc, _ = PMap.estimate_at_points(scene, cgrid, v.p, v.n, v.material, float(cgrid.cell),
+            Lc, _ = PMap.estimate_at_points(scene, cgrid, v.p, v.n, v.wo, v.material,
+                                            float(cgrid.cell),
                                             cap=cap, k=cfg.k_caustic, kind=filter, thickness=None,
                                             filter_params={})
             total = total + np.where(found, beta_ * Lc, 0.0)
@@ -205,7 +212,8 @@ def render_jensen(scene: Scene, cfg: JensenConfig = JensenConfig(), *, spp: int 
             take = lambda vv: V3(*(jnp.asarray(np.asarray(c)[pad]) for c in vv))
             g = _gather_points(scene, jnp.uint32(seed), jnp.asarray(pad, jnp.int32), take(v.p),
                                take(v.n), final_gather, max_depth)
-            Lg, _ = PMap.estimate_at_points(scene, grid, g.p, g.n, g.material, radius, cap=cap, k=k,
+            Lg, _ = PMap.estimate_at_points(scene, grid, g.p, g.n, g.wo, g.material, radius,
+                                            cap=cap, k=k,
                                       kind=filter, thickness=None, filter_params={})
             gb = np.stack([np.asarray(c) for c in g.beta])
             Lg = (np.where(np.asarray(g.found), gb * Lg, 0.0)
@@ -216,13 +224,17 @@ def render_jensen(scene: Scene, cfg: JensenConfig = JensenConfig(), *, spp: int 
 
 
 @partial(jax.jit, static_argnames=("cap",))
-def _ppm_gather(scene: Scene, grid, x: V3, n: V3, material, r2, cap: int):
+def _ppm_gather(scene: Scene, grid, x: V3, n: V3, wo: V3, material, r2, cap: int):
+    """M_i (photons within R_i) and Phi_i = sum f_r DeltaPhi_p at each visible point."""
     g = PMap.gather(grid, x, n, cap, None)
     inside = g.d2 < r2[:, None]
-    kd = PMap.diffuse_reflectance(scene, material)
     M = jnp.sum(inside, axis=-1).astype(jnp.float32)
-    phi = V3(*(jnp.sum(jnp.where(inside, p, 0.0), axis=-1) * c / jnp.pi
-               for p, c in zip(g.power, kd)))
+    f = PMap.photon_reflectance(scene, material, n, wo, g.wi)
+    if f.x.shape[-1] == 1:   # k_d / pi per point: summed once (the scene has no microfacets)
+        phi = V3(*(jnp.sum(jnp.where(inside, p, 0.0), axis=-1) * c[:, 0]
+                   for p, c in zip(g.power, f)))
+    else:
+        phi = V3(*(jnp.sum(jnp.where(inside, p * c, 0.0), axis=-1) for p, c in zip(g.power, f)))
     return M, phi, g.truncated
 
 
@@ -262,7 +274,7 @@ def render_progressive(scene: Scene, cfg: ProgressiveConfig = ProgressiveConfig(
         for s0 in range(0, n_pts, chunk):
             sl = slice(s0, s0 + chunk)
             sub = lambda vv: V3(*(c[sl] for c in vv))
-            m, ph, tr = _ppm_gather(scene, grid, sub(v.p), sub(v.n), v.material[sl],
+            m, ph, tr = _ppm_gather(scene, grid, sub(v.p), sub(v.n), sub(v.wo), v.material[sl],
                                     jnp.asarray(R2[sl], jnp.float32), cap_t)
             M[sl] = np.asarray(m)
             phi[:, sl] = np.stack([np.asarray(c) for c in ph])

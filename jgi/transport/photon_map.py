@@ -38,8 +38,10 @@ import jax.numpy as jnp
 import numpy as np
 from jax import Array
 
-from ..core.vec import V3, dot
+from ..core.vec import V3, dot, where
+from ..physics import bsdf as B
 from ..scene.data import Scene
+from .subpath import has_rough
 
 _P1, _P2, _P3 = 73856093, 19349663, 83492791  # Teschner et al. 2003
 JENSEN_ALPHA, JENSEN_BETA = 0.918, 1.953       # the Gaussian filter's constants (Jensen 2001)
@@ -202,14 +204,31 @@ def diffuse_reflectance(scene: Scene, m) -> V3:
     return V3(kd.x[m], kd.y[m], kd.z[m])
 
 
-@partial(jax.jit, static_argnames=("cap", "k", "kind", "thickness"))
-def radiance_estimate(scene: Scene, grid: HashGrid, x: V3, n: V3, material, r, cap: int,
-                      k: int, kind: str, thickness, filter_params):
-    """L_r at points x from a photon grid: radius r, or (k > 0) the k nearest within r."""
-    g = gather(grid, x, n, cap, thickness)
-    r2 = knn_radius2(g, k, r) if k > 0 else jnp.broadcast_to(r * r, x.x.shape)
+def photon_reflectance(scene: Scene, material, n: V3, wo: V3, wi: V3) -> V3:
+    """f_r(x, w_p, w) of the estimate for candidate photons arriving from ``wi`` ([N, C]) at
+    points with material rows ``material``, normal n and outgoing direction wo ([N]): k_d / pi
+    on diffuse and Phong surfaces (the diffuse part alone), the whole BSDF on microfacet
+    surfaces (:func:`jgi.transport.subpath.is_lookup_surface`). [N, 1] columns when the scene
+    has no microfacet material."""
     kd = diffuse_reflectance(scene, material)
     f = V3(*(c[:, None] / jnp.pi for c in kd))
+    mats = scene.materials
+    if not has_rough(mats.kinds):
+        return f
+    col = lambda v: V3(*(c[:, None] for c in v))  # noqa: E731
+    mp = B.lookup(mats, jnp.broadcast_to(material[:, None], wi.x.shape))
+    f_rough, _ = B.evaluate(mats.kinds, mp, col(n), col(wo), wi)
+    return where(B.is_rough(mp), f_rough, V3(*(jnp.broadcast_to(c, wi.x.shape) for c in f)))
+
+
+@partial(jax.jit, static_argnames=("cap", "k", "kind", "thickness"))
+def radiance_estimate(scene: Scene, grid: HashGrid, x: V3, n: V3, wo: V3, material, r, cap: int,
+                      k: int, kind: str, thickness, filter_params):
+    """L_r at points x (outgoing direction wo) from a photon grid: radius r, or (k > 0) the k
+    nearest within r."""
+    g = gather(grid, x, n, cap, thickness)
+    r2 = knn_radius2(g, k, r) if k > 0 else jnp.broadcast_to(r * r, x.x.shape)
+    f = photon_reflectance(scene, material, n, wo, g.wi)
     L, count = estimate(g, r2, f, kind, **filter_params)
     return L, count, g.truncated
 
@@ -221,7 +240,7 @@ def warn_truncated(trunc, cap, r):
                       stacklevel=3)
 
 
-def estimate_at_points(scene, grid, x, n, m, r, *, cap, k, kind, thickness, filter_params):
+def estimate_at_points(scene, grid, x, n, wo, m, r, *, cap, k, kind, thickness, filter_params):
     """:func:`radiance_estimate` at any number of points (host arrays in, numpy [3, N] out),
     in padded chunks of one compiled size; warns if grid cells were truncated."""
     out, trunc = [], False
@@ -230,10 +249,10 @@ def estimate_at_points(scene, grid, x, n, m, r, *, cap, k, kind, thickness, filt
     chunk = query_chunk(cap)
     for s in range(0, N, chunk):
         sl = slice(s, s + chunk)
-        xs, ns = V3(*(c[sl] for c in x)), V3(*(c[sl] for c in n))
+        xs, ns, wos = (V3(*(c[sl] for c in v)) for v in (x, n, wo))
         pad = chunk - xs.x.shape[0]
         padv = lambda v: V3(*(jnp.pad(c, (0, pad), mode="edge") for c in v))
-        L, _, t = radiance_estimate(scene, grid, padv(xs), padv(ns),
+        L, _, t = radiance_estimate(scene, grid, padv(xs), padv(ns), padv(wos),
                                     jnp.pad(m[sl], (0, pad), mode="edge"),
                                     jnp.float32(r), cap, k, kind, thickness, filter_params)
         out.append(np.stack([np.asarray(c)[: chunk - pad] for c in L]))

@@ -6,7 +6,9 @@ directional lights: parallel rays over the scene's bounding disc; area lights: u
 cosine-distributed directions; several lights chosen in proportion to power) with power
 P_photon = P_light / n_e, i.e. ``EmissionSample.weight / n_emitted``.
 
-At every hit on a non-specular surface (diffuse, or Phong with k_d > 0) the photon is *stored*:
+At every hit on a surface where density estimates are taken (diffuse, Phong with k_d > 0, and
+microfacet surfaces too rough to sample through: :func:`jgi.transport.subpath.is_lookup_surface`)
+the photon is *stored*:
 position, power (RGB), incident direction (towards where it came from) and surface normal. It
 is then scattered by Russian roulette: the BSDF is sampled (importance transport) giving the
 weight f |cos| / pdf, the photon survives with probability q = min(1, max(weight)), and its
@@ -16,8 +18,8 @@ without storing them (Fresnel chooses reflection or transmission).
 
 Two maps are distinguished by a flag per stored photon:
   * global: every non-specular hit;
-  * caustic: photons whose path so far is L S+ D (one or more specular bounces, then the first
-    diffuse hit).
+  * caustic: photons whose path so far is L S+ D (one or more specular or microfacet bounces,
+    then the first diffuse or Phong hit).
 """
 
 from __future__ import annotations
@@ -38,7 +40,8 @@ from ..core.vec import V3, max_component, where
 from ..physics import bsdf as B
 from ..physics import geometry as G
 from ..physics import lights as LT
-from ..scene.data import DIFFUSE, PHONG, Scene
+from ..scene.data import Scene
+from .subpath import is_lookup_surface, samples_through
 
 DIMS_PER_BOUNCE = 4
 _SALT = rng.SALTS["photons"]  # photon streams are independent of camera streams for the same seed
@@ -62,11 +65,6 @@ class PhotonMap(NamedTuple):
         return jax.tree_util.tree_map(lambda a: a[mask], self)
 
 
-def _storable(mp: B.MaterialParams) -> Array:
-    return (mp.kind == DIFFUSE) | ((mp.kind == PHONG)
-                                   & (jnp.maximum(jnp.maximum(mp.kd.x, mp.kd.y), mp.kd.z) > 0))
-
-
 def trace_photon_paths(scene: Scene, seed, photon_index: Array, n_emitted, max_depth: int):
     """Trace photons ``photon_index`` ([N] int32); return per-bounce records of shape
     [max_depth, N] (a slot is valid where a photon was stored) as a PhotonMap plus ``valid``."""
@@ -85,8 +83,11 @@ def trace_photon_paths(scene: Scene, seed, photon_index: Array, n_emitted, max_d
         hit = G.intersect(scene, o, d)
         alive = alive & hit.valid
         mp = B.lookup(mats, hit.material)
-        store = alive & _storable(mp)
-        record = (hit.p, pw, -d, hit.n, store & spec_seen & only_spec, store)
+        store = alive & is_lookup_surface(mp)
+        # caustic: L S+ D with S what Jensen's split samples through (Dirac and microfacet
+        # lobes) and D a diffuse or Phong surface, where its camera chains end
+        through = samples_through(mp, lookup_rough=False)
+        record = (hit.p, pw, -d, hit.n, store & ~through & spec_seen & only_spec, store)
         base = 5 + depth * DIMS_PER_BOUNCE
         bs = B.sample(mats.kinds, mp, hit.n, -d, u(base), u(base + 1), u(base + 2),
                       mode=B.IMPORTANCE)
@@ -94,8 +95,8 @@ def trace_photon_paths(scene: Scene, seed, photon_index: Array, n_emitted, max_d
         survive = alive & bs.valid & (u(base + 3) < q)
         pw = where(survive, pw * bs.weight / jnp.where(q > 0, q, 1.0), pw)
         o_next = G.offset_origin(hit.p, hit.n, bs.wi)
-        only_spec = only_spec & bs.delta
-        spec_seen = spec_seen | bs.delta
+        only_spec = only_spec & (bs.delta | through)
+        spec_seen = spec_seen | bs.delta | through
         return (o_next, bs.wi, pw, survive, spec_seen, only_spec), record
 
     _, rec = jax.lax.scan(bounce, state, jnp.arange(max_depth))

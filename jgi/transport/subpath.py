@@ -50,9 +50,13 @@ from ..scene.data import (
     AREA_QUAD,
     AREA_SPHERE,
     AREA_TRIANGLE,
+    DIFFUSE,
     DIRECTIONAL,
     ENVIRONMENT,
+    PHONG,
     POINT,
+    ROUGH_DIELECTRIC,
+    ROUGH_KINDS,
     SPOT,
     Camera,
     Scene,
@@ -335,7 +339,7 @@ def connect_camera(scene: Scene, q: Vertices) -> CameraConnection:
     proj = C.project(cam, q.p)
     w = proj.wi                                  # from q towards the pinhole
     mp = B.lookup_specialised(scene.materials, q.material)
-    f, _ = B.evaluate(kinds, mp, q.n, q.wo, w)
+    f, _ = B.evaluate(kinds, mp, q.n, q.wo, w, mode=B.IMPORTANCE)   # a light vertex
     _, pdf_q_rev = B.evaluate(kinds, mp, q.n, w, q.wo)
     cos_q = jnp.abs(dot(q.n, w))
     d2 = proj.dist * proj.dist
@@ -373,6 +377,33 @@ def occluded_many(scene: Scene, rays: list[tuple]) -> list[Array]:
 
 # --- visible points: the first non-specular vertex seen from the camera ---------------------------
 
+def samples_through(mp: B.MaterialParams, lookup_rough: bool = True) -> Array:
+    """Vertices a chain of camera (or photon) scattering continues through by sampling the BSDF
+    instead of ending there with a lookup (a photon density estimate, an irradiance record, a
+    final gather): Dirac lobes; glossy lobes too narrow for a density estimate
+    (``bsdf.is_glossy``) and rough dielectrics (whose transmitted photons arrive from the other
+    side); with ``lookup_rough=False`` every microfacet material (Jensen's split and the
+    irradiance cache, whose lookups assume a diffuse or Phong surface: glossy light by Monte
+    Carlo, as Jensen prescribes). Photons are stored exactly where chains may end, so every
+    path is counted once (:func:`is_lookup_surface`)."""
+    through = B.is_delta(mp) | B.is_glossy(mp) | (mp.kind == ROUGH_DIELECTRIC)
+    return (through | B.is_rough(mp)) if not lookup_rough else through
+
+
+def is_lookup_surface(mp: B.MaterialParams) -> Array:
+    """Where photons are stored and density estimates taken: diffuse surfaces, Phong with a
+    diffuse part (only k_d / pi of it reflects photons in the estimates), and microfacet
+    surfaces that chains do not sample through (their estimates use the whole BSDF)."""
+    kd_max = jnp.maximum(jnp.maximum(mp.kd.x, mp.kd.y), mp.kd.z)
+    return ((mp.kind == DIFFUSE) | ((mp.kind == PHONG) & (kd_max > 0))
+            | (B.is_rough(mp) & ~samples_through(mp)))
+
+
+def has_rough(kinds) -> bool:
+    """The static kinds of a scene include a microfacet material."""
+    return any(k in kinds for k in ROUGH_KINDS)
+
+
 class DiffuseVertex(NamedTuple):
     """Where a camera path's specular chain ends: the first non-specular hit."""
 
@@ -386,15 +417,20 @@ class DiffuseVertex(NamedTuple):
 
 
 def trace_to_diffuse(scene: Scene, uniform, o: V3, d: V3, *, max_depth: int,
-                     light_samples: int) -> DiffuseVertex:
-    """Follow rays (o, d) through specular surfaces (at most ``max_depth`` segments) to the
-    first non-specular hit, adding emission seen on the way and direct light there
-    (``light_samples`` shadow rays, unweighted next-event estimation). Segment k draws
-    ``uniform(2 + k * (1 + 3 light_samples) + ...)``: the lobe choice, then the light samples."""
+                     light_samples: int, lookup_rough: bool = True) -> DiffuseVertex:
+    """Follow rays (o, d) through specular (and glossy: :func:`samples_through`) surfaces (at
+    most ``max_depth`` segments) to the first other hit, adding emission seen on the way and
+    direct light there (``light_samples`` shadow rays, unweighted next-event estimation).
+    Segment k draws ``uniform(2 + k * (1 + 3 light_samples) + ...)``: the lobe choice, then the
+    light samples; a glossy lobe's direction draws two more, past all of those
+    (``uniform(2 + max_depth (1 + 3 light_samples) + 2 k + ...)``), so scenes without microfacet
+    materials keep their streams."""
     mats, lights = scene.materials, scene.lights
     z = jnp.zeros_like(o.x)
     Z = V3(z, z, z)
     dims = 1 + 3 * light_samples
+    glossy_dim0 = 2 + max_depth * dims
+    rough = has_rough(mats.kinds)
 
     def step(depth, s):
         o, d, beta, L, active, v = s
@@ -407,7 +443,7 @@ def trace_to_diffuse(scene: Scene, uniform, o: V3, d: V3, *, max_depth: int,
                 L = L + where(active & ~hit.valid, beta * LT.environment_radiance(lights, z), Z)
         active = active & hit.valid
         mp = B.lookup(mats, hit.material)
-        specular = B.is_delta(mp)
+        specular = samples_through(mp, lookup_rough)
         diffuse_end = active & ~specular
         # ---- direct light at the first non-specular surface ----
         if lights.count:
@@ -420,8 +456,10 @@ def trace_to_diffuse(scene: Scene, uniform, o: V3, d: V3, *, max_depth: int,
         v = DiffuseVertex(v.L, where(diffuse_end, beta, v.beta), where(diffuse_end, hit.p, v.p),
                           where(diffuse_end, hit.n, v.n), where(diffuse_end, wo, v.wo),
                           jnp.where(diffuse_end, hit.material, v.material), v.found | diffuse_end)
-        # ---- follow the specular chain ----
-        bs = B.sample(mats.kinds, mp, hit.n, wo, uniform(base), z, z)
+        # ---- follow the specular (or glossy) chain ----
+        u1, u2 = ((uniform(glossy_dim0 + 2 * depth), uniform(glossy_dim0 + 2 * depth + 1))
+                  if rough else (z, z))
+        bs = B.sample(mats.kinds, mp, hit.n, wo, uniform(base), u1, u2)
         active = active & specular & bs.valid
         return (G.offset_origin(hit.p, hit.n, bs.wi), bs.wi, beta * bs.weight, L, active, v)
 
@@ -432,15 +470,16 @@ def trace_to_diffuse(scene: Scene, uniform, o: V3, d: V3, *, max_depth: int,
     return v._replace(L=L)
 
 
-@partial(jax.jit, static_argnames=("max_depth", "light_samples"))
+@partial(jax.jit, static_argnames=("max_depth", "light_samples", "lookup_rough"))
 def visible_points(scene: Scene, seed, pixel, sample, *, max_depth: int,
-                   light_samples: int) -> DiffuseVertex:
+                   light_samples: int, lookup_rough: bool = True) -> DiffuseVertex:
     """The visible point of each camera sample (seed, pixel, sample): its camera ray followed
-    through specular surfaces to the first non-specular hit (:func:`trace_to_diffuse`), the
-    normal there turned to face the viewer. Where photon mapping estimates its density, and
+    through specular (and glossy) surfaces to the first other hit (:func:`trace_to_diffuse`),
+    the normal there turned to face the viewer. Where photon mapping estimates its density, and
     where an irradiance cache is queried."""
     key = rng.path_key(seed, pixel, sample)
     uniform = lambda k: rng.uniform(key, k)  # noqa: E731
     o, d = camera_ray(scene.camera, pixel, uniform)
-    v = trace_to_diffuse(scene, uniform, o, d, max_depth=max_depth, light_samples=light_samples)
+    v = trace_to_diffuse(scene, uniform, o, d, max_depth=max_depth, light_samples=light_samples,
+                         lookup_rough=lookup_rough)
     return v._replace(n=B.facing(v.n, v.wo))
