@@ -23,8 +23,7 @@ NAMED_IOR = {
 def tangent_frame(n) -> tuple[np.ndarray, np.ndarray]:
     """The tangents (s, t) jgi's microfacet BSDFs orient anisotropic roughness by (alpha_u along
     s): ``jgi.core.vec.coordinate_system`` of the unit geometric normal n (Duff et al. 2017),
-    here in numpy. Mitsuba 3 uses the same construction on meshes without texture
-    coordinates."""
+    here in numpy."""
     x, y, z = (float(c) for c in np.asarray(n, float) / np.linalg.norm(n))
     sign = 1.0 if z >= 0 else -1.0
     a = -1.0 / (sign + z)

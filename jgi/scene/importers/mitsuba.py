@@ -17,8 +17,8 @@ supported):
              and not in jgi).
              rough plugins: distribution beckmann | ggx, alpha or alpha_u / alpha_v (not for
              roughplastic; anisotropic only where Mitsuba's shading frame is jgi's, see
-             check_anisotropy_frame: meshes without texture coordinates, rectangles whose
-             to_world x axis is jgi's tangent); sample_visible is accepted and ignored (it
+             check_anisotropy_frame: rectangles whose to_world x axis, and meshes whose
+             triangles' first edges, are jgi's tangent); sample_visible is accepted and ignored (it
              changes Mitsuba's sampling, not the BSDF). Omitted parameters take Mitsuba's
              defaults: distribution beckmann, alpha 0.1 (values below 1e-4 are raised to 1e-4,
              as Mitsuba does), specular_reflectance 1, conductor material "none", dielectric
@@ -389,7 +389,7 @@ class _Importer:
                 if c.get("type") != "area":
                     self.fail(c, f"a shape's emitter must be 'area', got '{c.get('type')}'")
                 emission = self.props(c).get("radiance", np.ones(3))
-        if material in self.anisotropic:
+        if material in self.anisotropic and kind not in ("obj", "ply"):
             self.check_anisotropy_frame(el, kind, p, m, material)
         if material is None:  # Mitsuba's default: diffuse, reflectance 0.5
             material = f"_default{self.n_anon}"
@@ -420,17 +420,23 @@ class _Importer:
                               "(the file's, or computed ones when it has none) unless "
                               "face_normals is true; jgi shades flat (geometric normals). Add "
                               "<boolean name=\"face_normals\" value=\"true\"/>")
+            if material in self.anisotropic:
+                self.check_anisotropy_frame(el, kind, p, m, material,
+                                            xf.apply_point(m, v), f)
             if p.get("flip_normals", False):
                 f = f[:, ::-1]
             self.b.mesh(v, f, material, emission, to_world=m)
 
-    def check_anisotropy_frame(self, el, kind, p, m, material):
-        """Anisotropic roughness is oriented by the shading frame: Mitsuba's follows dp/du of
-        the shape's (u, v) parametrisation, jgi's is built from the normal alone
-        (:func:`._common.tangent_frame`). They agree on meshes without texture coordinates
-        (Mitsuba builds the same frame there) and on rectangles whose dp/du (to_world's x)
-        happens to be jgi's tangent s; anything else would rotate the highlight and is
-        refused."""
+    def check_anisotropy_frame(self, el, kind, p, m, material, vertices=None, faces=None):
+        """Anisotropic roughness is oriented by the shading frame. Mitsuba's tangent is dp/du of
+        the shape's (u, v) parametrisation: to_world's x axis on a rectangle, the
+        texture-coordinate gradient on a mesh with texture coordinates, and on a mesh without
+        them the first edge p1 - p0 of each triangle (Mitsuba 3.9.1 parametrises the triangle
+        by its barycentrics; checked with ``ray_intersect``: ``si.sh_frame.s``). jgi's tangent
+        is built from the normal alone (:func:`._common.tangent_frame`). Where the two differ
+        the highlight would turn: refused. Accepted: rectangles whose to_world x axis is jgi's
+        tangent, and meshes without texture coordinates whose every triangle's first edge is
+        (called once the mesh is loaded, with its world-space ``vertices`` and ``faces``)."""
         why = None
         if kind == "rectangle":
             du, dv = m[:3, 0], m[:3, 1]
@@ -442,19 +448,29 @@ class _Importer:
                        f"is not jgi's tangent {np.round(s, 4).tolist()}")
         elif kind in ("obj", "ply"):
             fname = p.get("filename")
-            path = self.file_of(el).parent / fname if fname else None
             if p.get("flip_normals", False):
                 why = "flip_normals changes Mitsuba's frame"
-            elif path is not None and path.is_file() and has_texture_coordinates(path):
+            elif has_texture_coordinates(self.file_of(el).parent / fname):
                 why = f"'{fname}' has texture coordinates, which orient Mitsuba's frame"
+            else:
+                tri = vertices[faces]
+                e1 = tri[:, 1] - tri[:, 0]
+                n = np.cross(e1, tri[:, 2] - tri[:, 0])
+                bad = [i for i in range(len(faces))
+                       if abs(np.dot(tangent_frame(n[i])[0], e1[i]))
+                       < (1 - 1e-6) * np.linalg.norm(e1[i])]
+                if bad:
+                    why = (f"Mitsuba's tangent on '{fname}' is each triangle's first edge p1 - p0 "
+                           f"(there are no texture coordinates), and on {len(bad)} of "
+                           f"{len(faces)} triangles it is not jgi's tangent")
         else:
             why = f"a {kind}'s frame follows its (u, v) parametrisation"
         if why:
             self.fail(el, f"bsdf '{material}' is anisotropic (alpha_u != alpha_v), and {why}: "
                           "jgi orients anisotropy by a frame built from the normal, so the "
-                          "highlight would turn. Supported: meshes without texture coordinates, "
-                          "rectangles whose to_world x axis is that frame's tangent; or give "
-                          "alpha")
+                          "highlight would turn. Supported: rectangles whose to_world x axis, "
+                          "and meshes whose triangles' first edges, are that frame's tangent; "
+                          "or give alpha")
 
     def emitter(self, el):
         kind = self.check_type(el)
