@@ -34,6 +34,16 @@ from jgi.scene import (
     SPOT,
     SceneError,
 )
+from jgi.scene.data import (
+    BECKMANN,
+    GGX,
+    IOR_AIR,
+    IOR_POLYPROPYLENE,
+    NAMED_METALS,
+    ROUGH_CONDUCTOR,
+    ROUGH_DIELECTRIC,
+    ROUGH_PLASTIC,
+)
 from jgi.scene.files import SceneWarning
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -390,6 +400,90 @@ exponent = 0
     np.testing.assert_allclose(np.asarray(mt.exponent)[[3, 6]], [80, 0])
 
 
+def test_microfacet_materials_and_defaults(tmp_path):
+    """The rough types and the conductor: keys as the builder's, defaults as documented."""
+    s = load(tmp_path, CAMERA + LIGHT + """
+[[material]]
+name = "gold"
+type = "roughconductor"
+metal = "Au"
+alpha = 0.2
+
+[[material]]
+name = "brushed"
+type = "roughconductor"
+eta = [0.2, 0.9, 1.1]
+k = [3.9, 2.4, 2.2]
+specular = 0.8
+alpha_u = 0.05
+alpha_v = 0.3
+distribution = "beckmann"
+
+[[material]]
+name = "chrome"
+type = "conductor"
+metal = "Cr"
+
+[[material]]
+name = "perfect"
+type = "conductor"
+
+[[material]]
+name = "frosted"
+type = "roughdielectric"
+ior = 1.33
+alpha = 0.15
+
+[[material]]
+name = "frosted_default"
+type = "roughdielectric"
+
+[[material]]
+name = "plastic"
+type = "roughplastic"
+diffuse = [0.1, 0.2, 0.6]
+int_ior = 1.6
+alpha = 0.3
+distribution = "beckmann"
+nonlinear = true
+
+[[material]]
+name = "plastic_default"
+type = "roughplastic"
+
+[[material]]
+name = "glass"
+type = "dielectric"
+int_ior = 1.5
+ext_ior = 1.25
+""")
+    mt = s.materials
+    np.testing.assert_array_equal(np.asarray(mt.kind), [
+        ROUGH_CONDUCTOR, ROUGH_CONDUCTOR, MIRROR, MIRROR, ROUGH_DIELECTRIC, ROUGH_DIELECTRIC,
+        ROUGH_PLASTIC, ROUGH_PLASTIC, DIELECTRIC])
+    rough = [0, 1, 4, 5, 6, 7]
+    np.testing.assert_allclose(np.asarray(mt.alpha_u)[rough], [0.2, 0.05, 0.15, 0.1, 0.3, 0.1],
+                               rtol=1e-6)
+    np.testing.assert_allclose(np.asarray(mt.alpha_v)[rough], [0.2, 0.3, 0.15, 0.1, 0.3, 0.1],
+                               rtol=1e-6)
+    np.testing.assert_array_equal(np.asarray(mt.distribution)[rough],
+                                  [GGX, BECKMANN, GGX, GGX, BECKMANN, GGX])
+    eta, k = v3(mt.eta), v3(mt.k)
+    np.testing.assert_allclose(eta[[0, 1, 2, 3]], [NAMED_METALS["Au"][0], [0.2, 0.9, 1.1],
+                                                   NAMED_METALS["Cr"][0], NAMED_METALS["none"][0]],
+                               rtol=1e-6)
+    np.testing.assert_allclose(k[[0, 1, 2, 3]], [NAMED_METALS["Au"][1], [3.9, 2.4, 2.2],
+                                                 NAMED_METALS["Cr"][1], NAMED_METALS["none"][1]],
+                               rtol=1e-6)
+    np.testing.assert_allclose(v3(mt.specular)[[0, 1, 2, 4, 6]], [[1] * 3, [0.8] * 3, [1] * 3,
+                                                                  [1] * 3, [1] * 3], atol=1e-7)
+    np.testing.assert_allclose(np.asarray(mt.ior)[[4, 5, 6, 7, 8]],
+                               [1.33, 1.5, 1.6 / IOR_AIR, IOR_POLYPROPYLENE / IOR_AIR, 1.2],
+                               rtol=1e-6)
+    np.testing.assert_allclose(v3(mt.diffuse)[[6, 7]], [[0.1, 0.2, 0.6], [0.5] * 3], atol=1e-7)
+    np.testing.assert_array_equal(np.asarray(mt.nonlinear)[[6, 7]], [True, False])
+
+
 def test_lights(tmp_path):
     s = load(tmp_path, CAMERA + """
 [[light]]
@@ -620,6 +714,46 @@ BAD = {
     "negative exponent": (material("type = 'phong'\nspecular = 0.5\nexponent = -1\n"),
                           "material[0].exponent", "must be >= 0"),
     "zero ior": (material("type = 'dielectric'\nior = 0\n"), "material[0].ior", "must be > 0"),
+    "zero alpha": (material("type = 'roughconductor'\nalpha = 0\n"), "material[0].alpha",
+                   "must be > 0"),
+    "negative alpha_u": (material("type = 'roughdielectric'\nalpha_u = -0.1\nalpha_v = 0.1\n"),
+                         "material[0].alpha_u", "must be > 0"),
+    "alpha and alpha_u": (material("type = 'roughconductor'\nalpha = 0.1\nalpha_u = 0.1\n"
+                                   "alpha_v = 0.2\n"), "material[0].alpha",
+                          "either alpha (isotropic) or alpha_u and alpha_v"),
+    "alpha_u alone": (material("type = 'roughconductor'\nalpha_u = 0.1\n"),
+                      "material[0].alpha_v", "missing: alpha_u and alpha_v go together"),
+    "unknown metal": (material("type = 'roughconductor'\nmetal = 'gold'\n"),
+                      "material[0].metal",
+                      "unknown metal 'gold' (did you mean 'Au'?); allowed: none, a-C, Ag, Al"),
+    "metal and eta": (material("type = 'conductor'\nmetal = 'Au'\neta = 0.2\nk = 3\n"),
+                      "material[0].metal", "either metal or eta and k"),
+    "eta without k": (material("type = 'conductor'\neta = 0.2\n"), "material[0].k",
+                      "missing: eta and k go together"),
+    "unknown distribution": (material("type = 'roughplastic'\ndistribution = 'phong'\n"),
+                             "material[0].distribution",
+                             "unknown distribution 'phong'; allowed: ggx, beckmann"),
+    "anisotropic roughplastic": (material("type = 'roughplastic'\nalpha_u = 0.1\n"
+                                          "alpha_v = 0.2\n"), "material[0].alpha_u",
+                                 "unknown key for type 'roughplastic'"),
+    "roughness on a conductor": (material("type = 'conductor'\nmetal = 'Au'\nalpha = 0.1\n"),
+                                 "material[0].alpha", "unknown key for type 'conductor'"),
+    "ior on a conductor": (material("type = 'roughconductor'\nior = 1.5\n"), "material[0].ior",
+                           "unknown key for type 'roughconductor'"),
+    "nonlinear not a boolean": (material("type = 'roughplastic'\nnonlinear = 1\n"),
+                                "material[0].nonlinear", "expected true or false"),
+    "metal not a string": (material("type = 'conductor'\nmetal = 3\n"), "material[0].metal",
+                           "expected a string"),
+    "equal plastic indices": (material("type = 'roughplastic'\nint_ior = 1.3\next_ior = 1.3\n"),
+                              "material[0].int_ior", "allowed: ior != 1, int_ior != ext_ior"),
+    "ior and int_ior": (material("type = 'roughdielectric'\nior = 1.5\nint_ior = 1.5\n"),
+                        "material[0].ior", "either ior (inside / outside) or int_ior"),
+    "zero ext_ior": (material("type = 'dielectric'\next_ior = 0\n"), "material[0].ext_ior",
+                     "must be > 0"),
+    "conductor specular above 1": (material("type = 'conductor'\nspecular = 1.2\n"),
+                                   "material[0].specular", "reflectance must be in [0, 1]"),
+    "negative k": (material("type = 'conductor'\neta = 0.2\nk = -1\n"), "material[0].k",
+                   "must be non-negative"),
     "fov": (camera(fov="200"), "camera.fov", "must be in (0, 180) degrees"),
     "width": (camera(width="0"), "camera.width", "must be a positive number of pixels"),
     "spot cutoff": (light("type = 'spot'\nposition = [0, 1, 0]\ntarget = [0, 0, 0]\n"
@@ -657,8 +791,11 @@ BAD = {
     "unknown material": (sphere(material="'gold'"), "shape[0].material",
                          "unknown material 'gold'; defined: m"),
     "duplicate material": (HEAD + MAT, "material[1].name", "defined twice"),
-    "material type": (material("type = 'plastic'\n"), "material[0].type",
-                      "unknown type 'plastic'; allowed: diffuse, mirror, dielectric, phong"),
+    "material type": (material("type = 'velvet'\n"), "material[0].type",
+                      "unknown type 'velvet'; allowed: diffuse, mirror, dielectric, phong, "
+                      "conductor, roughconductor, roughdielectric, roughplastic"),
+    "smooth plastic": (material("type = 'plastic'\n"), "material[0].type",
+                       "smooth plastic is not supported; use 'roughplastic'"),
     "shape type": (HEAD + "[[shape]]\ntype = 'torus'\nmaterial = 'm'\n", "shape[0].type",
                    "unknown type 'torus'; allowed: sphere, quad, rectangle, cube, mesh"),
     "light type": (light("type = 'area'\n"), "light[0].type",

@@ -29,7 +29,16 @@ import numpy as np
 
 from ..core import transform as xf
 from . import builtin as scenes
-from .data import ENVIRONMENT, MATERIAL_KINDS, Scene, SceneBuilder, SceneError
+from .data import (
+    ENVIRONMENT,
+    IOR_AIR,
+    MATERIAL_KINDS,
+    MICROFACET_DISTRIBUTIONS,
+    NAMED_METALS,
+    Scene,
+    SceneBuilder,
+    SceneError,
+)
 from .importers import load_mitsuba_xml, load_pbrt
 from .importers._common import load_mesh
 
@@ -51,18 +60,41 @@ FOV_AXES = ("x", "y", "smaller")
 
 # Each material type accepts only the parameters its BSDF uses (a key another type uses is a
 # likely mistake, e.g. `ior` on a mirror). Defaults are filled in by `_material`.
+_ROUGH = {"alpha": "number", "alpha_u": "number", "alpha_v": "number", "distribution": "str"}
+_METAL = {"metal": "str", "eta": "rgb", "k": "rgb", "specular": "rgb"}
+_IOR = {"ior": "number", "int_ior": "number", "ext_ior": "number"}
 MATERIAL_KEYS = {
     "diffuse": {"diffuse": "rgb"},
     "mirror": {"specular": "rgb"},
-    "dielectric": {"ior": "number", "specular": "rgb"},
+    "dielectric": {**_IOR, "specular": "rgb"},
     "phong": {"diffuse": "rgb", "specular": "rgb", "exponent": "number"},
+    "conductor": _METAL,
+    "roughconductor": {**_METAL, **_ROUGH},
+    "roughdielectric": {**_IOR, "specular": "rgb", **_ROUGH},
+    "roughplastic": {"diffuse": "rgb", "specular": "rgb", **_IOR, "nonlinear": "bool",
+                     "alpha": "number", "distribution": "str"},
 }
 MATERIAL_REQUIRED = {"phong": ("specular", "exponent")}
+# Defaults that differ from the builder's (SceneBuilder.material documents the others: ior,
+# int_ior, ext_ior, alpha 0.1, distribution "ggx", metal "none", nonlinear false).
 MATERIAL_DEFAULTS = {
     "diffuse": {"diffuse": 0.5},
     "mirror": {"specular": 1.0},
-    "dielectric": {"ior": 1.5, "specular": 1.0},
+    "dielectric": {"specular": 1.0},
     "phong": {"diffuse": 0.0},
+    "conductor": {"specular": 1.0},
+    "roughconductor": {"specular": 1.0},
+    "roughdielectric": {"specular": 1.0},
+    "roughplastic": {"diffuse": 0.5, "specular": 1.0},
+}
+# English names of common metals, for the suggestion in an unknown-metal error
+METAL_WORDS = {"gold": "Au", "silver": "Ag", "copper": "Cu", "aluminium": "Al",
+               "aluminum": "Al", "chromium": "Cr", "chrome": "Cr", "tungsten": "W",
+               "mercury": "Hg", "nickel": "Ni_palik", "iridium": "Ir", "rhodium": "Rh"}
+# Material types that the importers know but the TOML format refuses, with what to use instead.
+MATERIAL_ALTERNATIVES = {
+    "plastic": "smooth plastic is not supported; use 'roughplastic' (a small alpha comes "
+               "close) or 'diffuse'",
 }
 
 SHAPE_COMMON = {"type": "str", "material": "str", "emission": "rgb", "transform": "table"}
@@ -188,7 +220,7 @@ class _TomlLoader:
 
     # --- typed values ------------------------------------------------------------------------
     def value(self, key: str, v, kind: str):
-        """Check one value against its kind: str, int, number, vec3, rgb or table."""
+        """Check one value against its kind: str, int, number, bool, vec3, rgb or table."""
         got = f"got {v!r} ({_toml_type(v)})"
         if kind == "str":
             if not isinstance(v, str):
@@ -217,6 +249,10 @@ class _TomlLoader:
             if kind == "rgb" and np.any(a < 0):
                 self.fail(key, f"colours must be non-negative, got {v!r}")
             return a
+        if kind == "bool":
+            if not isinstance(v, bool):
+                self.fail(key, f"expected true or false, {got}")
+            return v
         if kind == "table":
             if not isinstance(v, dict):
                 self.fail(key, f"expected a table {{ ... }}, {got}")
@@ -375,6 +411,9 @@ class _TomlLoader:
         b.camera(pos, look, up=up, fov=fov, width=w, height=h, fov_axis=axis)
 
     def material(self, b: SceneBuilder, key: str, m):
+        if isinstance(m, dict) and m.get("type") in MATERIAL_ALTERNATIVES:
+            self.fail(f"{key}.type", f"{MATERIAL_ALTERNATIVES[m['type']]}; allowed: "
+                                     f"{', '.join(MATERIAL_KINDS)}")
         kind = self.type_of(key, m, tuple(MATERIAL_KINDS))
         allowed = {"name": "str", "type": "str", **MATERIAL_KEYS[kind]}
         mm = self.table(key, m, allowed, ("name",) + MATERIAL_REQUIRED.get(kind, ()),
@@ -393,9 +432,63 @@ class _TomlLoader:
                                          "(energy conservation of the modified Phong BSDF)")
         if "exponent" in mm and mm["exponent"] < 0:
             self.fail(f"{key}.exponent", f"must be >= 0, got {mm['exponent']}")
-        if "ior" in mm and mm["ior"] <= 0:
-            self.fail(f"{key}.ior", f"must be > 0 (inside / outside), got {mm['ior']}")
-        b.material(mm["name"], kind, **p)
+        for k in ("ior", "int_ior", "ext_ior"):
+            if k in mm and mm[k] <= 0:
+                what = "inside / outside" if k == "ior" else "an index of refraction"
+                self.fail(f"{key}.{k}", f"must be > 0 ({what}), got {mm[k]}")
+        if "ior" in mm and ("int_ior" in mm or "ext_ior" in mm):
+            self.fail(f"{key}.ior", "give either ior (inside / outside) or int_ior and ext_ior, "
+                                    "not both")
+        if kind in ("conductor", "roughconductor"):
+            self.metal(key, mm)
+        if "distribution" in MATERIAL_KEYS[kind]:
+            self.roughness(key, kind, mm)
+        if kind == "roughplastic" and (mm.get("ior") == 1 or (
+                "int_ior" in mm and mm["int_ior"] == mm.get("ext_ior", IOR_AIR))):
+            self.fail(f"{key}.{'ior' if 'ior' in mm else 'int_ior'}",
+                      "the coating's inside and outside indices are equal (no interface); "
+                      "allowed: ior != 1, int_ior != ext_ior")
+        try:
+            b.material(mm["name"], kind, **p)
+        except SceneError as e:  # the checks above should catch everything; a safety net
+            self.fail(key, str(e))
+
+    def metal(self, key: str, mm: dict):
+        """A conductor names a metal, or gives eta and k together, or neither (metal "none",
+        a perfect mirror)."""
+        if "metal" in mm:
+            if "eta" in mm or "k" in mm:
+                self.fail(f"{key}.metal", "give either metal or eta and k, not both")
+            metals = tuple(NAMED_METALS)
+            if mm["metal"] not in metals:
+                given = mm["metal"].lower()
+                near = [m for m in metals if m.lower() == given] or \
+                    [m for e, m in METAL_WORDS.items() if e == given] or \
+                    difflib.get_close_matches(mm["metal"], metals, n=1)
+                hint = f" (did you mean '{near[0]}'?)" if near else ""
+                self.fail(f"{key}.metal", f"unknown metal {mm['metal']!r}{hint}; allowed: "
+                                          f"{', '.join(metals)}")
+        elif "eta" in mm or "k" in mm:
+            if "eta" not in mm or "k" not in mm:
+                missing = "k" if "eta" in mm else "eta"
+                self.fail(f"{key}.{missing}", "missing: eta and k go together (the complex "
+                                              "index of refraction eta + i k)")
+
+    def roughness(self, key: str, kind: str, mm: dict):
+        """distribution is ggx or beckmann; alpha, or alpha_u and alpha_v together, all > 0."""
+        if "distribution" in mm and mm["distribution"] not in MICROFACET_DISTRIBUTIONS:
+            self.fail(f"{key}.distribution", f"unknown distribution {mm['distribution']!r}; "
+                                             f"allowed: {', '.join(MICROFACET_DISTRIBUTIONS)}")
+        if "alpha" in mm and ("alpha_u" in mm or "alpha_v" in mm):
+            self.fail(f"{key}.alpha", "give either alpha (isotropic) or alpha_u and alpha_v "
+                                      "(anisotropic), not both")
+        if ("alpha_u" in mm) != ("alpha_v" in mm):
+            missing = "alpha_v" if "alpha_u" in mm else "alpha_u"
+            self.fail(f"{key}.{missing}", "missing: alpha_u and alpha_v go together")
+        for k in ("alpha", "alpha_u", "alpha_v"):
+            if k in mm and not mm[k] > 0:
+                self.fail(f"{key}.{k}", f"must be > 0 (the roughness; use the smooth type for "
+                                        f"0), got {mm[k]}")
 
     def shape(self, b: SceneBuilder, key: str, s):
         kind = self.type_of(key, s, tuple(SHAPE_KEYS))
