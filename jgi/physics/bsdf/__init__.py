@@ -28,6 +28,7 @@ from __future__ import annotations
 import jax.numpy as jnp
 from jax import Array
 
+from ..._xla import materialize
 from ...core.vec import V3, dot, where
 from ...scene.data import (
     DIELECTRIC,
@@ -89,7 +90,10 @@ def _rough(kinds, mp: MaterialParams, n: V3, nf: V3, flipped: Array, wo_l: V3, w
         eta = roughdielectric.relative_eta(mp, flipped)
         f_t, pdf_t = roughdielectric.evaluate(mp, wo_l, wi_l, eta, both, mode)
         f, pdf = where(sel, f_t, f), jnp.where(sel, pdf_t, pdf)
-    return f, pdf
+    # computed once: f and pdf feed several consumers (value, MIS weight, reverse density), and
+    # XLA would otherwise copy the whole microfacet evaluation into each
+    # (perf: docs/performance.md#microfacet-evaluation)
+    return materialize((f, pdf))
 
 
 def _local(n: V3, nf: V3, cos_o: Array, wo: V3) -> tuple[V3, V3, V3]:
