@@ -12,7 +12,10 @@ at LLVM 19's ``libLLVM.so.19.1``; set automatically when Debian's ``libllvm19`` 
 
 ``--objects spheres`` replaces the two blocks, in both renderers, by two diffuse spheres of
 radius 0.35 (five walls, two spheres and an area light: the scene of the prototype that issue 2's
-5x target was derived from).
+5x target was derived from). ``--objects veach_ggx`` renders Veach's MIS plates with GGX
+rough-conductor plates instead (``jgi.scenes.veach_plates_ggx``, translated for Mitsuba by
+``experiments/mitsuba_scene.py``): the glossy case, where most of the time goes to microfacet
+evaluation and sampling.
 
 By default jgi traces the image with two concurrent loops on one CPU device (see
 ``jgi.core.calls``), and XLA splits each of their large kernels over the cores.
@@ -39,7 +42,9 @@ def bench_jgi(resolution: int, spp: int, repeats: int, objects: str = "blocks") 
 
     import jgi
 
-    if objects == "spheres":
+    if objects == "veach_ggx":
+        scene = jgi.scenes.veach_plates_ggx(resolution=resolution)
+    elif objects == "spheres":
         from jgi.scene import SceneBuilder
         from jgi.scene.builtin import cornell_room
 
@@ -83,7 +88,13 @@ def bench_mitsuba(resolution: int, spp: int, repeats: int, objects: str = "block
         print(f"mitsuba unavailable: {e}", file=sys.stderr)
         return None
     desc = mi.cornell_box()
-    if objects == "spheres":
+    if objects == "veach_ggx":
+        from mitsuba_scene import to_mitsuba
+
+        from jgi.scene import builtin
+
+        desc = to_mitsuba(builtin.veach_plates_builder(resolution, builtin.VEACH_GGX_ALPHAS), mi)
+    elif objects == "spheres":
         del desc["small-box"], desc["large-box"]
         for i, (centre, radius) in enumerate(SPHERES):
             desc[f"sphere-{i}"] = {"type": "sphere", "center": list(centre), "radius": radius,
@@ -116,8 +127,9 @@ def main(argv=None) -> dict:
     ap.add_argument("--devices", type=int, default=1,
                     help="split jgi's lanes over this many virtual CPU devices")
     ap.add_argument("--no-mitsuba", action="store_true")
-    ap.add_argument("--objects", choices=("blocks", "spheres"), default="blocks",
-                    help="what stands in the room: the two blocks, or two diffuse spheres")
+    ap.add_argument("--objects", choices=("blocks", "spheres", "veach_ggx"), default="blocks",
+                    help="what stands in the room: the two blocks, or two diffuse spheres; or "
+                         "Veach's plates with GGX plates instead of the room")
     ap.add_argument("--json", default=None)
     a = ap.parse_args(argv)
     if a.devices > 1:

@@ -111,7 +111,8 @@ def pt_convergence(scale, out: Path):
 
 
 def strategies(scale, out: Path):
-    """Veach's plates under BSDF, light and MIS sampling at equal spp: images and rel. MSE."""
+    """Veach's plates (GGX rough conductors, as in Mitsuba's documentation) under BSDF, light
+    and MIS (balance, power) sampling at equal spp: images and rel. MSE."""
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -121,7 +122,7 @@ def strategies(scale, out: Path):
 
     s = SCALES[scale]
     res = max(48, s["res"] * 3)
-    scene = jgi.scenes.veach_plates(resolution=res)
+    scene = jgi.scenes.veach_plates_ggx(resolution=res)
     ref = jgi.render(scene, "pt", spp=128 * s["spp"], seed=999, strategy="mis", heuristic="power")
     configs = [("BSDF", dict(strategy="bsdf")), ("light", dict(strategy="light")),
                ("MIS balance", dict(strategy="mis")),

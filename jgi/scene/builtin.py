@@ -9,6 +9,10 @@
 * ``metal_ring``: a mirror ring (open cylinder, a trimesh mesh) on a plane: the cardioid caustic.
 * ``veach_plates``: Veach's MIS scene, four Phong plates of decreasing roughness lit by four
   spherical lights of decreasing size and increasing radiance (equal power).
+* ``veach_plates_ggx``: the same with GGX rough-conductor plates (alpha 0.1 .. 0.005), as in
+  Mitsuba's documentation.
+* ``cornell_box_rough``: the Cornell room with one object of each microfacet material (rough
+  conductor, isotropic and anisotropic; rough dielectric; rough plastic).
 * ``furnace``: a closed box whose walls all emit L_e and reflect with albedo rho, the camera
   inside: radiance is L_e (1 + rho + ... + rho^(D-1)) for max depth D.
 * ``point_light_plane``: a point light of intensity I at height h over a diffuse plane: the
@@ -128,7 +132,24 @@ def veach_plates(resolution: int = 256) -> Scene:
     mirror-like (n = 10^4), each tilted to reflect a row of four spherical lights of radius
     0.9 .. 0.03 and equal power (radiance ~ 1 / r^2) into the camera. BSDF sampling wins on
     smooth plates with large lights, light sampling on rough plates with small lights."""
-    b = SceneBuilder("veach_plates")
+    return veach_plates_builder(resolution).build()
+
+
+def veach_plates_ggx(resolution: int = 256) -> Scene:
+    """Veach's MIS scene as Mitsuba's documentation renders it: the plates of
+    :func:`veach_plates` made GGX rough conductors (perfect-mirror Fresnel, reflectance 0.4)
+    of roughness alpha = 0.1, 0.05, 0.02, 0.005 from the front plate to the back."""
+    return veach_plates_builder(resolution, alphas=VEACH_GGX_ALPHAS).build()
+
+
+VEACH_GGX_ALPHAS = (0.1, 0.05, 0.02, 0.005)
+
+
+def veach_plates_builder(resolution: int, alphas: tuple | None = None) -> SceneBuilder:
+    """The builder of :func:`veach_plates` (``alphas``: GGX rough-conductor plates of these
+    roughnesses instead of Phong ones), before ``build()``: benchmarks translate it for
+    Mitsuba 3."""
+    b = SceneBuilder("veach_plates" if alphas is None else "veach_plates_ggx")
     b.material("floor", "diffuse", diffuse=(0.3, 0.3, 0.3))
     b.material("lamp", "diffuse", diffuse=(0.0, 0.0, 0.0))
     b.quad((-12, -4.5, -12), (0, 0, 30), (24, 0, 0), "floor")
@@ -142,8 +163,12 @@ def veach_plates(resolution: int = 256) -> Scene:
         n /= np.linalg.norm(n)
         along = np.cross(np.array([1.0, 0.0, 0.0]), n)  # in the plate, perpendicular to x
         u, v = np.array([8.0, 0.0, 0.0]), along * 1.25
-        b.material(f"plate{i}", "phong", diffuse=(0.0, 0.0, 0.0), specular=(0.4, 0.4, 0.4),
-                   exponent=e)
+        if alphas is None:
+            b.material(f"plate{i}", "phong", diffuse=(0.0, 0.0, 0.0), specular=(0.4, 0.4, 0.4),
+                       exponent=e)
+        else:
+            b.material(f"plate{i}", "roughconductor", specular=(0.4, 0.4, 0.4),
+                       alpha=alphas[i], distribution="ggx")
         b.quad(c - u / 2 - v / 2, u, v, f"plate{i}")
     for i, r in enumerate((0.9, 0.3, 0.1, 0.03)):
         radiance = 4.0 * (0.3 / r) ** 2  # equal power
@@ -152,6 +177,26 @@ def veach_plates(resolution: int = 256) -> Scene:
     b.sphere((8.0, 12.0, 10.0), 1.0, "lamp", emission=(6.0, 6.0, 6.0))  # dim fill light
     b.camera(position=tuple(eye), look_at=(0, -1.6, 2.0), fov=34, width=resolution,
              height=resolution)
+    return b
+
+
+def cornell_box_rough(resolution: int = 256) -> Scene:
+    """The Cornell room with microfacet objects, one of each kind (GGX unless noted): a glossy
+    copper sphere (alpha 0.05: photon mapping samples through it), a rough glass sphere
+    (alpha 0.2, ior 1.5), a Beckmann rough-plastic block (alpha 0.3, a photon lookup
+    surface) and an anisotropic gold block (alpha_u 0.3, alpha_v 0.08)."""
+    b = SceneBuilder("cornell_box_rough")
+    cornell_room(b, resolution)
+    T, R, S = xf.translate, xf.rotate, xf.scale
+    b.material("copper", "roughconductor", metal="Cu", alpha=0.05)
+    b.material("frosted", "roughdielectric", alpha=0.2, ior=1.5)
+    b.material("plastic", "roughplastic", diffuse=(0.2, 0.3, 0.6), alpha=0.3,
+               distribution="beckmann")
+    b.material("gold", "roughconductor", metal="Au", alpha_u=0.3, alpha_v=0.08)
+    b.sphere((-0.5, -0.65, 0.35), 0.35, "copper")
+    b.sphere((0.45, -0.7, 0.45), 0.3, "frosted")
+    b.cube(T([-0.33, -0.45, -0.4]) @ R([0, 1, 0], 18.25) @ S([0.28, 0.55, 0.28]), "plastic")
+    b.cube(T([0.4, -0.8, -0.35]) @ R([0, 1, 0], -17) @ S(0.2), "gold")
     return b.build()
 
 
@@ -192,6 +237,8 @@ BUILTINS = {
     "glass_sphere": glass_sphere,
     "metal_ring": metal_ring,
     "veach_plates": veach_plates,
+    "veach_plates_ggx": veach_plates_ggx,
+    "cornell_box_rough": cornell_box_rough,
     "furnace": furnace,
     "point_light_plane": point_light_plane,
     "mirror_caustic": mirror_caustic,
