@@ -80,12 +80,17 @@ def evaluate(mp: MaterialParams, wo: V3, wi: V3, eta: Array, ok: Array,
 def sample_direction(mp: MaterialParams, wo: V3, eta: Array, u_lobe: Array, u1: Array,
                      u2: Array) -> V3:
     """wo reflected about a sampled normal m with probability F(wo.m), else refracted through
-    it (local); -wo when ior = 1; the zero vector (no sample) if m faces away from wo."""
+    it (local); -wo when ior = 1; the zero vector (no sample) if m faces away from wo or the
+    direction leaves on the wrong side for its lobe."""
     au, av = mf.alphas(mp.alpha_u, mp.alpha_v)
     m = mf.sample_normal(mp.distribution, wo, au, av, u1, u2)
     cos_om = dot(wo, m)
     F = fresnel_dielectric(jnp.maximum(cos_om, 0.0), eta)
     wt, can_refract = refract(wo, m, eta)
-    wi = where((u_lobe < F) | ~can_refract, reflect(wo, m), wt)
-    wi = wi * jnp.where(cos_om > 0, 1.0, 0.0)
+    refl = (u_lobe < F) | ~can_refract
+    wi = where(refl, reflect(wo, m), wt)
+    # a reflection below the surface (or a refraction above it) is no sample: evaluate would
+    # read it as the other lobe's direction, whose density is not the one it was drawn with
+    ok = (cos_om > 0) & jnp.where(refl, wi.z > 0, wi.z < 0)
+    wi = wi * jnp.where(ok, 1.0, 0.0)
     return where(passes_through(mp), -wo, wi)
