@@ -69,7 +69,7 @@ __all__ = ["RADIANCE", "IMPORTANCE", "GLOSSY_ALPHA", "MaterialParams", "BSDFSamp
            "evaluate", "sample"]
 
 
-def _rough(kinds, mp: MaterialParams, n: V3, nf: V3, flipped: Array, wo_l: V3, wi_l: V3,
+def _rough(kinds, mp: MaterialParams, flipped: Array, wo_l: V3, wi_l: V3,
            mode: int) -> tuple[V3, Array]:
     """(f, pdf) of the rough kinds present, for local directions (0 where unlit)."""
     lit_o = lit(wo_l.z)
@@ -127,7 +127,7 @@ def evaluate(kinds, mp: MaterialParams, n: V3, wo: V3, wi: V3,
     if any(k in kinds for k in ROUGH_KINDS):
         s, t, wo_l = _local(n, nf, cos_o, wo)
         wi_l = V3(dot(wi, s), dot(wi, t), cos_i)
-        f_r, pdf_r = _rough(kinds, mp, n, nf, flipped, wo_l, wi_l, mode)
+        f_r, pdf_r = _rough(kinds, mp, flipped, wo_l, wi_l, mode)
         rough = is_rough(mp)
         f, pdf = where(rough, f_r, f), jnp.where(rough, pdf_r, pdf)
     return f, pdf
@@ -181,7 +181,7 @@ def _sample_rough(kinds, mp: MaterialParams, n: V3, nf: V3, cos_o: Array, flippe
         through = sel & roughdielectric.passes_through(mp)
     wi = mf.from_local(wi_l, s, t, nf)
     wi_l = V3(dot(wi, s), dot(wi, t), dot(wi, nf))
-    f, pdf = _rough(kinds, mp, n, nf, flipped, wo_l, wi_l, mode)
+    f, pdf = _rough(kinds, mp, flipped, wo_l, wi_l, mode)
     ok = (pdf > 0) & ~through
     w = f * (jnp.abs(wi_l.z) / jnp.where(ok, pdf, 1.0))
     w = where(ok, w, V3(zero, zero, zero))

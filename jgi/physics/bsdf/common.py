@@ -46,11 +46,13 @@ class MaterialParams(NamedTuple):
     ior: Array
     alpha_u: Array = 0.1              # roughness along s of the shading frame
     alpha_v: Array = 0.1              # roughness along t
-    distribution: Array = GGX        # int: GGX or BECKMANN
+    distribution: Array = GGX        # int array (GGX or BECKMANN), or a Python int when the
+                                     # scene uses one distribution (lookup_specialised)
     eta: V3 = _ZERO3                  # conductor index of refraction eta + i k (mirror and
     k: V3 = _ZERO3                    # roughconductor; eta = 0 reflects everything)
     row: Array = 0                    # material row (roughplastic's table lookup)
-    transmittance: Array = np.ones((1, 64), np.float32)  # [M, 64] roughplastic T(cos), whole
+    transmittance: Array = np.ones((1, 64), np.float32)  # [M, 64] roughplastic T(cos): the
+                                      # whole table, not per lane (read at row, cos)
     internal_reflectance: Array = 0.0  # roughplastic coating's Ri (per lane)
     nonlinear: Array = False          # roughplastic's nonlinear option (per lane)
 
@@ -77,7 +79,9 @@ def lookup_specialised(mats: Materials, m: Array) -> MaterialParams:
     """:func:`lookup` for inner loops, specialised to the kinds the scene uses (``mats.kinds``):
     small material tables are read with selects instead of gathers (see jgi._xla.take), a kind
     that is the only one present is a constant, and the parameters no present kind reads are
-    constants too, so the BSDF code of the absent kinds folds away. Values that a present
+    constants too, so the BSDF code of the absent kinds folds away; likewise the microfacet
+    distribution is a Python int when the scene's rough materials use one
+    (``mats.distributions``), so the other one's code is not traced. Values that a present
     kind's BSDF reads are those of :func:`lookup`."""
     kinds = mats.kinds
     kind = (jnp.full(m.shape, kinds[0], jnp.int32) if len(kinds) == 1 else take(mats.kind, m))
@@ -92,9 +96,9 @@ def lookup_specialised(mats: Materials, m: Array) -> MaterialParams:
     rough = has(*ROUGH_KINDS)
     alpha_u = take(mats.alpha_u, m) if rough else zero + 0.1
     alpha_v = take(mats.alpha_v, m) if rough else zero + 0.1
+    # one distribution in the scene: a Python int, so that microfacet code traces only it
     dists = mats.distributions
-    distribution = (take(mats.distribution, m) if len(dists) > 1 else
-                    jnp.full(m.shape, dists[0] if dists else GGX, jnp.int32))
+    distribution = take(mats.distribution, m) if len(dists) > 1 else (dists or (GGX,))[0]
     conductor = has(MIRROR, ROUGH_CONDUCTOR)
     eta = col3(mats.eta) if conductor else zero3
     k = col3(mats.k) if conductor else zero3
