@@ -33,10 +33,10 @@ from jgi.core.vec import EDGE_ON_COS, V3
 from jgi.physics import bsdf as B
 from jgi.scene import DIELECTRIC, DIFFUSE, MIRROR, PHONG
 from tests.chi2 import SphereDomain, assert_chi2, bucket
+from tests.directions import NORMAL, direction, reflect_np
 
 KINDS = (DIFFUSE, MIRROR, DIELECTRIC, PHONG)
 N = 1 << 18
-NORMAL = np.array([0.3, -0.5, 0.8]) / np.linalg.norm([0.3, -0.5, 0.8])
 
 
 def material(kind, kd=0.0, ks=0.0, n=1.0, ior=1.5):
@@ -80,20 +80,6 @@ def sample(mat, n, wo, seed, count=N, mode=B.RADIANCE):
     u = np.random.default_rng(seed).random((3, bucket(count)), dtype=np.float32)
     out = _sample(mat, np.float32(n), np.float32(wo), u, mode)
     return {k: np.asarray(v)[:count] for k, v in out.items()}
-
-
-def direction(theta_deg, phi_deg=30.0, n=NORMAL) -> np.ndarray:
-    """Unit vector at angle theta from n (a frame independent of jgi's)."""
-    n = np.asarray(n, float)
-    s = np.cross([1.0, 0.0, 0.0] if abs(n[0]) < 0.9 else [0.0, 1.0, 0.0], n)
-    s /= np.linalg.norm(s)
-    t = np.cross(n, s)
-    th, ph = np.radians(theta_deg), np.radians(phi_deg)
-    return np.sin(th) * (np.cos(ph) * s + np.sin(ph) * t) + np.cos(th) * n
-
-
-def reflect_np(w, n):
-    return 2.0 * np.dot(w, n) * n - w
 
 
 def luminance(c):

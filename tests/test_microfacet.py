@@ -49,10 +49,10 @@ from jgi.scene import (
     SceneError,
 )
 from tests.chi2 import SphereDomain, assert_chi2, cell_integrals
+from tests.directions import NORMAL, direction, reflect_np
 
 KINDS = (MIRROR, ROUGH_CONDUCTOR, ROUGH_DIELECTRIC, ROUGH_PLASTIC)
 N = 1 << 18
-NORMAL = np.array([0.3, -0.5, 0.8]) / np.linalg.norm([0.3, -0.5, 0.8])
 Z = np.array([0.0, 0.0, 1.0])
 
 
@@ -141,20 +141,6 @@ def evaluate(mat, n, wo, wi, mode=B.RADIANCE):
     n = np.broadcast_to(np.asarray(n, np.float32), wi.shape)
     wo = np.broadcast_to(np.asarray(wo, np.float32), wi.shape)
     return chunked(lambda a, b, c: _evaluate(mat, a, b, c, mode), n, wo, wi)
-
-
-def direction(theta_deg, phi_deg=30.0, n=NORMAL) -> np.ndarray:
-    """Unit vector at angle theta from n (a frame independent of jgi's)."""
-    n = np.asarray(n, float)
-    s = np.cross([1.0, 0.0, 0.0] if abs(n[0]) < 0.9 else [0.0, 1.0, 0.0], n)
-    s /= np.linalg.norm(s)
-    t = np.cross(n, s)
-    th, ph = np.radians(theta_deg), np.radians(phi_deg)
-    return np.sin(th) * (np.cos(ph) * s + np.sin(ph) * t) + np.cos(th) * n
-
-
-def reflect_np(w, n):
-    return 2.0 * np.dot(w, n) * n - w
 
 
 def refract_np(w, n, eta):

@@ -32,21 +32,30 @@ def tangent_frame(n) -> tuple[np.ndarray, np.ndarray]:
             np.array([b, sign + y * y * a, -y]))
 
 
-def has_texture_coordinates(path: Path) -> bool:
-    """Whether an OBJ or PLY file carries texture coordinates (Mitsuba then orients the
-    shading frame, and anisotropic roughness, along dp/du)."""
+def _mesh_attributes(path: Path) -> set[str]:
+    """What an OBJ or PLY file carries per vertex besides positions: "uv" (texture
+    coordinates) and "normal"; {"unknown"} for other formats."""
     suffix = path.suffix.lower()
     if suffix == ".obj":
         with open(path, "rb") as fh:
-            return any(line.startswith(b"vt ") for line in fh)
+            starts = {line[:3] for line in fh}
+        return ({"uv"} if b"vt " in starts else set()) | ({"normal"} if b"vn " in starts
+                                                           else set())
     if suffix == ".ply":
         with open(path, "rb") as fh:
             header = fh.read(4096).split(b"end_header")[0].decode("latin-1")
         names = {line.split()[-1] for line in header.splitlines()
                  if line.startswith("property") and len(line.split()) >= 3}
-        return bool(names & {"u", "v", "s", "t", "texture_u", "texture_v", "texture_s",
-                             "texture_t"})
-    return True
+        uv = names & {"u", "v", "s", "t", "texture_u", "texture_v", "texture_s", "texture_t"}
+        return ({"uv"} if uv else set()) | ({"normal"} if "nx" in names else set())
+    return {"unknown"}
+
+
+def has_texture_coordinates(path: Path) -> bool:
+    """Whether an OBJ or PLY file carries texture coordinates (Mitsuba then orients the
+    shading frame, and anisotropic roughness, along dp/du); True when it cannot tell."""
+    attrs = _mesh_attributes(path)
+    return "uv" in attrs or "unknown" in attrs
 
 
 def named_metals() -> tuple[str, ...]:
@@ -64,7 +73,7 @@ def load_mesh(path: Path, where: str, allow_vertex_normals: bool):
 
     if not path.is_file():
         raise ImportError_(f"{where}: mesh file '{path}' does not exist")
-    if not allow_vertex_normals and _has_vertex_normals(path):
+    if not allow_vertex_normals and "normal" in _mesh_attributes(path):
         raise ImportError_(
             f"{where}: mesh '{path.name}' has vertex normals (smooth shading); jgi shades with "
             "geometric normals only. Set face_normals=true (Mitsuba) or remove the normals.")
@@ -77,14 +86,3 @@ def load_mesh(path: Path, where: str, allow_vertex_normals: bool):
         raise ImportError_(f"{where}: mesh '{path}' has no faces")
     return v, f
 
-
-def _has_vertex_normals(path: Path) -> bool:
-    suffix = path.suffix.lower()
-    if suffix == ".obj":
-        with open(path, "rb") as fh:
-            return any(line.startswith(b"vn ") for line in fh)
-    if suffix == ".ply":
-        with open(path, "rb") as fh:
-            header = fh.read(4096).split(b"end_header")[0]
-        return b" nx" in header
-    return False
