@@ -27,7 +27,7 @@ def fresnel_dielectric(cos_i: Array, eta: Array) -> Array:
     """Unpolarised Fresnel reflectance for relative index eta = eta_t / eta_i, cos_i >= 0."""
     cos2_t = cos2_transmitted(cos_i, eta)
     tir = cos2_t <= 0.0
-    cos_t = jnp.sqrt(jnp.maximum(cos2_t, 0.0))
+    cos_t = _sqrt0(cos2_t)   # finite gradient under total internal reflection
     r_parl = (eta * cos_i - cos_t) / jnp.maximum(eta * cos_i + cos_t, 1e-12)
     r_perp = (cos_i - eta * cos_t) / jnp.maximum(cos_i + eta * cos_t, 1e-12)
     return jnp.where(tir, 1.0, 0.5 * (r_parl * r_parl + r_perp * r_perp))
@@ -38,7 +38,7 @@ def refract(wo: V3, n: V3, eta: Array) -> tuple[V3, Array]:
     cos_i = dot(wo, n)
     cos2_t = cos2_transmitted(cos_i, eta)
     ok = cos2_t > 0.0
-    cos_t = jnp.sqrt(jnp.maximum(cos2_t, 0.0))
+    cos_t = _sqrt0(cos2_t)
     return (-wo) / eta + n * (cos_i / eta - cos_t), ok
 
 
