@@ -468,3 +468,44 @@ def test_mitsuba_unsupported_texture_options_are_refused(tmp_path, option, match
     xml.write_text(text)
     with pytest.raises(SceneError, match=match):
         load_mitsuba_xml(xml)
+
+
+PBRT_SCENE = """
+LookAt 0 3 3  0 0 0  0 1 0
+Camera "perspective" "float fov" 45
+Film "rgb" "integer xresolution" 8 "integer yresolution" 8
+WorldBegin
+LightSource "point" "rgb I" [5 5 5] "point3 from" [0 2 0]
+Texture "checks" "spectrum" "checkerboard" "float uscale" 3 "float vscale" 5
+    "rgb tex1" [.8 .1 .1] "rgb tex2" [.1 .1 .8]
+Texture "img" "spectrum" "imagemap" "string filename" "rows.png" "string encoding" "linear"
+AttributeBegin
+Material "diffuse" "texture reflectance" "checks"
+Shape "trianglemesh" "point3 P" [-1 0 -1  1 0 -1  1 0 1  -1 0 1] "integer indices" [0 1 2 0 2 3]
+    "point2 uv" [0 0 1 0 1 1 0 1]
+AttributeEnd
+Material "diffuse" "texture reflectance" "img"
+Shape "trianglemesh" "point3 P" [-1 0 -1.5  1 0 -1.5  1 1 -1.5] "point2 uv" [0 0 1 0 1 1]
+"""
+
+
+def test_pbrt_checkerboard_and_imagemap(tmp_path):
+    """pbrt-v4's conventions: checkerboard tex1 where floor(s) + floor(t) is even, (s, t) =
+    (uscale u, vscale v); imagemap rows from the top at t = 1 - v."""
+    rows = np.zeros((2, 1, 3), np.uint8)
+    rows[0] = 255                     # top row white, bottom row black
+    mpimg.imsave(str(tmp_path / "rows.png"), rows)
+    path = tmp_path / "s.pbrt"
+    path.write_text(PBRT_SCENE)
+    tex = jgi.load_scene(str(path)).materials.textures
+    u, v = np.random.default_rng(5).uniform(0.01, 0.99, (2, 200)).astype(np.float32)
+    uv = (jnp.asarray(u), jnp.asarray(v))
+    checks = T.evaluate(tex, jnp.zeros(u.shape, jnp.int32), uv)
+    even = (np.floor(3 * u) + np.floor(5 * v)) % 2 == 0
+    np.testing.assert_allclose(np.asarray(checks.x), np.where(even, 0.8, 0.1), atol=1e-6)
+    img = T.evaluate(tex, jnp.ones(2, jnp.int32), (jnp.asarray([0.5, 0.5]),
+                                                   jnp.asarray([0.75, 0.25])))
+    np.testing.assert_allclose(np.asarray(img.x), [1.0, 0.0], atol=1e-6)   # v = 0.75: top row
+    with pytest.raises(SceneError, match="shape \"sphere\" with a textured material"):
+        path.write_text(PBRT_SCENE + 'Shape "sphere"\n')
+        jgi.load_scene(str(path))
