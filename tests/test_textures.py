@@ -288,6 +288,9 @@ def test_untextured_scenes_render_bit_for_bit_as_before(name, estimator):
 
 # --- every estimator on a textured scene -------------------------------------------------------
 
+DEPTH = 3   # few path lengths: MMLT compiles a kernel per length
+
+
 @pytest.fixture(scope="module")
 def textured():
     return scenes.cornell_box_textured(resolution=16)
@@ -299,15 +302,15 @@ def _stack(scene, estimator, seeds, **kw):
 
 @pytest.fixture(scope="module")
 def pt_reference(textured):
-    return _stack(textured, "pt", range(100, 108), spp=64, max_depth=5)
+    return _stack(textured, "pt", range(100, 108), spp=64, max_depth=DEPTH)
 
 
 @pytest.mark.parametrize("estimator,params,spp", [
-    ("lt", dict(max_depth=5), 64),
-    ("bdpt", dict(max_depth=5), 32),
-    ("pssmlt", dict(max_depth=5, chains=512), 32),
-    ("mmlt", dict(max_depth=5, chains=512), 32),
-    ("mlt", dict(max_depth=5), 64),
+    ("lt", dict(max_depth=DEPTH), 64),
+    ("bdpt", dict(max_depth=DEPTH), 32),
+    ("pssmlt", dict(max_depth=DEPTH, chains=512), 32),
+    ("mmlt", dict(max_depth=DEPTH, chains=512), 32),
+    ("mlt", dict(max_depth=DEPTH), 64),
 ])
 def test_unbiased_estimators_agree_with_the_path_tracer(textured, pt_reference, estimator,
                                                         params, spp):

@@ -40,7 +40,7 @@ from .data import (
     SceneError,
 )
 from .importers import load_mitsuba_xml, load_pbrt
-from .importers._common import load_mesh
+from .importers._common import has_texture_coordinates, load_mesh
 
 
 class SceneWarning(UserWarning):
@@ -578,6 +578,11 @@ class _TomlLoader:
             b.cube(m, mat, e)
         else:
             v, f = self.mesh(f"{key}.file", t["file"])
+            if b.materials[b.material_names[mat]].textures and has_texture_coordinates(
+                    (self.path.parent / t["file"]).resolve()):
+                self.fail(f"{key}.material", f"'{mat}' is textured and the mesh file has "
+                                             "texture coordinates, which jgi does not read from "
+                                             "files yet; allowed: an untextured material")
             b.mesh(v, f, mat, e, to_world=m)
 
     def mesh(self, key: str, name: str):

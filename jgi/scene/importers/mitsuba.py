@@ -486,6 +486,11 @@ class _Importer:
                 self.fail(el, f"{kind} shape needs a 'filename'")
             base = self.file_of(el).parent
             v, f = load_mesh(base / fname, self.where(el), allow_vertex_normals=True)
+            if (self.b.materials[self.b.material_names[material]].textures
+                    and has_texture_coordinates(base / fname)):
+                self.fail(el, f"{kind} mesh '{fname}' with a textured material: jgi does not "
+                              "read mesh texture coordinates from files yet (each triangle "
+                              "would get (0,0), (1,0), (0,1)); remove the texture")
             if not p.get("face_normals", False):
                 # Mitsuba 3 reads the file's vertex normals, or computes smooth ones when there
                 # are none (PLYMesh / OBJMesh: recompute_vertex_normals), unless face_normals
