@@ -32,6 +32,9 @@ supported):
              diffuse_reflectance, the specular_reflectance of conductors and roughplastic, and
              the alpha of roughconductor (not alpha_u / alpha_v, not roughplastic's alpha).
              Other filters and wrap modes are refused. Textured spheres must not be rotated.
+             Textured OBJ meshes take the file's texture coordinates (v flipped, as Mitsuba's
+             OBJ loader does), or Mitsuba's (0,0), (1,0), (0,1) per triangle without them;
+             textured PLY meshes with texture coordinates are refused.
   shape      rectangle, cube, sphere (center/radius or a uniform-scale to_world), obj, ply
              (only with face_normals="true": otherwise Mitsuba shades with vertex normals, read
              from the file or computed, and jgi shades flat)
@@ -485,12 +488,16 @@ class _Importer:
             if not fname:
                 self.fail(el, f"{kind} shape needs a 'filename'")
             base = self.file_of(el).parent
-            v, f = load_mesh(base / fname, self.where(el), allow_vertex_normals=True)
-            if (self.b.materials[self.b.material_names[material]].textures
-                    and has_texture_coordinates(base / fname)):
-                self.fail(el, f"{kind} mesh '{fname}' with a textured material: jgi does not "
-                              "read mesh texture coordinates from files yet (each triangle "
-                              "would get (0,0), (1,0), (0,1)); remove the texture")
+            v, f, uv = load_mesh(base / fname, self.where(el), allow_vertex_normals=True,
+                                 with_uv=True)
+            textured = bool(self.b.materials[self.b.material_names[material]].textures)
+            if textured and has_texture_coordinates(base / fname):
+                if kind != "obj" or uv is None:
+                    self.fail(el, f"{kind} mesh '{fname}' with a textured material: jgi reads "
+                                  "texture coordinates from OBJ files only; remove the texture")
+                uv = np.stack([uv[:, 0], 1.0 - uv[:, 1]], 1)   # Mitsuba's OBJ loader flips v
+            else:
+                uv = None   # Mitsuba's (0,0), (1,0), (0,1) per triangle
             if not p.get("face_normals", False):
                 # Mitsuba 3 reads the file's vertex normals, or computes smooth ones when there
                 # are none (PLYMesh / OBJMesh: recompute_vertex_normals), unless face_normals
@@ -503,7 +510,7 @@ class _Importer:
                                             xf.apply_point(m, v), f)
             if p.get("flip_normals", False):
                 f = f[:, ::-1]
-            self.b.mesh(v, f, material, emission, to_world=m)
+            self.b.mesh(v, f, material, emission, to_world=m, uv=uv)
 
     def check_anisotropy_frame(self, el, kind, p, m, material, vertices=None, faces=None):
         """Anisotropic roughness is oriented by the shading frame. Mitsuba's tangent is dp/du of
