@@ -653,7 +653,7 @@ def mesh(file):
 BAD = {
     # unknown tables and keys (typos), with a suggestion where one is close
     "top-level table": (HEAD + "[renderer]\nspp = 3\n", "renderer",
-                        "allowed: name, camera, material, shape, light"),
+                        "allowed: name, camera, texture, material, shape, light"),
     "top-level typo": (HEAD + "[[materials]]\nname = 'y'\n", "materials",
                        "did you mean 'material'?"),
     "camera key": (camera(lookat="[0, 0, 0]"), "camera.lookat", "did you mean 'look_at'?"),

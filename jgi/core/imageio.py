@@ -1,4 +1,5 @@
-"""Image output: OpenEXR (linear float32 RGB) and tone-mapped PNG (matplotlib's writer)."""
+"""Images: OpenEXR (linear float32 RGB) and tone-mapped PNG output (matplotlib's writer);
+texture input (EXR, PNG, JPEG) as linear RGB."""
 
 from __future__ import annotations
 
@@ -29,6 +30,32 @@ def read_exr(path: str | os.PathLike) -> np.ndarray:
         if "RGB" in ch:
             return np.asarray(ch["RGB"].pixels, np.float32)
         return np.stack([np.asarray(ch[c].pixels, np.float32) for c in "RGB"], axis=-1)
+
+
+def srgb_decode(x) -> np.ndarray:
+    """sRGB-encoded values in [0, 1] -> linear (IEC 61966-2-1), as Mitsuba decodes 8-bit images."""
+    x = np.asarray(x, np.float64)
+    return np.where(x <= 0.04045, x / 12.92, ((x + 0.055) / 1.055) ** 2.4)
+
+
+def read_image(path: str | os.PathLike, raw: bool = False) -> np.ndarray:
+    """An [H, W, 3] float64 linear RGB image (row 0 the top) from an EXR (linear already) or a
+    PNG / JPEG file (matplotlib's reader; integer images scaled to [0, 1] and, unless ``raw``,
+    sRGB-decoded, as Mitsuba's bitmap texture does with raw=false). Alpha is dropped, grey is
+    repeated into three channels."""
+    path = Path(path)
+    if not path.is_file():
+        raise OSError(f"no such file '{path}'")
+    if path.suffix.lower() == ".exr":
+        return np.asarray(read_exr(path), np.float64)
+    img = mpimg.imread(str(path))
+    if np.issubdtype(img.dtype, np.integer):
+        img = img / float(np.iinfo(img.dtype).max)
+    img = np.asarray(img, np.float64)
+    if img.ndim == 2:
+        img = np.repeat(img[:, :, None], 3, axis=2)
+    img = img[:, :, :3]
+    return img if raw else srgb_decode(img)
 
 
 def tonemap(image: np.ndarray, exposure: float = 0.0) -> np.ndarray:

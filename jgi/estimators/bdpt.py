@@ -77,6 +77,7 @@ from ..transport.subpath import (
     light_normal,
     light_subpath,
     next_event_value,
+    no_uv,
     occluded_many,
     pdf_emission_dir,
     pdf_light_origin,
@@ -232,7 +233,7 @@ def camera_subpath(scene: Scene, cfg: BDPTConfig, key: Array, pixel: Array, unif
     one = V3(z + 1, z + 1, z + 1)
     pdf_dir = C.project(cam, o + d).pdf_dir            # 1 / (A cos^3): the film's density
     z0 = Vertices(o, Z, Z, one, z + 1, z, z > 0, z > 0, z == 0, z.astype(jnp.int32),
-                  z.astype(jnp.int32) - 1)
+                  z.astype(jnp.int32) - 1, no_uv(scene, z))
     start = WalkState(o, d, one, pdf_dir, o, Z, z > 0, z > 0, z == 0)
     verts, pdf_rev0, rec = random_walk(scene, key, CAMERA_DIMS0, CAMERA_DIMS_PER_STEP,
                                        cfg.max_depth, start, B.RADIANCE,
@@ -250,8 +251,8 @@ def _interior(scene: Scene, q: Vertices, qm: Vertices, p: Vertices, pm: Vertices
     d2 = dot(v, v)
     dist = jnp.sqrt(d2)
     w = v / jnp.where(dist > 0, dist, 1.0)            # from y_{s-1} towards z_{t-1}
-    mq = B.lookup_specialised(scene.materials, q.material)
-    mp = B.lookup_specialised(scene.materials, p.material)
+    mq = B.lookup_specialised(scene.materials, q.material, q.uv)
+    mp = B.lookup_specialised(scene.materials, p.material, p.uv)
     f_q, pdf_q_fwd = B.evaluate(kinds, mq, q.n, q.wo, w,     # y_{s-2} -> y_{s-1} -> z_{t-1}
                                 mode=B.IMPORTANCE)
     _, pdf_q_rev = B.evaluate(kinds, mq, q.n, w, q.wo)

@@ -181,8 +181,7 @@ def gather_photons(scene: Scene, cfg: CacheConfig, seed, ids, p: V3, n: V3, grid
     K = p.x.shape[0]
     v, r, angles, frame = _gather_hits(scene, cfg, seed, ids, p, n)
     Lp, _ = PMap.estimate_at_points(scene, grid, v.p, v.n, v.wo, v.material, radius, cap=cap,
-                                    k=k,
-                                    kind="box", thickness=None, filter_params={})
+                                    k=k, kind="box", thickness=None, filter_params={}, uv=v.uv)
     found = np.asarray(v.found)
     L = V3(*(jnp.asarray(np.where(found, np.asarray(b) * c, 0.0)) for b, c in zip(v.beta, Lp)))
     return _record_jit(scene, cfg, K, L, r, angles, frame)
@@ -425,9 +424,13 @@ def render(scene: Scene, cfg: CacheConfig = CacheConfig(), *, spp: int = 1, seed
     source = photon_source(scene, cfg.photons, seed, k=cfg.photon_k) if cfg.photons else None
     E, _, stats = irradiance(scene, pts, cfg=cfg, seed=seed, raster=(pix % W, pix // W),
                              source=source)
-    kd = scene.materials.diffuse
-    m = np.asarray(v.material)
-    albedo = np.stack([np.asarray(kd.x)[m], np.asarray(kd.y)[m], np.asarray(kd.z)[m]])
+    if scene.materials.has_textures:
+        albedo = np.stack([np.asarray(c) for c in
+                           PMap.diffuse_reflectance(scene, v.material, v.uv)])
+    else:
+        kd = scene.materials.diffuse
+        m = np.asarray(v.material)
+        albedo = np.stack([np.asarray(kd.x)[m], np.asarray(kd.y)[m], np.asarray(kd.z)[m]])
     beta = np.stack([np.asarray(c) for c in v.beta])
     L = np.stack([np.asarray(c) for c in v.L]) + np.where(pts.found, beta * albedo / np.pi * E, 0.0)
     image = L.reshape(3, spp, H, W).mean(1).transpose(1, 2, 0).astype(np.float32)

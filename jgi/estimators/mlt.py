@@ -144,6 +144,7 @@ class Path(NamedTuple):
     length: Array     # [chains] segments k; vertex k is on an emitter; 0: no path (f = 0)
     fx: Array         # [chains] raster position of x_1 (column, float)
     fy: Array         # [chains] (row, float; 0 at the top)
+    uv: tuple | None = None  # surface coordinates (u, v) [K + 1, chains], in textured scenes
 
 
 class PathValue(NamedTuple):
@@ -176,6 +177,15 @@ def _set3(v: V3, i, value: V3, where_) -> V3:
 
 def _rows(v: V3, lo, hi) -> V3:
     return V3(*(c[lo:hi] for c in v))
+
+
+def _set_uv(uv, i, value, where_):
+    """:func:`_set` on surface coordinates (None in scenes without textures)."""
+    return None if uv is None else tuple(_set(c, i, x, where_) for c, x in zip(uv, value))
+
+
+def _uv_rows(uv, lo, hi):
+    return None if uv is None else tuple(c[lo:hi] for c in uv)
 
 
 def _first(mask: Array, fallback: Array) -> Array:
@@ -231,7 +241,7 @@ def transmits(path: Path) -> Array:
 
 def is_specular(scene: Scene, path: Path) -> Array:
     """[K + 1, C]: vertex i is a Dirac (mirror/dielectric) vertex; rows 0 and k are never."""
-    mp = B.lookup(scene.materials, path.material)
+    mp = B.lookup(scene.materials, path.material, path.uv)
     rows = jnp.arange(path.material.shape[0])[:, None]
     return B.is_delta(mp) & (rows >= 1) & (rows < path.length[None, :])
 
@@ -255,7 +265,7 @@ def evaluate(scene: Scene, cfg: MLTConfig, path: Path) -> PathValue:
         prev, cur, nxt = _rows(path.p, 0, K - 1), _rows(path.p, 1, K), _rows(path.p, 2, K + 1)
         n = _rows(path.n, 1, K)
         wo, wi = normalize(prev - cur), normalize(nxt - cur)
-        mp = B.lookup(mats, path.material[1:K])
+        mp = B.lookup(mats, path.material[1:K], _uv_rows(path.uv, 1, K))
         delta = B.is_delta(mp)
         f, pdf_bsdf = B.evaluate(mats.kinds, mp, n, wo, wi)
         coeff, prob = specular_coefficient(mp, n, wo, wi)
@@ -289,7 +299,8 @@ def _empty(scene: Scene, cfg: MLTConfig, n_chains: int) -> Path:
     cam = scene.camera.position
     p = V3(z + cam.x, z + cam.y, z + cam.z)
     zi = jnp.zeros((K + 1, n_chains), jnp.int32)
-    return Path(p, V3(z, z, z + 1.0), zi, zi - 1, jnp.zeros(n_chains, jnp.int32), z[0], z[0])
+    return Path(p, V3(z, z, z + 1.0), zi, zi - 1, jnp.zeros(n_chains, jnp.int32), z[0], z[0],
+                (z, z) if scene.materials.has_textures else None)
 
 
 def sample_path(scene: Scene, cfg: MLTConfig, key: Array) -> Path:
@@ -312,8 +323,9 @@ def sample_path(scene: Scene, cfg: MLTConfig, key: Array) -> Path:
         alive = alive & (~here | hit.valid)
         path = path._replace(p=_set3(path.p, i, hit.p, here), n=_set3(path.n, i, hit.n, here),
                              material=_set(path.material, i, hit.material, here),
-                             emitter=_set(path.emitter, i, hit.emitter, here))
-        mp = B.lookup(scene.materials, hit.material)
+                             emitter=_set(path.emitter, i, hit.emitter, here),
+                             uv=_set_uv(path.uv, i, hit.uv, here))
+        mp = B.lookup(scene.materials, hit.material, hit.uv)
         base = 3 + 7 * i
         bs = B.sample(kinds, mp, hit.n, -d, u(base), u(base + 1), u(base + 2))
         ls = LT.sample_li(lights, hit.p, u(base + 3), u(base + 4), u(base + 5))
@@ -386,13 +398,14 @@ def retrace_lens(scene: Scene, cfg: MLTConfig, x: Path, fx: Array, fy: Array):
         y, o, d, ok = carry
         hit = G.intersect(scene, o, d)
         here = i <= m
-        mp = B.lookup(scene.materials, hit.material)
+        mp = B.lookup(scene.materials, hit.material, hit.uv)
         good = hit.valid & (B.is_delta(mp) == (i < m))
         good = good & ((i < k) | (hit.emitter >= 0))  # a light vertex must stay on a light
         ok = ok & (~here | good)
         y = y._replace(p=_set3(y.p, i, hit.p, here), n=_set3(y.n, i, hit.n, here),
                        material=_set(y.material, i, hit.material, here),
-                       emitter=_set(y.emitter, i, hit.emitter, here))
+                       emitter=_set(y.emitter, i, hit.emitter, here),
+                       uv=_set_uv(y.uv, i, hit.uv, here))
         w, valid = specular_continue(mp, hit.n, -d, _row(modes, jnp.full((n_chains,), i)))
         ok = ok & (~(i < m) | valid)
         return y, G.offset_origin(hit.p, hit.n, w), w, ok
@@ -489,12 +502,13 @@ def retrace_caustic(scene: Scene, cfg: MLTConfig, x: Path, w_new: V3):
         i = j - 1 - s  # the vertex this step finds, walking from x_j towards the eye
         here = i >= 1
         hit = G.intersect(scene, o, d)
-        mp = B.lookup(scene.materials, hit.material)
+        mp = B.lookup(scene.materials, hit.material, hit.uv)
         good = hit.valid & (B.is_delta(mp) == (i >= 2))
         ok = ok & (~here | good)
         y = y._replace(p=_set3(y.p, i, hit.p, here), n=_set3(y.n, i, hit.n, here),
                        material=_set(y.material, i, hit.material, here),
-                       emitter=_set(y.emitter, i, hit.emitter, here))
+                       emitter=_set(y.emitter, i, hit.emitter, here),
+                       uv=_set_uv(y.uv, i, hit.uv, here))
         dn, valid = specular_continue(mp, hit.n, -d, _row(modes, jnp.maximum(i, 0)))
         ok = ok & (~(i >= 2) | valid)
         return y, G.offset_origin(hit.p, hit.n, dn), dn, ok

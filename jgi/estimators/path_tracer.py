@@ -126,7 +126,7 @@ def _shade(scene: Scene, cfg: PathTracerConfig, s: PathState, hit: G.Hit, depth,
     else:
         L = s.L
     active = s.active & hit.valid & (length < max_depth)
-    mp = B.lookup_specialised(mats, hit.material)
+    mp = B.lookup_specialised(mats, hit.material, hit.uv)
 
     # ---- Light sampling (next-event estimation): shadow rays and their unoccluded values ----
     shadow = []  # (origin, direction, t_max, contribution if visible)

@@ -137,8 +137,8 @@ def render_pm(scene: Scene, cfg: PMConfig = PMConfig(), *, spp: int = 4, seed: i
           dict(gauss_alpha=cfg.gauss_alpha, gauss_beta=cfg.gauss_beta) if filter == "gaussian"
           else {})
     L, trunc = PMap.estimate_at_points(scene, grid, v.p, v.n, v.wo, v.material, radius, cap=cap,
-                                       k=k,
-                                       kind=filter, thickness=thickness, filter_params=fp)
+                                       k=k, kind=filter, thickness=thickness, filter_params=fp,
+                                       uv=v.uv)
     found = np.asarray(v.found)
     beta_ = np.stack([np.asarray(c) for c in v.beta])
     total = np.stack([np.asarray(c) for c in v.L]) + np.where(found, beta_ * L, 0.0)
@@ -179,7 +179,7 @@ def render_jensen(scene: Scene, cfg: JensenConfig = JensenConfig(), *, spp: int 
     found = np.asarray(v.found)
     beta_ = np.stack([np.asarray(c) for c in v.beta])
     total = np.stack([np.asarray(c) for c in v.L])  # emission along the chain + direct light
-    kdx = np.stack([np.asarray(c) for c in PMap.diffuse_reflectance(scene, v.material)])
+    kdx = np.stack([np.asarray(c) for c in PMap.diffuse_reflectance(scene, v.material, v.uv)])
     if cfg.caustics:
         cpm = trace_photons(scene, cfg.caustic_photons, seed=seed + 7919, max_depth=max_depth)
         cpm = cpm.select(cpm.caustic)
@@ -188,7 +188,7 @@ def render_jensen(scene: Scene, cfg: JensenConfig = JensenConfig(), *, spp: int 
             Lc, _ = PMap.estimate_at_points(scene, cgrid, v.p, v.n, v.wo, v.material,
                                             float(cgrid.cell),
                                             cap=cap, k=cfg.k_caustic, kind=filter, thickness=None,
-                                            filter_params={})
+                                            filter_params={}, uv=v.uv)
             total = total + np.where(found, beta_ * Lc, 0.0)
     # indirect diffuse by final gathering on the global map (at every point, or cached)
     if cfg.irradiance_cache:
@@ -214,7 +214,7 @@ def render_jensen(scene: Scene, cfg: JensenConfig = JensenConfig(), *, spp: int 
                                take(v.n), final_gather, max_depth)
             Lg, _ = PMap.estimate_at_points(scene, grid, g.p, g.n, g.wo, g.material, radius,
                                             cap=cap, k=k,
-                                      kind=filter, thickness=None, filter_params={})
+                                      kind=filter, thickness=None, filter_params={}, uv=g.uv)
             gb = np.stack([np.asarray(c) for c in g.beta])
             Lg = (np.where(np.asarray(g.found), gb * Lg, 0.0)
                   .reshape(3, batch, final_gather).mean(-1))
@@ -224,12 +224,12 @@ def render_jensen(scene: Scene, cfg: JensenConfig = JensenConfig(), *, spp: int 
 
 
 @partial(jax.jit, static_argnames=("cap",))
-def _ppm_gather(scene: Scene, grid, x: V3, n: V3, wo: V3, material, r2, cap: int):
+def _ppm_gather(scene: Scene, grid, x: V3, n: V3, wo: V3, material, r2, cap: int, uv=None):
     """M_i (photons within R_i) and Phi_i = sum f_r DeltaPhi_p at each visible point."""
     g = PMap.gather(grid, x, n, cap, None)
     inside = g.d2 < r2[:, None]
     M = jnp.sum(inside, axis=-1).astype(jnp.float32)
-    f = PMap.photon_reflectance(scene, material, n, wo, g.wi)
+    f = PMap.photon_reflectance(scene, material, n, wo, g.wi, uv)
     if f.x.shape[-1] == 1:   # k_d / pi per point: summed once (the scene has no microfacets)
         phi = V3(*(jnp.sum(jnp.where(inside, p, 0.0), axis=-1) * c[:, 0]
                    for p, c in zip(g.power, f)))
@@ -275,7 +275,8 @@ def render_progressive(scene: Scene, cfg: ProgressiveConfig = ProgressiveConfig(
             sl = slice(s0, s0 + chunk)
             sub = lambda vv: V3(*(c[sl] for c in vv))
             m, ph, tr = _ppm_gather(scene, grid, sub(v.p), sub(v.n), sub(v.wo), v.material[sl],
-                                    jnp.asarray(R2[sl], jnp.float32), cap_t)
+                                    jnp.asarray(R2[sl], jnp.float32), cap_t,
+                                    None if v.uv is None else tuple(c[sl] for c in v.uv))
             M[sl] = np.asarray(m)
             phi[:, sl] = np.stack([np.asarray(c) for c in ph])
             truncated |= bool(np.any(np.asarray(tr)))

@@ -38,6 +38,7 @@ class Hit(NamedTuple):
     n: V3             # unit geometric normal, as the primitive defines it (not flipped)
     material: Array   # int32 material row
     emitter: Array    # int32 light element, -1 if the surface does not emit
+    uv: tuple | None = None  # surface coordinates (u, v), only in scenes with textures
 
 
 # --- single-primitive tests (scalar primitive, vector of rays) ---------------------------------
@@ -320,6 +321,29 @@ class _Nearest(NamedTuple):
     material: Array
     emitter: Array
     sphere: Array      # bool, only carried when the scene has spheres
+    uv: tuple | None   # (u, v), only carried when the scene has textures (spheres: after the scan)
+
+
+def sphere_uv(n: V3) -> tuple[Array, Array]:
+    """Mitsuba's sphere parametrisation at the unit outward normal n (the sphere's frame is
+    the world's): u = phi / 2 pi with phi = atan2(n_y, n_x) in [0, 2 pi), v = theta / pi with
+    theta = acos(n_z)."""
+    phi = jnp.arctan2(n.y, n.x)
+    phi = jnp.where(phi < 0, phi + 2 * jnp.pi, phi)
+    return phi * (0.5 / jnp.pi), jnp.arccos(jnp.clip(n.z, -1.0, 1.0)) * (1 / jnp.pi)
+
+
+def parallelogram_uv(origin: V3, dual_u: V3, dual_v: V3, p: V3) -> tuple[Array, Array]:
+    """The parameters (a, b) of p = origin + a edge_u + b edge_v: a rectangle's or quad's uv
+    (Mitsuba's rectangle uv for quads built from ``rectangle``)."""
+    rel = p - origin
+    return dot(rel, dual_u), dot(rel, dual_v)
+
+
+def triangle_uv(uv: Array, i, b1: Array, b2: Array) -> tuple[Array, Array]:
+    """Barycentric interpolation of triangle rows i's vertex uvs (``Triangles.uv``)."""
+    r = uv[i]
+    return r[..., 0] + b1 * r[..., 2] + b2 * r[..., 4], r[..., 1] + b1 * r[..., 3] + b2 * r[..., 5]
 
 
 def intersect(scene: Scene, o: V3, d: V3, stored: bool = True) -> Hit:
@@ -333,14 +357,21 @@ def intersect(scene: Scene, o: V3, d: V3, stored: bool = True) -> Hit:
     shape = o.x.shape
     zf = jnp.zeros(shape, jnp.float32)
     has_spheres = scene.spheres.count > 0
+    # surface coordinates, only in scenes with textures (static: other scenes' kernels are
+    # unchanged)
+    with_uv = scene.materials.has_textures
     carry = _Nearest(jnp.full(shape, INF), V3(zf, zf, zf + 1.0), jnp.zeros(shape, jnp.int32),
-                     jnp.full(shape, -1, jnp.int32), zf > 0 if has_spheres else None)
+                     jnp.full(shape, -1, jnp.int32), zf > 0 if has_spheres else None,
+                     (zf, zf) if with_uv else None)
+    no_uv = (jnp.float32(0.0), jnp.float32(0.0)) if with_uv else None
 
-    def update(c: _Nearest, closer, t, n: V3, material, emitter, sphere=False) -> _Nearest:
+    def update(c: _Nearest, closer, t, n: V3, material, emitter, sphere=False,
+               uv=no_uv) -> _Nearest:
         sel = lambda a, b: jnp.where(closer, a, b)  # noqa: E731
         return _Nearest(sel(t, c.t), V3(sel(n.x, c.n.x), sel(n.y, c.n.y), sel(n.z, c.n.z)),
                         sel(material, c.material), sel(emitter, c.emitter),
-                        sel(sphere, c.sphere) if has_spheres else None)
+                        sel(sphere, c.sphere) if has_spheres else None,
+                        (sel(uv[0], c.uv[0]), sel(uv[1], c.uv[1])) if with_uv else None)
 
     sp: Spheres = scene.spheres
     if sp.count:
@@ -358,7 +389,9 @@ def intersect(scene: Scene, o: V3, d: V3, stored: bool = True) -> Hit:
             # values are kept in registers or reloaded in the kernel's loop, and there are many)
             n = [jnp.float32(0.0)] * 3
             n[axis] = r.normal[axis][i]
-            return update(c, hit & (t < c.t), t, V3(*n), r.material[i], r.emitter[i])
+            uv = (parallelogram_uv(_take(r.origin, i), _take(r.dual_u, i), _take(r.dual_v, i),
+                                   o + d * t) if with_uv else None)
+            return update(c, hit & (t < c.t), t, V3(*n), r.material[i], r.emitter[i], uv=uv)
         carry = _scan_rects(r, o, d, inv_d, rect_body, carry)
     bx: Boxes = scene.boxes
     if bx.count:
@@ -371,29 +404,44 @@ def intersect(scene: Scene, o: V3, d: V3, stored: bool = True) -> Hit:
         du, dv = quad_duals(q)
 
         def body(i, c):
-            t = quad_t(_take(q.origin, i), _take(q.normal, i), _take(du, i), _take(dv, i), o, d)
-            return update(c, t < c.t, t, _take(q.normal, i), q.material[i], q.emitter[i])
+            origin = _take(q.origin, i)
+            t = quad_t(origin, _take(q.normal, i), _take(du, i), _take(dv, i), o, d)
+            uv = (parallelogram_uv(origin, _take(du, i), _take(dv, i), o + d * t)
+                  if with_uv else None)
+            return update(c, t < c.t, t, _take(q.normal, i), q.material[i], q.emitter[i], uv=uv)
         carry = _scan(q.count, body, carry)
     tr: Triangles = scene.triangles
     if tr.count and tr.bvh is not None:
         t, prim = _bvh_closest(tr, o, d, carry.t)
         i = jnp.maximum(prim, 0)
-        carry = update(carry, prim >= 0, t, _take(tr.normal, i), tr.material[i], tr.emitter[i])
+        uv = None
+        if with_uv:   # the hit triangle's barycentrics, from its own test
+            _, b1, b2 = triangle_t(_take(tr.v0, i), _take(tr.edge1, i), _take(tr.edge2, i),
+                                   _take(tr.normal, i), o, d)
+            uv = triangle_uv(tr.uv, i, b1, b2)
+        carry = update(carry, prim >= 0, t, _take(tr.normal, i), tr.material[i], tr.emitter[i],
+                       uv=uv)
     elif tr.count:
         def body(i, c):
-            t, _, _ = triangle_t(_take(tr.v0, i), _take(tr.edge1, i), _take(tr.edge2, i),
-                                 _take(tr.normal, i), o, d)
-            return update(c, t < c.t, t, _take(tr.normal, i), tr.material[i], tr.emitter[i])
+            t, b1, b2 = triangle_t(_take(tr.v0, i), _take(tr.edge1, i), _take(tr.edge2, i),
+                                   _take(tr.normal, i), o, d)
+            uv = triangle_uv(tr.uv, i, b1, b2) if with_uv else None
+            return update(c, t < c.t, t, _take(tr.normal, i), tr.material[i], tr.emitter[i],
+                          uv=uv)
         carry = _scan(tr.count, body, carry)
 
     valid = carry.t < INF
     tt = jnp.where(valid, carry.t, 0.0)
     p = o + d * tt
     n = carry.n
+    uv = carry.uv
     if has_spheres:
         ns = normalize(p - n)
         n = V3(*(jnp.where(carry.sphere, a, b) for a, b in zip(ns, n)))
-    hit = Hit(carry.t, valid, p, n, carry.material, carry.emitter)
+        if with_uv:
+            su, sv = sphere_uv(ns)
+            uv = (jnp.where(carry.sphere, su, uv[0]), jnp.where(carry.sphere, sv, uv[1]))
+    hit = Hit(carry.t, valid, p, n, carry.material, carry.emitter, uv)
     return materialize(hit) if stored else hit
 
 

@@ -15,6 +15,9 @@
   conductor, isotropic and anisotropic; rough dielectric; rough plastic).
 * ``furnace``: a closed box whose walls all emit L_e and reflect with albedo rho, the camera
   inside: radiance is L_e (1 + rho + ... + rho^(D-1)) for max depth D.
+* ``cornell_box_textured``: the Cornell room with a checkerboard floor, a bitmap-textured
+  diffuse sphere, a Phong sphere with a textured specular colour and a rough conductor with a
+  textured roughness (every textured parameter and texture kind).
 * ``point_light_plane``: a point light of intensity I at height h over a diffuse plane: the
   radiance is (rho / pi) I cos(theta) / d^2 at every point.
 """
@@ -67,6 +70,53 @@ def cornell_box_caustics(resolution: int = 256) -> Scene:
     b.material("glass", "dielectric", ior=1.5)
     b.sphere((-0.45, -0.65, -0.3), 0.35, "mirror")
     b.sphere((0.45, -0.65, 0.3), 0.35, "glass")
+    return b.build()
+
+
+def stripes_image(size: int = 8) -> np.ndarray:
+    """A small linear-RGB test image: horizontal colour bands times a vertical ramp, so that a
+    bitmap lookup's orientation, filtering and wrap all show."""
+    y, x = np.meshgrid(np.arange(size), np.arange(size), indexing="ij")
+    band = (y * 3) // size
+    img = np.zeros((size, size, 3))
+    img[..., 0] = np.where(band == 0, 0.8, 0.1)
+    img[..., 1] = np.where(band == 1, 0.8, 0.1)
+    img[..., 2] = np.where(band == 2, 0.8, 0.1)
+    return img * (0.4 + 0.6 * x / (size - 1))[..., None]
+
+
+def cornell_box_textured(resolution: int = 256) -> Scene:
+    """The Cornell room with a checkerboard floor (Mitsuba's checkerboard, 4 x 4 periods) and
+    a diffuse sphere carrying a bitmap (:func:`stripes_image`), behind it a Phong sphere with
+    a checkerboard specular colour and a GGX rough-conductor sphere with a textured roughness:
+    every textured parameter, and both texture kinds, in one scene."""
+    b = SceneBuilder("cornell_box_textured")
+    b.texture("checks", "checkerboard", color0=(0.8, 0.8, 0.8), color1=(0.15, 0.3, 0.6),
+              scale=4)
+    b.texture("stripes", "bitmap", data=stripes_image(), scale=(2, 1))
+    b.texture("spec", "checkerboard", color0=(0.5, 0.5, 0.5), color1=(0.1, 0.1, 0.1), scale=6)
+    b.texture("rough", "checkerboard", color0=(0.05, 0.05, 0.05), color1=(0.4, 0.4, 0.4),
+              scale=4)
+    b.material("floor", "diffuse", diffuse="checks")
+    b.material("striped", "diffuse", diffuse="stripes")
+    b.material("plastic", "phong", diffuse=(0.3, 0.3, 0.3), specular="spec", exponent=20.0)
+    b.material("metal", "roughconductor", specular=(0.9, 0.9, 0.9), alpha="rough")
+    b.material("white", "diffuse", diffuse=WHITE)
+    b.material("green", "diffuse", diffuse=GREEN)
+    b.material("red", "diffuse", diffuse=RED)
+    T, R, S = xf.translate, xf.rotate, xf.scale
+    b.rectangle(T([0, 0.99, 0.01]) @ R([1, 0, 0], 90) @ S([0.23, 0.19, 0.19]), "white",
+                emission=CORNELL_LIGHT)
+    b.rectangle(T([0, -1, 0]) @ R([1, 0, 0], -90), "floor")
+    b.rectangle(T([0, 1, 0]) @ R([1, 0, 0], 90), "white")
+    b.rectangle(T([0, 0, -1]), "white")
+    b.rectangle(T([1, 0, 0]) @ R([0, 1, 0], -90), "green")
+    b.rectangle(T([-1, 0, 0]) @ R([0, 1, 0], 90), "red")
+    b.sphere((0.4, -0.6, 0.2), 0.4, "striped")
+    b.sphere((-0.45, -0.7, -0.3), 0.3, "plastic")
+    b.sphere((-0.3, 0.2, -0.5), 0.25, "metal")
+    b.camera(position=(0, 0, 3.9), look_at=(0, 0, 0), up=(0, 1, 0), fov=39.3077,
+             width=resolution, height=resolution, fov_axis="smaller")
     return b.build()
 
 
@@ -239,6 +289,7 @@ BUILTINS = {
     "veach_plates": veach_plates,
     "veach_plates_ggx": veach_plates_ggx,
     "cornell_box_rough": cornell_box_rough,
+    "cornell_box_textured": cornell_box_textured,
     "furnace": furnace,
     "point_light_plane": point_light_plane,
     "mirror_caustic": mirror_caustic,

@@ -11,6 +11,10 @@ Tables:
     cube under the most specific table that represents it exactly, since the ray test is the
     renderer's inner loop.
   * ``Materials``: one row per material; ``kind`` selects the BSDF (see :mod:`jgi.physics.bsdf`).
+    Its ``textures`` (a :class:`Textures` table, or None in scenes without textures) and
+    ``texture`` (texture row of each textured parameter, -1 for a constant) make diffuse
+    reflectance, specular reflectance and roughness vary over surfaces
+    (:mod:`jgi.physics.textures`).
   * ``Lights``: a flat table of *light elements* chosen for next-event estimation with
     probability proportional to power. A diffuse area light on a mesh contributes one element per
     triangle, so light selection and ``pdf_li`` are the same code for every emitter shape.
@@ -31,6 +35,7 @@ from jax import Array
 
 from ..core import transform as xf
 from ..core.bvh import BVH, build_bvh
+from ..core.imageio import read_image
 from ..core.vec import V3
 from .metals import METALS
 from .rough_coating import BECKMANN, GGX, TABLE_SIZE, plastic_tables
@@ -58,6 +63,13 @@ NAMED_METALS = METALS  # Mitsuba's conductor names -> (eta, k) per RGB channel (
 # and ext_ior (air); a missing int_ior of a dielectric is bk7's.
 DEFAULT_ALPHA = 0.1
 IOR_POLYPROPYLENE, IOR_BK7, IOR_AIR = 1.49, 1.5046, 1.000277
+
+# Texture kinds (jgi.physics.textures evaluates each), and the material parameters a texture can
+# drive: columns of ``Materials.texture``.
+CHECKERBOARD, BITMAP = range(2)
+TEXTURE_KINDS = {"checkerboard": CHECKERBOARD, "bitmap": BITMAP}
+TEX_DIFFUSE, TEX_SPECULAR, TEX_ALPHA = range(3)
+TEXTURED_PARAMS = {"diffuse": TEX_DIFFUSE, "specular": TEX_SPECULAR, "alpha": TEX_ALPHA}
 
 # Light element kinds (jgi.physics.lights implements each).
 AREA_QUAD, AREA_TRIANGLE, AREA_SPHERE, POINT, SPOT, DIRECTIONAL, ENVIRONMENT = range(7)
@@ -120,6 +132,11 @@ class Rects(eqx.Module):
     material: Array
     emitter: Array
     axis_counts: tuple[int, int, int] = eqx.field(static=True)
+    # textured scenes only (else None): the quad's (a, b) parameters of a point p are
+    # (p - origin) . dual_u and (p - origin) . dual_v, its surface coordinates uv
+    origin: V3 | None = None
+    dual_u: V3 | None = None
+    dual_v: V3 | None = None
 
     @property
     def count(self) -> int:
@@ -161,10 +178,39 @@ class Triangles(eqx.Module):
     material: Array
     emitter: Array
     bvh: BVH | None = None
+    # textured scenes only (else None): [T, 6] (u0, v0, u1 - u0, v1 - v0, u2 - u0, v2 - v0),
+    # the vertices' surface coordinates; a mesh without them has Mitsuba's (0,0), (1,0), (0,1)
+    uv: Array | None = None
 
     @property
     def count(self) -> int:
         return int(self.material.shape[0])
+
+
+class Textures(eqx.Module):
+    """One row per texture (Mitsuba's ``checkerboard`` and ``bitmap``, pbrt-v4's
+    ``checkerboard`` and ``imagemap``), looked up at surface coordinates (u, v) mapped by the
+    affine ``to_uv`` first (Mitsuba's ``to_uv`` transform; pbrt's uscale, vscale, udelta,
+    vdelta): (u', v') = (a u + b v + c, d u + e v + f) with ``to_uv`` row (a, b, c, d, e, f).
+
+    Bitmaps are linear RGB, all packed into one flat ``atlas`` [P, 3] (row-major, row 0 the
+    image's top row, which v' = 0 addresses, as in Mitsuba); texture i occupies rows
+    ``offset[i]`` .. ``offset[i] + width[i] * height[i] - 1``. Every texel is a pytree leaf,
+    so ``jax.grad`` of an image with respect to a bitmap works."""
+
+    kind: Array       # int32 [T]: CHECKERBOARD or BITMAP
+    color0: V3        # checkerboard: colour where frac(u') and frac(v') lie on the same side of 1/2
+    color1: V3        # ... and elsewhere
+    to_uv: Array      # [T, 6] affine map of (u, v), see above
+    offset: Array     # int32 [T]: first atlas row of a bitmap
+    width: Array      # int32 [T]
+    height: Array     # int32 [T]
+    atlas: Array      # [P, 3] linear RGB texels of every bitmap (one zero row if there are none)
+    kinds: tuple[int, ...] = eqx.field(static=True)  # texture kinds present
+
+    @property
+    def count(self) -> int:
+        return int(self.kind.shape[0])
 
 
 class Materials(eqx.Module):
@@ -188,6 +234,15 @@ class Materials(eqx.Module):
     kinds: tuple[int, ...] = eqx.field(static=True)  # kinds present, to skip dead code
     # distributions used by rough rows (empty without rough materials), to skip the absent one
     distributions: tuple[int, ...] = eqx.field(static=True, default=())
+    # Textures (None in a scene without any: its kernels are those of a scene before textures)
+    textures: Textures | None = None
+    texture: Array | None = None   # int32 [M, 3]: texture row per TEX_* column, -1 = constant
+    textured: tuple[int, ...] = eqx.field(static=True, default=())  # TEX_* columns in use
+
+    @property
+    def has_textures(self) -> bool:
+        """Static: the scene uses textures (hits then carry surface coordinates uv)."""
+        return self.textures is not None
 
 
 class Lights(eqx.Module):
@@ -286,6 +341,31 @@ class _Material:
     eta: tuple = (0.0, 0.0, 0.0)
     k: tuple = (0.0, 0.0, 0.0)
     nonlinear: bool = False
+    textures: dict = dc_field(default_factory=dict)  # TEX_* column -> texture row
+
+
+@dataclass
+class _Texture:
+    kind: int
+    color0: tuple = (0.4, 0.4, 0.4)
+    color1: tuple = (0.2, 0.2, 0.2)
+    to_uv: tuple = (1.0, 0.0, 0.0, 0.0, 1.0, 0.0)
+    image: np.ndarray | None = None   # [H, W, 3] linear RGB
+
+
+def uv_transform(scale=None, offset=None, matrix=None) -> tuple:
+    """The affine (a, b, c, d, e, f) of :class:`Textures` from a scale (one number or (su, sv)),
+    an offset (du, dv) applied after it, or a 3x3 / 4x4 matrix acting on (u, v, [0,] 1)."""
+    if matrix is not None:
+        m = np.asarray(matrix, float)
+        if m.shape == (4, 4):
+            m = m[np.ix_([0, 1, 3], [0, 1, 3])]
+        if m.shape != (3, 3):
+            raise SceneError(f"to_uv: expected a 3x3 or 4x4 matrix, got shape {m.shape}")
+        return tuple(float(x) for x in (*m[0], *m[1]))
+    su, sv = np.broadcast_to(np.asarray(1.0 if scale is None else scale, float), (2,))
+    du, dv = np.broadcast_to(np.asarray(0.0 if offset is None else offset, float), (2,))
+    return (float(su), 0.0, float(du), 0.0, float(sv), float(dv))
 
 
 @dataclass
@@ -302,6 +382,62 @@ class SceneBuilder:
     lights: list = dc_field(default_factory=list)     # dicts for point/spot/directional/env
     camera_args: dict | None = None
     bvh: bool | None = None   # BVH over the triangles: None = when >= BVH_MIN_TRIANGLES
+    textures: list = dc_field(default_factory=list)
+    texture_names: dict = dc_field(default_factory=dict)
+    triangle_uvs: list = dc_field(default_factory=list)  # per triangle: [3, 2] or None
+
+    # --- textures ---------------------------------------------------------------------------
+    def texture(self, name: str, kind: str, *, color0=(0.4, 0.4, 0.4), color1=(0.2, 0.2, 0.2),
+                scale=None, offset=None, to_uv=None, filename=None, data=None,
+                raw: bool = False) -> int:
+        """Define texture ``name``; returns its row. A material takes it by name wherever a
+        textured parameter allows (``diffuse``, ``specular``, ``alpha``). Kinds:
+
+        * ``"checkerboard"`` (Mitsuba's): ``color0`` where frac(u) and frac(v) lie on the same
+          side of 1/2, ``color1`` elsewhere (defaults Mitsuba's 0.4 and 0.2).
+        * ``"bitmap"``: an image, ``filename`` (PNG, JPEG or EXR; 8-bit images are decoded from
+          sRGB unless ``raw``, as Mitsuba does) or ``data`` (an [H, W, 3] or [H, W] array, taken
+          as linear), looked up bilinearly with wrap-around (Mitsuba's ``repeat``); row 0 of
+          the image is v = 0.
+
+        Coordinates are first mapped by ``to_uv`` (a 3x3 or 4x4 matrix) or by ``scale`` (one
+        number or (su, vs)) then ``offset``."""
+        if kind not in TEXTURE_KINDS:
+            raise SceneError(f"texture '{name}': unknown type '{kind}'; allowed: "
+                             f"{', '.join(TEXTURE_KINDS)}")
+        if name in self.texture_names:
+            raise SceneError(f"texture '{name}' is defined twice")
+        if to_uv is not None and (scale is not None or offset is not None):
+            raise SceneError(f"texture '{name}': give either to_uv or scale / offset, not both")
+        t = _Texture(TEXTURE_KINDS[kind], to_uv=uv_transform(scale, offset, to_uv))
+        if kind == "checkerboard":
+            if filename is not None or data is not None:
+                raise SceneError(f"texture '{name}' (checkerboard): 'filename' and 'data' do "
+                                 "not apply")
+            t.color0, t.color1 = _rgb(color0), _rgb(color1)
+        else:
+            if (filename is None) == (data is None):
+                raise SceneError(f"texture '{name}' (bitmap): give either filename or data")
+            if filename is not None:
+                try:
+                    img = read_image(filename, raw=raw)
+                except (OSError, ValueError) as e:
+                    raise SceneError(f"texture '{name}' (bitmap): cannot read '{filename}': "
+                                     f"{e}") from None
+            else:
+                img = np.asarray(data, np.float64)
+            if img.ndim == 2:
+                img = np.repeat(img[:, :, None], 3, axis=2)
+            if img.ndim != 3 or img.shape[2] not in (3, 4) or min(img.shape[:2]) < 1:
+                raise SceneError(f"texture '{name}' (bitmap): expected an [H, W, 3] image, got "
+                                 f"shape {img.shape}")
+            img = img[:, :, :3]
+            if not np.all(np.isfinite(img)):
+                raise SceneError(f"texture '{name}' (bitmap): the image has non-finite texels")
+            t.image = np.asarray(img, np.float32)
+        self.texture_names[name] = len(self.textures)
+        self.textures.append(t)
+        return self.texture_names[name]
 
     # --- materials --------------------------------------------------------------------------
     def material(self, name: str, kind: str, *, diffuse=(0.0, 0.0, 0.0),
@@ -359,7 +495,29 @@ class SceneBuilder:
             refuse(int_ior=int_ior, ext_ior=ext_ior)
         if k_ != ROUGH_PLASTIC:
             refuse(nonlinear=nonlinear)
-        m = _Material(k_, _rgb(diffuse), _rgb(specular), float(exponent))
+        # textured parameters: a texture name where a colour (or alpha) is allowed
+        textured = {}
+        allowed = {"diffuse": k_ in (DIFFUSE, PHONG, ROUGH_PLASTIC),
+                   "specular": k_ != DIFFUSE,
+                   "alpha": k_ in (ROUGH_CONDUCTOR, ROUGH_DIELECTRIC)}
+        for key, v in (("diffuse", diffuse), ("specular", specular), ("alpha", alpha)):
+            if not isinstance(v, str):
+                continue
+            if v not in self.texture_names:
+                fail(f"'{key}' names texture '{v}', which is not defined; defined: "
+                     f"{', '.join(self.texture_names) or '(none)'}")
+            if not allowed[key]:
+                fail(f"'{key}' cannot be textured for this type" +
+                     (" (its coating tables are precomputed from one alpha)"
+                      if key == "alpha" and k_ == ROUGH_PLASTIC else ""))
+            textured[TEXTURED_PARAMS[key]] = self.texture_names[v]
+        if isinstance(diffuse, str):
+            diffuse = (0.0, 0.0, 0.0)
+        if isinstance(specular, str):
+            specular = (1.0, 1.0, 1.0)
+        if isinstance(alpha, str):
+            alpha = DEFAULT_ALPHA
+        m = _Material(k_, _rgb(diffuse), _rgb(specular), float(exponent), textures=textured)
         # roughness
         if distribution not in MICROFACET_DISTRIBUTIONS:
             fail(f"unknown distribution '{distribution}'; allowed: "
@@ -474,15 +632,22 @@ class SceneBuilder:
             self.quad(o, xf.apply_vector(to_world, u), xf.apply_vector(to_world, v), material,
                       emission)
 
-    def mesh(self, vertices, faces, material, emission=None, to_world=None):
+    def mesh(self, vertices, faces, material, emission=None, to_world=None, uv=None):
+        """Triangles ``faces`` of ``vertices``; ``uv`` ([V, 2], optional) are the vertices'
+        surface coordinates (without them a triangle's are Mitsuba's (0,0), (1,0), (0,1))."""
         v = np.asarray(vertices, float)
         f = np.asarray(faces, np.int64)
         if to_world is not None:
             v = xf.apply_point(to_world, v)
+        if uv is not None:
+            uv = np.asarray(uv, float)
+            if uv.shape != (len(v), 2):
+                raise SceneError(f"mesh: expected uv of shape ({len(v)}, 2), got {uv.shape}")
         m = self._mat(material)
         e = None if emission is None else _rgb(emission)
-        for a, b, c in v[f]:
+        for i, (a, b, c) in enumerate(v[f]):
             self.triangles.append((a, b, c, m, e))
+            self.triangle_uvs.append(None if uv is None else uv[f[i]])
 
     # --- lights -----------------------------------------------------------------------------
     def point_light(self, position, intensity):
@@ -544,6 +709,14 @@ class SceneBuilder:
                                      normal=n / a if a > 0 else np.zeros(3)))
         elements.extend(self.lights)
         center, radius = self._bounds()
+        materials = self._build_materials()
+        if materials.has_textures:
+            for _, _, _, m in self.boxes:
+                if self.materials[m].textures:
+                    raise SceneError(
+                        f"material '{self._material_name(m)}' is textured and used by a cube: "
+                        "textured cubes are not supported (their per-face uv layout); use six "
+                        "rectangles or a mesh")
         return Scene(
             camera=self._build_camera(),
             spheres=self._build_spheres(sph_emit),
@@ -551,10 +724,16 @@ class SceneBuilder:
             boxes=self._build_boxes(),
             quads=self._build_quads(quad_emit),
             triangles=self._build_triangles(tri_emit),
-            materials=self._build_materials(),
+            materials=materials,
             lights=_build_lights(elements, center, radius),
             name=self.name,
         )
+
+    def _material_name(self, m: int) -> str:
+        return next((k for k, v in self.material_names.items() if v == m), str(m))
+
+    def _textured(self) -> bool:
+        return any(m.textures for m in self.materials)
 
     def _bounds(self):
         pts = []
@@ -646,9 +825,16 @@ class SceneBuilder:
             em.append(emit[i])
         counts = tuple(sum(1 for a, _ in rows if a == k) for k in range(3))
         f32 = lambda x: jnp.asarray(np.asarray(x, np.float32).reshape(-1))
+        uv = {}
+        if self._textured():
+            qs = [self.quads[i] for _, i in rows]
+            o = np.array([q[0] for q in qs]).reshape(-1, 3)
+            du, dv = _duals(np.array([q[1] for q in qs]).reshape(-1, 3),
+                            np.array([q[2] for q in qs]).reshape(-1, 3))
+            uv = dict(origin=_v3(o), dual_u=_v3(du), dual_v=_v3(dv))
         return Rects(f32(plane), f32(lo_a), f32(hi_a), f32(lo_b), f32(hi_b),
                      _v3(np.asarray(nrm).reshape(-1, 3)), jnp.asarray(mat, jnp.int32).reshape(-1),
-                     jnp.asarray(em, jnp.int32).reshape(-1), counts)
+                     jnp.asarray(em, jnp.int32).reshape(-1), counts, **uv)
 
     def _build_boxes(self) -> Boxes:
         n = len(self.boxes)
@@ -683,10 +869,17 @@ class SceneBuilder:
         ln = np.linalg.norm(nrm, axis=1, keepdims=True)
         nrm = np.where(ln > 0, nrm / np.where(ln > 0, ln, 1), 0.0)
         use_bvh = n >= BVH_MIN_TRIANGLES if self.bvh is None else bool(self.bvh) and n > 0
+        uv = None
+        if self._textured():
+            default = np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]])
+            t_uv = np.array([default if x is None else x for x in self.triangle_uvs]
+                            + [default] * (n - len(self.triangle_uvs))).reshape(n, 3, 2)
+            uv = jnp.asarray(np.concatenate([t_uv[:, 0], t_uv[:, 1] - t_uv[:, 0],
+                                             t_uv[:, 2] - t_uv[:, 0]], 1), jnp.float32)
         return Triangles(_v3(a), _v3(e1), _v3(e2), _v3(nrm),
                          jnp.asarray([t[3] for t in self.triangles], jnp.int32),
                          jnp.asarray(emit, jnp.int32),
-                         build_bvh(a, b, c) if use_bvh else None)
+                         build_bvh(a, b, c) if use_bvh else None, uv)
 
     def _build_materials(self) -> Materials:
         ms = self.materials or [_Material(DIFFUSE, (0.5, 0.5, 0.5))]
@@ -706,6 +899,14 @@ class SceneBuilder:
                     cache[key] = plastic_tables(*key)
                 table[i], internal[i] = cache[key]
         f32 = lambda x: jnp.asarray(np.asarray(x, np.float32))  # noqa: E731
+        tex = {}
+        if any(m.textures for m in ms):
+            index = np.full((len(ms), len(TEXTURED_PARAMS)), -1, np.int32)
+            for i, m in enumerate(ms):
+                for col, t in m.textures.items():
+                    index[i, col] = t
+            tex = dict(textures=self._build_textures(), texture=jnp.asarray(index),
+                       textured=tuple(sorted({c for m in ms for c in m.textures})))
         return Materials(
             kind=jnp.asarray([m.kind for m in ms], jnp.int32),
             diffuse=_v3([m.diffuse for m in ms]),
@@ -722,7 +923,36 @@ class SceneBuilder:
             nonlinear=jnp.asarray([m.nonlinear for m in ms], bool),
             kinds=tuple(sorted({m.kind for m in ms})),
             distributions=tuple(sorted({m.distribution for m in ms if m.kind in ROUGH_KINDS})),
+            **tex,
         )
+
+    def _build_textures(self) -> Textures:
+        ts = self.textures
+        offsets, texels, at = [], [], 0
+        for t in ts:
+            offsets.append(at)
+            if t.image is not None:
+                texels.append(t.image.reshape(-1, 3))
+                at += t.image.shape[0] * t.image.shape[1]
+        atlas = np.concatenate(texels) if texels else np.zeros((1, 3), np.float32)
+        size = lambda t, k: 1 if t.image is None else t.image.shape[k]  # noqa: E731
+        return Textures(
+            kind=jnp.asarray([t.kind for t in ts], jnp.int32),
+            color0=_v3([t.color0 for t in ts]), color1=_v3([t.color1 for t in ts]),
+            to_uv=jnp.asarray(np.asarray([t.to_uv for t in ts], np.float32).reshape(-1, 6)),
+            offset=jnp.asarray(offsets, jnp.int32),
+            width=jnp.asarray([size(t, 1) for t in ts], jnp.int32),
+            height=jnp.asarray([size(t, 0) for t in ts], jnp.int32),
+            atlas=jnp.asarray(atlas, jnp.float32),
+            kinds=tuple(sorted({t.kind for t in ts})))
+
+
+def _duals(u: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Rows with dual_u . u = 1, dual_u . v = 0 (and vice versa) in each parallelogram's plane."""
+    n = np.cross(u, v)
+    n2 = np.sum(n * n, 1, keepdims=True)
+    inv = np.where(n2 > 0, 1.0 / np.where(n2 > 0, n2, 1.0), 0.0)
+    return np.cross(v, n) * inv, np.cross(n, u) * inv
 
 
 def _rgb(v) -> tuple:

@@ -40,7 +40,7 @@ from .data import (
     SceneError,
 )
 from .importers import load_mitsuba_xml, load_pbrt
-from .importers._common import load_mesh
+from .importers._common import has_texture_coordinates, load_mesh
 
 
 class SceneWarning(UserWarning):
@@ -51,7 +51,7 @@ class SceneWarning(UserWarning):
 # Schema: key -> value kind, per table and per type
 # ------------------------------------------------------------------------------------------------
 
-TOP_KEYS = ("name", "camera", "material", "shape", "light")
+TOP_KEYS = ("name", "camera", "texture", "material", "shape", "light")
 
 CAMERA_KEYS = {"position": "vec3", "look_at": "vec3", "up": "vec3", "fov": "number",
                "fov_axis": "str", "width": "int", "height": "int"}
@@ -60,20 +60,28 @@ FOV_AXES = ("x", "y", "smaller")
 
 # Each material type accepts only the parameters its BSDF uses (a key another type uses is a
 # likely mistake, e.g. `ior` on a mirror). Defaults are filled in by `_material`.
-_ROUGH = {"alpha": "number", "alpha_u": "number", "alpha_v": "number", "distribution": "str"}
-_METAL = {"metal": "str", "eta": "rgb", "k": "rgb", "specular": "rgb"}
+# "rgb|texture" and "number|texture": a value, or the name of a [[texture]].
+_ROUGH = {"alpha": "number|texture", "alpha_u": "number", "alpha_v": "number",
+          "distribution": "str"}
+_METAL = {"metal": "str", "eta": "rgb", "k": "rgb", "specular": "rgb|texture"}
 _IOR = {"ior": "number", "int_ior": "number", "ext_ior": "number"}
 MATERIAL_KEYS = {
-    "diffuse": {"diffuse": "rgb"},
-    "mirror": {"specular": "rgb"},
-    "dielectric": {**_IOR, "specular": "rgb"},
-    "phong": {"diffuse": "rgb", "specular": "rgb", "exponent": "number"},
+    "diffuse": {"diffuse": "rgb|texture"},
+    "mirror": {"specular": "rgb|texture"},
+    "dielectric": {**_IOR, "specular": "rgb|texture"},
+    "phong": {"diffuse": "rgb|texture", "specular": "rgb|texture", "exponent": "number"},
     "conductor": _METAL,
     "roughconductor": {**_METAL, **_ROUGH},
-    "roughdielectric": {**_IOR, "specular": "rgb", **_ROUGH},
-    "roughplastic": {"diffuse": "rgb", "specular": "rgb", **_IOR, "nonlinear": "bool",
-                     "alpha": "number", "distribution": "str"},
+    "roughdielectric": {**_IOR, "specular": "rgb|texture", **_ROUGH},
+    "roughplastic": {"diffuse": "rgb|texture", "specular": "rgb|texture", **_IOR,
+                     "nonlinear": "bool", "alpha": "number", "distribution": "str"},
 }
+# [[texture]] tables: Mitsuba's checkerboard and bitmap (SceneBuilder.texture).
+TEXTURE_KEYS = {
+    "checkerboard": {"color0": "rgb", "color1": "rgb"},
+    "bitmap": {"filename": "str", "raw": "bool"},
+}
+TEXTURE_COMMON = {"name": "str", "type": "str", "scale": "uv", "offset": "uv"}
 MATERIAL_REQUIRED = {"phong": ("specular", "exponent")}
 # Defaults that differ from the builder's (SceneBuilder.material documents the others: ior,
 # int_ior, ext_ior, alpha 0.1, distribution "ggx", metal "none", nonlinear false).
@@ -226,6 +234,21 @@ class _TomlLoader:
             if not isinstance(v, str):
                 self.fail(key, f"expected a string, {got}")
             return v
+        if kind.endswith("|texture"):
+            if isinstance(v, str):   # a texture's name (checked by the material)
+                return v
+            try:
+                return self.value(key, v, kind.split("|")[0])
+            except SceneError:
+                what = "3 numbers [r, g, b] or one number" if kind.startswith("rgb") else "a number"
+                self.fail(key, f"expected {what}, or a texture's name (a string), {got}")
+        if kind == "uv":
+            if _is_number(v):
+                v = [v, v]
+            if (not isinstance(v, list) or len(v) != 2 or not all(_is_number(x) for x in v)
+                    or not all(math.isfinite(x) for x in v)):
+                self.fail(key, f"expected one number or 2 numbers [u, v], {got}")
+            return np.asarray(v, float)
         if kind == "int":
             if isinstance(v, bool) or not isinstance(v, int):
                 self.fail(key, f"expected an integer, {got}")
@@ -374,6 +397,8 @@ class _TomlLoader:
             self.fail("camera", "missing: a scene needs a [camera] table with at least "
                                 "position and look_at")
         self.camera(b, doc["camera"])
+        for i, t in enumerate(self.array_of_tables(doc, "texture")):
+            self.texture(b, f"texture[{i}]", t)
         for i, m in enumerate(self.array_of_tables(doc, "material")):
             self.material(b, f"material[{i}]", m)
         for i, s in enumerate(self.array_of_tables(doc, "shape")):
@@ -410,6 +435,26 @@ class _TomlLoader:
                 self.fail(f"camera.{k}", f"must be a positive number of pixels, got {v}")
         b.camera(pos, look, up=up, fov=fov, width=w, height=h, fov_axis=axis)
 
+    def texture(self, b: SceneBuilder, key: str, t):
+        kind = self.type_of(key, t, tuple(TEXTURE_KEYS))
+        tt = self.table(key, t, {**TEXTURE_COMMON, **TEXTURE_KEYS[kind]},
+                        ("name", "type") + (("filename",) if kind == "bitmap" else ()),
+                        f" for a {kind} texture")
+        if tt["name"] in b.texture_names:
+            self.fail(f"{key}.name", f"texture '{tt['name']}' is defined twice; names must be "
+                                     "unique")
+        args = {k: tt[k] for k in ("scale", "offset", "color0", "color1", "raw") if k in tt}
+        if kind == "bitmap":
+            path = (self.path.parent / tt["filename"]).resolve()
+            if not path.is_file():
+                self.fail(f"{key}.filename", f"file '{path}' does not exist; allowed: a PNG, "
+                                             "JPEG or EXR image (relative to the scene file)")
+            args["filename"] = path
+        try:
+            b.texture(tt["name"], kind, **args)
+        except SceneError as e:
+            self.fail(key, str(e))
+
     def material(self, b: SceneBuilder, key: str, m):
         if isinstance(m, dict) and m.get("type") in MATERIAL_ALTERNATIVES:
             self.fail(f"{key}.type", f"{MATERIAL_ALTERNATIVES[m['type']]}; allowed: "
@@ -423,11 +468,21 @@ class _TomlLoader:
                                      "unique")
         p = {k: mm.get(k, d) for k, d in MATERIAL_DEFAULTS.get(kind, {}).items()}
         p.update({k: mm[k] for k in MATERIAL_KEYS[kind] if k in mm})
+        for k, v in mm.items():
+            if k in MATERIAL_KEYS[kind] and MATERIAL_KEYS[kind][k].endswith("|texture") \
+                    and isinstance(v, str):
+                if v not in b.texture_names:
+                    self.fail(f"{key}.{k}", f"unknown texture '{v}'; defined: "
+                                            f"{', '.join(b.texture_names) or '(none)'}")
+        textured = {k for k, v in mm.items() if k != "name" and k != "type" and isinstance(v, str)
+                    and MATERIAL_KEYS[kind][k].endswith("|texture")}
+        mm = {k: v for k, v in mm.items() if k not in textured}   # the checks below: values only
         # Reflectances above 1 create energy; the estimators' variance would then diverge.
         for k in ("diffuse", "specular"):
             if k in mm and np.any(mm[k] > 1):
                 self.fail(f"{key}.{k}", f"reflectance must be in [0, 1], got {mm[k].tolist()}")
-        if kind == "phong" and np.any(np.broadcast_to(p["diffuse"], 3) + mm["specular"] > 1):
+        if kind == "phong" and not textured and np.any(np.broadcast_to(p["diffuse"], 3)
+                                                       + mm["specular"] > 1):
             self.fail(f"{key}.specular", "diffuse + specular must be <= 1 in every channel "
                                          "(energy conservation of the modified Phong BSDF)")
         if "exponent" in mm and mm["exponent"] < 0:
@@ -449,7 +504,7 @@ class _TomlLoader:
                       "the coating's inside and outside indices are equal (no interface); "
                       "allowed: ior != 1, int_ior != ext_ior")
         try:
-            b.material(mm["name"], kind, **p)
+            b.material(mm["name"], kind, **p)   # p keeps the texture names
         except SceneError as e:  # the checks above should catch everything; a safety net
             self.fail(key, str(e))
 
@@ -523,6 +578,11 @@ class _TomlLoader:
             b.cube(m, mat, e)
         else:
             v, f = self.mesh(f"{key}.file", t["file"])
+            if b.materials[b.material_names[mat]].textures and has_texture_coordinates(
+                    (self.path.parent / t["file"]).resolve()):
+                self.fail(f"{key}.material", f"'{mat}' is textured and the mesh file has "
+                                             "texture coordinates, which jgi does not read from "
+                                             "files yet; allowed: an untextured material")
             b.mesh(v, f, mat, e, to_world=m)
 
     def mesh(self, key: str, name: str):

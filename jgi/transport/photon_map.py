@@ -198,37 +198,41 @@ def knn_radius2(gathered: Gathered, k: int, r_max):
 
 # --- radiance estimates at surface points --------------------------------------------------------
 
-def diffuse_reflectance(scene: Scene, m) -> V3:
-    """k_d of material rows m: the diffuse part of the BSDF that photon estimates use."""
+def diffuse_reflectance(scene: Scene, m, uv=None) -> V3:
+    """k_d of material rows m (at surface coordinates uv, in a scene with textures): the
+    diffuse part of the BSDF that photon estimates use."""
+    if scene.materials.has_textures:
+        return B.lookup(scene.materials, m, uv).kd
     kd = scene.materials.diffuse
     return V3(kd.x[m], kd.y[m], kd.z[m])
 
 
-def photon_reflectance(scene: Scene, material, n: V3, wo: V3, wi: V3) -> V3:
+def photon_reflectance(scene: Scene, material, n: V3, wo: V3, wi: V3, uv=None) -> V3:
     """f_r(x, w_p, w) of the estimate for candidate photons arriving from ``wi`` ([N, C]) at
     points with material rows ``material``, normal n and outgoing direction wo ([N]): k_d / pi
     on diffuse and Phong surfaces (the diffuse part alone), the whole BSDF on microfacet
     surfaces (:func:`jgi.transport.subpath.is_lookup_surface`). [N, 1] columns when the scene
     has no microfacet material."""
-    kd = diffuse_reflectance(scene, material)
+    kd = diffuse_reflectance(scene, material, uv)
     f = V3(*(c[:, None] / jnp.pi for c in kd))
     mats = scene.materials
     if not has_rough(mats.kinds):
         return f
     col = lambda v: V3(*(c[:, None] for c in v))  # noqa: E731
-    mp = B.lookup(mats, jnp.broadcast_to(material[:, None], wi.x.shape))
+    mp = B.lookup(mats, jnp.broadcast_to(material[:, None], wi.x.shape),
+                  None if uv is None else tuple(c[:, None] for c in uv))
     f_rough, _ = B.evaluate(mats.kinds, mp, col(n), col(wo), wi)
     return where(B.is_rough(mp), f_rough, V3(*(jnp.broadcast_to(c, wi.x.shape) for c in f)))
 
 
 @partial(jax.jit, static_argnames=("cap", "k", "kind", "thickness"))
 def radiance_estimate(scene: Scene, grid: HashGrid, x: V3, n: V3, wo: V3, material, r, cap: int,
-                      k: int, kind: str, thickness, filter_params):
+                      k: int, kind: str, thickness, filter_params, uv=None):
     """L_r at points x (outgoing direction wo) from a photon grid: radius r, or (k > 0) the k
     nearest within r."""
     g = gather(grid, x, n, cap, thickness)
     r2 = knn_radius2(g, k, r) if k > 0 else jnp.broadcast_to(r * r, x.x.shape)
-    f = photon_reflectance(scene, material, n, wo, g.wi)
+    f = photon_reflectance(scene, material, n, wo, g.wi, uv)
     L, count = estimate(g, r2, f, kind, **filter_params)
     return L, count, g.truncated
 
@@ -240,9 +244,11 @@ def warn_truncated(trunc, cap, r):
                       stacklevel=3)
 
 
-def estimate_at_points(scene, grid, x, n, wo, m, r, *, cap, k, kind, thickness, filter_params):
-    """:func:`radiance_estimate` at any number of points (host arrays in, numpy [3, N] out),
-    in padded chunks of one compiled size; warns if grid cells were truncated."""
+def estimate_at_points(scene, grid, x, n, wo, m, r, *, cap, k, kind, thickness, filter_params,
+                       uv=None):
+    """:func:`radiance_estimate` at any number of points (host arrays in, numpy [3, N] out;
+    ``uv`` their surface coordinates in a scene with textures), in padded chunks of one compiled
+    size; warns if grid cells were truncated."""
     out, trunc = [], False
     N = x.x.shape[0]
     cap = cap or auto_cap(grid)
@@ -254,7 +260,9 @@ def estimate_at_points(scene, grid, x, n, wo, m, r, *, cap, k, kind, thickness, 
         padv = lambda v: V3(*(jnp.pad(c, (0, pad), mode="edge") for c in v))
         L, _, t = radiance_estimate(scene, grid, padv(xs), padv(ns), padv(wos),
                                     jnp.pad(m[sl], (0, pad), mode="edge"),
-                                    jnp.float32(r), cap, k, kind, thickness, filter_params)
+                                    jnp.float32(r), cap, k, kind, thickness, filter_params,
+                                    None if uv is None else
+                                    tuple(jnp.pad(c[sl], (0, pad), mode="edge") for c in uv))
         out.append(np.stack([np.asarray(c)[: chunk - pad] for c in L]))
         trunc |= bool(np.any(np.asarray(t)[: chunk - pad]))
     warn_truncated(trunc, cap, r)

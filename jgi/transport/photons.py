@@ -82,7 +82,7 @@ def trace_photon_paths(scene: Scene, seed, photon_index: Array, n_emitted, max_d
         o, d, pw, alive, spec_seen, only_spec = state
         hit = G.intersect(scene, o, d)
         alive = alive & hit.valid
-        mp = B.lookup(mats, hit.material)
+        mp = B.lookup(mats, hit.material, hit.uv)
         store = alive & is_lookup_surface(mp)
         # caustic: L S+ D with S what Jensen's split samples through (Dirac and microfacet
         # lobes) and D a diffuse or Phong surface, where its camera chains end

@@ -98,6 +98,13 @@ class Vertices(NamedTuple):
     valid: Array
     material: Array
     emitter: Array    # light element at this surface, -1 if none
+    uv: tuple | None = None  # surface coordinates (u, v), in scenes with textures (else None)
+
+
+def no_uv(scene: Scene, like: Array) -> tuple | None:
+    """The uv of a vertex that is not on a textured surface (camera, light, no hit yet): zeros
+    in a scene with textures, None in one without."""
+    return (jnp.zeros_like(like), jnp.zeros_like(like)) if scene.materials.has_textures else None
 
 
 def concat_rows(a, b):
@@ -170,7 +177,7 @@ def random_walk(scene: Scene, key: Array, dim0: int, dims_per_step: int, n_steps
         v = hit.p - s.prev_p
         d2 = dot(v, v)
         pdf_fwd = jnp.where(valid, convert_density(s.pdf_dir, d2, dot(hit.n, s.d), True), 0.0)
-        mp = B.lookup_specialised(mats, hit.material)
+        mp = B.lookup_specialised(mats, hit.material, hit.uv)
         wo = -s.d
         delta = B.is_delta(mp)
         extra = visit(Visit(j, hit, mp, wo, s, valid, d2, u)) if visit is not None else None
@@ -181,7 +188,7 @@ def random_walk(scene: Scene, key: Array, dim0: int, dims_per_step: int, n_steps
                                  convert_density(pdf_back, d2, dot(s.prev_n, s.d), s.prev_surface),
                                  0.0)
         vert = Vertices(hit.p, hit.n, wo, s.beta, pdf_fwd, pdf_rev_prev, delta, valid, valid,
-                        hit.material, jnp.where(valid, hit.emitter, -1))
+                        hit.material, jnp.where(valid, hit.emitter, -1), hit.uv)
         beta = s.beta * bs.weight
         alive = valid & bs.valid & (max_component(beta) > 0)
         nxt = WalkState(G.offset_origin(hit.p, hit.n, bs.wi), bs.wi, beta,
@@ -274,7 +281,7 @@ def light_subpath(scene: Scene, key: Array, max_depth: int, infinite: bool = Fal
     delta_light = em.delta_pos | em.delta_dir
     le = LT.emitted(lights, jnp.where(on_surface, em.element, -1), em.n, em.d)
     v0 = Vertices(em.p, em.n, V3(z, z, z), le, em.pdf_pos, z, z > 0, on_surface, ok,
-                  jnp.zeros_like(em.element), em.element)
+                  jnp.zeros_like(em.element), em.element, no_uv(scene, z))
     v0 = jax.tree_util.tree_map(lambda x: x[None], v0)
     if max_depth <= 1:
         return LightPath(v0, delta_light, em.element)
@@ -338,7 +345,7 @@ def connect_camera(scene: Scene, q: Vertices) -> CameraConnection:
     kinds = scene.materials.kinds
     proj = C.project(cam, q.p)
     w = proj.wi                                  # from q towards the pinhole
-    mp = B.lookup_specialised(scene.materials, q.material)
+    mp = B.lookup_specialised(scene.materials, q.material, q.uv)
     f, _ = B.evaluate(kinds, mp, q.n, q.wo, w, mode=B.IMPORTANCE)   # a light vertex
     _, pdf_q_rev = B.evaluate(kinds, mp, q.n, w, q.wo)
     cos_q = jnp.abs(dot(q.n, w))
@@ -414,6 +421,7 @@ class DiffuseVertex(NamedTuple):
     wo: V3           # direction back along the path
     material: Array
     found: Array     # bool: the chain ended on a non-specular surface
+    uv: tuple | None = None  # its surface coordinates, in scenes with textures (else None)
 
 
 def trace_to_diffuse(scene: Scene, uniform, o: V3, d: V3, *, max_depth: int,
@@ -442,7 +450,7 @@ def trace_to_diffuse(scene: Scene, uniform, o: V3, d: V3, *, max_depth: int,
             if lights.environment >= 0:
                 L = L + where(active & ~hit.valid, beta * LT.environment_radiance(lights, z), Z)
         active = active & hit.valid
-        mp = B.lookup(mats, hit.material)
+        mp = B.lookup(mats, hit.material, hit.uv)
         specular = samples_through(mp, lookup_rough)
         diffuse_end = active & ~specular
         # ---- direct light at the first non-specular surface ----
@@ -455,7 +463,9 @@ def trace_to_diffuse(scene: Scene, uniform, o: V3, d: V3, *, max_depth: int,
                 L = L + where(~G.occluded(scene, *ne.shadow), value, Z)
         v = DiffuseVertex(v.L, where(diffuse_end, beta, v.beta), where(diffuse_end, hit.p, v.p),
                           where(diffuse_end, hit.n, v.n), where(diffuse_end, wo, v.wo),
-                          jnp.where(diffuse_end, hit.material, v.material), v.found | diffuse_end)
+                          jnp.where(diffuse_end, hit.material, v.material), v.found | diffuse_end,
+                          None if v.uv is None else
+                          tuple(jnp.where(diffuse_end, a, b) for a, b in zip(hit.uv, v.uv)))
         # ---- follow the specular (or glossy) chain ----
         u1, u2 = ((uniform(glossy_dim0 + 2 * depth), uniform(glossy_dim0 + 2 * depth + 1))
                   if rough else (z, z))
@@ -464,7 +474,8 @@ def trace_to_diffuse(scene: Scene, uniform, o: V3, d: V3, *, max_depth: int,
         return (G.offset_origin(hit.p, hit.n, bs.wi), bs.wi, beta * bs.weight, L, active, v)
 
     one = jnp.ones_like(z)
-    v0 = DiffuseVertex(Z, Z, o, V3(z, z, one), V3(z, z, one), jnp.zeros_like(z, jnp.int32), z > 0)
+    v0 = DiffuseVertex(Z, Z, o, V3(z, z, one), V3(z, z, one), jnp.zeros_like(z, jnp.int32), z > 0,
+                       no_uv(scene, z))
     state = (o, d, V3(one, one, one), Z, z == 0, v0)
     _, _, _, L, _, v = jax.lax.fori_loop(0, max_depth, step, state)
     return v._replace(L=L)

@@ -21,8 +21,12 @@ from ...scene.data import (
     ROUGH_DIELECTRIC,
     ROUGH_KINDS,
     ROUGH_PLASTIC,
+    TEX_ALPHA,
+    TEX_DIFFUSE,
+    TEX_SPECULAR,
     Materials,
 )
+from .. import textures as T
 
 # Transport modes: camera paths carry radiance, light paths importance (Veach 1997, 5.2).
 RADIANCE, IMPORTANCE = 0, 1
@@ -65,17 +69,45 @@ class BSDFSample(NamedTuple):
     valid: Array   # False if the sample was absorbed / fell below the surface
 
 
-def lookup(mats: Materials, m: Array) -> MaterialParams:
+def lookup(mats: Materials, m: Array, uv=None) -> MaterialParams:
     """Rows ``m`` (any index array) of the material table (the roughplastic table whole: the
-    BSDF reads two entries of row ``m`` per lane)."""
+    BSDF reads two entries of row ``m`` per lane), its textured parameters evaluated at the
+    surface coordinates ``uv`` (u, v) of each lane (needed, and only read, when the scene has
+    textures: :func:`textured`)."""
     row3 = lambda v: V3(v.x[m], v.y[m], v.z[m])  # noqa: E731
-    return MaterialParams(mats.kind[m], row3(mats.diffuse), row3(mats.specular),
+    return textured(mats, m, uv, MaterialParams(mats.kind[m], row3(mats.diffuse), row3(mats.specular),
                           mats.exponent[m], mats.ior[m], mats.alpha_u[m], mats.alpha_v[m],
                           mats.distribution[m], row3(mats.eta), row3(mats.k), m,
-                          mats.transmittance, mats.internal_reflectance[m], mats.nonlinear[m])
+                          mats.transmittance, mats.internal_reflectance[m], mats.nonlinear[m]))
 
 
-def lookup_specialised(mats: Materials, m: Array) -> MaterialParams:
+def textured(mats: Materials, m: Array, uv, mp: MaterialParams) -> MaterialParams:
+    """``mp`` (rows ``m``) with its textured parameters (diffuse and specular reflectance,
+    isotropic roughness) evaluated at ``uv`` where the row names a texture. The one place
+    textures enter the BSDFs; a scene without textures returns ``mp`` unchanged (its kernels
+    are those of jgi before textures)."""
+    if not mats.has_textures:
+        return mp
+    if uv is None:
+        raise ValueError("the scene has textures: material lookups need the surface coordinates "
+                         "(uv) of each point")
+    tex, index, cols = mats.textures, mats.texture, mats.textured
+    u, v = (jnp.broadcast_to(c, m.shape) for c in uv)
+    kd, ks, au, av = mp.kd, mp.ks, mp.alpha_u, mp.alpha_v
+    if TEX_DIFFUSE in cols:
+        kd = T.textured(tex, index[m, TEX_DIFFUSE], (u, v), V3(*(jnp.broadcast_to(c, m.shape)
+                                                                   for c in kd)))
+    if TEX_SPECULAR in cols:
+        ks = T.textured(tex, index[m, TEX_SPECULAR], (u, v), V3(*(jnp.broadcast_to(c, m.shape)
+                                                                  for c in ks)))
+    if TEX_ALPHA in cols:
+        i = index[m, TEX_ALPHA]
+        au = T.textured_scalar(tex, i, (u, v), jnp.broadcast_to(au, m.shape))
+        av = jnp.where(i >= 0, au, av)
+    return mp._replace(kd=kd, ks=ks, alpha_u=au, alpha_v=av)
+
+
+def lookup_specialised(mats: Materials, m: Array, uv=None) -> MaterialParams:
     """:func:`lookup` for inner loops, specialised to the kinds the scene uses (``mats.kinds``):
     small material tables are read with selects instead of gathers (see jgi._xla.take), a kind
     that is the only one present is a constant, and the parameters no present kind reads are
@@ -103,12 +135,12 @@ def lookup_specialised(mats: Materials, m: Array) -> MaterialParams:
     eta = col3(mats.eta) if conductor else zero3
     k = col3(mats.k) if conductor else zero3
     plastic = ROUGH_PLASTIC in kinds
-    return MaterialParams(
+    return textured(mats, m, uv, MaterialParams(
         kind, kd, ks, exponent, ior, alpha_u, alpha_v, distribution, eta, k,
         m if plastic else jnp.zeros(m.shape, jnp.int32),
         mats.transmittance if plastic else np.ones((1, 64), np.float32),
         take(mats.internal_reflectance, m) if plastic else zero,
-        take(mats.nonlinear, m) if plastic else zero > 0)
+        take(mats.nonlinear, m) if plastic else zero > 0))
 
 
 def is_delta(mp: MaterialParams) -> Array:

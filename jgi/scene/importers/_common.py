@@ -67,9 +67,10 @@ class ImportError_(SceneError):
     """An unsupported or malformed construct in an imported scene file."""
 
 
-def load_mesh(path: Path, where: str, allow_vertex_normals: bool):
+def load_mesh(path: Path, where: str, allow_vertex_normals: bool, with_uv: bool = False):
     """Vertices and faces of an OBJ/PLY file via trimesh. jgi shades with geometric normals, so
-    a file carrying vertex normals is refused unless the caller allows flat shading."""
+    a file carrying vertex normals is refused unless the caller allows flat shading. With
+    ``with_uv``, also the vertices' texture coordinates (trimesh's, [V, 2]) or None."""
 
     if not path.is_file():
         raise ImportError_(f"{where}: mesh file '{path}' does not exist")
@@ -84,5 +85,9 @@ def load_mesh(path: Path, where: str, allow_vertex_normals: bool):
     v, f = np.asarray(mesh.vertices, float), np.asarray(mesh.faces, np.int64)
     if len(f) == 0:
         raise ImportError_(f"{where}: mesh '{path}' has no faces")
-    return v, f
+    if not with_uv:
+        return v, f
+    uv = getattr(mesh.visual, "uv", None)
+    uv = None if uv is None or len(uv) != len(v) else np.asarray(uv, float)
+    return v, f, uv
 

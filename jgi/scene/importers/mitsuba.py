@@ -25,7 +25,16 @@ supported):
              int_ior bk7 (1.5046), roughplastic diffuse_reflectance 0.5, int_ior polypropylene
              (1.49), nonlinear false, ext_ior air (1.000277). Unknown parameters are refused
              (Mitsuba refuses unreferenced properties too). Refused: plastic (smooth; use
-             roughplastic), every texture (bitmap, checkerboard, ...), and the other plugins.
+             roughplastic), and the other plugins.
+  texture    bitmap (filename: PNG, JPEG or EXR; filter_type bilinear; wrap_mode repeat; raw;
+             to_uv) and checkerboard (color0, color1, to_uv), nested or at the top level with an
+             id and a <ref name=...>, for diffuse's reflectance, roughplastic's
+             diffuse_reflectance, the specular_reflectance of conductors and roughplastic, and
+             the alpha of roughconductor (not alpha_u / alpha_v, not roughplastic's alpha).
+             Other filters and wrap modes are refused. Textured spheres must not be rotated.
+             Textured OBJ meshes take the file's texture coordinates (v flipped, as Mitsuba's
+             OBJ loader does), or Mitsuba's (0,0), (1,0), (0,1) per triangle without them;
+             textured PLY meshes with texture coordinates are refused.
   shape      rectangle, cube, sphere (center/radius or a uniform-scale to_world), obj, ply
              (only with face_normals="true": otherwise Mitsuba shades with vertex normals, read
              from the file or computed, and jgi shades flat)
@@ -50,7 +59,7 @@ from pathlib import Path
 import numpy as np
 
 from ...core import transform as xf
-from ..data import Scene, SceneBuilder
+from ..data import Scene, SceneBuilder, SceneError
 from ._common import (
     NAMED_IOR,
     ImportError_,
@@ -84,6 +93,15 @@ BSDF_PARAMETERS = {
     "twosided": (),
 }
 DISTRIBUTIONS = ("beckmann", "ggx")
+# Texture plugins and their parameters (Mitsuba's names).
+TEXTURE_PARAMETERS = {
+    "bitmap": ("filename", "filter_type", "wrap_mode", "raw", "to_uv"),
+    "checkerboard": ("color0", "color1", "to_uv"),
+}
+
+
+class TextureRef(str):
+    """A parameter given as a <texture> or a <ref> to one: the texture's name in the builder."""
 MIN_ALPHA = 1e-4   # Mitsuba's MicrofacetDistribution clamps alpha_u, alpha_v to at least this
 # Plugins refused with a pointer to what jgi has instead.
 ALTERNATIVES = {
@@ -191,10 +209,51 @@ class _Importer:
             elif c.tag == "transform":
                 out[name] = self.transform(c)
             elif c.tag == "texture":
-                self.fail(c, f"texture plugin '{c.get('type')}' (parameter '{name}'): textures "
-                             "are not supported by jgi; give a constant <rgb>, <float> or "
-                             "<spectrum>")
+                out[name] = TextureRef(self.texture(c))
+            elif c.tag == "ref" and name and c.get("id") in self.b.texture_names:
+                out[name] = TextureRef(c.get("id"))
         return out
+
+    def texture(self, el) -> str:
+        """Register a <texture> (bitmap or checkerboard), return its name in the builder.
+        Supported as Mitsuba defines them: bitmap (filename, filter_type bilinear, wrap_mode
+        repeat, raw, to_uv), checkerboard (color0, color1, to_uv)."""
+        kind = el.get("type")
+        if kind not in TEXTURE_PARAMETERS:
+            self.fail(el, f"texture plugin '{kind}' is not supported by jgi; supported texture "
+                          f"plugins: {', '.join(TEXTURE_PARAMETERS)}")
+        p = self.props(el)
+        for key, v in p.items():
+            if key not in TEXTURE_PARAMETERS[kind]:
+                self.fail(el, f"texture '{kind}': unknown parameter '{key}'; {kind} takes: "
+                              f"{', '.join(TEXTURE_PARAMETERS[kind])}")
+            if isinstance(v, TextureRef):
+                self.fail(el, f"texture '{kind}': parameter '{key}' cannot be a texture")
+        name = el.get("id") or f"_texture{self.n_anon}"
+        self.n_anon += 1
+        to_uv = p.get("to_uv")
+        try:
+            if kind == "checkerboard":
+                self.b.texture(name, "checkerboard", to_uv=to_uv,
+                               color0=self.rgb(el, p, "color0", 0.4),
+                               color1=self.rgb(el, p, "color1", 0.2))
+            else:
+                for key, allowed in (("filter_type", ("bilinear",)), ("wrap_mode", ("repeat",))):
+                    v = p.get(key, allowed[0])
+                    if v not in allowed:
+                        self.fail(el, f"bitmap: {key} '{v}' is not supported; jgi supports "
+                                      f"{', '.join(allowed)} (Mitsuba's default)")
+                fname = p.get("filename")
+                if not isinstance(fname, str):
+                    self.fail(el, "bitmap: needs a <string name=\"filename\">")
+                raw = p.get("raw", False)
+                if not isinstance(raw, bool):
+                    self.fail(el, "bitmap: 'raw' must be a <boolean>")
+                self.b.texture(name, "bitmap", to_uv=to_uv, raw=raw,
+                               filename=self.file_of(el).parent / fname)
+        except SceneError as e:
+            self.fail(el, str(e))
+        return name
 
     def transform(self, el) -> np.ndarray:
         m = np.eye(4)
@@ -239,9 +298,9 @@ class _Importer:
         kind = self.check_type(el)
         p = self.props(el)
         for c in el:
-            if c.tag == "ref" and c.get("name"):
+            if c.tag == "ref" and c.get("name") and c.get("id") not in self.b.texture_names:
                 self.fail(c, f"bsdf '{kind}': parameter '{c.get('name')}' refers to "
-                             f"'{c.get('id')}'; jgi takes only constant values (no textures)")
+                             f"'{c.get('id')}', which is not a texture defined before it")
         for key in p:
             if key not in BSDF_PARAMETERS[kind]:
                 self.fail(el, f"bsdf '{kind}': unknown parameter '{key}'; {kind} takes: "
@@ -259,7 +318,8 @@ class _Importer:
             self.b.material_names[name] = self.b.material_names[inner_name]
             return name
         if kind == "diffuse":
-            self.b.material(name, "diffuse", diffuse=self.rgb(el, p, "reflectance", 0.5))
+            self.b.material(name, "diffuse",
+                            diffuse=self.rgb(el, p, "reflectance", 0.5, texture=True))
         elif kind in ("conductor", "roughconductor"):
             self.conductor(el, name, kind, p)
         elif kind in ("dielectric", "roughdielectric"):
@@ -287,8 +347,8 @@ class _Importer:
             if not isinstance(nonlinear, bool):
                 self.fail(el, f"{kind}: 'nonlinear' must be a <boolean>")
             self.b.material(name, "roughplastic",
-                            diffuse=self.rgb(el, p, "diffuse_reflectance", 0.5),
-                            specular=self.rgb(el, p, "specular_reflectance", 1.0),
+                            diffuse=self.rgb(el, p, "diffuse_reflectance", 0.5, texture=True),
+                            specular=self.rgb(el, p, "specular_reflectance", 1.0, texture=True),
                             int_ior=int_ior, ext_ior=ext_ior, nonlinear=nonlinear,
                             **self.roughness(el, kind, p, anisotropic=False))
         if "alpha_u" in p and p["alpha_u"] != p["alpha_v"]:
@@ -302,7 +362,7 @@ class _Importer:
         material = p.get("material", "none")
         if not isinstance(material, str):
             self.fail(el, f"{kind}: 'material' must be a <string>")
-        spec = self.rgb(el, p, "specular_reflectance", 1.0)
+        spec = self.rgb(el, p, "specular_reflectance", 1.0, texture=True)
         rough = self.roughness(el, kind, p) if kind == "roughconductor" else {}
         jgi_kind = "conductor" if kind == "conductor" else "roughconductor"
         if material != "none":
@@ -341,6 +401,12 @@ class _Importer:
         keys = ("alpha_u", "alpha_v") if has_uv else ("alpha",)
         for key in keys:
             a = p.get(key, 0.1)
+            if isinstance(a, TextureRef) and key == "alpha" and kind != "roughplastic":
+                out[key] = str(a)   # a textured roughness (Mitsuba clamps it to 1e-4 too)
+                continue
+            if isinstance(a, TextureRef):
+                self.fail(el, f"{kind}: '{key}' cannot be textured in jgi (only alpha of "
+                              "roughconductor and roughdielectric)")
             if isinstance(a, (str, bool, np.ndarray)):
                 self.fail(el, f"{kind}: '{key}' must be a <float>")
             if not a >= 0:
@@ -362,9 +428,15 @@ class _Importer:
             self.fail(el, f"{el.get('type')}: {key} must be > 0, got {v}")
         return float(v)
 
-    def rgb(self, el, p: dict, key: str, default: float) -> np.ndarray:
-        """A colour parameter given as <rgb>, <float> or a constant <spectrum>."""
+    def rgb(self, el, p: dict, key: str, default: float, texture: bool = False):
+        """A colour parameter given as <rgb>, <float> or a constant <spectrum>; with
+        ``texture``, a <texture> (or a <ref> to one) too, returned as its name."""
         v = p.get(key, default)
+        if isinstance(v, TextureRef):
+            if not texture:
+                self.fail(el, f"{el.get('type')}: '{key}' cannot be textured in jgi; give an "
+                              "<rgb>, <float> or <spectrum>")
+            return str(v)
         if isinstance(v, (str, bool)):
             self.fail(el, f"{el.get('type')}: '{key}' must be an <rgb>, <float> or <spectrum>")
         return np.broadcast_to(np.asarray(v, float), (3,)).copy()
@@ -405,6 +477,10 @@ class _Importer:
             if not np.allclose(scales, scales[0], rtol=1e-6) or not np.allclose(
                     cols.T @ cols, np.diag(scales**2), atol=1e-9 * scales[0] ** 2 + 1e-12):
                 self.fail(el, "sphere: to_world must be a uniform scale, rotation and translation")
+            if self.b.materials[self.b.material_names[material]].textures and not np.allclose(
+                    cols / scales[0], np.eye(3), atol=1e-9):
+                self.fail(el, "sphere: a textured sphere's to_world must not rotate (jgi's "
+                              "sphere uv is in the world frame)")
             center = xf.apply_point(m, p.get("center", np.zeros(3)))
             self.b.sphere(center, float(p.get("radius", 1.0)) * scales[0], material, emission)
         else:  # obj, ply
@@ -412,7 +488,16 @@ class _Importer:
             if not fname:
                 self.fail(el, f"{kind} shape needs a 'filename'")
             base = self.file_of(el).parent
-            v, f = load_mesh(base / fname, self.where(el), allow_vertex_normals=True)
+            v, f, uv = load_mesh(base / fname, self.where(el), allow_vertex_normals=True,
+                                 with_uv=True)
+            textured = bool(self.b.materials[self.b.material_names[material]].textures)
+            if textured and has_texture_coordinates(base / fname):
+                if kind != "obj" or uv is None:
+                    self.fail(el, f"{kind} mesh '{fname}' with a textured material: jgi reads "
+                                  "texture coordinates from OBJ files only; remove the texture")
+                uv = np.stack([uv[:, 0], 1.0 - uv[:, 1]], 1)   # Mitsuba's OBJ loader flips v
+            else:
+                uv = None   # Mitsuba's (0,0), (1,0), (0,1) per triangle
             if not p.get("face_normals", False):
                 # Mitsuba 3 reads the file's vertex normals, or computes smooth ones when there
                 # are none (PLYMesh / OBJMesh: recompute_vertex_normals), unless face_normals
@@ -425,7 +510,7 @@ class _Importer:
                                             xf.apply_point(m, v), f)
             if p.get("flip_normals", False):
                 f = f[:, ::-1]
-            self.b.mesh(v, f, material, emission, to_world=m)
+            self.b.mesh(v, f, material, emission, to_world=m, uv=uv)
 
     def check_anisotropy_frame(self, el, kind, p, m, material, vertices=None, faces=None):
         """Anisotropic roughness is oriented by the shading frame. Mitsuba's tangent is dp/du of
@@ -538,8 +623,9 @@ class _Importer:
             elif tag == "sensor":
                 self.sensor(el)
             elif tag == "texture":
-                self.fail(el, f"texture plugin '{el.get('type')}': textures are not supported by "
-                              "jgi; give constant <rgb>, <float> or <spectrum> parameters")
+                if not el.get("id"):
+                    self.fail(el, "a top-level <texture> needs an id")
+                self.texture(el)
             elif tag in IGNORED_TAGS:
                 continue
             else:

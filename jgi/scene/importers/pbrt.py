@@ -22,7 +22,12 @@ supported):
              as smooth (the smaller alpha below 1e-3) jgi's smooth conductor / dielectric.
              Refused: "coateddiffuse" (a stochastic layered BSDF that no jgi material equals;
              use a Mitsuba or TOML roughplastic), the other materials, displacement and normal
-             maps, and every Texture (imagemap, checkerboard, ...).
+             maps.
+  textures   Texture "name" "spectrum" "imagemap" (filename, filter bilinear, wrap repeat,
+             encoding sRGB | linear) and "checkerboard" (dimension 2, rgb tex1 / tex2), with
+             the uv mapping (uscale, vscale, udelta, vdelta), for diffuse "texture reflectance",
+             on trianglemesh shapes with "point2 uv" (other shapes with a textured material are
+             refused: pbrt's sphere uv is not jgi's).
   shapes     "sphere" (radius), "trianglemesh" (P, indices; no shading normals N),
              "plymesh" (filename), inside AreaLightSource "diffuse" (L, scale, power; one-sided)
   lights     LightSource "point" (I, from, scale, power), "spot" (I, from, to, coneangle,
@@ -55,7 +60,7 @@ from pathlib import Path
 import numpy as np
 
 from ...core import transform as xf
-from ..data import Scene, SceneBuilder
+from ..data import Scene, SceneBuilder, SceneError
 from ._common import ImportError_, load_mesh, named_metals
 
 _TOKEN = re.compile(r'"[^"]*"|\[|\]|[^\s\[\]"]+')
@@ -80,6 +85,11 @@ PBRT_SMOOTH_ALPHA = 1e-3   # TrowbridgeReitzDistribution::EffectivelySmooth: min
 # pbrt-v4's named metal spectra (util/spectrum.cpp), mapped to the builder's metal of that name
 PBRT_METALS = ("Ag", "Al", "Au", "Cu", "CuZn", "MgO", "TiO2")
 PBRT_METAL = re.compile(r"metal-(\w+)-(eta|k)")
+_UV_MAPPING = ("mapping", "uscale", "vscale", "udelta", "vdelta")
+TEXTURE_PARAMETERS = {
+    "imagemap": ("filename", "filter", "wrap", "encoding", "scale") + _UV_MAPPING,
+    "checkerboard": ("dimension", "tex1", "tex2") + _UV_MAPPING,
+}
 COATEDDIFFUSE_REFUSAL = (
     "material 'coateddiffuse' is not supported: pbrt-v4's coateddiffuse is a stochastic "
     "layered BSDF (a random walk, truncated at maxdepth, between a dielectric coating and a "
@@ -139,6 +149,7 @@ class _Importer:
         self.reverse = False
         self.named = {}
         self.n_mat = 0
+        self.textures: dict[str, str] = {}   # pbrt texture name -> builder texture name
         self.camera_seen = False
         self.film = (1280, 720)
         self.cam = None
@@ -190,10 +201,65 @@ class _Importer:
                                              "supported (use rgb)")
             out[name] = (typ, vals)
 
+    def texture(self, name, typ, cls, p, where):
+        """pbrt-v4's "imagemap" and 2D "checkerboard" spectrum textures, with the "uv" mapping
+        (uscale, vscale, udelta, vdelta), as jgi textures. pbrt's image lookup flips t
+        (t = 1 - (vscale v + vdelta)) and its checkerboard has squares of size 1 in (s, t)
+        (tex1 where floor(s) + floor(t) is even): both become the affine to_uv of a jgi
+        texture."""
+        if typ != "spectrum":
+            self.fail(where, f"Texture \"{name}\": only \"spectrum\" textures are supported "
+                             f"(for diffuse reflectance), got \"{typ}\"")
+        allowed = TEXTURE_PARAMETERS.get(cls)
+        if allowed is None:
+            self.fail(where, f"Texture \"{name}\": class \"{cls}\" is not supported; supported: "
+                             f"{', '.join(TEXTURE_PARAMETERS)}")
+        for key in p:
+            if key not in allowed:
+                self.fail(where, f"Texture \"{name}\" (\"{cls}\"): parameter '{key}' is not "
+                                 f"supported; supported: {', '.join(allowed)}")
+        su, sv = (float(self._get(p, k, 1.0, where, 1)) for k in ("uscale", "vscale"))
+        du, dv = (float(self._get(p, k, 0.0, where, 1)) for k in ("udelta", "vdelta"))
+        if self._get(p, "mapping", ["uv"], where)[0] != "uv":
+            self.fail(where, f"Texture \"{name}\": only the \"uv\" mapping is supported")
+        tex = f"_pbrt_texture_{name}"
+        try:
+            if cls == "checkerboard":
+                if int(self._get(p, "dimension", 2, where, 1)) != 2:
+                    self.fail(where, f"Texture \"{name}\": only 2D checkerboards are supported")
+                self.b.texture(tex, "checkerboard",
+                               color0=self._get(p, "tex1", np.ones(3), where, 3),
+                               color1=self._get(p, "tex2", np.zeros(3), where, 3),
+                               to_uv=[[su / 2, 0, du / 2], [0, sv / 2, dv / 2], [0, 0, 1]])
+            else:
+                for key, ok in (("filter", "bilinear"), ("wrap", "repeat")):
+                    v = self._get(p, key, [ok], where)[0]
+                    if v != ok:
+                        self.fail(where, f"Texture \"{name}\": {key} \"{v}\" is not supported; "
+                                         f"supported: \"{ok}\"")
+                enc = self._get(p, "encoding", ["sRGB"], where)[0]
+                if enc not in ("sRGB", "linear"):
+                    self.fail(where, f"Texture \"{name}\": encoding \"{enc}\" is not "
+                                     "supported; supported: \"sRGB\", \"linear\"")
+                fname = self._get(p, "filename", None, where)
+                if not fname:
+                    self.fail(where, f"Texture \"{name}\": imagemap needs \"string filename\"")
+                scale = float(self._get(p, "scale", 1.0, where, 1))
+                if scale != 1.0:
+                    self.fail(where, f"Texture \"{name}\": \"scale\" is not supported")
+                self.b.texture(tex, "bitmap", filename=Path(where[0]).parent / fname[0],
+                               raw=enc == "linear",
+                               to_uv=[[su, 0, du], [0, -sv, 1 - dv], [0, 0, 1]])
+        except SceneError as e:
+            self.fail(where, str(e))
+        self.textures[name] = tex
+
     def _get(self, p, name, default, where, n=None):
         if name not in p:
             return default
         typ, vals = p[name]
+        if typ == "texture" and name == "reflectance" and vals[0] in self.textures:
+            return self.textures[vals[0]]
         if typ == "texture":
             self.fail(where, f"parameter '{name}': textures are not supported (jgi has no "
                              "textures; give a constant value)")
@@ -223,8 +289,13 @@ class _Importer:
                 self.fail(where, f"material '{kind}': unknown parameter '{key}'; {kind} takes: "
                                  f"{', '.join(MATERIAL_PARAMETERS[kind])}")
         if kind == "diffuse":
+            refl = p.get("reflectance", ("rgb", []))
+            if refl[0] == "texture" and refl[1][0] not in self.textures:
+                self.fail(where, f"material 'diffuse': reflectance names texture "
+                                 f"'{refl[1][0]}', which is not defined before it")
             self.b.material(name, "diffuse",
-                            diffuse=self._get(p, "reflectance", np.full(3, 0.5), where, 3))
+                            diffuse=self._get(p, "reflectance", np.full(3, 0.5), where,
+                                              None if refl[0] == "texture" else 3))
         elif kind == "conductor":
             rough = self.roughness(kind, p, where)
             jgi_kind = "conductor" if rough is None else "roughconductor"
@@ -381,6 +452,12 @@ class _Importer:
         if self.area is not None:
             L, power, _ = self.area
             emission = L
+        textured = bool(self.b.materials[self.b.material_names[mat]].textures)
+        if textured and kind != "trianglemesh":
+            self.fail(where, f"shape \"{kind}\" with a textured material: jgi imports textures "
+                             "of pbrt scenes on trianglemesh shapes with \"point2 uv\" only "
+                             "(pbrt's sphere parametrisation differs from jgi's, which is "
+                             "Mitsuba's)")
         if kind == "sphere":
             cols = self.ctm[:3, :3]
             s = np.linalg.norm(cols, axis=0)
@@ -392,6 +469,7 @@ class _Importer:
                                                       * _lum(emission))
             self.b.sphere(xf.apply_point(self.ctm, np.zeros(3)), r, mat, emission)
             return
+        uv = None
         if kind == "trianglemesh":
             if "N" in p:
                 self.fail(where, "trianglemesh with shading normals N: jgi shades with geometric "
@@ -408,6 +486,14 @@ class _Importer:
             f = np.asarray(idx, np.int64).reshape(-1, 3)
             if f.size and (f.min() < 0 or f.max() >= len(v)):
                 self.fail(where, "trianglemesh indices out of range")
+            uv = self._get(p, "uv", None, where)
+            if uv is not None:
+                if len(uv) != 2 * len(v):
+                    self.fail(where, "trianglemesh \"point2 uv\" needs 2 numbers per vertex")
+                uv = np.asarray(uv, float).reshape(-1, 2)
+            elif textured:
+                self.fail(where, "trianglemesh with a textured material needs \"point2 uv\" "
+                                 "(pbrt's default uv differs from jgi's)")
         else:  # plymesh
             fname = self._get(p, "filename", None, where)
             if not fname:
@@ -421,7 +507,7 @@ class _Importer:
             area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]),
                                         axis=1).sum()
             emission = emission * self.area[1] / (math.pi * area * _lum(emission))
-        self.b.mesh(v, f, mat, emission)
+        self.b.mesh(v, f, mat, emission, uv=uv)
 
     def run_file(self, path: Path):
         toks = _Tokens(path)
@@ -524,9 +610,8 @@ class _Importer:
                 self.check("Shape", k, where)
                 self.shape(k, self.params(toks, where), where)
             elif tok == "Texture":
-                tex_name, _, tex_class = kind(), kind(), kind()
-                self.fail(where, f"Texture \"{tex_name}\" (\"{tex_class}\"): textures are not "
-                                 "supported by jgi; give materials constant rgb / float values")
+                tex_name, tex_type, tex_class = kind(), kind(), kind()
+                self.texture(tex_name, tex_type, tex_class, self.params(toks, where), where)
             elif tok in ("Include", "Import"):
                 f, _ = toks.next()
                 self.run_file(path.parent / f.strip('"'))
