@@ -36,16 +36,17 @@ RED = (0.570068, 0.0430135, 0.0443706)
 CORNELL_LIGHT = (18.387, 13.9873, 6.75357)
 
 
-def cornell_room(b: SceneBuilder, resolution: int) -> None:
+def cornell_room(b: SceneBuilder, resolution: int, floor: str = "white") -> None:
     """Add the room of Mitsuba 3's ``cornell_box()`` to ``b``: its three materials ("white",
-    "green", "red"), five walls, the ceiling light and the camera, without the two blocks."""
+    "green", "red"), five walls, the ceiling light and the camera, without the two blocks.
+    ``floor``: the floor's material (defined by the caller unless "white")."""
     b.material("white", "diffuse", diffuse=WHITE)
     b.material("green", "diffuse", diffuse=GREEN)
     b.material("red", "diffuse", diffuse=RED)
     T, R, S = xf.translate, xf.rotate, xf.scale
     b.rectangle(T([0, 0.99, 0.01]) @ R([1, 0, 0], 90) @ S([0.23, 0.19, 0.19]), "white",
                 emission=CORNELL_LIGHT)
-    b.rectangle(T([0, -1, 0]) @ R([1, 0, 0], -90), "white")
+    b.rectangle(T([0, -1, 0]) @ R([1, 0, 0], -90), floor)
     b.rectangle(T([0, 1, 0]) @ R([1, 0, 0], 90), "white")
     b.rectangle(T([0, 0, -1]), "white")
     b.rectangle(T([1, 0, 0]) @ R([0, 1, 0], -90), "green")
@@ -101,22 +102,10 @@ def cornell_box_textured(resolution: int = 256) -> Scene:
     b.material("striped", "diffuse", diffuse="stripes")
     b.material("plastic", "phong", diffuse=(0.3, 0.3, 0.3), specular="spec", exponent=20.0)
     b.material("metal", "roughconductor", specular=(0.9, 0.9, 0.9), alpha="rough")
-    b.material("white", "diffuse", diffuse=WHITE)
-    b.material("green", "diffuse", diffuse=GREEN)
-    b.material("red", "diffuse", diffuse=RED)
-    T, R, S = xf.translate, xf.rotate, xf.scale
-    b.rectangle(T([0, 0.99, 0.01]) @ R([1, 0, 0], 90) @ S([0.23, 0.19, 0.19]), "white",
-                emission=CORNELL_LIGHT)
-    b.rectangle(T([0, -1, 0]) @ R([1, 0, 0], -90), "floor")
-    b.rectangle(T([0, 1, 0]) @ R([1, 0, 0], 90), "white")
-    b.rectangle(T([0, 0, -1]), "white")
-    b.rectangle(T([1, 0, 0]) @ R([0, 1, 0], -90), "green")
-    b.rectangle(T([-1, 0, 0]) @ R([0, 1, 0], 90), "red")
+    cornell_room(b, resolution, floor="floor")
     b.sphere((0.4, -0.6, 0.2), 0.4, "striped")
     b.sphere((-0.45, -0.7, -0.3), 0.3, "plastic")
     b.sphere((-0.3, 0.2, -0.5), 0.25, "metal")
-    b.camera(position=(0, 0, 3.9), look_at=(0, 0, 0), up=(0, 1, 0), fov=39.3077,
-             width=resolution, height=resolution, fov_axis="smaller")
     return b.build()
 
 
