@@ -26,6 +26,7 @@ from ...scene.data import (
     TEX_SPECULAR,
     Materials,
 )
+from ...scene.rough_coating import TABLE_SIZE
 from .. import textures as T
 
 # Transport modes: camera paths carry radiance, light paths importance (Veach 1997, 5.2).
@@ -36,6 +37,8 @@ RADIANCE, IMPORTANCE = 0, 1
 GLOSSY_ALPHA = 0.1
 
 _ZERO3 = V3(0.0, 0.0, 0.0)
+# the roughplastic table of scenes without roughplastic (never read)
+_NO_TABLE = np.ones((1, TABLE_SIZE), np.float32)
 
 
 class MaterialParams(NamedTuple):
@@ -55,7 +58,7 @@ class MaterialParams(NamedTuple):
     eta: V3 = _ZERO3                  # conductor index of refraction eta + i k (mirror and
     k: V3 = _ZERO3                    # roughconductor; eta = 0 reflects everything)
     row: Array = 0                    # material row (roughplastic's table lookup)
-    transmittance: Array = np.ones((1, 64), np.float32)  # [M, 64] roughplastic T(cos): the
+    transmittance: Array = _NO_TABLE  # [M, 64] roughplastic T(cos): the
                                       # whole table, not per lane (read at row, cos)
     internal_reflectance: Array = 0.0  # roughplastic coating's Ri (per lane)
     nonlinear: Array = False          # roughplastic's nonlinear option (per lane)
@@ -138,7 +141,7 @@ def lookup_specialised(mats: Materials, m: Array, uv=None) -> MaterialParams:
     return textured(mats, m, uv, MaterialParams(
         kind, kd, ks, exponent, ior, alpha_u, alpha_v, distribution, eta, k,
         m if plastic else jnp.zeros(m.shape, jnp.int32),
-        mats.transmittance if plastic else np.ones((1, 64), np.float32),
+        mats.transmittance if plastic else _NO_TABLE,
         take(mats.internal_reflectance, m) if plastic else zero,
         take(mats.nonlinear, m) if plastic else zero > 0))
 
