@@ -10,6 +10,7 @@ from . import (
     path_tracer,  # noqa: F401
     photon_mapping,  # noqa: F401
     pssmlt,  # noqa: F401
+    vcm,  # noqa: F401
     whitted,  # noqa: F401
 )
 from .registry import REGISTRY, Estimator, Param, Render, get, param, params_of, register

@@ -270,6 +270,31 @@ def point_light_plane(resolution: int = 32, intensity: float = 10.0, height: flo
     return b.build()
 
 
+MIRROR_SDS = dict(floor_height=0.0, light=(0.0, 1.0, 0.0), mirror_height=2.0,
+                  camera=(0.0, 1.0, 2.0), look_at=(0.0, 2.0, 1.0), fov=40.0)
+
+
+def mirror_sds(resolution: int = 64, intensity: float = 10.0, albedo: float = 0.5,
+               mirror: float = 0.9) -> Scene:
+    """Specular-diffuse-specular light with a closed form: a point light between a diffuse floor
+    (y = 0) and a mirror ceiling (y = 2) facing it; the camera looks up, so it sees the floor
+    only in the mirror. Paths of at most 4 segments are L D S E (direct light on the floor) and
+    L S D S E (the light's mirror image), which no unbiased estimator with a point light can
+    sample (BDPT, path tracing) and photon density estimation can; their radiance is
+    :func:`jgi.analysis.closed_form.mirror_sds_image`."""
+    g = MIRROR_SDS
+    b = SceneBuilder("mirror_sds")
+    b.material("floor", "diffuse", diffuse=(albedo, albedo, albedo))
+    b.material("mirror", "mirror", specular=(mirror, mirror, mirror))
+    h = g["mirror_height"]
+    b.quad((-30, 0, -30), (0, 0, 60), (60, 0, 0), "floor")              # normal +y
+    b.quad((-30, h, -30), (60, 0, 0), (0, 0, 60), "mirror")             # normal -y
+    b.point_light(g["light"], (intensity, intensity, intensity))
+    b.camera(position=g["camera"], look_at=g["look_at"], fov=g["fov"], width=resolution,
+             height=resolution)
+    return b.build()
+
+
 BUILTINS = {
     "cornell_box": cornell_box,
     "cornell_box_caustics": cornell_box_caustics,
@@ -282,6 +307,7 @@ BUILTINS = {
     "furnace": furnace,
     "point_light_plane": point_light_plane,
     "mirror_caustic": mirror_caustic,
+    "mirror_sds": mirror_sds,
 }
 
 

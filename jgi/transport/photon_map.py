@@ -142,10 +142,11 @@ class Gathered(NamedTuple):
     truncated: Array  # [N] some cell held more than ``cap`` photons
 
 
-def gather(grid: HashGrid, x: V3, n: V3, cap: int, thickness: float | None = None) -> Gathered:
-    """Candidates from the 27 cells around each query point x (normal n)."""
-    c = grid.cell
-    fx, fy, fz = ((x.x - grid.origin.x) / c, (x.y - grid.origin.y) / c, (x.z - grid.origin.z) / c)
+def cells_around(origin: V3, cell, start: Array, count: Array, table_size, x: V3, cap: int):
+    """(slot [N, 27 cap], valid [N, 27 cap], truncated [N]): the sorted-order slots of at most
+    ``cap`` entries from each of the 27 hashed cells around each query point x, so every entry
+    within ``cell`` of x is among them unless a cell held more than cap (``truncated``)."""
+    fx, fy, fz = ((x.x - origin.x) / cell, (x.y - origin.y) / cell, (x.z - origin.z) / cell)
     ix, iy, iz = (jnp.floor(f).astype(jnp.int32) for f in (fx, fy, fz))
     offs = jnp.arange(cap, dtype=jnp.int32)
     cols = []
@@ -153,14 +154,74 @@ def gather(grid: HashGrid, x: V3, n: V3, cap: int, thickness: float | None = Non
     for dx in (-1, 0, 1):
         for dy in (-1, 0, 1):
             for dz in (-1, 0, 1):
-                h = _hash(ix + dx, iy + dy, iz + dz, grid.table_size)
-                st, ct = grid.start[h], grid.count[h]
+                h = _hash(ix + dx, iy + dy, iz + dz, table_size)
+                st, ct = start[h], count[h]
                 trunc = trunc | (ct > cap)
-                idx = st[:, None] + offs[None, :]
-                valid = offs[None, :] < ct[:, None]
+                idx = st[..., None] + offs
+                valid = offs < ct[..., None]
                 cols.append((jnp.where(valid, idx, 0), valid))
-    idx = jnp.concatenate([i for i, _ in cols], axis=1)
-    valid = jnp.concatenate([v for _, v in cols], axis=1)
+    slot = jnp.concatenate([i for i, _ in cols], axis=-1)
+    valid = jnp.concatenate([v for _, v in cols], axis=-1)
+    return slot, valid, trunc
+
+
+class CellIndex(NamedTuple):
+    """A hash grid built on the device (inside jit), for points that change every iteration
+    (vertex merging's light vertices): ``order`` lists the point indices sorted by hashed cell,
+    ``start`` / ``count`` give each hashed cell's range in it. Same hash and layout as
+    :class:`HashGrid`; invalid points are hashed past the table and never referenced."""
+    order: Array      # [M] point indices by hashed cell
+    start: Array      # [table]
+    count: Array      # [table]
+    origin: V3        # scalar
+    cell: Array       # scalar cell size
+
+
+def index_cells(p: V3, valid: Array, cell, table_size: int) -> CellIndex:
+    """Sort the points p ([M], where ``valid``) into hashed cells of size ``cell`` (traced)."""
+    big = jnp.float32(3e38)
+    lo = V3(*(jnp.min(jnp.where(valid, c, big)) for c in p))
+    lo = V3(*(jnp.where(jnp.any(valid), c, 0.0) for c in lo))
+    origin = lo - V3.full(cell, cell)
+    ijk = [jnp.floor((c - o) / cell).astype(jnp.int32) for c, o in zip(p, origin)]
+    h = jnp.where(valid, _hash(*ijk, table_size), table_size)
+    order = jnp.argsort(h, stable=True).astype(jnp.int32)
+    count = jax.ops.segment_sum(jnp.ones_like(h), h, num_segments=table_size + 1)[:table_size]
+    start = (jnp.cumsum(count) - count).astype(jnp.int32)
+    return CellIndex(order, start, count.astype(jnp.int32), origin, jnp.asarray(cell))
+
+
+def candidates(cells: CellIndex, table_size: int, x: V3, budget: int):
+    """(slot [N, budget], valid [N, budget], overflow [N]): the entries of the 27 hashed cells
+    around each query x, packed into ``budget`` slots (dense and empty cells share them, unlike
+    a fixed cap per cell), so every point within ``cells.cell`` of x is among them unless the 27
+    cells hold more than ``budget`` (``overflow``). A slot indexes the points in grid order
+    (``cells.order[slot]`` is the point's own index). Neighbour cells that collide in the hash
+    table are read once."""
+    c = cells.cell
+    ijk = [jnp.floor((a - o) / c).astype(jnp.int32) for a, o in zip(x, cells.origin)]
+    hs = [_hash(ijk[0] + dx, ijk[1] + dy, ijk[2] + dz, table_size)
+          for dx in (-1, 0, 1) for dy in (-1, 0, 1) for dz in (-1, 0, 1)]
+    k = jnp.arange(budget, dtype=jnp.int32)
+    slot = jnp.zeros(x.x.shape + (budget,), jnp.int32)
+    before = jnp.zeros(x.x.shape, jnp.int32)
+    for i, h in enumerate(hs):
+        dup = jnp.zeros(h.shape, bool)
+        for g in hs[:i]:
+            dup = dup | (g == h)
+        count = jnp.where(dup, 0, cells.count[h])
+        # slots from ``before`` on belong to this cell (a later, non-empty cell overrides)
+        first = before[..., None]
+        slot = jnp.where(k >= first, (cells.start[h] - before)[..., None] + k, slot)
+        before = before + count
+    valid = k < before[..., None]
+    return jnp.where(valid, slot, 0), valid, before > budget
+
+
+def gather(grid: HashGrid, x: V3, n: V3, cap: int, thickness: float | None = None) -> Gathered:
+    """Candidates from the 27 cells around each query point x (normal n)."""
+    idx, valid, trunc = cells_around(grid.origin, grid.cell, grid.start, grid.count,
+                                     grid.table_size, x, cap)
     g = lambda v: V3(v.x[idx], v.y[idx], v.z[idx])
     pp, pw, pwi, pn = g(grid.position), g(grid.power), g(grid.wi), g(grid.normal)
     ex = lambda v: V3(v.x[:, None], v.y[:, None], v.z[:, None])

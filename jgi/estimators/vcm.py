@@ -1,0 +1,925 @@
+"""Vertex connection and merging (Georgiev, Krivanek, Davidovic, Slusallek 2012; SmallVCM), and
+its special cases: bidirectional photon mapping, BDPT and progressive photon mapping.
+
+Each *iteration* i traces one light subpath per pixel (N_L = W H of them: y_0 on a light, then
+BSDF-sampled bounces, stored where the BSDF is not Dirac) and one camera subpath per pixel
+(z_0 the pinhole). Every camera vertex z_{t-1} then estimates the paths through it with
+
+* s = 0: the camera subpath hit an emitter;
+* s = 1: next-event estimation (a light sample);
+* s >= 2: a *connection* to vertex y_{s-1} of the pixel's own light subpath (BDPT's (s, t));
+* *merging*: every stored light vertex y of *any* light subpath within radius r of z_{t-1}
+  continues the camera subpath (a photon-density estimate, the photon's incident direction
+  standing for the camera subpath's next one), L ~= sum_y f(z, y.wo) beta_y K_r(|z - y|) / N_L;
+
+and every light vertex is connected to the pinhole (t = 1) and splatted. Merging is
+consistent, not unbiased: r shrinks as r_i = r_0 i^((alpha - 1) / 2) (Hachisuka & Jensen's
+schedule in SmallVCM's form), so its bias falls like r_i^2 (O(i^(alpha - 1))) while the
+estimate averages over i.
+
+MIS (:func:`mis_arrive`, :func:`mis_scatter` and the ``weight_*`` functions: every formula in
+one place). A merge of light vertex y_{s-1} with camera vertex z is, to first order, the
+connection technique with one more vertex sampled from *both* sides: its density is the
+connection's times eta_VCM p(z) with eta_VCM = pi r^2 N_L (the kernel's acceptance area
+times the number of light subpaths, Georgiev et al. eq. 12). Over all techniques of a path,
+w_tech = p_tech^b / sum_j p_j^b (balance b = 1, power b = ``power``). These sums are carried
+along each subpath by three quantities (SmallVCM's dVCM, dVC, dVM; Georgiev's technical
+report "Implementing vertex connection and merging", 2012), updated at every vertex:
+
+  start (light):     dVCM = 1 / p_dir(y_0),  dVC = |cos y_0| / (p_A(y_0) p_dir(y_0))  (0 for a
+                     Dirac light),  dVM = dVC / eta^b
+  start (camera):    dVCM = 1 / p_film(z_0 -> z_1),  dVC = dVM = 0
+  arrive at x_i:     dVCM *= d^2,  and dVCM, dVC, dVM /= |cos theta_in|
+  scatter at x_i:    dVC = (|cos theta_out| / p_fwd) (dVC p_rev + dVCM + eta^b)
+                     dVM = (|cos theta_out| / p_fwd) (dVM p_rev + dVCM / eta^b + 1)
+                     dVCM = 1 / p_fwd
+                     (a Dirac lobe: dVCM = 0; dVC, dVM *= |cos theta_out|)
+
+with every density raised to b (``Mis``), p_fwd / p_rev the solid-angle densities of sampling
+the new direction and, reversed, the old one, eta^b dropped (0) where the mode has no merging
+(connections: eta^-b dropped where it has none). The weights are then 1 / (1 + w_light +
+w_camera), w_light and w_camera each a product of the technique's own densities at the joint
+and the other subpath's quantities (``weight_*``). With the same random numbers, ``bpt`` mode is
+jgi's BDPT (:mod:`jgi.estimators.bdpt`, pbrt's ratio form of the same weights) path for path.
+
+Modes (SmallVCM's): ``vcm`` (connections and merging), ``bpm`` (merging at every camera vertex,
+no connections: bidirectional photon mapping), ``bpt`` (connections only: BDPT), ``ppm``
+(merging at the first non-specular camera vertex, no MIS: progressive photon mapping). In the
+merging-only modes an emitter hit counts only after a purely specular camera subpath (it cannot
+be merged). No Russian roulette: subpaths end at ``max_depth`` segments or at absorption.
+Light subpaths start on lights with a position (area, point, spot); scenes with directional or
+environment lights are refused.
+
+Merging reads light vertices from a hash grid rebuilt on the device every iteration
+(:func:`jgi.transport.photon_map.index_cells`, the photon maps' hash and 27-cell query, cell = r):
+``budget`` candidates per camera vertex, of which ``budget / 4`` within r are evaluated;
+paths whose vertices find more are traced again with doubled budgets, so no light vertex is
+ever dropped (the stats count the re-runs). The kernel K_r is any of photon mapping's filters (box, cone,
+Gaussian, Epanechnikov), normalised to integrate to one over the disc; the MIS uses the box's
+acceptance area pi r^2 for every kernel (as unified path sampling does). The image is
+differentiable in r_0 and the kernel's parameters (:func:`iteration_image`); with a kernel that
+vanishes at r (cone with k = 1, Epanechnikov) the image is continuous in r too.
+
+Random numbers: iteration i of pixel p draws the camera subpath from the stream (seed, p, i)
+and the light subpath from :func:`jgi.transport.subpath.light_key` (seed, p, i), with BDPT's
+dimension layout.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+from functools import partial
+from pathlib import Path
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jax import Array
+
+from .._xla import materialize
+from ..core import rng
+from ..core.errors import ParameterError
+from ..core.imageio import write_exr, write_png
+from ..core.vec import V3, dot, max_component, where
+from ..physics import bsdf as B
+from ..physics import camera as C
+from ..physics import geometry as G
+from ..physics import lights as LT
+from ..scene.data import DIRECTIONAL, ENVIRONMENT, Scene
+from ..transport import photon_map as PMap
+from ..transport.subpath import (
+    LIGHT_DIMS0,
+    LIGHT_DIMS_PER_STEP,
+    Vertices,
+    camera_ray,
+    connect_camera,
+    light_key,
+    light_normal,
+    next_event_value,
+    no_uv,
+    occluded_many,
+    pdf_emission_dir,
+    pdf_light_origin,
+    sample_next_event,
+)
+from .registry import Estimator, Render, param, register
+
+MODES = ("vcm", "bpm", "bpt", "ppm")
+KERNELS = ("box", "cone", "gaussian", "epanechnikov")
+CAMERA_DIMS0 = 2              # dims 0, 1: pixel jitter (BDPT's layout)
+CAMERA_DIMS_PER_STEP = 6      # per vertex: BSDF (3), light sample (3)
+MIS_MAX = 1e30                # the recursive quantities are clamped here: no inf * 0 in weights
+
+
+@dataclass(frozen=True)
+class VCMConfig:
+    """VCM's parameters. ``spp`` of a render is the number of iterations (one light and one
+    camera subpath per pixel each)."""
+
+    mode: str = param("vcm", "techniques: vcm (connect + merge), bpm (merge only), bpt "
+                      "(connect only), ppm (merge at the first non-specular camera vertex)",
+                      choices=MODES)
+    max_depth: int = param(8, "maximum path segments", minimum=1, maximum=16)
+    radius: float = param(0.02, "initial merge radius r_0 (scene units)", minimum=1e-6)
+    radius_alpha: float = param(0.75, "radius schedule r_i = r_0 i^((alpha - 1) / 2), alpha in "
+                                "(0, 1]", minimum=1e-3, maximum=1.0)
+    heuristic: str = param("power", "MIS heuristic over all techniques",
+                           choices=("balance", "power"))
+    power: float = param(2.0, "power-heuristic exponent", minimum=0.1, maximum=16)
+    kernel: str = param("box", "merge kernel", choices=KERNELS)
+    cone_k: float = param(1.1, "cone kernel k >= 1", minimum=1.0)
+    gauss_alpha: float = param(PMap.JENSEN_ALPHA, "Gaussian kernel alpha", minimum=1e-3)
+    gauss_beta: float = param(PMap.JENSEN_BETA, "Gaussian kernel beta", minimum=1e-3)
+    budget: int = param(32, "grid candidates read per merge (where more lie in the 27 cells, "
+                        "those paths run again with twice as many)", minimum=8, maximum=4096)
+    technique_images: str = param("", "folder: also write each technique's weighted and "
+                                  "unweighted image (connections by (s, t), merges by length)")
+    chunk: int = 1 << 13      # camera subpaths per jitted call
+
+    @property
+    def exponent(self) -> float:
+        return 1.0 if self.heuristic == "balance" else float(self.power)
+
+    @property
+    def connects(self) -> bool:
+        return self.mode in ("vcm", "bpt")
+
+    @property
+    def merges(self) -> bool:
+        return self.mode in ("vcm", "bpm", "ppm")
+
+    def kernel_params(self) -> dict:
+        """The kernel's parameters (traced: an image is differentiable in them)."""
+        if self.kernel == "cone":
+            return dict(k=jnp.float32(self.cone_k))
+        if self.kernel == "gaussian":
+            return dict(gauss_alpha=jnp.float32(self.gauss_alpha),
+                        gauss_beta=jnp.float32(self.gauss_beta))
+        return {}
+
+    def kernel_key(self) -> "VCMConfig":
+        """The settings a compiled kernel depends on (the rest are traced or host-side)."""
+        return replace(self, radius=0.0, radius_alpha=1.0, cone_k=1.0, gauss_alpha=1.0,
+                       gauss_beta=1.0, technique_images="", budget=8)
+
+    def techniques(self) -> list[tuple]:
+        """Every technique with its own image, in pyramid order: ("connect", s, t) for
+        s + t - 1 <= max_depth (not (1, 1)), then ("merge", length) for length 2..max_depth."""
+        D = self.max_depth
+        out = []
+        if self.connects:
+            for length in range(1, D + 1):
+                for s in range(0, length + 1):
+                    t = length + 1 - s
+                    if (s, t) != (1, 1):
+                        out.append(("connect", s, t))
+        else:   # emitters seen after a purely specular camera subpath
+            out.extend(("connect", 0, length + 1) for length in range(1, D + 1))
+        if self.merges:
+            out.extend(("merge", length) for length in range(2, D + 1))
+        return out
+
+
+def radius_at(cfg: VCMConfig, iteration: int) -> float:
+    """r_i = r_0 i^((alpha - 1) / 2) for iteration i = 1, 2, ... (SmallVCM's schedule)."""
+    return cfg.radius * float(iteration) ** ((cfg.radius_alpha - 1.0) / 2.0)
+
+
+# --- MIS: the recursive quantities and the weights of each technique ------------------------------
+
+class MisFactors(NamedTuple):
+    """Per-iteration constants: eta^b where merging is used (else 0) and eta^-b where
+    connections are (else 0), eta = pi r^2 N_L."""
+    vm: Array        # Mis(eta_VCM): SmallVCM's misVmWeightFactor
+    vc: Array        # Mis(1 / eta_VCM): misVcWeightFactor
+
+
+class Mis(NamedTuple):
+    """dVCM, dVC, dVM of a subpath at its last vertex (see the module docstring)."""
+    dvcm: Array
+    dvc: Array
+    dvm: Array
+
+
+def mis_pow(x: Array, b: float) -> Array:
+    """Mis(x) = x^b (b = 1: balance heuristic), finite: clamped at ``MIS_MAX``."""
+    x = jnp.maximum(x, 0.0)
+    y = x if b == 1.0 else (x * x if b == 2.0 else x ** b)
+    return jnp.minimum(y, MIS_MAX)
+
+
+def _inv(x: Array) -> Array:
+    return jnp.where(x > 0, 1.0 / jnp.where(x > 0, x, 1.0), MIS_MAX)
+
+
+def mis_factors(radius, n_light: int, cfg: VCMConfig) -> MisFactors:
+    eta = jnp.pi * radius * radius * n_light
+    b = cfg.exponent
+    return MisFactors(mis_pow(eta, b) if cfg.merges else jnp.zeros_like(eta),
+                      mis_pow(1.0 / eta, b) if cfg.connects else jnp.zeros_like(eta))
+
+
+def mis_light_start(pdf_dir: Array, pdf_pos: Array, cos_y: Array, delta_light: Array,
+                    f: MisFactors, b: float) -> Mis:
+    """At y_0 (before the first segment): dVCM = 1 / p_dir (SmallVCM's directPdfA /
+    emissionPdfW, light sampling and emission choosing y_0 alike), dVC = |cos y_0| / (p_A p_dir),
+    0 for a Dirac (point, spot) light, which no other technique can reach."""
+    dvc = jnp.where(delta_light, 0.0, mis_pow(cos_y * _inv(pdf_pos * pdf_dir), b))
+    return Mis(mis_pow(_inv(pdf_dir), b), dvc, dvc * f.vc)
+
+
+def mis_camera_start(pdf_film: Array, b: float) -> Mis:
+    """At z_0: dVCM = 1 / p_film (jgi's film density covers the whole image, so N_L is in it)."""
+    z = jnp.zeros_like(pdf_film)
+    return Mis(mis_pow(_inv(pdf_film), b), z, z)
+
+
+def mis_arrive(m: Mis, d2: Array, cos_in: Array, b: float) -> Mis:
+    """At a new vertex: the last direction's solid-angle density becomes an area density."""
+    inv_cos = mis_pow(_inv(jnp.abs(cos_in)), b)
+    return Mis(jnp.minimum(m.dvcm * mis_pow(d2, b) * inv_cos, MIS_MAX),
+               jnp.minimum(m.dvc * inv_cos, MIS_MAX), jnp.minimum(m.dvm * inv_cos, MIS_MAX))
+
+
+def mis_scatter(m: Mis, cos_out: Array, pdf_fwd: Array, pdf_rev: Array, specular: Array,
+                f: MisFactors, b: float) -> Mis:
+    """After sampling the next direction (densities p_fwd of it, p_rev of the reverse)."""
+    c = mis_pow(jnp.abs(cos_out), b)
+    g = mis_pow(jnp.abs(cos_out) * _inv(pdf_fwd), b)
+    rev = mis_pow(pdf_rev, b)
+    dvc = g * (m.dvc * rev + m.dvcm + f.vm)
+    dvm = g * (m.dvm * rev + m.dvcm * f.vc + 1.0)
+    dvcm = mis_pow(_inv(pdf_fwd), b)
+    out = Mis(jnp.where(specular, 0.0, dvcm), jnp.where(specular, m.dvc * c, dvc),
+              jnp.where(specular, m.dvm * c, dvm))
+    return Mis(*(jnp.minimum(x, MIS_MAX) for x in out))
+
+
+def weight_emission(m: Mis, pdf_pos: Array, pdf_emit_dir: Array, b: float) -> Array:
+    """s = 0, the camera subpath z hit an emitter at y: against light sampling (p_A(y)) and the
+    light subpaths that start at y (p_A(y) p_dir)."""
+    w_camera = mis_pow(pdf_pos, b) * m.dvcm + mis_pow(pdf_pos * pdf_emit_dir, b) * m.dvc
+    return 1.0 / (1.0 + w_camera)
+
+
+def weight_next_event(m: Mis, pdf_light_y: Array, pdf_bsdf_y: Array, pdf_emit_x: Array,
+                      pdf_bsdf_rev: Array, delta_light: Array, f: MisFactors, b: float) -> Array:
+    """s = 1 at camera vertex x, light point y: area densities of y by light sampling
+    (``pdf_light_y``) and by BSDF sampling at x (``pdf_bsdf_y``), of x by emission from y
+    (``pdf_emit_x``), and the BSDF's solid-angle density of the reverse direction at x."""
+    w_light = jnp.where(delta_light, 0.0, mis_pow(pdf_bsdf_y * _inv(pdf_light_y), b))
+    w_camera = mis_pow(pdf_emit_x, b) * (f.vm + m.dvcm + m.dvc * mis_pow(pdf_bsdf_rev, b))
+    return 1.0 / (1.0 + w_light + w_camera)
+
+
+def weight_connection(light: Mis, camera: Mis, pdf_y_from_z: Array, pdf_z_from_y: Array,
+                      pdf_y_rev: Array, pdf_z_rev: Array, f: MisFactors, b: float) -> Array:
+    """Light vertex y joined to camera vertex z: area densities of y sampled from z and of z
+    from y, and at each end the BSDF's solid-angle density of its own subpath's previous
+    direction given the connecting one."""
+    w_light = mis_pow(pdf_y_from_z, b) * (f.vm + light.dvcm + light.dvc * mis_pow(pdf_y_rev, b))
+    w_camera = mis_pow(pdf_z_from_y, b) * (f.vm + camera.dvcm
+                                           + camera.dvc * mis_pow(pdf_z_rev, b))
+    return 1.0 / (1.0 + w_light + w_camera)
+
+
+def weight_camera_connection(light: Mis, pdf_cam: Array, pdf_y_rev: Array, f: MisFactors,
+                             b: float) -> Array:
+    """t = 1: light vertex y joined to the pinhole (``pdf_cam``: the camera's area density of
+    y, film-normalised, so N_L is in it)."""
+    w_light = mis_pow(pdf_cam, b) * (f.vm + light.dvcm + light.dvc * mis_pow(pdf_y_rev, b))
+    return 1.0 / (1.0 + w_light)
+
+
+def weight_merge(light: Mis, camera: Mis, pdf_fwd: Array, pdf_rev: Array, f: MisFactors,
+                 b: float) -> Array:
+    """Light vertex y merged at camera vertex z: the camera BSDF's densities of y's incident
+    direction (``pdf_fwd``, continuing the camera subpath) and of the camera's own previous
+    direction given it (``pdf_rev``)."""
+    w_light = light.dvcm * f.vc + light.dvm * mis_pow(pdf_fwd, b)
+    w_camera = camera.dvcm * f.vc + camera.dvm * mis_pow(pdf_rev, b)
+    return 1.0 / (1.0 + w_light + w_camera)
+
+
+# --- light subpaths -------------------------------------------------------------------------------
+
+class LightVertices(NamedTuple):
+    """Light-subpath vertices y_1 .. y_{D-1}, each field [D - 1, N] (row k - 1: y_k)."""
+    p: V3
+    n: V3
+    wo: V3              # towards y_{k-1}: the incident direction a merge uses
+    beta: V3            # throughput arriving at y_k (before its BSDF)
+    mis: Mis
+    stored: Array       # a valid vertex with a non-Dirac BSDF (connectable, mergeable)
+    material: Array
+    uv: tuple | None
+
+
+def light_walk(scene: Scene, cfg: VCMConfig, key: Array, f: MisFactors):
+    """The light subpath of stream ``key`` (BDPT's dimension layout), with its MIS quantities.
+    Returns (:class:`LightVertices` [D - 1, N], valid start)."""
+    lights, mats = scene.lights, scene.materials
+    kinds = mats.kinds
+    b = cfg.exponent
+    u = lambda k: rng.uniform(key, k)  # noqa: E731
+    em = LT.sample_emission(lights, u(0), u(1), u(2), u(3), u(4))
+    ok = (em.pdf_pos > 0) & (max_component(em.weight) > 0)
+    delta_light = em.delta_pos | em.delta_dir
+    mis = mis_light_start(em.pdf_dir, em.pdf_pos, jnp.abs(dot(em.n, em.d)), delta_light, f, b)
+    start = (G.offset_origin(em.p, em.n, em.d), em.d, em.weight, em.p, mis, ok)
+
+    def step(s, j):
+        o, d, beta, prev_p, m, alive = s
+        base = LIGHT_DIMS0 + j * LIGHT_DIMS_PER_STEP
+        hit = G.intersect(scene, o, d)
+        valid = alive & hit.valid
+        v = hit.p - prev_p
+        m = mis_arrive(m, dot(v, v), dot(hit.n, d), b)
+        mp = B.lookup_specialised(mats, hit.material, hit.uv)
+        wo = -d
+        vert = LightVertices(hit.p, hit.n, wo, beta, m, valid & ~B.is_delta(mp), hit.material,
+                             hit.uv)
+        bs = materialize(B.sample(kinds, mp, hit.n, wo, u(base), u(base + 1), u(base + 2),
+                                  mode=B.IMPORTANCE))
+        _, pdf_rev = B.evaluate(kinds, mp, hit.n, bs.wi, wo)
+        m = mis_scatter(m, dot(hit.n, bs.wi), bs.pdf, pdf_rev, bs.delta, f, b)
+        beta = beta * bs.weight
+        alive = valid & bs.valid & (max_component(beta) > 0)
+        return (G.offset_origin(hit.p, hit.n, bs.wi), bs.wi, beta, hit.p, m, alive), vert
+
+    _, verts = jax.lax.scan(step, start, jnp.arange(cfg.max_depth - 1))
+    return verts, ok
+
+
+def _as_vertices(scene: Scene, y: LightVertices) -> Vertices:
+    """Light vertices in :class:`~jgi.transport.subpath.Vertices` form (for connect_camera)."""
+    z = jnp.zeros_like(y.p.x)
+    return Vertices(y.p, y.n, y.wo, y.beta, z, z, ~y.stored, y.stored, y.stored, y.material,
+                    y.material * 0 - 1, y.uv if y.uv is not None else no_uv(scene, z))
+
+
+def light_pass(scene: Scene, cfg: VCMConfig, seed, iteration, f: MisFactors, paths: Array):
+    """Light subpaths ``paths`` of an iteration: their vertices, and the t = 1 connections
+    (pixel [D - 1, N], MIS-weighted and unweighted values)."""
+    b = cfg.exponent
+    key = light_key(seed, paths, iteration)
+    y, _ = light_walk(scene, cfg, key, f)
+    if not cfg.connects or cfg.max_depth < 2:
+        return y, None
+    conn = materialize(connect_camera(scene, _as_vertices(scene, y)))
+    occ = occluded_many(scene, [conn.shadow])[0]
+    w = weight_camera_connection(y.mis, conn.pdf_cam, conn.pdf_q_rev, f, b)
+    keep = conn.ok & ~occ
+    value = where(keep, conn.value, V3.full(0.0, w))
+    return y, (jnp.where(keep, conn.pixel, -1), value * w, value)
+
+
+# --- camera subpaths ------------------------------------------------------------------------------
+
+class CameraVertices(NamedTuple):
+    """Camera-subpath vertices z_1 .. z_D, each field [D, N], with what each found on the way."""
+    p: V3
+    n: V3
+    wo: V3
+    beta: V3
+    mis: Mis
+    connectable: Array     # valid and non-Dirac
+    first_diffuse: Array   # the first non-Dirac vertex after a purely specular subpath
+    material: Array
+    uv: tuple | None
+    emission: V3           # s = 0, unweighted
+    w_emission: Array
+    next_event: V3         # s = 1, unweighted (visibility tested)
+    w_next_event: Array
+
+
+def camera_walk(scene: Scene, cfg: VCMConfig, key: Array, pixel: Array,
+                f: MisFactors) -> CameraVertices:
+    """The camera subpath of stream ``key`` through ``pixel``, with s = 0 and s = 1 at each
+    vertex."""
+    cam, lights, mats = scene.camera, scene.lights, scene.materials
+    kinds = mats.kinds
+    b, D = cfg.exponent, cfg.max_depth
+    u0 = lambda k: rng.uniform(key, k)  # noqa: E731
+    o, d = camera_ray(cam, pixel, u0)
+    z = jnp.zeros_like(o.x)
+    one = V3(z + 1, z + 1, z + 1)
+    mis = mis_camera_start(C.project(cam, o + d).pdf_dir, b)
+    start = (o, d, one, o, mis, z == 0, z == 0)
+
+    def step(s, j):
+        o, d, beta, prev_p, m, alive, specular_path = s
+        base = CAMERA_DIMS0 + j * CAMERA_DIMS_PER_STEP
+        u = lambda k: rng.uniform(key, base + k)  # noqa: E731
+        hit = G.intersect(scene, o, d)
+        valid = alive & hit.valid
+        v = hit.p - prev_p
+        d2 = dot(v, v)
+        m = mis_arrive(m, d2, dot(hit.n, d), b)
+        mp = B.lookup_specialised(mats, hit.material, hit.uv)
+        wo = -d
+        delta = B.is_delta(mp)
+        connectable = valid & ~delta
+        # ---- s = 0: an emitter ----
+        e = jnp.where(valid, hit.emitter, -1)
+        pdf_pos = pdf_light_origin(lights, e)
+        emission = beta * LT.emitted(lights, e, hit.n, wo)
+        if cfg.connects:
+            w_e = weight_emission(m, pdf_pos, pdf_pos * pdf_emission_dir(lights, e, hit.n, wo), b)
+            w_e = jnp.where(j == 0, 1.0, w_e)
+        else:   # merging only: emitters count after purely specular subpaths alone
+            w_e = jnp.where(specular_path, 1.0, 0.0)
+        # ---- s = 1: next-event estimation ----
+        if cfg.connects and D >= 2:
+            ne = sample_next_event(scene, mp, hit.p, hit.n, wo, u(3), u(4), u(5),
+                                   valid & (j + 2 <= D))
+            ls = ne.light
+            k = LT.select(lights, u(3))
+            _, pdf_bsdf_rev = B.evaluate(kinds, mp, hit.n, ls.wi, wo)
+            y = hit.p + ls.wi * ls.dist
+            n_y, y_surface = light_normal(lights, k, y)
+            d2_y = ls.dist * ls.dist
+            inv_d2 = _inv(d2_y)
+            cos_y = jnp.where(y_surface, jnp.abs(dot(n_y, ls.wi)), 1.0)
+            pdf_emit_x = pdf_emission_dir(lights, k, n_y, -ls.wi) * ne.cos * inv_d2
+            w_ne = weight_next_event(m, pdf_light_origin(lights, k), ne.pdf_bsdf * cos_y * inv_d2,
+                                     pdf_emit_x, pdf_bsdf_rev, ls.delta, f, b)
+            Z = V3.full(0.0, z)
+            ne_value = where(~G.occluded(scene, *ne.shadow), next_event_value(ne, beta), Z)
+        else:
+            ne_value, w_ne = V3.full(0.0, z), z
+        rec = CameraVertices(hit.p, hit.n, wo, beta, m, connectable,
+                             connectable & specular_path, hit.material, hit.uv, emission, w_e,
+                             ne_value, w_ne)
+        # ---- the next direction ----
+        bs = materialize(B.sample(kinds, mp, hit.n, wo, u(0), u(1), u(2)))
+        _, pdf_rev = B.evaluate(kinds, mp, hit.n, bs.wi, wo)
+        m = mis_scatter(m, dot(hit.n, bs.wi), bs.pdf, pdf_rev, bs.delta, f, b)
+        beta = beta * bs.weight
+        alive = valid & bs.valid & (max_component(beta) > 0)
+        if cfg.mode == "ppm":   # the subpath ends at its first merge
+            alive = alive & delta
+        nxt = (G.offset_origin(hit.p, hit.n, bs.wi), bs.wi, beta, hit.p, m, alive,
+               specular_path & delta)
+        return nxt, rec
+
+    _, verts = jax.lax.scan(step, start, jnp.arange(D))
+    return verts
+
+
+def _rows(tree, idx):
+    """Static rows ``idx`` of every [K, N] leaf, stacked (a static-slice gather)."""
+    return jax.tree_util.tree_map(lambda x: jnp.stack([x[int(i)] for i in idx]), tree)
+
+
+def connections(scene: Scene, cfg: VCMConfig, y: LightVertices, z: CameraVertices,
+                f: MisFactors):
+    """s, t >= 2: y_{s-1} of the pixel's own light subpath joined to z_{t-1}, for every pair
+    with s + t - 1 <= max_depth. Returns ([(s, t)], weighted [J, N] V3, unweighted)."""
+    D = cfg.max_depth
+    b = cfg.exponent
+    kinds = scene.materials.kinds
+    pairs = [(k, j) for j in range(D) for k in range(1, D) if k + j + 2 <= D]
+    if not pairs:
+        return [], None, None
+    q = _rows(y, [k - 1 for k, _ in pairs])
+    p = _rows(z, [j for _, j in pairs])
+    v = p.p - q.p
+    d2 = dot(v, v)
+    dist = jnp.sqrt(d2)
+    w = v / jnp.where(dist > 0, dist, 1.0)          # from y towards z
+    mq = B.lookup_specialised(scene.materials, q.material, q.uv)
+    mp = B.lookup_specialised(scene.materials, p.material, p.uv)
+    f_q, pdf_q_fwd = B.evaluate(kinds, mq, q.n, q.wo, w, mode=B.IMPORTANCE)
+    _, pdf_q_rev = B.evaluate(kinds, mq, q.n, w, q.wo)
+    f_p, pdf_p_fwd = B.evaluate(kinds, mp, p.n, p.wo, -w)
+    _, pdf_p_rev = B.evaluate(kinds, mp, p.n, -w, p.wo)
+    cos_q, cos_p = jnp.abs(dot(q.n, w)), jnp.abs(dot(p.n, w))
+    ok = q.stored & p.connectable & (d2 > 0)
+    inv_d2 = _inv(jnp.where(ok, d2, 1.0))
+    value = where(ok, q.beta * f_q * f_p * p.beta * (cos_q * cos_p * inv_d2), V3.full(0.0, d2))
+    occ = occluded_many(scene, [G.shadow_ray(q.p, q.n, w, dist)])[0]
+    value = where(occ, V3.full(0.0, d2), value)
+    wt = weight_connection(q.mis, p.mis, pdf_p_fwd * cos_q * inv_d2, pdf_q_fwd * cos_p * inv_d2,
+                           pdf_q_rev, pdf_p_rev, f, b)
+    st = [(k + 1, j + 2) for k, j in pairs]
+    return st, value * wt, value
+
+
+class MergeGrid(NamedTuple):
+    """An iteration's light vertices in grid order (so a query reads them by slot), with the
+    hash grid over them and each one's row (y_{row + 1})."""
+    cells: PMap.CellIndex
+    y: LightVertices      # [M], grid order
+    row: Array            # [M]
+
+
+def merge_grid(y_all: LightVertices, radius, table_size: int, n_light: int) -> MergeGrid:
+    cells = PMap.index_cells(y_all.p, y_all.stored, radius, table_size)
+    y = jax.tree_util.tree_map(lambda a: a[cells.order], y_all)
+    return MergeGrid(cells, y, cells.order // n_light)
+
+
+TIER2 = 8   # second-tier queries: 1 / TIER2 of a row, with TIER2 times the budget
+
+
+def _merge_queries(scene: Scene, cfg: VCMConfig, grid: MergeGrid, zj: CameraVertices, j, active,
+                   f: MisFactors, r2, scale, kernel_params: dict, budget: tuple, table_size: int,
+                   by_length: bool):
+    """Merges at camera vertices zj (row j, [Q]) with the light vertices within r: (weighted,
+    unweighted) [Q] V3 sums (``by_length``: [D - 1, Q], by the light vertex's row), and
+    whether a query found more candidates than ``budget = (K, K_in)`` allows."""
+    D = cfg.max_depth
+    b = cfg.exponent
+    kinds = scene.materials.kinds
+    K, K_in = budget
+    col = lambda v: V3(*(c[:, None] for c in v))  # noqa: E731
+    y = grid.y
+    # ---- candidates from the grid, and those within r: positions only ----
+    slot, ok, over = PMap.candidates(grid.cells, table_size, zj.p, K)
+    diff = V3(*(c[slot] for c in y.p)) - col(zj.p)
+    d2 = dot(diff, diff)
+    ok = ok & (d2 < r2) & active[:, None]
+    # ---- packed into K_in slots (a one-hot select: no sort) ----
+    rank = jnp.cumsum(ok, -1) - 1
+    dest = jnp.where(ok & (rank < K_in), rank, K_in)               # K_in: a discarded column
+    lane = jnp.arange(ok.shape[0])[:, None]
+    take = lambda a: jnp.zeros((a.shape[0], K_in + 1), a.dtype).at[lane, dest].set(  # noqa: E731
+        a, mode="promise_in_bounds")[:, :K_in]
+    inside = jnp.sum(ok, -1)
+    slot, d2 = take(slot), take(d2)
+    ok = jnp.arange(K_in)[None, :] < inside[:, None]
+    over = (over | (inside > K_in)) & active
+    # ---- same side, and a path short enough ----
+    g = lambda a: a[slot]  # noqa: E731
+    row = g(grid.row)
+    ok = ok & (dot(V3(*(g(c) for c in y.n)), col(zj.n)) > 0) & (row + j + 2 <= D)
+    # ---- the camera BSDF at the light vertices' incident directions; MIS ----
+    wi = V3(*(g(c) for c in y.wo))
+    mp = jax.tree_util.tree_map(lambda a: a[:, None],
+                                B.lookup(scene.materials, zj.material, zj.uv))
+    f_z, pdf_fwd = B.evaluate(kinds, mp, col(zj.n), col(zj.wo), wi)
+    _, pdf_rev = B.evaluate(kinds, mp, col(zj.n), wi, col(zj.wo))
+    kern = PMap.filter_weight(cfg.kernel, jnp.where(ok, d2, 0.0), r2, **kernel_params)[0]
+    c = jnp.where(ok, kern * scale, 0.0)
+    value = where(ok, f_z * V3(*(g(x) for x in y.beta)) * c, V3.full(0.0, c))
+    if cfg.mode == "ppm":
+        wt = jnp.ones_like(c)
+    else:
+        wt = weight_merge(Mis(*(g(x) for x in y.mis)), Mis(*(x[:, None] for x in zj.mis)),
+                          pdf_fwd, pdf_rev, f, b)
+    beta = zj.beta
+    if by_length:
+        onehot = row[None] == jnp.arange(D - 1)[:, None, None]
+        s = lambda x: jnp.sum(jnp.where(onehot & ok[None], x[None], 0.0), -1)  # noqa: E731
+        unw = V3(*(s(a) * bb for a, bb in zip(value, beta)))
+        wtd = V3(*(s(a * wt) * bb for a, bb in zip(value, beta)))
+    else:
+        unw = V3(*(jnp.sum(a, -1) * bb for a, bb in zip(value, beta)))
+        wtd = V3(*(jnp.sum(a * wt, -1) * bb for a, bb in zip(value, beta)))
+    return wtd, unw, over
+
+
+def merge_at_camera_vertices(scene: Scene, cfg: VCMConfig, grid: MergeGrid, z: CameraVertices,
+                             f: MisFactors, radius, kernel_params: dict, n_light: int,
+                             budget: tuple, table_size: int, by_length: bool):
+    """Vertex merging at every camera vertex (``ppm``: the first non-specular one). Each row
+    of vertices is queried with ``budget``; the few whose 27 cells hold more candidates are
+    queried again, packed, with ``TIER2`` times the budget (a fixed-size query costs its
+    budget, so one dense caustic does not set every query's cost). Returns (weighted,
+    unweighted, overflow): [D, N] V3 per camera vertex (``by_length``: [D, D - 1, N]), and
+    [D, N] flags where even that was too small (the caller re-runs with larger budgets)."""
+    D = cfg.max_depth
+    r2 = radius * radius
+    norm = PMap.filter_weight(cfg.kernel, jnp.float32(0.0), r2, **kernel_params)[1]
+    scale = 1.0 / (norm * jnp.pi * r2 * n_light)
+    big = tuple(TIER2 * k for k in budget)
+
+    def at_row(j):
+        zj = jax.tree_util.tree_map(lambda x: x[j], z)
+        N = zj.p.x.shape[0]
+        active = zj.first_diffuse if cfg.mode == "ppm" else zj.connectable
+        args = (f, r2, scale, kernel_params)
+        wtd, unw, over = _merge_queries(scene, cfg, grid, zj, j, active, *args, budget,
+                                        table_size, by_length)
+        n2 = max(N // TIER2, 1)
+        (sel,) = jnp.nonzero(over, size=n2, fill_value=N)
+        live = sel < N
+        sel = jnp.minimum(sel, N - 1)
+        zs = jax.tree_util.tree_map(lambda x: x[sel], zj)
+        w2, u2, over2 = _merge_queries(scene, cfg, grid, zs, j, active[sel] & live, *args, big,
+                                       table_size, by_length)
+        fix = lambda a, a2: jnp.where(over, 0.0, a).at[..., sel].add(  # noqa: E731
+            jnp.where(live, a2, 0.0))
+        wtd = V3(*(fix(a, a2) for a, a2 in zip(wtd, w2)))
+        unw = V3(*(fix(a, a2) for a, a2 in zip(unw, u2)))
+        overflow = jnp.zeros_like(over).at[sel].max(over2 & live) | (jnp.sum(over) > n2)
+        return wtd, unw, overflow
+
+    return jax.lax.map(at_row, jnp.arange(D))
+
+
+# --- one iteration --------------------------------------------------------------------------------
+
+class Techniques(NamedTuple):
+    """Contributions of one iteration's camera subpaths, per technique (own pixel)."""
+    emission: tuple        # (weighted, unweighted) [D, N] V3: s = 0, t = j + 2
+    next_event: tuple      # [D, N]: s = 1, t = j + 2
+    connect: tuple         # ([(s, t)], weighted [J, N], unweighted)
+    merge: tuple           # weighted, unweighted: [D, N] (or [D, D - 1, N] by light row)
+    truncated: Array       # [N] a merge read a truncated grid cell
+
+
+def camera_pass(scene: Scene, cfg: VCMConfig, seed, iteration, f: MisFactors, radius,
+                kernel_params: dict, y_all: LightVertices, cells, pixels: Array, budget: tuple,
+                table_size: int, by_technique: bool) -> Techniques:
+    """Camera subpaths of ``pixels`` in one iteration, with every technique at their vertices."""
+    D = cfg.max_depth
+    n_light = scene.camera.width * scene.camera.height
+    key = rng.path_key(seed, pixels, iteration)
+    z = camera_walk(scene, cfg, key, pixels, f)
+    em = (z.emission * z.w_emission, z.emission)
+    ne = (z.next_event * z.w_next_event, z.next_event)
+    conn = ([], None, None)
+    if cfg.connects and D >= 3:
+        y_own = jax.tree_util.tree_map(lambda a: a.reshape(D - 1, -1)[:, pixels], y_all)
+        conn = connections(scene, cfg, y_own, z, f)
+    mrg, trunc = (None, None), jnp.zeros(pixels.shape, bool)
+    if cfg.merges and D >= 2:
+        wtd, unw, tr = merge_at_camera_vertices(scene, cfg, cells, z, f, radius,
+                                                kernel_params, n_light, budget, table_size,
+                                                by_technique)
+        mrg, trunc = (wtd, unw), jnp.any(tr, 0)
+    return Techniques(em, ne, conn, mrg, trunc)
+
+
+def _flatten_light(y: LightVertices) -> LightVertices:
+    return jax.tree_util.tree_map(lambda a: a.reshape(-1), y)
+
+
+def table_size_for(scene: Scene, cfg: VCMConfig) -> int:
+    m = scene.camera.width * scene.camera.height * max(cfg.max_depth - 1, 1)
+    return int(1 << max(10, int(np.ceil(np.log2(2 * m)))))
+
+
+@partial(jax.jit, static_argnames=("cfg", "table_size"))
+def _light_stage(scene: Scene, cfg: VCMConfig, seed, iteration, radius, table_size: int):
+    """All light subpaths of an iteration, their grid, and the t = 1 splat image."""
+    W, H = scene.camera.width, scene.camera.height
+    n_light = W * H
+    f = mis_factors(radius, n_light, cfg)
+    y, t1 = light_pass(scene, cfg, seed, iteration, f, jnp.arange(n_light, dtype=jnp.int32))
+    y_all = _flatten_light(y)
+    grid = merge_grid(y_all, radius, table_size, n_light) if cfg.merges else None
+    img = jnp.zeros((n_light, 3), jnp.float32)
+    if t1 is not None:
+        pix, wtd, _ = t1
+        img = _splat(img, pix, wtd)
+    return y_all, grid, img
+
+
+def _splat(img, pix, value: V3):
+    pix = pix.reshape(-1)
+    vals = jnp.stack([c.reshape(-1) for c in value], -1)
+    finite = jnp.all(jnp.isfinite(vals), -1)
+    keep = (pix >= 0) & finite
+    return img.at[jnp.where(keep, pix, 0)].add(jnp.where(keep[:, None], vals, 0.0))
+
+
+def _own_sum(t: Techniques) -> V3:
+    """The weighted contributions of every technique at the sample's own pixel."""
+    out = V3(*(jnp.sum(c, 0) for c in t.emission[0]))
+    out = out + V3(*(jnp.sum(c, 0) for c in t.next_event[0]))
+    if t.connect[1] is not None:
+        out = out + V3(*(jnp.sum(c, 0) for c in t.connect[1]))
+    if t.merge[0] is not None:
+        out = out + V3(*(jnp.sum(c, 0) for c in t.merge[0]))
+    return out
+
+
+def merge_budget(k: int) -> tuple:
+    """(grid candidates, evaluated candidates within r) per merge."""
+    return (k, max(4, k // 4))
+
+
+@partial(jax.jit, static_argnames=("cfg", "budget", "table_size", "by_technique"))
+def _camera_stage(scene: Scene, cfg: VCMConfig, seed, iteration, radius, kernel_params,
+                  y_all, cells, pixel0, budget: tuple, table_size: int, by_technique: bool):
+    """Camera subpaths of pixels pixel0 .. pixel0 + chunk - 1 (clamped to the image) with every
+    technique; ``by_technique``: the :class:`Techniques`, else their weighted sum ([chunk] V3);
+    and whether any merge overflowed its budget."""
+    P = scene.camera.width * scene.camera.height
+    f = mis_factors(radius, P, cfg)
+    pixels = jnp.minimum(pixel0 + jnp.arange(cfg.chunk, dtype=jnp.int32), P - 1)
+    t = camera_pass(scene, cfg, seed, iteration, f, radius, kernel_params, y_all, cells, pixels,
+                    budget, table_size, by_technique)
+    return (t if by_technique else _own_sum(t)), jnp.any(t.truncated)
+
+
+def _check_scene(scene: Scene) -> None:
+    kinds = scene.lights.kinds
+    if DIRECTIONAL in kinds or ENVIRONMENT in kinds:
+        raise ParameterError("estimator 'vcm': the scene has a directional or environment light; "
+                             "vcm starts light subpaths on lights with a position (area, point, "
+                             "spot) only")
+
+
+class _Iterations:
+    """The host loop shared by :func:`render` and :func:`render_techniques`: per iteration, the
+    light stage, then the camera stage per chunk, re-run with doubled merge budgets where one
+    overflowed. Calls ``on_chunk(i, p0, result)`` and ``on_light(i, light stage outputs)``."""
+
+    def __init__(self, scene: Scene, cfg: VCMConfig, chunk_limit: int):
+        _check_scene(scene)
+        P = scene.camera.width * scene.camera.height
+        self.scene, self.cfg, self.P = scene, cfg, P
+        self.chunk = min(cfg.chunk, chunk_limit, 1 << max(8, int(np.ceil(np.log2(P)))))
+        self.key_cfg = replace(cfg.kernel_key(), chunk=self.chunk)
+        self.table_size = table_size_for(scene, cfg)
+        self.kernel_params = cfg.kernel_params()
+        self.budget = cfg.budget
+        self.reruns = 0
+
+    def run(self, spp: int, seed: int, on_light, on_chunk, by_technique: bool, progress=False):
+        scene, cfg, kc, ts = self.scene, self.cfg, self.key_cfg, self.table_size
+        for i in range(1, spp + 1):
+            r = jnp.float32(radius_at(cfg, i))
+            s_, it = jnp.uint32(seed), jnp.uint32(i - 1)
+            y_all, cells, img = _light_stage(scene, kc, s_, it, r, ts)
+            on_light(i, img)
+            for p0 in range(0, self.P, self.chunk):
+                while True:
+                    out, over = _camera_stage(scene, kc, s_, it, r, self.kernel_params, y_all,
+                                              cells, jnp.int32(p0), merge_budget(self.budget),
+                                              ts, by_technique)
+                    if not cfg.merges or not bool(over) or self.budget >= 4096:
+                        break
+                    self.budget *= 2        # kept for the following chunks and iterations
+                    self.reruns += 1
+                on_chunk(i, p0, out)
+            if progress:
+                print(f"\rvcm iteration {i}/{spp}", end="", flush=True)
+        if progress:
+            print()
+
+
+def render(scene: Scene, cfg: VCMConfig = VCMConfig(), *, spp: int, seed: int,
+           progress: bool = False) -> Render:
+    """``spp`` iterations of VCM (see the module docstring); the mean of their images.
+
+    Stats: ``radius_final`` (r of the last iteration), ``budget`` (merge candidates read per
+    camera vertex at the end), ``reruns`` (chunks traced again with a doubled budget)."""
+    W, H = scene.camera.width, scene.camera.height
+    if cfg.technique_images:
+        imgs = render_techniques(scene, cfg, spp=spp, seed=seed)
+        write_technique_images(cfg.technique_images, imgs)
+        return Render(sum((w for _, w in imgs.values()), np.zeros((H, W, 3), np.float32)), {})
+    if scene.lights.count == 0:
+        return Render(np.zeros((H, W, 3), np.float32), {})
+    loop = _Iterations(scene, cfg, cfg.chunk)
+    P, chunk = loop.P, loop.chunk
+    n_chunks = -(-P // chunk)
+    acc = {"splat": jnp.zeros((P, 3), jnp.float32),
+           "own": jnp.zeros((n_chunks * chunk, 3), jnp.float32)}
+
+    def on_light(i, img):
+        acc["splat"] = acc["splat"] + img
+
+    def on_chunk(i, p0, L):
+        acc["own"] = _add_rows(acc["own"], jnp.int32(p0), jnp.stack(list(L), -1))
+
+    loop.run(spp, seed, on_light, on_chunk, False, progress)
+    image = (acc["splat"] + acc["own"][:P]) / spp
+    return Render(np.asarray(image, np.float32).reshape(H, W, 3),
+                  dict(radius_final=radius_at(cfg, spp), budget=loop.budget, reruns=loop.reruns))
+
+
+@jax.jit
+def _add_rows(acc, p0, rows):
+    return jax.lax.dynamic_update_slice(
+        acc, jax.lax.dynamic_slice(acc, (p0, 0), rows.shape) + rows, (p0, 0))
+
+
+# --- per-technique images -------------------------------------------------------------------------
+
+@partial(jax.jit, static_argnames=("cfg",))
+def _add_techniques(imgs, cfg: VCMConfig, p0, t: Techniques):
+    """Add one chunk's :class:`Techniques` into the per-technique images ([2 T, P, 3]:
+    unweighted 2k, weighted 2k + 1, k in ``cfg.techniques()`` order)."""
+    D = cfg.max_depth
+    P = imgs.shape[1]
+    index = {tech: k for k, tech in enumerate(cfg.techniques())}
+    lane = p0 + jnp.arange(cfg.chunk, dtype=jnp.int32)
+    pixels = jnp.where(lane < P, lane, -1)
+
+    def add(imgs, tech, wtd: V3, unw: V3):
+        k = index.get(tech)
+        if k is None:
+            return imgs
+        imgs = imgs.at[2 * k].set(_splat(imgs[2 * k], pixels, unw))
+        return imgs.at[2 * k + 1].set(_splat(imgs[2 * k + 1], pixels, wtd))
+
+    row = lambda v, i: V3(*(c[i] for c in v))  # noqa: E731
+    for j in range(D):
+        imgs = add(imgs, ("connect", 0, j + 2), row(t.emission[0], j), row(t.emission[1], j))
+        imgs = add(imgs, ("connect", 1, j + 2), row(t.next_event[0], j), row(t.next_event[1], j))
+    sts, wtd, unw = t.connect
+    for k, st in enumerate(sts):
+        imgs = add(imgs, ("connect",) + st, row(wtd, k), row(unw, k))
+    if t.merge[0] is not None:
+        for j in range(D):
+            for r in range(D - 1):
+                if r + j + 2 <= D:
+                    imgs = add(imgs, ("merge", r + j + 2), row(row(t.merge[0], j), r),
+                               row(row(t.merge[1], j), r))
+    return imgs
+
+
+@partial(jax.jit, static_argnames=("cfg",))
+def _add_light_splats(imgs, scene: Scene, cfg: VCMConfig, seed, iteration, radius):
+    """Add the t = 1 connections of an iteration's light vertex rows to their images."""
+    P = scene.camera.width * scene.camera.height
+    index = {tech: k for k, tech in enumerate(cfg.techniques())}
+    f = mis_factors(radius, P, cfg)
+    _, t1 = light_pass(scene, cfg, seed, iteration, f, jnp.arange(P, dtype=jnp.int32))
+    if t1 is None:
+        return imgs
+    pix, wtd, unw = t1
+    for r in range(cfg.max_depth - 1):
+        k = index[("connect", r + 2, 1)]
+        imgs = imgs.at[2 * k].set(_splat(imgs[2 * k], pix[r], V3(*(c[r] for c in unw))))
+        imgs = imgs.at[2 * k + 1].set(_splat(imgs[2 * k + 1], pix[r], V3(*(c[r] for c in wtd))))
+    return imgs
+
+
+def render_techniques(scene: Scene, cfg: VCMConfig = VCMConfig(), *, spp: int = 4,
+                      seed: int = 0) -> dict:
+    """``{technique: (unweighted, weighted)}`` images (H, W, 3), techniques as
+    ``cfg.techniques()`` names them: ("connect", s, t) (light tracing's t = 1 included) and
+    ("merge", path length). The weighted images sum to the VCM image; an unweighted connection
+    image is an unbiased estimate of the paths its technique samples, an unweighted merge image
+    a consistent one."""
+    W, H = scene.camera.width, scene.camera.height
+    techs = cfg.techniques()
+    loop = _Iterations(scene, cfg, 1 << 11)
+    acc = {"imgs": jnp.zeros((2 * len(techs), loop.P, 3), jnp.float32)}
+
+    def on_light(i, img):
+        acc["imgs"] = _add_light_splats(acc["imgs"], scene, loop.key_cfg, jnp.uint32(seed),
+                                        jnp.uint32(i - 1), jnp.float32(radius_at(cfg, i)))
+
+    def on_chunk(i, p0, t):
+        acc["imgs"] = _add_techniques(acc["imgs"], loop.key_cfg, jnp.int32(p0), t)
+
+    if scene.lights.count:
+        loop.run(spp, seed, on_light, on_chunk, True)
+    out = np.asarray(acc["imgs"] / spp, np.float32).reshape(2 * len(techs), H, W, 3)
+    return {tech: (out[2 * k], out[2 * k + 1]) for k, tech in enumerate(techs)}
+
+
+def _technique_name(tech: tuple) -> str:
+    return f"s{tech[1]}_t{tech[2]}" if tech[0] == "connect" else f"merge_length{tech[1]}"
+
+
+def write_technique_images(folder, images: dict, exposure: float = 0.0) -> list[Path]:
+    """EXR + PNG per technique (``s{s}_t{t}_weighted`` / ``merge_length{L}_unweighted``, ...)."""
+    folder = Path(folder)
+    written = []
+    for tech, (unw, wtd) in images.items():
+        for tag, img in (("unweighted", unw), ("weighted", wtd)):
+            path = folder / f"{_technique_name(tech)}_{tag}.exr"
+            write_exr(path, img)
+            write_png(path.with_suffix(".png"), img, exposure)
+            written.append(path)
+    return written
+
+
+# --- a differentiable iteration -------------------------------------------------------------------
+
+def iteration_image(scene: Scene, cfg: VCMConfig, seed, iteration, radius, kernel_params: dict,
+                    budget: int = 64) -> Array:
+    """One iteration's image [H, W, 3] as a traced function of the merge ``radius`` and the
+    kernel's parameters (jit it, or differentiate it: ``jax.grad`` of a loss of it with respect
+    to r fits r_0, as :mod:`jgi.analysis.density_fit` fits photon radii). ``budget``: grid
+    candidates read per merge (static; no re-runs here: choose it large enough)."""
+    _check_scene(scene)
+    W, H = scene.camera.width, scene.camera.height
+    P = W * H
+    ts = table_size_for(scene, cfg)
+    cfg = replace(cfg, chunk=P)
+    f = mis_factors(radius, P, cfg)
+    y, t1 = light_pass(scene, cfg, seed, iteration, f, jnp.arange(P, dtype=jnp.int32))
+    y_all = _flatten_light(y)
+    cells = (merge_grid(y_all, jax.lax.stop_gradient(radius), ts, P) if cfg.merges else None)
+    img = jnp.zeros((P, 3), jnp.float32)
+    if t1 is not None:
+        img = _splat(img, t1[0], t1[1])
+    pixels = jnp.arange(P, dtype=jnp.int32)
+    t = camera_pass(scene, cfg, seed, iteration, f, radius, kernel_params, y_all, cells, pixels,
+                    merge_budget(budget), ts, False)
+    return _splat(img, pixels, _own_sum(t)).reshape(H, W, 3)
+
+
+register(Estimator("vcm", "vertex connection and merging (modes vcm, bpm, bpt, ppm), progressive",
+                   render, VCMConfig))
