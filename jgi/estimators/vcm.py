@@ -51,12 +51,12 @@ Light subpaths start on lights with a position (area, point, spot); scenes with 
 environment lights are refused.
 
 Merging reads light vertices from a hash grid rebuilt on the device every iteration
-(:func:`jgi.transport.photon_map.index_cells`, the photon maps' hash and 27-cell query, cell = r):
-``budget`` candidates per camera vertex, of which ``budget / 4`` within r are evaluated;
+(:func:`jgi.transport.photon_map.index_cells`, the photon maps' hash and 27-cell query, cell =
+r): ``budget`` candidates per camera vertex, of which ``budget / 4`` within r are evaluated;
 paths whose vertices find more are traced again with doubled budgets, so no light vertex is
-ever dropped (the stats count the re-runs). The kernel K_r is any of photon mapping's filters (box, cone,
-Gaussian, Epanechnikov), normalised to integrate to one over the disc; the MIS uses the box's
-acceptance area pi r^2 for every kernel (as unified path sampling does). The image is
+ever dropped (the stats count the re-runs). The kernel K_r is any of photon mapping's filters
+(box, cone, Gaussian, Epanechnikov), normalised to integrate to one over the disc; the MIS uses
+the box's acceptance area pi r^2 for every kernel (as unified path sampling does). The image is
 differentiable in r_0 and the kernel's parameters (:func:`iteration_image`); with a kernel that
 vanishes at r (cone with k = 1, Epanechnikov) the image is continuous in r too.
 
@@ -473,16 +473,22 @@ def _rows(tree, idx):
     return jax.tree_util.tree_map(lambda x: jnp.stack([x[int(i)] for i in idx]), tree)
 
 
+def connection_pairs(cfg: VCMConfig) -> list[tuple[int, int]]:
+    """(k, j): light vertex y_k joined to camera vertex z_{j+1}, i.e. strategy (s, t) =
+    (k + 1, j + 2), for every pair with s + t - 1 <= max_depth."""
+    D = cfg.max_depth
+    return [(k, j) for j in range(D) for k in range(1, D) if k + j + 2 <= D]
+
+
 def connections(scene: Scene, cfg: VCMConfig, y: LightVertices, z: CameraVertices,
                 f: MisFactors):
-    """s, t >= 2: y_{s-1} of the pixel's own light subpath joined to z_{t-1}, for every pair
-    with s + t - 1 <= max_depth. Returns ([(s, t)], weighted [J, N] V3, unweighted)."""
-    D = cfg.max_depth
+    """s, t >= 2: y_{s-1} of the pixel's own light subpath joined to z_{t-1}, for every
+    :func:`connection_pairs` pair. Returns (weighted, unweighted) [J, N] V3."""
     b = cfg.exponent
     kinds = scene.materials.kinds
-    pairs = [(k, j) for j in range(D) for k in range(1, D) if k + j + 2 <= D]
+    pairs = connection_pairs(cfg)
     if not pairs:
-        return [], None, None
+        return None, None
     q = _rows(y, [k - 1 for k, _ in pairs])
     p = _rows(z, [j for _, j in pairs])
     v = p.p - q.p
@@ -503,8 +509,7 @@ def connections(scene: Scene, cfg: VCMConfig, y: LightVertices, z: CameraVertice
     value = where(occ, V3.full(0.0, d2), value)
     wt = weight_connection(q.mis, p.mis, pdf_p_fwd * cos_q * inv_d2, pdf_q_fwd * cos_p * inv_d2,
                            pdf_q_rev, pdf_p_rev, f, b)
-    st = [(k + 1, j + 2) for k, j in pairs]
-    return st, value * wt, value
+    return value * wt, value
 
 
 class MergeGrid(NamedTuple):
@@ -626,7 +631,7 @@ class Techniques(NamedTuple):
     """Contributions of one iteration's camera subpaths, per technique (own pixel)."""
     emission: tuple        # (weighted, unweighted) [D, N] V3: s = 0, t = j + 2
     next_event: tuple      # [D, N]: s = 1, t = j + 2
-    connect: tuple         # ([(s, t)], weighted [J, N], unweighted)
+    connect: tuple         # (weighted, unweighted) [J, N], J over connection_pairs(cfg)
     merge: tuple           # weighted, unweighted: [D, N] (or [D, D - 1, N] by light row)
     truncated: Array       # [N] a merge read a truncated grid cell
 
@@ -641,7 +646,7 @@ def camera_pass(scene: Scene, cfg: VCMConfig, seed, iteration, f: MisFactors, ra
     z = camera_walk(scene, cfg, key, pixels, f)
     em = (z.emission * z.w_emission, z.emission)
     ne = (z.next_event * z.w_next_event, z.next_event)
-    conn = ([], None, None)
+    conn = (None, None)
     if cfg.connects and D >= 3:
         y_own = jax.tree_util.tree_map(lambda a: a.reshape(D - 1, -1)[:, pixels], y_all)
         conn = connections(scene, cfg, y_own, z, f)
@@ -691,8 +696,8 @@ def _own_sum(t: Techniques) -> V3:
     """The weighted contributions of every technique at the sample's own pixel."""
     out = V3(*(jnp.sum(c, 0) for c in t.emission[0]))
     out = out + V3(*(jnp.sum(c, 0) for c in t.next_event[0]))
-    if t.connect[1] is not None:
-        out = out + V3(*(jnp.sum(c, 0) for c in t.connect[1]))
+    if t.connect[0] is not None:
+        out = out + V3(*(jnp.sum(c, 0) for c in t.connect[0]))
     if t.merge[0] is not None:
         out = out + V3(*(jnp.sum(c, 0) for c in t.merge[0]))
     return out
@@ -824,9 +829,9 @@ def _add_techniques(imgs, cfg: VCMConfig, p0, t: Techniques):
     for j in range(D):
         imgs = add(imgs, ("connect", 0, j + 2), row(t.emission[0], j), row(t.emission[1], j))
         imgs = add(imgs, ("connect", 1, j + 2), row(t.next_event[0], j), row(t.next_event[1], j))
-    sts, wtd, unw = t.connect
-    for k, st in enumerate(sts):
-        imgs = add(imgs, ("connect",) + st, row(wtd, k), row(unw, k))
+    wtd, unw = t.connect
+    for i, (k, j) in enumerate(connection_pairs(cfg) if wtd is not None else []):
+        imgs = add(imgs, ("connect", k + 1, j + 2), row(wtd, i), row(unw, i))
     if t.merge[0] is not None:
         for j in range(D):
             for r in range(D - 1):
