@@ -10,7 +10,8 @@ resolution = 32               # optional film size override
 repetitions = 4               # independent seeds per configuration
 seed = 0
 reference = { estimator = "pt", spp = 512, params = { strategy = "mis" } }
-# or: reference = { closed_form = 1.5 }   (a constant image, e.g. a furnace)
+# or: reference = { closed_form = 1.5 }   (a constant image, e.g. a furnace), or the name of
+#     a built-in scene with an exact image (jgi.analysis.closed_form.IMAGES: "mirror_sds")
 # match = ["path_length"]: one reference per value of these swept keys, rendered with it
 
 [[estimator]]
@@ -49,7 +50,7 @@ import matplotlib.pyplot as plt
 import numpy as np
 
 from . import __version__
-from .analysis import stats
+from .analysis import closed_form, stats
 from .analysis.stats import loglog_slope
 from .api import render as render_image
 from .core.errors import ParameterError
@@ -99,8 +100,19 @@ def load_config(path) -> dict:
         _fail(path, "experiment.reference",
               "required: { estimator, spp, params } or { closed_form }")
     if "closed_form" in ref:
-        if set(ref) != {"closed_form"} or not isinstance(ref["closed_form"], (int, float, list)):
-            _fail(path, "experiment.reference.closed_form", "a number or [r, g, b], alone")
+        cf = ref["closed_form"]
+        if isinstance(cf, str):
+            if cf not in closed_form.IMAGES:
+                _fail(path, "experiment.reference.closed_form",
+                      f"unknown closed form {cf!r}; allowed: {', '.join(closed_form.IMAGES)} "
+                      "(or a number, or [r, g, b])")
+            if cf != exp.get("scene"):
+                _fail(path, "experiment.reference.closed_form",
+                      f"the closed form {cf!r} is the image of the built-in scene {cf!r}, not "
+                      f"of {exp.get('scene')!r}")
+        if set(ref) != {"closed_form"} or not isinstance(cf, (int, float, list, str)):
+            _fail(path, "experiment.reference.closed_form",
+                  "a number, [r, g, b] or a built-in scene's name, alone")
     else:
         bad = sorted(set(ref) - {"estimator", "spp", "params", "match"})
         if bad:
@@ -274,8 +286,10 @@ def run(config_path, *, out_root="runs", dry_run: bool = False, reduced: bool = 
         if rkey in references:
             return references[rkey]
         if "closed_form" in cfg:
-            img = np.broadcast_to(np.asarray(cfg["closed_form"], np.float32),
-                                  (scene.camera.height, scene.camera.width, 3)).copy()
+            cf = cfg["closed_form"]
+            img = (closed_form.IMAGES[cf](scene) if isinstance(cf, str) else
+                   np.broadcast_to(np.asarray(cf, np.float32),
+                                   (scene.camera.height, scene.camera.width, 3)).copy())
             references[rkey] = (img, np.zeros_like(img))
             return references[rkey]
         params = {**cfg.get("params", {}), **matched}
@@ -370,7 +384,10 @@ def run(config_path, *, out_root="runs", dry_run: bool = False, reduced: bool = 
     (out / "provenance.json").write_text(json.dumps(prov, indent=2))
     for sl in slopes:
         se = "" if sl["stderr"] is None else f" +- {sl['stderr']:.2f}"
-        print(f"  {sl['label']:20s} MSE ~ {sl['key']}^{sl['slope']:.2f}{se}  {sl['fixed']}")
+        parts = "".join(f", {p} ~ {sl['key']}^{sl[p + '_slope']:.2f}"
+                        for p in ("bias2", "variance") if p + "_slope" in sl)
+        print(f"  {sl['label']:20s} MSE ~ {sl['key']}^{sl['slope']:.2f}{se}{parts}  "
+              f"{sl['fixed']}")
     print(f"wrote {out}/ ({len(rows)} configurations: metrics.csv, slopes.json, plots, EXR means)")
     return out
 
@@ -422,8 +439,16 @@ def _plots(out: Path, rows, doc) -> list[dict]:
             text = ""
             if ok.sum() >= 2:
                 fit = loglog_slope(x[ok], mse[ok])
-                slopes.append(dict(label=label, key=key, fixed=dict(fixed), slope=fit.slope,
-                                   stderr=fit.stderr if ok.sum() > 2 else None))
+                entry = dict(label=label, key=key, fixed=dict(fixed), slope=fit.slope,
+                             stderr=fit.stderr if ok.sum() > 2 else None)
+                # the two parts of the MSE on their own (a consistent estimator's bias^2 and
+                # variance fall at different rates), where every point estimates a positive one
+                for part, y in (("bias2", b2), ("variance", var)):
+                    if np.all(y > 0):
+                        f = loglog_slope(x, y)
+                        entry[f"{part}_slope"] = f.slope
+                        entry[f"{part}_stderr"] = f.stderr if len(x) > 2 else None
+                slopes.append(entry)
                 text = f" (slope {fit.slope:.2f})"
             ax.loglog(x[ok], mse[ok], "o-", color=colour, label=f"{name} MSE{text}")
             ax.loglog(x[var > 0], var[var > 0], ":", color=colour, label=f"{name} variance")

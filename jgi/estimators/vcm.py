@@ -52,9 +52,10 @@ environment lights are refused.
 
 Merging reads light vertices from a hash grid rebuilt on the device every iteration
 (:func:`jgi.transport.photon_map.index_cells`, the photon maps' hash and 27-cell query, cell =
-r): ``budget`` candidates per camera vertex, of which ``budget / 4`` within r are evaluated;
-paths whose vertices find more are traced again with doubled budgets, so no light vertex is
-ever dropped (the stats count the re-runs). The kernel K_r is any of photon mapping's filters
+r): ``budget`` candidates per camera vertex, and ``TIER2`` times as many for the few vertices
+(at most 1 / ``TIER2`` of them) whose 27 cells hold more; paths whose vertices find more still
+are traced again with doubled budgets, so no light vertex is ever dropped (the stats count the
+re-runs). The kernel K_r is any of photon mapping's filters
 (box, cone, Gaussian, Epanechnikov), normalised to integrate to one over the disc; the MIS uses
 the box's acceptance area pi r^2 for every kernel (as unified path sampling does). The image is
 differentiable in r_0 and the kernel's parameters (:func:`iteration_image`); with a kernel that
@@ -513,67 +514,58 @@ def connections(scene: Scene, cfg: VCMConfig, y: LightVertices, z: CameraVertice
 
 
 class MergeGrid(NamedTuple):
-    """An iteration's light vertices in grid order (so a query reads them by slot), with the
-    hash grid over them and each one's row (y_{row + 1})."""
+    """An iteration's stored light vertices for merging: the hash grid over them, and their
+    records in grid order packed as rows [M, 16] (position, normal, incident direction, beta,
+    dVCM, dVC, dVM, row k - 1 of y_k), so a query reads each candidate in one contiguous
+    gather, not sixteen scattered ones (measured: docs/performance.md#vcm-merging)."""
     cells: PMap.CellIndex
-    y: LightVertices      # [M], grid order
-    row: Array            # [M]
+    rows: Array           # [M, 16] float32
 
 
 def merge_grid(y_all: LightVertices, radius, table_size: int, n_light: int) -> MergeGrid:
     cells = PMap.index_cells(y_all.p, y_all.stored, radius, table_size)
-    y = jax.tree_util.tree_map(lambda a: a[cells.order], y_all)
-    return MergeGrid(cells, y, cells.order // n_light)
+    o = cells.order
+    row = (o // n_light).astype(jnp.float32)
+    cols = [*y_all.p, *y_all.n, *y_all.wo, *y_all.beta, *y_all.mis]
+    return MergeGrid(cells, jnp.stack([c[o] for c in cols] + [row], -1))
 
 
-TIER2 = 8   # second-tier queries: 1 / TIER2 of a row, with TIER2 times the budget
+TIER2 = 16   # second-tier queries: 1 / TIER2 of a row, with TIER2 times the budget
 
 
 def _merge_queries(scene: Scene, cfg: VCMConfig, grid: MergeGrid, zj: CameraVertices, j, active,
-                   f: MisFactors, r2, scale, kernel_params: dict, budget: tuple, table_size: int,
+                   f: MisFactors, r2, scale, kernel_params: dict, budget: int, table_size: int,
                    by_length: bool):
     """Merges at camera vertices zj (row j, [Q]) with the light vertices within r: (weighted,
     unweighted) [Q] V3 sums (``by_length``: [D - 1, Q], by the light vertex's row), and
-    whether a query found more candidates than ``budget = (K, K_in)`` allows."""
+    whether a query found more grid candidates than ``budget``."""
     D = cfg.max_depth
     b = cfg.exponent
     kinds = scene.materials.kinds
-    K, K_in = budget
     col = lambda v: V3(*(c[:, None] for c in v))  # noqa: E731
-    y = grid.y
-    # ---- candidates from the grid, and those within r: positions only ----
-    slot, ok, over = PMap.candidates(grid.cells, table_size, zj.p, K)
-    diff = V3(*(c[slot] for c in y.p)) - col(zj.p)
+    slot, ok, over = PMap.candidates(grid.cells, table_size, zj.p, budget)
+    y = grid.rows[slot]                                           # [Q, K, 16]
+    v3 = lambda i: V3(y[..., i], y[..., i + 1], y[..., i + 2])  # noqa: E731
+    diff = v3(0) - col(zj.p)
     d2 = dot(diff, diff)
-    ok = ok & (d2 < r2) & active[:, None]
-    # ---- packed into K_in slots (a one-hot select: no sort) ----
-    rank = jnp.cumsum(ok, -1) - 1
-    dest = jnp.where(ok & (rank < K_in), rank, K_in)               # K_in: a discarded column
-    lane = jnp.arange(ok.shape[0])[:, None]
-    take = lambda a: jnp.zeros((a.shape[0], K_in + 1), a.dtype).at[lane, dest].set(  # noqa: E731
-        a, mode="promise_in_bounds")[:, :K_in]
-    inside = jnp.sum(ok, -1)
-    slot, d2 = take(slot), take(d2)
-    ok = jnp.arange(K_in)[None, :] < inside[:, None]
-    over = (over | (inside > K_in)) & active
-    # ---- same side, and a path short enough ----
-    g = lambda a: a[slot]  # noqa: E731
-    row = g(grid.row)
-    ok = ok & (dot(V3(*(g(c) for c in y.n)), col(zj.n)) > 0) & (row + j + 2 <= D)
+    row = y[..., 15].astype(jnp.int32)                            # the light vertex is y_{row+1}
+    ok = (ok & active[:, None] & (d2 < r2) & (dot(v3(3), col(zj.n)) > 0)
+          & (row + j + 2 <= D))
+    over = over & active
     # ---- the camera BSDF at the light vertices' incident directions; MIS ----
-    wi = V3(*(g(c) for c in y.wo))
+    wi = v3(6)
     mp = jax.tree_util.tree_map(lambda a: a[:, None],
                                 B.lookup(scene.materials, zj.material, zj.uv))
     f_z, pdf_fwd = B.evaluate(kinds, mp, col(zj.n), col(zj.wo), wi)
     _, pdf_rev = B.evaluate(kinds, mp, col(zj.n), wi, col(zj.wo))
     kern = PMap.filter_weight(cfg.kernel, jnp.where(ok, d2, 0.0), r2, **kernel_params)[0]
     c = jnp.where(ok, kern * scale, 0.0)
-    value = where(ok, f_z * V3(*(g(x) for x in y.beta)) * c, V3.full(0.0, c))
+    value = where(ok, f_z * v3(9) * c, V3.full(0.0, c))
     if cfg.mode == "ppm":
         wt = jnp.ones_like(c)
     else:
-        wt = weight_merge(Mis(*(g(x) for x in y.mis)), Mis(*(x[:, None] for x in zj.mis)),
-                          pdf_fwd, pdf_rev, f, b)
+        wt = weight_merge(Mis(y[..., 12], y[..., 13], y[..., 14]),
+                          Mis(*(x[:, None] for x in zj.mis)), pdf_fwd, pdf_rev, f, b)
     beta = zj.beta
     if by_length:
         onehot = row[None] == jnp.arange(D - 1)[:, None, None]
@@ -588,10 +580,10 @@ def _merge_queries(scene: Scene, cfg: VCMConfig, grid: MergeGrid, zj: CameraVert
 
 def merge_at_camera_vertices(scene: Scene, cfg: VCMConfig, grid: MergeGrid, z: CameraVertices,
                              f: MisFactors, radius, kernel_params: dict, n_light: int,
-                             budget: tuple, table_size: int, by_length: bool):
+                             budget: int, table_size: int, by_length: bool):
     """Vertex merging at every camera vertex (``ppm``: the first non-specular one). Each row
-    of vertices is queried with ``budget``; the few whose 27 cells hold more candidates are
-    queried again, packed, with ``TIER2`` times the budget (a fixed-size query costs its
+    of vertices is queried with ``budget`` grid candidates; the few whose 27 cells hold more
+    are queried again, packed, with ``TIER2`` times the budget (a fixed-size query costs its
     budget, so one dense caustic does not set every query's cost). Returns (weighted,
     unweighted, overflow): [D, N] V3 per camera vertex (``by_length``: [D, D - 1, N]), and
     [D, N] flags where even that was too small (the caller re-runs with larger budgets)."""
@@ -599,7 +591,7 @@ def merge_at_camera_vertices(scene: Scene, cfg: VCMConfig, grid: MergeGrid, z: C
     r2 = radius * radius
     norm = PMap.filter_weight(cfg.kernel, jnp.float32(0.0), r2, **kernel_params)[1]
     scale = 1.0 / (norm * jnp.pi * r2 * n_light)
-    big = tuple(TIER2 * k for k in budget)
+    big = TIER2 * budget
 
     def at_row(j):
         zj = jax.tree_util.tree_map(lambda x: x[j], z)
@@ -637,7 +629,7 @@ class Techniques(NamedTuple):
 
 
 def camera_pass(scene: Scene, cfg: VCMConfig, seed, iteration, f: MisFactors, radius,
-                kernel_params: dict, y_all: LightVertices, cells, pixels: Array, budget: tuple,
+                kernel_params: dict, y_all: LightVertices, cells, pixels: Array, budget: int,
                 table_size: int, by_technique: bool) -> Techniques:
     """Camera subpaths of ``pixels`` in one iteration, with every technique at their vertices."""
     D = cfg.max_depth
@@ -703,14 +695,9 @@ def _own_sum(t: Techniques) -> V3:
     return out
 
 
-def merge_budget(k: int) -> tuple:
-    """(grid candidates, evaluated candidates within r) per merge."""
-    return (k, max(4, k // 4))
-
-
 @partial(jax.jit, static_argnames=("cfg", "budget", "table_size", "by_technique"))
 def _camera_stage(scene: Scene, cfg: VCMConfig, seed, iteration, radius, kernel_params,
-                  y_all, cells, pixel0, budget: tuple, table_size: int, by_technique: bool):
+                  y_all, cells, pixel0, budget: int, table_size: int, by_technique: bool):
     """Camera subpaths of pixels pixel0 .. pixel0 + chunk - 1 (clamped to the image) with every
     technique; ``by_technique``: the :class:`Techniques`, else their weighted sum ([chunk] V3);
     and whether any merge overflowed its budget."""
@@ -756,7 +743,7 @@ class _Iterations:
             for p0 in range(0, self.P, self.chunk):
                 while True:
                     out, over = _camera_stage(scene, kc, s_, it, r, self.kernel_params, y_all,
-                                              cells, jnp.int32(p0), merge_budget(self.budget),
+                                              cells, jnp.int32(p0), self.budget,
                                               ts, by_technique)
                     if not cfg.merges or not bool(over) or self.budget >= 4096:
                         break
@@ -922,7 +909,7 @@ def iteration_image(scene: Scene, cfg: VCMConfig, seed, iteration, radius, kerne
         img = _splat(img, t1[0], t1[1])
     pixels = jnp.arange(P, dtype=jnp.int32)
     t = camera_pass(scene, cfg, seed, iteration, f, radius, kernel_params, y_all, cells, pixels,
-                    merge_budget(budget), ts, False)
+                    budget, ts, False)
     return _splat(img, pixels, _own_sum(t)).reshape(H, W, 3)
 
 
