@@ -226,6 +226,38 @@ def equal_time(scale, out: Path):
            f"\\newcommand{{\\etRefSpp}}{{{r['reference_spp']}}}\n")
 
 
+def vcm_equal_time(scale, out: Path):
+    """Path tracing, BDPT, SPPM and VCM at equal time, on the caustic Cornell box with its
+    area light and with a point light (references: path tracing, and VCM for the point light,
+    whose caustics seen in the spheres no unbiased technique samples)."""
+    sys.path.insert(0, str(HERE.parent / "experiments"))
+    import equal_time as et
+
+    small = scale == "small"
+    base = (["--res", "16", "--budget", "2", "--reps", "2"] if small
+            else ["--res", "64", "--budget", "30", "--reps", "4"])
+    runs = {"area": et.main(["--set", "vcm", "--out", str(out / "vcm_equal_time_area"),
+                             "--ref-spp", "65536" if small else "262144"] + base),
+            "point": et.main(["--set", "vcm", "--scene", "cornell_box_caustics_point",
+                              "--ref", "vcm", "--ref-spp", "2048" if small else "4096",
+                              "--out", str(out / "vcm_equal_time_point")] + base)}
+    lines = [r"\begin{tabular}{llrrr}", r"\toprule",
+             r"light & estimator & samples & time (s) & relative MSE \\", r"\midrule"]
+    for light, r in runs.items():
+        for row in r["rows"]:
+            n = f"{row['spp']} {'passes' if row['budget_key'] == 'passes' else 'spp'}"
+            lines.append(f"{light} & {row['label']} & {n} & {row['seconds']:.1f} & "
+                         f"{_tex_sci(row['rel_mse'])} \\\\")
+    lines += [r"\bottomrule", r"\end{tabular}"]
+    _write(out / "vcm_equal_time_table.tex", "\n".join(lines) + "\n")
+    a, p = runs["area"], runs["point"]
+    _write(out / "vcm_equal_time_macros.tex",
+           f"\\newcommand{{\\vcmEtBudget}}{{{a['budget_s']:g}}}\n"
+           f"\\newcommand{{\\vcmEtRes}}{{{a['resolution']}}}\n"
+           f"\\newcommand{{\\vcmEtRefSpp}}{{{a['reference_spp']}}}\n"
+           f"\\newcommand{{\\vcmEtRefIterations}}{{{p['reference_spp']}}}\n")
+
+
 def chi2(scale, out: Path):
     """Chi-square goodness of fit of every sampling routine (the test suite's cases), tabulated."""
     sys.path.insert(0, str(HERE.parent / "experiments"))
@@ -383,6 +415,7 @@ STEPS = {
     "performance": (performance, ["performance_macros.tex"]),
     "density_fit": (density_fit, ["density_fit.png", "density_fit_macros.tex"]),
     "equal_time": (equal_time, ["equal_time.png", "equal_time_table.tex", "equal_time_macros.tex"]),
+    "vcm_equal_time": (vcm_equal_time, ["vcm_equal_time_table.tex", "vcm_equal_time_macros.tex"]),
     "chi2": (chi2, ["chi2_table.tex", "chi2_macros.tex"]),
     "agreement": (agreement, ["agreement_table.tex", "agreement_macros.tex"]),
     "bdpt_pyramid": (bdpt_pyramid, ["bdpt_pyramid.png", "bdpt_pyramid_macros.tex"]),

@@ -36,16 +36,25 @@ RED = (0.570068, 0.0430135, 0.0443706)
 CORNELL_LIGHT = (18.387, 13.9873, 6.75357)
 
 
-def cornell_room(b: SceneBuilder, resolution: int, floor: str = "white") -> None:
+def cornell_room(b: SceneBuilder, resolution: int, floor: str = "white",
+                 light: str = "area") -> None:
     """Add the room of Mitsuba 3's ``cornell_box()`` to ``b``: its three materials ("white",
     "green", "red"), five walls, the ceiling light and the camera, without the two blocks.
-    ``floor``: the floor's material (defined by the caller unless "white")."""
+    ``floor``: the floor's material (defined by the caller unless "white"); ``light``: "area"
+    (Mitsuba's) or "point" (a point light 0.24 below it whose intensity is the area light's
+    L_e A, its radiant intensity along the normal)."""
     b.material("white", "diffuse", diffuse=WHITE)
     b.material("green", "diffuse", diffuse=GREEN)
     b.material("red", "diffuse", diffuse=RED)
     T, R, S = xf.translate, xf.rotate, xf.scale
-    b.rectangle(T([0, 0.99, 0.01]) @ R([1, 0, 0], 90) @ S([0.23, 0.19, 0.19]), "white",
-                emission=CORNELL_LIGHT)
+    if light == "area":
+        b.rectangle(T([0, 0.99, 0.01]) @ R([1, 0, 0], 90) @ S([0.23, 0.19, 0.19]), "white",
+                    emission=CORNELL_LIGHT)
+    elif light == "point":
+        area = (2 * 0.23) * (2 * 0.19)
+        b.point_light((0.0, 0.75, 0.01), tuple(c * area for c in CORNELL_LIGHT))
+    else:
+        raise ValueError(f"cornell_room: light {light!r}; allowed: area, point")
     b.rectangle(T([0, -1, 0]) @ R([1, 0, 0], -90), floor)
     b.rectangle(T([0, 1, 0]) @ R([1, 0, 0], 90), "white")
     b.rectangle(T([0, 0, -1]), "white")
@@ -64,14 +73,22 @@ def cornell_box(resolution: int = 256) -> Scene:
     return b.build()
 
 
-def cornell_box_caustics(resolution: int = 256) -> Scene:
-    b = SceneBuilder("cornell_box_caustics")
-    cornell_room(b, resolution)
+def cornell_box_caustics(resolution: int = 256, light: str = "area") -> Scene:
+    """The Cornell room with a mirror and a glass sphere; ``light="point"``: lit by a point
+    light (:func:`cornell_room`), so that caustics seen in the spheres (L S D S E) can be
+    sampled by no unbiased technique, only by density estimation."""
+    b = SceneBuilder("cornell_box_caustics" if light == "area" else "cornell_box_caustics_point")
+    cornell_room(b, resolution, light=light)
     b.material("mirror", "mirror", specular=(0.95, 0.95, 0.95))
     b.material("glass", "dielectric", ior=1.5)
     b.sphere((-0.45, -0.65, -0.3), 0.35, "mirror")
     b.sphere((0.45, -0.65, 0.3), 0.35, "glass")
     return b.build()
+
+
+def cornell_box_caustics_point(resolution: int = 256) -> Scene:
+    """:func:`cornell_box_caustics` lit by a point light."""
+    return cornell_box_caustics(resolution, light="point")
 
 
 def stripes_image(size: int = 8) -> np.ndarray:
@@ -298,6 +315,7 @@ def mirror_sds(resolution: int = 64, intensity: float = 10.0, albedo: float = 0.
 BUILTINS = {
     "cornell_box": cornell_box,
     "cornell_box_caustics": cornell_box_caustics,
+    "cornell_box_caustics_point": cornell_box_caustics_point,
     "glass_sphere": glass_sphere,
     "metal_ring": metal_ring,
     "veach_plates": veach_plates,
