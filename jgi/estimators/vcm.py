@@ -52,10 +52,10 @@ environment lights are refused.
 
 Merging reads light vertices from a hash grid rebuilt on the device every iteration
 (:func:`jgi.transport.photon_map.index_cells`, the photon maps' hash and 27-cell query, cell =
-r): ``budget`` candidates per camera vertex, and ``TIER2`` times as many for the few vertices
-(at most 1 / ``TIER2`` of them) whose 27 cells hold more; paths whose vertices find more still
-are traced again with doubled budgets, so no light vertex is ever dropped (the stats count the
-re-runs). The kernel K_r is any of photon mapping's filters
+r): ``budget`` candidates per camera vertex, ``TIER2`` times as many for the few vertices (at
+most 1 / ``TIER2`` of them) whose 27 cells hold more, and ``TIER2``^2 times for the fewer still;
+paths whose vertices find more are traced again with doubled budgets, so no light vertex is
+ever dropped (the stats count the re-runs). The kernel K_r is any of photon mapping's filters
 (box, cone, Gaussian, Epanechnikov), normalised to integrate to one over the disc; the MIS uses
 the box's acceptance area pi r^2 for every kernel (as unified path sampling does). The image is
 differentiable in r_0 and the kernel's parameters (:func:`iteration_image`); with a kernel that
@@ -80,6 +80,7 @@ from jax import Array
 
 from .._xla import materialize
 from ..core import rng
+from ..core.compaction import compact_map
 from ..core.errors import ParameterError
 from ..core.imageio import write_exr, write_png
 from ..core.vec import V3, dot, max_component, where
@@ -87,7 +88,7 @@ from ..physics import bsdf as B
 from ..physics import camera as C
 from ..physics import geometry as G
 from ..physics import lights as LT
-from ..scene.data import DIRECTIONAL, ENVIRONMENT, Scene
+from ..scene.data import DIELECTRIC, DIRECTIONAL, ENVIRONMENT, ROUGH_DIELECTRIC, Scene
 from ..transport import photon_map as PMap
 from ..transport.subpath import (
     LIGHT_DIMS0,
@@ -132,11 +133,14 @@ class VCMConfig:
     cone_k: float = param(1.1, "cone kernel k >= 1", minimum=1.0)
     gauss_alpha: float = param(PMap.JENSEN_ALPHA, "Gaussian kernel alpha", minimum=1e-3)
     gauss_beta: float = param(PMap.JENSEN_BETA, "Gaussian kernel beta", minimum=1e-3)
-    budget: int = param(32, "grid candidates read per merge (where more lie in the 27 cells, "
+    roulette: bool = param(True, "Russian roulette at every vertex (SmallVCM's): survive with "
+                           "the material's albedo q, densities times q (false: BDPT's streams)")
+    budget: int = param(16, "grid candidates read per merge (where more lie in the 27 cells, "
                         "those paths run again with twice as many)", minimum=8, maximum=4096)
     technique_images: str = param("", "folder: also write each technique's weighted and "
                                   "unweighted image (connections by (s, t), merges by length)")
     chunk: int = 1 << 13      # camera subpaths per jitted call
+    compact: bool = True      # techniques on live vertices only (False: dense, differentiable)
 
     @property
     def exponent(self) -> float:
@@ -212,6 +216,19 @@ def mis_pow(x: Array, b: float) -> Array:
 
 def _inv(x: Array) -> Array:
     return jnp.where(x > 0, 1.0 / jnp.where(x > 0, x, 1.0), MIS_MAX)
+
+
+def continuation(mp: B.MaterialParams, roulette: bool) -> Array:
+    """Russian roulette's survival probability q at a vertex: the material's albedo bound
+    max(k_d + k_s) in [0.05, 1] (1 for dielectrics and without roulette). It depends on the
+    material alone, so every technique multiplies the same q into a direction density sampled
+    there, forwards or backwards (SmallVCM's ContinuationProb), and the weights stay a
+    partition of unity."""
+    if not roulette:
+        return jnp.ones_like(mp.kd.x)
+    q = jnp.clip(max_component(mp.kd + mp.ks), 0.05, 1.0)
+    glass = (mp.kind == DIELECTRIC) | (mp.kind == ROUGH_DIELECTRIC)
+    return jnp.where(glass, 1.0, q)
 
 
 def mis_factors(radius, n_light: int, cfg: VCMConfig) -> MisFactors:
@@ -329,6 +346,7 @@ def light_walk(scene: Scene, cfg: VCMConfig, key: Array, f: MisFactors):
     delta_light = em.delta_pos | em.delta_dir
     mis = mis_light_start(em.pdf_dir, em.pdf_pos, jnp.abs(dot(em.n, em.d)), delta_light, f, b)
     start = (G.offset_origin(em.p, em.n, em.d), em.d, em.weight, em.p, mis, ok)
+    rr_dim0 = LIGHT_DIMS0 + (cfg.max_depth - 1) * LIGHT_DIMS_PER_STEP   # past BDPT's dimensions
 
     def step(s, j):
         o, d, beta, prev_p, m, alive = s
@@ -344,9 +362,12 @@ def light_walk(scene: Scene, cfg: VCMConfig, key: Array, f: MisFactors):
         bs = materialize(B.sample(kinds, mp, hit.n, wo, u(base), u(base + 1), u(base + 2),
                                   mode=B.IMPORTANCE))
         _, pdf_rev = B.evaluate(kinds, mp, hit.n, bs.wi, wo)
-        m = mis_scatter(m, dot(hit.n, bs.wi), bs.pdf, pdf_rev, bs.delta, f, b)
-        beta = beta * bs.weight
+        q = continuation(mp, cfg.roulette)
+        m = mis_scatter(m, dot(hit.n, bs.wi), bs.pdf * q, pdf_rev * q, bs.delta, f, b)
+        beta = beta * bs.weight / q
         alive = valid & bs.valid & (max_component(beta) > 0)
+        if cfg.roulette:
+            alive = alive & (rng.uniform(key, rr_dim0 + j) < q)
         return (G.offset_origin(hit.p, hit.n, bs.wi), bs.wi, beta, hit.p, m, alive), vert
 
     _, verts = jax.lax.scan(step, start, jnp.arange(cfg.max_depth - 1))
@@ -368,12 +389,28 @@ def light_pass(scene: Scene, cfg: VCMConfig, seed, iteration, f: MisFactors, pat
     y, _ = light_walk(scene, cfg, key, f)
     if not cfg.connects or cfg.max_depth < 2:
         return y, None
-    conn = materialize(connect_camera(scene, _as_vertices(scene, y)))
-    occ = occluded_many(scene, [conn.shadow])[0]
-    w = weight_camera_connection(y.mis, conn.pdf_cam, conn.pdf_q_rev, f, b)
-    keep = conn.ok & ~occ
-    value = where(keep, conn.value, V3.full(0.0, w))
-    return y, (jnp.where(keep, conn.pixel, -1), value * w, value)
+    K, N = y.material.shape
+
+    def batch(yb: LightVertices, live):
+        yb = yb._replace(stored=yb.stored & live)
+        conn = materialize(connect_camera(scene, _as_vertices(scene, yb)))
+        occ = occluded_many(scene, [conn.shadow])[0]
+        q = continuation(B.lookup(scene.materials, yb.material, yb.uv), cfg.roulette)
+        w = weight_camera_connection(yb.mis, conn.pdf_cam, conn.pdf_q_rev * q, f, b)
+        keep = conn.ok & ~occ
+        value = where(keep, conn.value, V3.full(0.0, w))
+        # pixel + 1: entries never written stay 0, i.e. pixel -1
+        return (jnp.where(keep, conn.pixel, -1) + 1, jnp.stack(list(value * w), -1),
+                jnp.stack(list(value), -1))
+
+    flat = _flatten_light(y)
+    like = (jnp.zeros((K * N,), jnp.int32), jnp.zeros((K * N, 3)), jnp.zeros((K * N, 3)))
+    if cfg.compact:
+        pix, wtd, unw = compact_map(batch, flat.stored, flat, like, CONNECT_BATCH)
+    else:
+        pix, wtd, unw = batch(flat, flat.stored)
+    back = lambda a: V3(*(a[:, c].reshape(K, N) for c in range(3)))  # noqa: E731
+    return y, ((pix - 1).reshape(K, N), back(wtd), back(unw))
 
 
 # --- camera subpaths ------------------------------------------------------------------------------
@@ -408,6 +445,7 @@ def camera_walk(scene: Scene, cfg: VCMConfig, key: Array, pixel: Array,
     one = V3(z + 1, z + 1, z + 1)
     mis = mis_camera_start(C.project(cam, o + d).pdf_dir, b)
     start = (o, d, one, o, mis, z == 0, z == 0)
+    rr_dim0 = CAMERA_DIMS0 + D * CAMERA_DIMS_PER_STEP   # past BDPT's dimensions
 
     def step(s, j):
         o, d, beta, prev_p, m, alive, specular_path = s
@@ -422,6 +460,7 @@ def camera_walk(scene: Scene, cfg: VCMConfig, key: Array, pixel: Array,
         wo = -d
         delta = B.is_delta(mp)
         connectable = valid & ~delta
+        q = continuation(mp, cfg.roulette)
         # ---- s = 0: an emitter ----
         e = jnp.where(valid, hit.emitter, -1)
         pdf_pos = pdf_light_origin(lights, e)
@@ -444,8 +483,9 @@ def camera_walk(scene: Scene, cfg: VCMConfig, key: Array, pixel: Array,
             inv_d2 = _inv(d2_y)
             cos_y = jnp.where(y_surface, jnp.abs(dot(n_y, ls.wi)), 1.0)
             pdf_emit_x = pdf_emission_dir(lights, k, n_y, -ls.wi) * ne.cos * inv_d2
-            w_ne = weight_next_event(m, pdf_light_origin(lights, k), ne.pdf_bsdf * cos_y * inv_d2,
-                                     pdf_emit_x, pdf_bsdf_rev, ls.delta, f, b)
+            w_ne = weight_next_event(m, pdf_light_origin(lights, k),
+                                     ne.pdf_bsdf * q * cos_y * inv_d2, pdf_emit_x,
+                                     pdf_bsdf_rev * q, ls.delta, f, b)
             Z = V3.full(0.0, z)
             ne_value = where(~G.occluded(scene, *ne.shadow), next_event_value(ne, beta), Z)
         else:
@@ -456,9 +496,11 @@ def camera_walk(scene: Scene, cfg: VCMConfig, key: Array, pixel: Array,
         # ---- the next direction ----
         bs = materialize(B.sample(kinds, mp, hit.n, wo, u(0), u(1), u(2)))
         _, pdf_rev = B.evaluate(kinds, mp, hit.n, bs.wi, wo)
-        m = mis_scatter(m, dot(hit.n, bs.wi), bs.pdf, pdf_rev, bs.delta, f, b)
-        beta = beta * bs.weight
+        m = mis_scatter(m, dot(hit.n, bs.wi), bs.pdf * q, pdf_rev * q, bs.delta, f, b)
+        beta = beta * bs.weight / q
         alive = valid & bs.valid & (max_component(beta) > 0)
+        if cfg.roulette:
+            alive = alive & (rng.uniform(key, rr_dim0 + j) < q)
         if cfg.mode == "ppm":   # the subpath ends at its first merge
             alive = alive & delta
         nxt = (G.offset_origin(hit.p, hit.n, bs.wi), bs.wi, beta, hit.p, m, alive,
@@ -469,11 +511,6 @@ def camera_walk(scene: Scene, cfg: VCMConfig, key: Array, pixel: Array,
     return verts
 
 
-def _rows(tree, idx):
-    """Static rows ``idx`` of every [K, N] leaf, stacked (a static-slice gather)."""
-    return jax.tree_util.tree_map(lambda x: jnp.stack([x[int(i)] for i in idx]), tree)
-
-
 def connection_pairs(cfg: VCMConfig) -> list[tuple[int, int]]:
     """(k, j): light vertex y_k joined to camera vertex z_{j+1}, i.e. strategy (s, t) =
     (k + 1, j + 2), for every pair with s + t - 1 <= max_depth."""
@@ -481,17 +518,10 @@ def connection_pairs(cfg: VCMConfig) -> list[tuple[int, int]]:
     return [(k, j) for j in range(D) for k in range(1, D) if k + j + 2 <= D]
 
 
-def connections(scene: Scene, cfg: VCMConfig, y: LightVertices, z: CameraVertices,
-                f: MisFactors):
-    """s, t >= 2: y_{s-1} of the pixel's own light subpath joined to z_{t-1}, for every
-    :func:`connection_pairs` pair. Returns (weighted, unweighted) [J, N] V3."""
+def _connect(scene: Scene, cfg: VCMConfig, q: LightVertices, p: CameraVertices, f: MisFactors):
+    """y = q joined to z = p (rows of pairs): (weighted, unweighted) V3."""
     b = cfg.exponent
     kinds = scene.materials.kinds
-    pairs = connection_pairs(cfg)
-    if not pairs:
-        return None, None
-    q = _rows(y, [k - 1 for k, _ in pairs])
-    p = _rows(z, [j for _, j in pairs])
     v = p.p - q.p
     d2 = dot(v, v)
     dist = jnp.sqrt(d2)
@@ -502,6 +532,9 @@ def connections(scene: Scene, cfg: VCMConfig, y: LightVertices, z: CameraVertice
     _, pdf_q_rev = B.evaluate(kinds, mq, q.n, w, q.wo)
     f_p, pdf_p_fwd = B.evaluate(kinds, mp, p.n, p.wo, -w)
     _, pdf_p_rev = B.evaluate(kinds, mp, p.n, -w, p.wo)
+    cq, cp = continuation(mq, cfg.roulette), continuation(mp, cfg.roulette)
+    pdf_q_fwd, pdf_q_rev, pdf_p_fwd, pdf_p_rev = (pdf_q_fwd * cq, pdf_q_rev * cq, pdf_p_fwd * cp,
+                                                  pdf_p_rev * cp)
     cos_q, cos_p = jnp.abs(dot(q.n, w)), jnp.abs(dot(p.n, w))
     ok = q.stored & p.connectable & (d2 > 0)
     inv_d2 = _inv(jnp.where(ok, d2, 1.0))
@@ -511,6 +544,37 @@ def connections(scene: Scene, cfg: VCMConfig, y: LightVertices, z: CameraVertice
     wt = weight_connection(q.mis, p.mis, pdf_p_fwd * cos_q * inv_d2, pdf_q_fwd * cos_p * inv_d2,
                            pdf_q_rev, pdf_p_rev, f, b)
     return value * wt, value
+
+
+def connections(scene: Scene, cfg: VCMConfig, y: LightVertices, z: CameraVertices,
+                f: MisFactors):
+    """s, t >= 2: y_{s-1} of the pixel's own light subpath joined to z_{t-1}, for every
+    :func:`connection_pairs` pair whose two vertices are connectable (gathered into batches:
+    :func:`jgi.core.compaction.compact_map`; ``cfg.compact``). Returns (weighted, unweighted)
+    [J, N] V3."""
+    pairs = connection_pairs(cfg)
+    if not pairs:
+        return None, None
+    J, N = len(pairs), z.material.shape[1]
+    k = jnp.repeat(jnp.array([k for k, _ in pairs], jnp.int32), N)
+    j = jnp.repeat(jnp.array([j for _, j in pairs], jnp.int32), N)
+    n = jnp.tile(jnp.arange(N, dtype=jnp.int32), J)
+    active = y.stored[k - 1, n] & z.connectable[j, n]
+
+    def batch(idx, live):
+        kb, jb, nb = idx
+        q = jax.tree_util.tree_map(lambda a: a[kb - 1, nb], y)
+        p = jax.tree_util.tree_map(lambda a: a[jb, nb], z)
+        wtd, unw = _connect(scene, cfg, q._replace(stored=q.stored & live), p, f)
+        return jnp.stack(list(wtd), -1), jnp.stack(list(unw), -1)
+
+    like = (jnp.zeros((J * N, 3)), jnp.zeros((J * N, 3)))
+    if cfg.compact:
+        wtd, unw = compact_map(batch, active, (k, j, n), like, CONNECT_BATCH)
+    else:
+        wtd, unw = batch((k, j, n), active)
+    back = lambda a: V3(*(a[:, c].reshape(J, N) for c in range(3)))  # noqa: E731
+    return back(wtd), back(unw)
 
 
 class MergeGrid(NamedTuple):
@@ -530,10 +594,12 @@ def merge_grid(y_all: LightVertices, radius, table_size: int, n_light: int) -> M
     return MergeGrid(cells, jnp.stack([c[o] for c in cols] + [row], -1))
 
 
-TIER2 = 16   # second-tier queries: 1 / TIER2 of a row, with TIER2 times the budget
+TIER2 = 8    # tier t >= 1 of a merge batch: 1 / TIER2^t of its queries, TIER2^t x the budget
+MERGE_BATCH = 4096      # camera vertices merged per batch (compact_map)
+CONNECT_BATCH = 4096    # light-camera vertex pairs connected per batch
 
 
-def _merge_queries(scene: Scene, cfg: VCMConfig, grid: MergeGrid, zj: CameraVertices, j, active,
+def _merge_queries(scene: Scene, cfg: VCMConfig, grid: MergeGrid, zj: Shading, j, active,
                    f: MisFactors, r2, scale, kernel_params: dict, budget: int, table_size: int,
                    by_length: bool):
     """Merges at camera vertices zj (row j, [Q]) with the light vertices within r: (weighted,
@@ -550,7 +616,7 @@ def _merge_queries(scene: Scene, cfg: VCMConfig, grid: MergeGrid, zj: CameraVert
     d2 = dot(diff, diff)
     row = y[..., 15].astype(jnp.int32)                            # the light vertex is y_{row+1}
     ok = (ok & active[:, None] & (d2 < r2) & (dot(v3(3), col(zj.n)) > 0)
-          & (row + j + 2 <= D))
+          & (row + j[:, None] + 2 <= D))
     over = over & active
     # ---- the camera BSDF at the light vertices' incident directions; MIS ----
     wi = v3(6)
@@ -558,6 +624,8 @@ def _merge_queries(scene: Scene, cfg: VCMConfig, grid: MergeGrid, zj: CameraVert
                                 B.lookup(scene.materials, zj.material, zj.uv))
     f_z, pdf_fwd = B.evaluate(kinds, mp, col(zj.n), col(zj.wo), wi)
     _, pdf_rev = B.evaluate(kinds, mp, col(zj.n), wi, col(zj.wo))
+    q = continuation(mp, cfg.roulette)
+    pdf_fwd, pdf_rev = pdf_fwd * q, pdf_rev * q
     kern = PMap.filter_weight(cfg.kernel, jnp.where(ok, d2, 0.0), r2, **kernel_params)[0]
     c = jnp.where(ok, kern * scale, 0.0)
     value = where(ok, f_z * v3(9) * c, V3.full(0.0, c))
@@ -578,43 +646,97 @@ def _merge_queries(scene: Scene, cfg: VCMConfig, grid: MergeGrid, zj: CameraVert
     return wtd, unw, over
 
 
+class Shading(NamedTuple):
+    """What a technique needs of a camera vertex: rows of :class:`CameraVertices`, flattened,
+    with the vertex's index j (z_{j+1})."""
+    p: V3
+    n: V3
+    wo: V3
+    beta: V3
+    mis: Mis
+    material: Array
+    uv: tuple | None
+    j: Array
+
+
+def _shading(z: CameraVertices) -> Shading:
+    D, N = z.material.shape
+    flat = lambda t: jax.tree_util.tree_map(lambda a: a.reshape(-1), t)  # noqa: E731
+    return Shading(flat(z.p), flat(z.n), flat(z.wo), flat(z.beta), flat(z.mis),
+                   z.material.reshape(-1), flat(z.uv) if z.uv is not None else None,
+                   jnp.repeat(jnp.arange(D, dtype=jnp.int32), N))
+
+
 def merge_at_camera_vertices(scene: Scene, cfg: VCMConfig, grid: MergeGrid, z: CameraVertices,
                              f: MisFactors, radius, kernel_params: dict, n_light: int,
                              budget: int, table_size: int, by_length: bool):
-    """Vertex merging at every camera vertex (``ppm``: the first non-specular one). Each row
-    of vertices is queried with ``budget`` grid candidates; the few whose 27 cells hold more
-    are queried again, packed, with ``TIER2`` times the budget (a fixed-size query costs its
-    budget, so one dense caustic does not set every query's cost). Returns (weighted,
-    unweighted, overflow): [D, N] V3 per camera vertex (``by_length``: [D, D - 1, N]), and
-    [D, N] flags where even that was too small (the caller re-runs with larger budgets)."""
-    D = cfg.max_depth
+    """Vertex merging at every camera vertex (``ppm``: the first non-specular one), the live
+    ones gathered into batches (:func:`jgi.core.compaction.compact_map`; ``cfg.compact``).
+    Each batch is queried with ``budget`` grid candidates; the few whose 27 cells hold more
+    are queried again, packed, with ``TIER2`` and then ``TIER2``^2 times the budget (a
+    fixed-size query costs its budget, so one dense caustic does not set every query's
+    cost). Returns (weighted, unweighted, overflow): [D, N] V3 per camera vertex
+    (``by_length``: [D, D - 1, N]), and [D, N] flags where even that was too small (the
+    caller re-runs with larger budgets)."""
+    D, N = z.material.shape
     r2 = radius * radius
     norm = PMap.filter_weight(cfg.kernel, jnp.float32(0.0), r2, **kernel_params)[1]
     scale = 1.0 / (norm * jnp.pi * r2 * n_light)
-    big = TIER2 * budget
+    args = (f, r2, scale, kernel_params)
+    active = (z.first_diffuse if cfg.mode == "ppm" else z.connectable).reshape(-1)
 
-    def at_row(j):
-        zj = jax.tree_util.tree_map(lambda x: x[j], z)
-        N = zj.p.x.shape[0]
-        active = zj.first_diffuse if cfg.mode == "ppm" else zj.connectable
-        args = (f, r2, scale, kernel_params)
-        wtd, unw, over = _merge_queries(scene, cfg, grid, zj, j, active, *args, budget,
+    def batch(zs: Shading, live):
+        B_ = live.shape[0]
+        wtd, unw, over = _merge_queries(scene, cfg, grid, zs, zs.j, live, *args, budget,
                                         table_size, by_length)
-        n2 = max(N // TIER2, 1)
-        (sel,) = jnp.nonzero(over, size=n2, fill_value=N)
-        live = sel < N
-        sel = jnp.minimum(sel, N - 1)
-        zs = jax.tree_util.tree_map(lambda x: x[sel], zj)
-        w2, u2, over2 = _merge_queries(scene, cfg, grid, zs, j, active[sel] & live, *args, big,
-                                       table_size, by_length)
-        fix = lambda a, a2: jnp.where(over, 0.0, a).at[..., sel].add(  # noqa: E731
-            jnp.where(live, a2, 0.0))
-        wtd = V3(*(fix(a, a2) for a, a2 in zip(wtd, w2)))
-        unw = V3(*(fix(a, a2) for a, a2 in zip(unw, u2)))
-        overflow = jnp.zeros_like(over).at[sel].max(over2 & live) | (jnp.sum(over) > n2)
-        return wtd, unw, overflow
+        wtd, unw = jnp.stack(list(wtd), -1), jnp.stack(list(unw), -1)
+        # vertices whose 27 cells held more than the budget: again, packed, with TIER2 times
+        # the budget, then TIER2^2 times (each tier only if the one before overflowed)
+        for tier in (1, 2):
+            n2 = max(B_ // TIER2 ** tier, 1)
+            (sel,) = jnp.nonzero(over, size=n2, fill_value=B_)
+            ok2 = sel < B_
+            sel = jnp.minimum(sel, B_ - 1)
 
-    return jax.lax.map(at_row, jnp.arange(D))
+            def retry(sel=sel, ok2=ok2, tier=tier):
+                z2 = jax.tree_util.tree_map(lambda x: x[sel], zs)
+                w2, u2, o2 = _merge_queries(scene, cfg, grid, z2, z2.j, live[sel] & ok2, *args,
+                                            budget * TIER2 ** tier, table_size, by_length)
+                return jnp.stack(list(w2), -1), jnp.stack(list(u2), -1), o2 & ok2
+
+            def none(sel=sel):
+                z = jnp.zeros(wtd.shape[:-2] + sel.shape + (3,)) if by_length else \
+                    jnp.zeros(sel.shape + (3,))
+                return z, z, jnp.zeros(sel.shape, bool)
+
+            w2, u2, o2 = jax.lax.cond(jnp.any(over), retry, none)
+            lanes = jnp.where(ok2, sel, B_)                     # B_: dropped by the scatter
+            m = over[..., None] if not by_length else over[None, :, None]
+            fix = lambda a, a2: jnp.where(m, 0.0, a).at[..., lanes, :].add(  # noqa: E731
+                a2, mode="drop")
+            wtd, unw = fix(wtd, w2), fix(unw, u2)
+            over = (jnp.zeros_like(over).at[lanes].max(o2, mode="drop")
+                    | (jnp.sum(over) > n2))
+        if by_length:   # [D - 1, B, 3] -> [B, D - 1, 3]
+            wtd, unw = jnp.swapaxes(wtd, 0, 1), jnp.swapaxes(unw, 0, 1)
+        return wtd, unw, over.astype(jnp.int32)
+
+    inputs = _shading(z)
+    M = D * N
+    tail = (D - 1, 3) if by_length else (3,)
+    like = (jnp.zeros((M,) + tail), jnp.zeros((M,) + tail), jnp.zeros((M,), jnp.int32))
+    if cfg.compact:
+        wtd, unw, over = compact_map(batch, active, inputs, like, MERGE_BATCH)
+    else:
+        wtd, unw, over = batch(inputs, active)
+
+    def back(a):   # [M, (D - 1,) 3] -> V3 of [D, (D - 1,) N]
+        a = a.reshape((D, N) + tail)
+        if by_length:
+            a = jnp.moveaxis(a, 2, 1)
+        return V3(*(a[..., c] for c in range(3)))
+
+    return back(wtd), back(unw), (over > 0).reshape(D, N)
 
 
 # --- one iteration --------------------------------------------------------------------------------
@@ -899,7 +1021,7 @@ def iteration_image(scene: Scene, cfg: VCMConfig, seed, iteration, radius, kerne
     W, H = scene.camera.width, scene.camera.height
     P = W * H
     ts = table_size_for(scene, cfg)
-    cfg = replace(cfg, chunk=P)
+    cfg = replace(cfg, chunk=P, compact=False)
     f = mis_factors(radius, P, cfg)
     y, t1 = light_pass(scene, cfg, seed, iteration, f, jnp.arange(P, dtype=jnp.int32))
     y_all = _flatten_light(y)

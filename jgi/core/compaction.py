@@ -1,0 +1,44 @@
+"""Work on the live lanes only: a batched map over the indices where a mask is set.
+
+A fixed-shape kernel costs the same for a dead lane (a path ended by Russian roulette, a Dirac
+vertex that cannot be connected) as for a live one. :func:`compact_map` gathers the live entries
+of a mask into batches of static size and runs the kernel on those alone, in a loop whose trip
+count is the number of live batches (traced: one compilation for any count), scattering the
+results back. Its cost follows the live work; the price is a gather and a scatter per input and
+output, and no reverse-mode derivative (the loop's trip count is data-dependent): callers that
+differentiate keep the dense form.
+"""
+
+from __future__ import annotations
+
+from typing import Callable
+
+import jax
+import jax.numpy as jnp
+from jax import Array
+
+
+def compact_map(fn: Callable, active: Array, inputs, out_like, batch: int):
+    """``fn(inputs[idx], live) -> outputs[idx]`` over the entries where ``active`` ([M] bool).
+
+    ``inputs``: a pytree of [M, ...] arrays; ``out_like``: a pytree of zero arrays [M, ...]
+    giving the outputs' shapes (entries not active stay zero). ``fn`` receives each batch's rows
+    ([batch, ...]) and a [batch] mask of real entries (the last batch is padded by repeating
+    the last index) and returns the batch's outputs; rows of padding are discarded."""
+    M = active.shape[0]
+    (idx,) = jnp.nonzero(active, size=M, fill_value=M)
+    idx = jnp.concatenate([idx, jnp.full((batch,), M, idx.dtype)])
+    n_batches = (jnp.sum(active) + batch - 1) // batch
+
+    def body(i, out):
+        sel = jax.lax.dynamic_slice(idx, (i * batch,), (batch,))
+        live = sel < M
+        rows = jnp.minimum(sel, M - 1)
+        got = fn(jax.tree_util.tree_map(lambda a: a[rows], inputs), live)
+        put = jnp.where(live, rows, M)          # padding is dropped by the scatter
+        return jax.tree_util.tree_map(
+            lambda o, v: o.at[put].add(jnp.where(live.reshape((-1,) + (1,) * (v.ndim - 1)),
+                                                 v, 0).astype(o.dtype), mode="drop"),
+            out, got)
+
+    return jax.lax.fori_loop(0, n_batches, body, out_like)
