@@ -264,15 +264,15 @@ def _interior(scene: Scene, q: Vertices, qm: Vertices, p: Vertices, pm: Vertices
     f_p, pdf_p_fwd = B.evaluate(kinds, mp, np_, p.wo, -w)    # z_{t-2} -> z_{t-1} -> y_{s-1}
     _, pdf_p_rev = B.evaluate(kinds, mp, np_, -w, p.wo)
     cos_q, cos_p = dot(q.n, w), dot(p.n, w)   # geometric: G and the area densities
-    if q.ns is not None:
-        # f |cos| about the shading normals, with Veach's adjoint correction at y_{s-1}:
-        # f_q |w.ns_q| corr_q f_p |w.ns_p| = f_q (|wo.ns_q| / |wo.ng_q|) f_p (|w.ns_p| /
-        # |w.ng_p|) |w.ng_q| |w.ng_p| (pbrt-v4's G takes shading cosines; the same product)
-        f_q = f_q * B.shading_ratio(q.ns, q.n, q.wo)
-        f_p = f_p * B.shading_ratio(p.ns, p.n, w)
     ok = q.valid & p.valid & ~q.delta & ~p.delta & (d2 > 0)
     g = jnp.abs(cos_q * cos_p) / jnp.where(ok, d2, 1.0)    # G without visibility
-    value = where(ok, q.beta * f_q * f_p * p.beta * g, V3.full(0.0, g))
+    g_value = g
+    if q.ns is not None:
+        # the value's cosines are the shading normals' (pbrt-v4's G), and y_{s-1}, a light
+        # vertex, takes Veach's adjoint correction
+        f_q = f_q * B.adjoint_correction(q.ns, q.n, q.wo, w)
+        g_value = jnp.abs(dot(q.ns, w) * dot(p.ns, w)) / jnp.where(ok, d2, 1.0)
+    value = where(ok, q.beta * f_q * f_p * p.beta * g_value, V3.full(0.0, g))
     vm_p = pm.p - p.p
     vm_q = qm.p - q.p
     rev = dict(

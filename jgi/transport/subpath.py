@@ -370,16 +370,17 @@ def connect_camera(scene: Scene, q: Vertices) -> CameraConnection:
     f, _ = B.evaluate(kinds, mp, nq, q.wo, w, mode=B.IMPORTANCE)   # a light vertex
     _, pdf_q_rev = B.evaluate(kinds, mp, nq, w, q.wo)
     cos_q = jnp.abs(dot(q.n, w))     # geometric: the camera's area density of q
-    if q.ns is not None:
-        # f |w . ns| times Veach's adjoint correction is f |w . ng| |wo . ns| / |wo . ng|
-        f = f * B.shading_ratio(q.ns, q.n, q.wo)
+    cos_f = cos_q                    # the cosine of the value: the shading normal's
+    if q.ns is not None:             # (pbrt-v4's BDPT), with Veach's adjoint correction
+        f = f * B.adjoint_correction(q.ns, q.n, q.wo, w)
+        cos_f = jnp.abs(dot(q.ns, w))
     d2 = proj.dist * proj.dist
     inv_d2 = jnp.where(d2 > 0, 1.0 / jnp.where(d2 > 0, d2, 1.0), 0.0)
     cos_cam = -dot(w, cam.forward)
     # W_e / p(pinhole as seen from q) with p = d^2 / cos_cam (pbrt's Camera::SampleWi)
     we_term = proj.importance * cos_cam * inv_d2
     ok = q.valid & ~q.delta & proj.visible
-    value = where(ok, q.beta * f * (cos_q * we_term), V3.full(0.0, cos_q))
+    value = where(ok, q.beta * f * (cos_f * we_term), V3.full(0.0, cos_q))
     W, H = cam.width, cam.height
     ix = jnp.clip(jnp.floor(proj.px).astype(jnp.int32), 0, W - 1)
     iy = jnp.clip(jnp.floor(proj.py).astype(jnp.int32), 0, H - 1)

@@ -138,9 +138,10 @@ def load_mesh_with_normals(path: Path, where: str):
     v, f, uv = load_mesh(path, where, allow_vertex_normals=True, with_uv=True)
     normals = None
     if has_vertex_normals(path):
-        try:
-            mesh = trimesh.load(str(path), force="mesh", process=False)
-            normals = np.asarray(mesh.vertex_normals, float)
+        try:   # the file's values (trimesh.load may replace normals it disagrees with)
+            with open(path, "rb") as fh:
+                normals = np.asarray(trimesh.exchange.ply.load_ply(fh)["vertex_normals"],
+                                     float)
         except Exception as e:  # trimesh raises many kinds
             raise ImportError_(f"{where}: cannot read the normals of mesh '{path}': {e}") from None
         if normals.shape != v.shape:
