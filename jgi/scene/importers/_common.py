@@ -127,6 +127,17 @@ def _read_obj(path: Path, where: str):
     return v, np.asarray(faces, np.int64), uv, normals
 
 
+def normals_are_flat(v, f, normals, tol: float = 1e-6) -> bool:
+    """Whether vertex normals ([V, 3], any length; world space) equal the face normals of the
+    triangles ``f`` of vertices ``v`` at every corner: smooth shading would change nothing."""
+    n = np.asarray(normals, float)
+    n = n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
+    tri = np.asarray(v, float)[np.asarray(f)]
+    face = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    face = face / np.maximum(np.linalg.norm(face, axis=1, keepdims=True), 1e-300)
+    return bool(np.all(np.sum(n[np.asarray(f)] * face[:, None, :], axis=2) > 1 - tol))
+
+
 def load_mesh_with_normals(path: Path, where: str):
     """Vertices, faces, texture coordinates (or None) and the file's vertex normals (or None
     when it has none) of an OBJ or PLY file, for smooth shading: OBJ files as Mitsuba 3 reads

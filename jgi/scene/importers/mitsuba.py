@@ -72,6 +72,7 @@ from ._common import (
     load_mesh,
     load_mesh_with_normals,
     named_metals,
+    normals_are_flat,
     tangent_frame,
 )
 
@@ -670,16 +671,10 @@ class _Importer:
 
 def _flat_normals(v, f, normals, to_world) -> bool:
     """Whether a mesh's vertex normals (an array in object space, or "smooth") equal its
-    face normals at every corner: smooth shading would not change it."""
+    face normals at every corner (``v`` in world space): smooth shading would not change it."""
     if isinstance(normals, str):
-        n = smooth_vertex_normals(v, f)
-    else:
-        n = normals @ np.linalg.inv(np.asarray(to_world, float)[:3, :3])
-        n = n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
-    tri = v[f]
-    face = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
-    face = face / np.maximum(np.linalg.norm(face, axis=1, keepdims=True), 1e-300)
-    return bool(np.all(np.sum(n[f] * face[:, None, :], axis=2) > 1 - 1e-6))
+        return normals_are_flat(v, f, smooth_vertex_normals(v, f))
+    return normals_are_flat(v, f, normals @ np.linalg.inv(np.asarray(to_world, float)[:3, :3]))
 
 
 def load_mitsuba_xml(path) -> Scene:
