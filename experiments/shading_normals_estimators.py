@@ -30,11 +30,14 @@ CASES = {
     "mlt": (dict(max_depth=DEPTH, chains=512, b_paths=1 << 16), 64, 8, 4),
     "pssmlt": (dict(max_depth=DEPTH, chains=512), 64, 8, 4),
     "mmlt": (dict(max_depth=DEPTH, chains=512), 64, 8, 4),
-    "pm": (dict(max_depth=DEPTH, photons=400_000, radius=0.03), 16, 4, 1),
-    "pm_jensen": (dict(max_depth=DEPTH, photons=100_000, caustic_photons=20_000,
+    # photon max_depth counts photon bounces: stored at their (max_depth)-th hit at most,
+    # so paths of up to max_depth + 1 segments, the path tracer's DEPTH with DEPTH - 1
+    "pm": (dict(max_depth=DEPTH - 1, photons=400_000, radius=0.03), 16, 4, 1),
+    "sppm": (dict(max_depth=DEPTH - 1, photons=50_000, passes=16, radius=0.05), 4, 4, 1),
+    "pm_jensen": (dict(photons=100_000, caustic_photons=20_000,
                        final_gather=16), 4, 4, 1),
     "whitted": (dict(max_depth=DEPTH), 64, 8, 4),
-    "irradiance_cache": (dict(max_depth=DEPTH), 4, 2, 1),
+    "irradiance_cache": (dict(), 4, 2, 1),
 }
 
 
@@ -53,11 +56,12 @@ def main(names):
         [np.asarray(jgi.render(scene, est, seed=s, **kw)) for s in seeds])
     pt = stack("pt", range(100, 116), spp=256, max_depth=DEPTH)
     pt2 = stack("pt", range(200, 216), spp=256, max_depth=2)   # direct light only (Whitted)
+    pt8 = stack("pt", range(300, 316), spp=256, max_depth=8)   # Jensen's split, the cache
     for name in names:
         params, spp, n, regions = CASES[name]
         t0 = time.time()
         imgs = stack(name, range(n), spp=spp, **params)
-        ref = pt2 if name == "whitted" else pt
+        ref = pt2 if name == "whitted" else pt8 if name in ("pm_jensen", "irradiance_cache") else pt
         t, crit = welch(imgs, ref, regions)
         finite = np.isfinite(imgs).all()
         print(f"{name:17s} vs pt{' (2 segments)' if name == 'whitted' else ''}: max |t| = "

@@ -232,7 +232,7 @@ def _ppm_gather(scene: Scene, grid, x: V3, n: V3, wo: V3, material, r2, cap: int
     g = PMap.gather(grid, x, n, cap, None)
     inside = g.d2 < r2[:, None]
     M = jnp.sum(inside, axis=-1).astype(jnp.float32)
-    f = PMap.photon_reflectance(scene, material, n, wo, g.wi, uv, ns)
+    f = PMap.photon_reflectance(scene, material, n, wo, g.wi, uv, ns, g.normal)
     if f.x.shape[-1] == 1:   # k_d / pi per point: summed once (the scene has no microfacets)
         phi = V3(*(jnp.sum(jnp.where(inside, p, 0.0), axis=-1) * c[:, 0]
                    for p, c in zip(g.power, f)))
