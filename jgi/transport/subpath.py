@@ -23,6 +23,12 @@ Contents: the camera ray (:func:`camera_ray`); vertices (:class:`Vertices`, :fun
 the first non-specular vertex seen from the camera (:func:`trace_to_diffuse`,
 :func:`visible_points`).
 
+Shading normals (scenes with vertex normals; :func:`shading`): every BSDF evaluation and sample
+is about a vertex's shading normal ``ns`` and the value's cosines are ns's; ray offsets, shadow
+rays and :func:`convert_density` use the geometric ``n``; light subpaths (importance mode) and
+the t = 1 connection multiply by Veach's adjoint correction
+(:func:`jgi.physics.bsdf.adjoint_correction`), so both directions value a path alike.
+
 Random numbers: a camera path uses dimensions 0 and 1 of its stream for the pixel jitter; a
 light subpath draws from the stream :func:`light_key` (independent of the camera path's),
 ``LIGHT_DIMS0`` numbers for its emission sample, then ``LIGHT_DIMS_PER_STEP`` per bounce.
