@@ -349,20 +349,35 @@ def test_missing_sensor(tmp_path):
         load_mitsuba_xml(write(tmp_path, '<shape type="rectangle"/>'))
 
 
-def test_mesh_with_vertex_normals_needs_flat_shading(tmp_path):
-    (tmp_path / "tri.obj").write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nvn 0 0 1\nf 1//1 2//1 3//1\n")
+def test_meshes_shade_smooth_unless_face_normals(tmp_path):
+    """Mitsuba shades OBJ/PLY meshes with vertex normals (the file's, or computed ones when it
+    has none) unless face_normals is true: so does jgi (tests/test_shading_normals.py compares
+    the normals with Mitsuba's)."""
+    (tmp_path / "tri.obj").write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nvn 0 0.2 1\n"
+                                      "f 1//1 2//1 3//1\n")
     body = SENSOR + '<shape type="obj"><string name="filename" value="tri.obj"/></shape>'
-    with pytest.raises(SceneError, match="vertex normals"):
-        load_mitsuba_xml(write(tmp_path, body))
-    # without normals in the file Mitsuba computes smooth ones: refused as well
+    s = load_mitsuba_xml(write(tmp_path, body))
+    assert s.has_shading_normals
+    np.testing.assert_allclose(np.asarray(s.triangles.normals).reshape(3, 3),
+                               np.tile([0, 0.2, 1] / np.sqrt(1.04), (3, 1)), atol=1e-6)
     (tmp_path / "bare.obj").write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n")
     body = SENSOR + '<shape type="obj"><string name="filename" value="bare.obj"/></shape>'
-    with pytest.raises(SceneError, match="computed ones when it has none"):
-        load_mitsuba_xml(write(tmp_path, body, "bare.xml"))
+    s = load_mitsuba_xml(write(tmp_path, body, "bare.xml"))
+    assert s.has_shading_normals   # computed: a single triangle's are its face normal
+    np.testing.assert_allclose(np.asarray(s.triangles.normals).reshape(3, 3),
+                               np.tile([0, 0, 1.0], (3, 1)), atol=1e-6)
     body = SENSOR + ('<shape type="obj"><string name="filename" value="tri.obj"/>'
                      '<boolean name="face_normals" value="true"/></shape>')
     s = load_mitsuba_xml(write(tmp_path, body, "flat.xml"))
-    assert s.triangles.count == 1
+    assert s.triangles.count == 1 and not s.has_shading_normals
+    # an emitter shades flat: accepted where its vertex normals are its face normals
+    body = SENSOR + ('<shape type="obj"><string name="filename" value="bare.obj"/>'
+                     '<emitter type="area"/></shape>')
+    assert not load_mitsuba_xml(write(tmp_path, body, "em.xml")).has_shading_normals
+    body = SENSOR + ('<shape type="obj"><string name="filename" value="tri.obj"/>'
+                     '<emitter type="area"/></shape>')
+    with pytest.raises(SceneError, match="area emitter shaded with vertex normals"):
+        load_mitsuba_xml(write(tmp_path, body, "em2.xml"))
 
 
 def _mitsuba():

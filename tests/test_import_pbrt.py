@@ -189,8 +189,8 @@ def test_microfacet_materials_give_the_builder_rows(tmp_path):
     ('AreaLightSource "diffuse" "bool twosided" true', "two-sided"),
     ('ObjectBegin "x"', "directive 'ObjectBegin' is not supported"),
     ('NamedMaterial "nope"', 'unknown named material "nope"'),
-    ('Shape "trianglemesh" "point3 P" [0 0 0 1 0 0 0 1 0] "normal N" [0 0 1 0 0 1 0 0 1]',
-     "shading normals"),
+    ('Shape "trianglemesh" "point3 P" [0 0 0 1 0 0 0 1 0] "normal N" [0 0 1 0 0 1]',
+     r'"normal N" needs 3 numbers per vertex'),
     ('Shape "plymesh" "string filename" "missing.ply"', "does not exist"),
     ('AttributeEnd', "without a matching begin"),
 ])

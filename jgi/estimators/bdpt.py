@@ -84,6 +84,8 @@ from ..transport.subpath import (
     random_walk,
     rows,
     sample_next_event,
+    shading,
+    vertex_ns,
 )
 from .registry import Estimator, Render, param, register
 
@@ -195,10 +197,12 @@ def _camera_visit(scene: Scene, exponent: float):
             out["env_value"] = where(escaped, L_env, Z)
             out["env_weight"] = w
         # ---- s = 1: light sampling at z_{t-1} ----
-        ne = sample_next_event(scene, mp, hit.p, hit.n, wo, u(3), u(4), u(5), v.valid)
-        ls, pdf_p_fwd, cos_p = ne.light, ne.pdf_bsdf, ne.cos
+        ne = sample_next_event(scene, mp, hit.p, hit.n, wo, u(3), u(4), u(5), v.valid, ns=hit.ns)
+        ls, pdf_p_fwd = ne.light, ne.pdf_bsdf
+        # the light's density at z_{t-1} converts with the geometric cosine
+        cos_p = ne.cos if hit.ns is None else jnp.abs(dot(ls.wi, hit.n))
         k = LT.select(lights, u(3))
-        _, pdf_p_rev = B.evaluate(kinds, mp, hit.n, ls.wi, wo)
+        _, pdf_p_rev = B.evaluate(kinds, mp, shading(hit), ls.wi, wo)
         out["s1_value"] = where(~G.occluded(scene, *ne.shadow), next_event_value(ne, s.beta), Z)
         infinite = is_infinite(lights, k)
         dist = jnp.where(infinite, 0.0, ls.dist)
@@ -233,7 +237,7 @@ def camera_subpath(scene: Scene, cfg: BDPTConfig, key: Array, pixel: Array, unif
     one = V3(z + 1, z + 1, z + 1)
     pdf_dir = C.project(cam, o + d).pdf_dir            # 1 / (A cos^3): the film's density
     z0 = Vertices(o, Z, Z, one, z + 1, z, z > 0, z > 0, z == 0, z.astype(jnp.int32),
-                  z.astype(jnp.int32) - 1, no_uv(scene, z))
+                  z.astype(jnp.int32) - 1, no_uv(scene, z), vertex_ns(scene, Z))
     start = WalkState(o, d, one, pdf_dir, o, Z, z > 0, z > 0, z == 0)
     verts, pdf_rev0, rec = random_walk(scene, key, CAMERA_DIMS0, CAMERA_DIMS_PER_STEP,
                                        cfg.max_depth, start, B.RADIANCE,
@@ -253,15 +257,22 @@ def _interior(scene: Scene, q: Vertices, qm: Vertices, p: Vertices, pm: Vertices
     w = v / jnp.where(dist > 0, dist, 1.0)            # from y_{s-1} towards z_{t-1}
     mq = B.lookup_specialised(scene.materials, q.material, q.uv)
     mp = B.lookup_specialised(scene.materials, p.material, p.uv)
-    f_q, pdf_q_fwd = B.evaluate(kinds, mq, q.n, q.wo, w,     # y_{s-2} -> y_{s-1} -> z_{t-1}
+    nq, np_ = shading(q), shading(p)    # BSDFs about the shading normals
+    f_q, pdf_q_fwd = B.evaluate(kinds, mq, nq, q.wo, w,     # y_{s-2} -> y_{s-1} -> z_{t-1}
                                 mode=B.IMPORTANCE)
-    _, pdf_q_rev = B.evaluate(kinds, mq, q.n, w, q.wo)
-    f_p, pdf_p_fwd = B.evaluate(kinds, mp, p.n, p.wo, -w)    # z_{t-2} -> z_{t-1} -> y_{s-1}
-    _, pdf_p_rev = B.evaluate(kinds, mp, p.n, -w, p.wo)
-    cos_q, cos_p = dot(q.n, w), dot(p.n, w)
+    _, pdf_q_rev = B.evaluate(kinds, mq, nq, w, q.wo)
+    f_p, pdf_p_fwd = B.evaluate(kinds, mp, np_, p.wo, -w)    # z_{t-2} -> z_{t-1} -> y_{s-1}
+    _, pdf_p_rev = B.evaluate(kinds, mp, np_, -w, p.wo)
+    cos_q, cos_p = dot(q.n, w), dot(p.n, w)   # geometric: G and the area densities
     ok = q.valid & p.valid & ~q.delta & ~p.delta & (d2 > 0)
     g = jnp.abs(cos_q * cos_p) / jnp.where(ok, d2, 1.0)    # G without visibility
-    value = where(ok, q.beta * f_q * f_p * p.beta * g, V3.full(0.0, g))
+    g_value = g
+    if q.ns is not None:
+        # the value's cosines are the shading normals' (pbrt-v4's G), and y_{s-1}, a light
+        # vertex, takes Veach's adjoint correction
+        f_q = f_q * B.adjoint_correction(q.ns, q.n, q.wo, w)
+        g_value = jnp.abs(dot(q.ns, w) * dot(p.ns, w)) / jnp.where(ok, d2, 1.0)
+    value = where(ok, q.beta * f_q * f_p * p.beta * g_value, V3.full(0.0, g))
     vm_p = pm.p - p.p
     vm_q = qm.p - q.p
     rev = dict(

@@ -48,13 +48,12 @@ from jax import Array
 
 from ..core import rng
 from ..core.vec import V3, coordinate_system, cross, dot, length
-from ..physics import bsdf as B
 from ..physics import geometry as G
 from ..physics import lights as LT
 from ..scene.data import Scene
 from ..transport import photon_map as PMap
 from ..transport.photons import trace_photons
-from ..transport.subpath import trace_to_diffuse, visible_points
+from ..transport.subpath import face_viewer, trace_to_diffuse, visible_points
 from .path_tracer import PathTracerConfig, radiance
 from .registry import Estimator, Render, param, register
 
@@ -128,8 +127,10 @@ def _gather_dirs(cfg: CacheConfig, u1, u2):
     return sin_t, cos_t, phi
 
 
-def _gather_rays(scene: Scene, cfg: CacheConfig, seed, ids, p: V3, n: V3):
-    """The M x N stratified gather rays at points p: (origins, directions, key, angles, frame)."""
+def _gather_rays(scene: Scene, cfg: CacheConfig, seed, ids, p: V3, n: V3, ng: V3 | None = None):
+    """The M x N stratified gather rays at points p about normals n (the shading normals where
+    there are, whose geometric normals ``ng`` offset the rays): (origins, directions, key,
+    angles, frame)."""
     M, N = cfg.gather_m, cfg.gather_n
     key = rng.derive(rng.path_key(seed, ids[:, None, None] * (M * N) +
                                   jnp.arange(M * N, dtype=jnp.int32).reshape(1, M, N), 0), _SALT)
@@ -139,17 +140,18 @@ def _gather_rays(scene: Scene, cfg: CacheConfig, seed, ids, p: V3, n: V3):
     ex = lambda v: V3(*(c[:, None, None] for c in v))
     s3, t3, n3 = ex(s), ex(t), ex(n)
     d = s3 * (sin_t * jnp.cos(phi)) + t3 * (sin_t * jnp.sin(phi)) + n3 * cos_t
-    o = G.offset_origin(ex(p), n3, d)
+    o = G.offset_origin(ex(p), n3 if ng is None else ex(ng), d)
     flat = lambda v: V3(*(c.reshape(-1) for c in jnp.broadcast_arrays(*v)))
     return flat(o), flat(d), key.reshape(-1), (sin_t, cos_t, phi), (s, t)
 
 
 @partial(jax.jit, static_argnames=("cfg",))
-def gather(scene: Scene, cfg: CacheConfig, seed, ids, p: V3, n: V3):
-    """Final gathering at points p (normals n facing the viewer): E, R and gradients, with the
+def gather(scene: Scene, cfg: CacheConfig, seed, ids, p: V3, n: V3, ng: V3 | None = None):
+    """Final gathering at points p (normals n facing the viewer: the shading normals in a
+    scene with vertex normals, then ``ng`` the geometric ones): E, R and gradients, with the
     radiance of each gather ray estimated by the path tracer."""
     K = p.x.shape[0]
-    of, df, kf, angles, frame = _gather_rays(scene, cfg, seed, ids, p, n)
+    of, df, kf, angles, frame = _gather_rays(scene, cfg, seed, ids, p, n, ng)
     hit = G.intersect(scene, of, df)
     Le = (LT.emitted(scene.lights, hit.emitter, hit.n, -df) if scene.lights.count
           else V3(*(0 * of.x,) * 3))
@@ -160,13 +162,13 @@ def gather(scene: Scene, cfg: CacheConfig, seed, ids, p: V3, n: V3):
 
 
 @partial(jax.jit, static_argnames=("cfg",))
-def _gather_hits(scene: Scene, cfg: CacheConfig, seed, ids, p: V3, n: V3):
+def _gather_hits(scene: Scene, cfg: CacheConfig, seed, ids, p: V3, n: V3, ng: V3 | None = None):
     """Gather rays followed through specular chains to the diffuse surfaces they reach."""
-    of, df, kf, angles, frame = _gather_rays(scene, cfg, seed, ids, p, n)
+    of, df, kf, angles, frame = _gather_rays(scene, cfg, seed, ids, p, n, ng)
     hit = G.intersect(scene, of, df)
     v = trace_to_diffuse(scene, lambda k: rng.uniform(kf, k + 2), of, df, max_depth=cfg.max_depth,
                          light_samples=0, lookup_rough=False)
-    return v._replace(n=B.facing(v.n, v.wo)), jnp.where(hit.valid, hit.t, jnp.inf), angles, frame
+    return face_viewer(v), jnp.where(hit.valid, hit.t, jnp.inf), angles, frame
 
 
 _record_jit = jax.jit(
@@ -175,13 +177,14 @@ _record_jit = jax.jit(
 
 
 def gather_photons(scene: Scene, cfg: CacheConfig, seed, ids, p: V3, n: V3, grid, *, k: int,
-                   radius: float, cap: int | None = None):
+                   radius: float, cap: int | None = None, ng: V3 | None = None):
     """Final gathering against a global photon map (Jensen's split): each gather ray's radiance
     is the photon estimate of the light reflected at the diffuse surface it reaches."""
     K = p.x.shape[0]
-    v, r, angles, frame = _gather_hits(scene, cfg, seed, ids, p, n)
+    v, r, angles, frame = _gather_hits(scene, cfg, seed, ids, p, n, ng)
     Lp, _ = PMap.estimate_at_points(scene, grid, v.p, v.n, v.wo, v.material, radius, cap=cap,
-                                    k=k, kind="box", thickness=None, filter_params={}, uv=v.uv)
+                                    k=k, kind="box", thickness=None, filter_params={}, uv=v.uv,
+                                    ns=v.ns)
     found = np.asarray(v.found)
     L = V3(*(jnp.asarray(np.where(found, np.asarray(b) * c, 0.0)) for b, c in zip(v.beta, Lp)))
     return _record_jit(scene, cfg, K, L, r, angles, frame)
@@ -297,8 +300,19 @@ def _capacity(n: int) -> int:
 
 class ShadingPoints(NamedTuple):
     p: np.ndarray        # [3, n] positions
-    n: np.ndarray        # [3, n] normals facing the viewer
+    n: np.ndarray        # [3, n] normals facing the viewer (the shading normals, if any)
     found: np.ndarray    # [n] a non-specular vertex was reached
+    ng: np.ndarray | None = None   # [3, n] geometric normals, where n are shading normals
+
+
+def shading_points(v) -> ShadingPoints:
+    """The shading points of visible points (:class:`jgi.transport.subpath.DiffuseVertex`,
+    normals facing the viewer): gathering and records use the shading normal, ray offsets the
+    geometric one."""
+    stack = lambda a: np.stack([np.asarray(c) for c in a])  # noqa: E731
+    if v.ns is None:
+        return ShadingPoints(stack(v.p), stack(v.n), np.asarray(v.found))
+    return ShadingPoints(stack(v.p), stack(v.ns), np.asarray(v.found), stack(v.n))
 
 
 class PhotonSource(NamedTuple):
@@ -343,10 +357,12 @@ def irradiance(scene: Scene, pts: ShadingPoints, *, cfg: CacheConfig, seed: int 
             take = lambda a: V3(*(jnp.asarray(c[pad]) for c in a))
             args = (scene, gather_cfg, jnp.uint32(seed), jnp.asarray(pad, jnp.int32), take(pts.p),
                     take(pts.n))
+            ng = None if pts.ng is None else take(pts.ng)
             if source is None:
-                E, R, gr, gt = gather(*args)
+                E, R, gr, gt = gather(*args, ng)
             else:
-                E, R, gr, gt = gather_photons(*args, source.grid, k=source.k, radius=source.radius)
+                E, R, gr, gt = gather_photons(*args, source.grid, k=source.k,
+                                              radius=source.radius, ng=ng)
             k = len(sel)
             cut = lambda t: jax.tree_util.tree_map(lambda a: np.asarray(a)[:k], t)
             out.append((V3(*pts.p[:, sel]), V3(*pts.n[:, sel]), cut(E), cut(R), cut(gr), cut(gt)))
@@ -418,8 +434,7 @@ def render(scene: Scene, cfg: CacheConfig = CacheConfig(), *, spp: int = 1, seed
     Stats: those of :class:`CacheStats` (records, direct_points, gather_rays, passes, history)."""
     W, H = scene.camera.width, scene.camera.height
     v = shade(scene, cfg, seed, spp)
-    pts = ShadingPoints(np.stack([np.asarray(c) for c in v.p]),
-                        np.stack([np.asarray(c) for c in v.n]), np.asarray(v.found))
+    pts = shading_points(v)
     pix = np.arange(len(pts.found)) % (W * H)
     source = photon_source(scene, cfg.photons, seed, k=cfg.photon_k) if cfg.photons else None
     E, _, stats = irradiance(scene, pts, cfg=cfg, seed=seed, raster=(pix % W, pix // W),

@@ -48,6 +48,11 @@ does too, and only the chosen kind's code runs. That step (kind choice, acceptan
 acceptance counts per kind) is the Metropolis kernel :func:`jgi.transport.mcmc.metropolis`; this
 module supplies the path state, the mutations and the targets in their coordinates.
 
+On meshes with vertex normals the BSDF values, Dirac coefficients and specular chains are about
+the shading normal, and a non-specular vertex's value carries |wi . ns| / |wi . ng| (the path
+tracer's shading cosine over the geometric one of the area measure), so the path space is the
+path tracer's; geometry terms, densities and the targets' cosines stay geometric.
+
 Only area emitters (quads, triangles, spheres) are supported: a point or directional light has no
 area measure for x_k. Where two emitters lie along one ray the large step's light-sampling
 density counts only the nearer one (harmless in the bundled scenes, which have one emitter).
@@ -145,6 +150,7 @@ class Path(NamedTuple):
     fx: Array         # [chains] raster position of x_1 (column, float)
     fy: Array         # [chains] (row, float; 0 at the top)
     uv: tuple | None = None  # surface coordinates (u, v) [K + 1, chains], in textured scenes
+    ns: V3 | None = None     # shading normals [K + 1, chains], in scenes with vertex normals
 
 
 class PathValue(NamedTuple):
@@ -186,6 +192,21 @@ def _set_uv(uv, i, value, where_):
 
 def _uv_rows(uv, lo, hi):
     return None if uv is None else tuple(c[lo:hi] for c in uv)
+
+
+def _set_ns(ns, i, hit, where_):
+    """:func:`_set3` on shading normals (None in scenes without vertex normals)."""
+    return None if ns is None else _set3(ns, i, hit.ns, where_)
+
+
+def _shading_rows(path: "Path", lo, hi) -> V3:
+    """Rows lo..hi-1 of the normals the BSDFs are evaluated about: the shading normals in a
+    scene with vertex normals, else the geometric ones."""
+    return _rows(path.n if path.ns is None else path.ns, lo, hi)
+
+
+def _hit_shading(hit) -> V3:
+    return hit.n if hit.ns is None else hit.ns
 
 
 def _first(mask: Array, fallback: Array) -> Array:
@@ -233,7 +254,7 @@ def specular_continue(mp: B.MaterialParams, n: V3, w_from: V3, transmit: Array):
 def transmits(path: Path) -> Array:
     """[K + 1, C]: the path refracts through vertex i (its neighbours on opposite sides)."""
     prev, cur, nxt = _rows(path.p, 0, -2), _rows(path.p, 1, -1), _rows(path.p, 2, None)
-    n = _rows(path.n, 1, -1)
+    n = _shading_rows(path, 1, -1)     # sides of the shading normal, as the BSDF decides
     t = dot(prev - cur, n) * dot(nxt - cur, n) < 0
     f = jnp.zeros_like(t[:1])
     return jnp.concatenate([f, t, f], 0)
@@ -264,11 +285,16 @@ def evaluate(scene: Scene, cfg: MLTConfig, path: Path) -> PathValue:
     if K > 1:
         prev, cur, nxt = _rows(path.p, 0, K - 1), _rows(path.p, 1, K), _rows(path.p, 2, K + 1)
         n = _rows(path.n, 1, K)
+        ns = _shading_rows(path, 1, K)
         wo, wi = normalize(prev - cur), normalize(nxt - cur)
         mp = B.lookup(mats, path.material[1:K], _uv_rows(path.uv, 1, K))
         delta = B.is_delta(mp)
-        f, pdf_bsdf = B.evaluate(mats.kinds, mp, n, wo, wi)
-        coeff, prob = specular_coefficient(mp, n, wo, wi)
+        f, pdf_bsdf = B.evaluate(mats.kinds, mp, ns, wo, wi)
+        if path.ns is not None:
+            # in the area measure (geometric G) the path tracer's shading cosine |wi . ns|
+            # is the factor |wi . ns| / |wi . ng| of the BSDF
+            f = f * B.shading_ratio(ns, n, wi)
+        coeff, prob = specular_coefficient(mp, ns, wo, wi)
         rows = jnp.arange(1, K)[:, None]
         last = rows == (k - 1)[None, :]
         # the last direction came from the mixture (1/2) p_bsdf + (1/2) p_light
@@ -300,7 +326,8 @@ def _empty(scene: Scene, cfg: MLTConfig, n_chains: int) -> Path:
     p = V3(z + cam.x, z + cam.y, z + cam.z)
     zi = jnp.zeros((K + 1, n_chains), jnp.int32)
     return Path(p, V3(z, z, z + 1.0), zi, zi - 1, jnp.zeros(n_chains, jnp.int32), z[0], z[0],
-                (z, z) if scene.materials.has_textures else None)
+                (z, z) if scene.materials.has_textures else None,
+                V3(z, z, z + 1.0) if scene.has_shading_normals else None)
 
 
 def sample_path(scene: Scene, cfg: MLTConfig, key: Array) -> Path:
@@ -324,10 +351,11 @@ def sample_path(scene: Scene, cfg: MLTConfig, key: Array) -> Path:
         path = path._replace(p=_set3(path.p, i, hit.p, here), n=_set3(path.n, i, hit.n, here),
                              material=_set(path.material, i, hit.material, here),
                              emitter=_set(path.emitter, i, hit.emitter, here),
-                             uv=_set_uv(path.uv, i, hit.uv, here))
+                             uv=_set_uv(path.uv, i, hit.uv, here),
+                             ns=_set_ns(path.ns, i, hit, here))
         mp = B.lookup(scene.materials, hit.material, hit.uv)
         base = 3 + 7 * i
-        bs = B.sample(kinds, mp, hit.n, -d, u(base), u(base + 1), u(base + 2))
+        bs = B.sample(kinds, mp, _hit_shading(hit), -d, u(base), u(base + 1), u(base + 2))
         ls = LT.sample_li(lights, hit.p, u(base + 3), u(base + 4), u(base + 5))
         nee = (i == k - 1) & ~B.is_delta(mp) & (u(base + 6) < 0.5)
         wi = where(nee, ls.wi, bs.wi)
@@ -405,8 +433,9 @@ def retrace_lens(scene: Scene, cfg: MLTConfig, x: Path, fx: Array, fy: Array):
         y = y._replace(p=_set3(y.p, i, hit.p, here), n=_set3(y.n, i, hit.n, here),
                        material=_set(y.material, i, hit.material, here),
                        emitter=_set(y.emitter, i, hit.emitter, here),
-                       uv=_set_uv(y.uv, i, hit.uv, here))
-        w, valid = specular_continue(mp, hit.n, -d, _row(modes, jnp.full((n_chains,), i)))
+                       uv=_set_uv(y.uv, i, hit.uv, here), ns=_set_ns(y.ns, i, hit, here))
+        w, valid = specular_continue(mp, _hit_shading(hit), -d,
+                                     _row(modes, jnp.full((n_chains,), i)))
         ok = ok & (~(i < m) | valid)
         return y, G.offset_origin(hit.p, hit.n, w), w, ok
 
@@ -508,8 +537,8 @@ def retrace_caustic(scene: Scene, cfg: MLTConfig, x: Path, w_new: V3):
         y = y._replace(p=_set3(y.p, i, hit.p, here), n=_set3(y.n, i, hit.n, here),
                        material=_set(y.material, i, hit.material, here),
                        emitter=_set(y.emitter, i, hit.emitter, here),
-                       uv=_set_uv(y.uv, i, hit.uv, here))
-        dn, valid = specular_continue(mp, hit.n, -d, _row(modes, jnp.maximum(i, 0)))
+                       uv=_set_uv(y.uv, i, hit.uv, here), ns=_set_ns(y.ns, i, hit, here))
+        dn, valid = specular_continue(mp, _hit_shading(hit), -d, _row(modes, jnp.maximum(i, 0)))
         ok = ok & (~(i >= 2) | valid)
         return y, G.offset_origin(hit.p, hit.n, dn), dn, ok
 

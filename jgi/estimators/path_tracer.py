@@ -20,7 +20,9 @@ segments (1: emitters seen directly, 2: direct lighting; Mitsuba's convention), 
 ``path_length = L > 0`` keeps only paths of exactly L segments, so that summing over L reproduces
 the full image (the lecture's "contributions of different path lengths").
 
-Not included, deliberately: textures, shading normals, participating media.
+On meshes with vertex normals the BSDF is evaluated and sampled about the interpolated shading
+normal (cosines too); rays leave with offsets along the geometric normal (Mitsuba 3's and
+pbrt-v4's conventions). Not included, deliberately: participating media.
 """
 
 from __future__ import annotations
@@ -43,7 +45,7 @@ from ..physics import geometry as G
 from ..physics import lights as LT
 from ..scene.data import Scene
 from ..transport import mis
-from ..transport.subpath import camera_ray, next_event_value, sample_next_event
+from ..transport.subpath import camera_ray, next_event_value, sample_next_event, shading
 from .registry import Estimator, Render, param, register
 
 
@@ -135,7 +137,7 @@ def _shade(scene: Scene, cfg: PathTracerConfig, s: PathState, hit: G.Hit, depth,
         for j in range(cfg.light_samples):
             dj = 4 + 3 * j
             ne = sample_next_event(scene, mp, hit.p, hit.n, wo, u(dj), u(dj + 1), u(dj + 2),
-                                   nee_active)
+                                   nee_active, ns=hit.ns)
             if cfg.strategy == "mis":
                 w_g = mis.heuristic_weight(n_g, ne.light.pdf, [(n_f, ne.pdf_bsdf)], cfg.exponent)
                 w_g = jnp.where(ne.light.delta, 1.0, w_g)
@@ -144,7 +146,9 @@ def _shade(scene: Scene, cfg: PathTracerConfig, s: PathState, hit: G.Hit, depth,
             shadow.append((*ne.shadow, next_event_value(ne, s.throughput, w_g, n_g)))
 
     # ---- BSDF sampling: extend the path ----
-    bs = B.sample(kinds, mp, hit.n, wo, u(0), u(1), u(2))
+    # the BSDF about the shading normal (meshes with vertex normals); the geometric normal
+    # offsets the next ray (Mitsuba 3's path integrator: no further light-leak test)
+    bs = B.sample(kinds, mp, shading(hit), wo, u(0), u(1), u(2))
     throughput = s.throughput * bs.weight
     active = active & bs.valid
 

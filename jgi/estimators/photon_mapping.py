@@ -42,12 +42,11 @@ import numpy as np
 from ..core import rng
 from ..core.vec import V3, coordinate_system
 from ..core.warps import sample_cosine_hemisphere
-from ..physics import bsdf as B
 from ..physics import geometry as G
 from ..scene.data import Scene
 from ..transport import photon_map as PMap
 from ..transport.photons import trace_photons
-from ..transport.subpath import trace_to_diffuse, visible_points
+from ..transport.subpath import face_viewer, shading, trace_to_diffuse, visible_points
 from . import irradiance_cache as IC
 from .registry import Estimator, Render, param, register
 
@@ -138,7 +137,7 @@ def render_pm(scene: Scene, cfg: PMConfig = PMConfig(), *, spp: int = 4, seed: i
           else {})
     L, trunc = PMap.estimate_at_points(scene, grid, v.p, v.n, v.wo, v.material, radius, cap=cap,
                                        k=k, kind=filter, thickness=thickness, filter_params=fp,
-                                       uv=v.uv)
+                                       uv=v.uv, ns=v.ns)
     found = np.asarray(v.found)
     beta_ = np.stack([np.asarray(c) for c in v.beta])
     total = np.stack([np.asarray(c) for c in v.L]) + np.where(found, beta_ * L, 0.0)
@@ -146,8 +145,11 @@ def render_pm(scene: Scene, cfg: PMConfig = PMConfig(), *, spp: int = 4, seed: i
 
 
 @partial(jax.jit, static_argnames=("n_gather", "max_depth"))
-def _gather_points(scene: Scene, seed, ids, x: V3, n: V3, n_gather: int, max_depth: int):
-    """Final-gather rays from x: the diffuse points they reach and the chain throughput."""
+def _gather_points(scene: Scene, seed, ids, x: V3, n: V3, n_gather: int, max_depth: int,
+                   ng: V3 | None = None):
+    """Final-gather rays from x, cosine-distributed about n (the shading normal where there is
+    one, whose geometric normal ``ng`` then offsets the rays): the diffuse points they reach
+    and the chain throughput."""
     key = rng.derive(
         rng.path_key(seed, ids[:, None] * n_gather + jnp.arange(n_gather)[None, :], 0), _SALT)
     u1, u2 = rng.uniform(key, 0), rng.uniform(key, 1)
@@ -155,12 +157,12 @@ def _gather_points(scene: Scene, seed, ids, x: V3, n: V3, n_gather: int, max_dep
     s, t = coordinate_system(n)
     ex = lambda v: V3(*(c[:, None] for c in v))
     d = ex(s) * local.x + ex(t) * local.y + ex(n) * local.z
-    o = G.offset_origin(ex(x), ex(n), d)
+    o = G.offset_origin(ex(x), ex(n if ng is None else ng), d)
     flat = lambda v: V3(*(c.reshape(-1) for c in v))
     kf = key.reshape(-1)
     v = trace_to_diffuse(scene, lambda k: rng.uniform(kf, k + 2), flat(o), flat(d),
                          max_depth=max_depth, light_samples=0, lookup_rough=False)
-    return v._replace(n=B.facing(v.n, v.wo))
+    return face_viewer(v)
 
 
 def render_jensen(scene: Scene, cfg: JensenConfig = JensenConfig(), *, spp: int = 1,
@@ -188,15 +190,14 @@ def render_jensen(scene: Scene, cfg: JensenConfig = JensenConfig(), *, spp: int 
             Lc, _ = PMap.estimate_at_points(scene, cgrid, v.p, v.n, v.wo, v.material,
                                             float(cgrid.cell),
                                             cap=cap, k=cfg.k_caustic, kind=filter, thickness=None,
-                                            filter_params={}, uv=v.uv)
+                                            filter_params={}, uv=v.uv, ns=v.ns)
             total = total + np.where(found, beta_ * Lc, 0.0)
     # indirect diffuse by final gathering on the global map (at every point, or cached)
     if cfg.irradiance_cache:
         m = max(1, int(round(np.sqrt(final_gather / 3))))  # Ward's strata: N ~ 3 M (phi vs theta)
         cache = IC.CacheConfig(a=cfg.cache_a, gather_m=m, gather_n=max(1, final_gather // m),
                                max_depth=max_depth)
-        pts = IC.ShadingPoints(np.stack([np.asarray(c) for c in v.p]),
-                               np.stack([np.asarray(c) for c in v.n]), found)
+        pts = IC.shading_points(v)
         W = scene.camera.width
         pix = np.arange(len(found)) % (W * scene.camera.height)
         E = IC.irradiance(scene, pts, cfg=cache, seed=seed, raster=(pix % W, pix // W),
@@ -211,10 +212,11 @@ def render_jensen(scene: Scene, cfg: JensenConfig = JensenConfig(), *, spp: int 
             pad = np.pad(sel, (0, batch - len(sel)), mode="edge")
             take = lambda vv: V3(*(jnp.asarray(np.asarray(c)[pad]) for c in vv))
             g = _gather_points(scene, jnp.uint32(seed), jnp.asarray(pad, jnp.int32), take(v.p),
-                               take(v.n), final_gather, max_depth)
+                               take(shading(v)), final_gather, max_depth,
+                               None if v.ns is None else take(v.n))
             Lg, _ = PMap.estimate_at_points(scene, grid, g.p, g.n, g.wo, g.material, radius,
-                                            cap=cap, k=k,
-                                      kind=filter, thickness=None, filter_params={}, uv=g.uv)
+                                            cap=cap, k=k, kind=filter, thickness=None,
+                                            filter_params={}, uv=g.uv, ns=g.ns)
             gb = np.stack([np.asarray(c) for c in g.beta])
             Lg = (np.where(np.asarray(g.found), gb * Lg, 0.0)
                   .reshape(3, batch, final_gather).mean(-1))
@@ -224,12 +226,13 @@ def render_jensen(scene: Scene, cfg: JensenConfig = JensenConfig(), *, spp: int 
 
 
 @partial(jax.jit, static_argnames=("cap",))
-def _ppm_gather(scene: Scene, grid, x: V3, n: V3, wo: V3, material, r2, cap: int, uv=None):
+def _ppm_gather(scene: Scene, grid, x: V3, n: V3, wo: V3, material, r2, cap: int, uv=None,
+                ns=None):
     """M_i (photons within R_i) and Phi_i = sum f_r DeltaPhi_p at each visible point."""
     g = PMap.gather(grid, x, n, cap, None)
     inside = g.d2 < r2[:, None]
     M = jnp.sum(inside, axis=-1).astype(jnp.float32)
-    f = PMap.photon_reflectance(scene, material, n, wo, g.wi, uv)
+    f = PMap.photon_reflectance(scene, material, n, wo, g.wi, uv, ns, g.normal)
     if f.x.shape[-1] == 1:   # k_d / pi per point: summed once (the scene has no microfacets)
         phi = V3(*(jnp.sum(jnp.where(inside, p, 0.0), axis=-1) * c[:, 0]
                    for p, c in zip(g.power, f)))
@@ -276,7 +279,8 @@ def render_progressive(scene: Scene, cfg: ProgressiveConfig = ProgressiveConfig(
             sub = lambda vv: V3(*(c[sl] for c in vv))
             m, ph, tr = _ppm_gather(scene, grid, sub(v.p), sub(v.n), sub(v.wo), v.material[sl],
                                     jnp.asarray(R2[sl], jnp.float32), cap_t,
-                                    None if v.uv is None else tuple(c[sl] for c in v.uv))
+                                    None if v.uv is None else tuple(c[sl] for c in v.uv),
+                                    None if v.ns is None else sub(v.ns))
             M[sl] = np.asarray(m)
             phi[:, sl] = np.stack([np.asarray(c) for c in ph])
             truncated |= bool(np.any(np.asarray(tr)))

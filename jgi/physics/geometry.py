@@ -39,6 +39,8 @@ class Hit(NamedTuple):
     material: Array   # int32 material row
     emitter: Array    # int32 light element, -1 if the surface does not emit
     uv: tuple | None = None  # surface coordinates (u, v), only in scenes with textures
+    ns: V3 | None = None     # unit shading normal, only in scenes with vertex normals
+                             # (:func:`shading_normal`; n elsewhere than on smooth triangles)
 
 
 # --- single-primitive tests (scalar primitive, vector of rays) ---------------------------------
@@ -322,6 +324,7 @@ class _Nearest(NamedTuple):
     emitter: Array
     sphere: Array      # bool, only carried when the scene has spheres
     uv: tuple | None   # (u, v), only carried when the scene has textures (spheres: after the scan)
+    ns: V3 | None      # interpolated vertex normal (not normalised), only in scenes with them
 
 
 def sphere_uv(n: V3) -> tuple[Array, Array]:
@@ -346,6 +349,27 @@ def triangle_uv(uv: Array, i, b1: Array, b2: Array) -> tuple[Array, Array]:
     return r[..., 0] + b1 * r[..., 2] + b2 * r[..., 4], r[..., 1] + b1 * r[..., 3] + b2 * r[..., 5]
 
 
+def triangle_normal(normals: Array, i, b1: Array, b2: Array) -> V3:
+    """Barycentric interpolation of triangle rows i's vertex normals (``Triangles.normals``),
+    not normalised: n0 (1 - b1 - b2) + n1 b1 + n2 b2 (Mitsuba's and pbrt's)."""
+    r = normals[i]
+    b0 = 1.0 - b1 - b2
+    return V3(*(r[..., k] * b0 + r[..., 3 + k] * b1 + r[..., 6 + k] * b2 for k in range(3)))
+
+
+NS_MIN_LENGTH2 = 1e-12   # squared length below which an interpolated normal counts as zero
+
+
+def shading_normal(ns: V3, n: V3) -> V3:
+    """The unit shading normal from an interpolated vertex normal ``ns``; the geometric normal
+    n where ns is (nearly) zero or not finite (opposed vertex normals), so that no NaN
+    appears."""
+    n2 = dot(ns, ns)
+    ok = (n2 > NS_MIN_LENGTH2) & jnp.isfinite(n2)
+    inv = X.rsqrt(jnp.where(ok, n2, 1.0))
+    return where(ok, ns * inv, n)
+
+
 def intersect(scene: Scene, o: V3, d: V3, stored: bool = True) -> Hit:
     """Closest hit with its position, geometric normal, material and emitter.
 
@@ -360,18 +384,23 @@ def intersect(scene: Scene, o: V3, d: V3, stored: bool = True) -> Hit:
     # surface coordinates, only in scenes with textures (static: other scenes' kernels are
     # unchanged)
     with_uv = scene.materials.has_textures
+    # shading normals, only in scenes with vertex normals (static, as uv)
+    with_ns = scene.has_shading_normals
     carry = _Nearest(jnp.full(shape, INF), V3(zf, zf, zf + 1.0), jnp.zeros(shape, jnp.int32),
                      jnp.full(shape, -1, jnp.int32), zf > 0 if has_spheres else None,
-                     (zf, zf) if with_uv else None)
+                     (zf, zf) if with_uv else None, V3(zf, zf, zf + 1.0) if with_ns else None)
     no_uv = (jnp.float32(0.0), jnp.float32(0.0)) if with_uv else None
 
     def update(c: _Nearest, closer, t, n: V3, material, emitter, sphere=False,
-               uv=no_uv) -> _Nearest:
+               uv=no_uv, ns=None) -> _Nearest:
         sel = lambda a, b: jnp.where(closer, a, b)  # noqa: E731
+        ns = n if ns is None else ns
         return _Nearest(sel(t, c.t), V3(sel(n.x, c.n.x), sel(n.y, c.n.y), sel(n.z, c.n.z)),
                         sel(material, c.material), sel(emitter, c.emitter),
                         sel(sphere, c.sphere) if has_spheres else None,
-                        (sel(uv[0], c.uv[0]), sel(uv[1], c.uv[1])) if with_uv else None)
+                        (sel(uv[0], c.uv[0]), sel(uv[1], c.uv[1])) if with_uv else None,
+                        V3(sel(ns.x, c.ns.x), sel(ns.y, c.ns.y), sel(ns.z, c.ns.z))
+                        if with_ns else None)
 
     sp: Spheres = scene.spheres
     if sp.count:
@@ -414,20 +443,22 @@ def intersect(scene: Scene, o: V3, d: V3, stored: bool = True) -> Hit:
     if tr.count and tr.bvh is not None:
         t, prim = _bvh_closest(tr, o, d, carry.t)
         i = jnp.maximum(prim, 0)
-        uv = None
-        if with_uv:   # the hit triangle's barycentrics, from its own test
+        uv = ns = None
+        if with_uv or with_ns:   # the hit triangle's barycentrics, from its own test
             _, b1, b2 = triangle_t(_take(tr.v0, i), _take(tr.edge1, i), _take(tr.edge2, i),
                                    _take(tr.normal, i), o, d)
-            uv = triangle_uv(tr.uv, i, b1, b2)
+            uv = triangle_uv(tr.uv, i, b1, b2) if with_uv else None
+            ns = triangle_normal(tr.normals, i, b1, b2) if with_ns else None
         carry = update(carry, prim >= 0, t, _take(tr.normal, i), tr.material[i], tr.emitter[i],
-                       uv=uv)
+                       uv=uv if with_uv else no_uv, ns=ns)
     elif tr.count:
         def body(i, c):
             t, b1, b2 = triangle_t(_take(tr.v0, i), _take(tr.edge1, i), _take(tr.edge2, i),
                                    _take(tr.normal, i), o, d)
             uv = triangle_uv(tr.uv, i, b1, b2) if with_uv else None
+            ns = triangle_normal(tr.normals, i, b1, b2) if with_ns else None
             return update(c, t < c.t, t, _take(tr.normal, i), tr.material[i], tr.emitter[i],
-                          uv=uv)
+                          uv=uv, ns=ns)
         carry = _scan(tr.count, body, carry)
 
     valid = carry.t < INF
@@ -436,12 +467,17 @@ def intersect(scene: Scene, o: V3, d: V3, stored: bool = True) -> Hit:
     n = carry.n
     uv = carry.uv
     if has_spheres:
-        ns = normalize(p - n)
-        n = V3(*(jnp.where(carry.sphere, a, b) for a, b in zip(ns, n)))
+        n_sphere = normalize(p - n)
+        n = V3(*(jnp.where(carry.sphere, a, b) for a, b in zip(n_sphere, n)))
         if with_uv:
-            su, sv = sphere_uv(ns)
+            su, sv = sphere_uv(n_sphere)
             uv = (jnp.where(carry.sphere, su, uv[0]), jnp.where(carry.sphere, sv, uv[1]))
-    hit = Hit(carry.t, valid, p, n, carry.material, carry.emitter, uv)
+    ns = None
+    if with_ns:
+        ns = shading_normal(carry.ns, n)
+        if has_spheres:   # a sphere's shading normal is its geometric one
+            ns = where(carry.sphere, n, ns)
+    hit = Hit(carry.t, valid, p, n, carry.material, carry.emitter, uv, ns)
     return materialize(hit) if stored else hit
 
 

@@ -181,6 +181,10 @@ class Triangles(eqx.Module):
     # textured scenes only (else None): [T, 6] (u0, v0, u1 - u0, v1 - v0, u2 - u0, v2 - v0),
     # the vertices' surface coordinates; a mesh without them has Mitsuba's (0,0), (1,0), (0,1)
     uv: Array | None = None
+    # scenes with shading normals only (else None): [T, 9] the unit vertex normals n0, n1, n2
+    # of each triangle (a flat triangle's are its geometric normal); the hit's shading normal
+    # is their barycentric interpolation, normalised (jgi.physics.geometry)
+    normals: Array | None = None
 
     @property
     def count(self) -> int:
@@ -297,6 +301,12 @@ class Scene(eqx.Module):
     def resolution(self) -> tuple[int, int]:
         return self.camera.width, self.camera.height
 
+    @property
+    def has_shading_normals(self) -> bool:
+        """Static: some mesh has vertex normals (hits and path vertices then carry a shading
+        normal ``ns`` besides the geometric ``n``; scenes without compile as before)."""
+        return self.triangles.normals is not None
+
     def with_resolution(self, width: int, height: int) -> "Scene":
         """Same scene and field of view, another film size."""
         cam = self.camera
@@ -385,6 +395,7 @@ class SceneBuilder:
     textures: list = dc_field(default_factory=list)
     texture_names: dict = dc_field(default_factory=dict)
     triangle_uvs: list = dc_field(default_factory=list)  # per triangle: [3, 2] or None
+    triangle_normals: list = dc_field(default_factory=list)  # per triangle: [3, 3] or None
 
     # --- textures ---------------------------------------------------------------------------
     def texture(self, name: str, kind: str, *, color0=(0.4, 0.4, 0.4), color1=(0.2, 0.2, 0.2),
@@ -632,9 +643,16 @@ class SceneBuilder:
             self.quad(o, xf.apply_vector(to_world, u), xf.apply_vector(to_world, v), material,
                       emission)
 
-    def mesh(self, vertices, faces, material, emission=None, to_world=None, uv=None):
+    def mesh(self, vertices, faces, material, emission=None, to_world=None, uv=None,
+             normals=None):
         """Triangles ``faces`` of ``vertices``; ``uv`` ([V, 2], optional) are the vertices'
-        surface coordinates (without them a triangle's are Mitsuba's (0,0), (1,0), (0,1))."""
+        surface coordinates (without them a triangle's are Mitsuba's (0,0), (1,0), (0,1)).
+
+        ``normals`` makes the mesh smooth-shaded: a [V, 3] array of vertex normals (transformed
+        by ``to_world``'s inverse transpose and normalised, as Mitsuba's loaders do), or
+        ``"smooth"`` for Mitsuba's computed normals (:func:`smooth_vertex_normals` of the
+        transformed vertices); None (default) shades flat with the geometric normal. The BSDF
+        is then evaluated about the interpolated normal (:mod:`jgi.physics.geometry`)."""
         v = np.asarray(vertices, float)
         f = np.asarray(faces, np.int64)
         if to_world is not None:
@@ -643,11 +661,29 @@ class SceneBuilder:
             uv = np.asarray(uv, float)
             if uv.shape != (len(v), 2):
                 raise SceneError(f"mesh: expected uv of shape ({len(v)}, 2), got {uv.shape}")
+        if isinstance(normals, str):
+            if normals != "smooth":
+                raise SceneError(f"mesh: normals must be an array, 'smooth' or None, got "
+                                 f"'{normals}'")
+            normals = smooth_vertex_normals(v, f)
+        elif normals is not None:
+            normals = np.asarray(normals, float)
+            if normals.shape != (len(v), 3):
+                raise SceneError(f"mesh: expected normals of shape ({len(v)}, 3), got "
+                                 f"{normals.shape}")
+            if not np.all(np.isfinite(normals)):
+                raise SceneError("mesh: the vertex normals are not finite")
+            if to_world is not None:
+                normals = normals @ np.linalg.inv(np.asarray(to_world, float)[:3, :3])
+            length = np.linalg.norm(normals, axis=1, keepdims=True)
+            # a zero normal stays zero: hits there fall back to the geometric normal
+            normals = np.where(length > 0, normals / np.where(length > 0, length, 1.0), 0.0)
         m = self._mat(material)
         e = None if emission is None else _rgb(emission)
         for i, (a, b, c) in enumerate(v[f]):
             self.triangles.append((a, b, c, m, e))
             self.triangle_uvs.append(None if uv is None else uv[f[i]])
+            self.triangle_normals.append(None if normals is None else normals[f[i]])
 
     # --- lights -----------------------------------------------------------------------------
     def point_light(self, position, intensity):
@@ -876,10 +912,16 @@ class SceneBuilder:
                             + [default] * (n - len(self.triangle_uvs))).reshape(n, 3, 2)
             uv = jnp.asarray(np.concatenate([t_uv[:, 0], t_uv[:, 1] - t_uv[:, 0],
                                              t_uv[:, 2] - t_uv[:, 0]], 1), jnp.float32)
+        normals = None
+        if any(x is not None for x in self.triangle_normals):
+            ns = [np.repeat(nrm[i][None], 3, 0) if i >= len(self.triangle_normals)
+                  or self.triangle_normals[i] is None else self.triangle_normals[i]
+                  for i in range(n)]
+            normals = jnp.asarray(np.asarray(ns, np.float32).reshape(n, 9))
         return Triangles(_v3(a), _v3(e1), _v3(e2), _v3(nrm),
                          jnp.asarray([t[3] for t in self.triangles], jnp.int32),
                          jnp.asarray(emit, jnp.int32),
-                         build_bvh(a, b, c) if use_bvh else None, uv)
+                         build_bvh(a, b, c) if use_bvh else None, uv, normals)
 
     def _build_materials(self) -> Materials:
         ms = self.materials or [_Material(DIFFUSE, (0.5, 0.5, 0.5))]
@@ -945,6 +987,36 @@ class SceneBuilder:
             height=jnp.asarray([size(t, 0) for t in ts], jnp.int32),
             atlas=jnp.asarray(atlas, jnp.float32),
             kinds=tuple(sorted({t.kind for t in ts})))
+
+
+def smooth_vertex_normals(vertices, faces) -> np.ndarray:
+    """Mitsuba 3's ``Mesh::recompute_vertex_normals``: each vertex's normal is the sum of its
+    triangles' unit normals weighted by the triangle's angle at that vertex (Thuermer and
+    Wuethrich 1998), normalised; degenerate triangles add nothing, and a vertex with no
+    usable triangle gets Mitsuba's placeholder (1, 0, 0)."""
+    v = np.asarray(vertices, np.float64)
+    f = np.asarray(faces, np.int64)
+    p = v[f]                                          # [F, 3, 3]
+    n = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
+    length = np.linalg.norm(n, axis=1)
+    good = length > 0
+    n = n[good] / length[good, None]
+    p, f = p[good], f[good]
+    out = np.zeros_like(v)
+    for j in range(3):
+        d0 = p[:, (j + 1) % 3] - p[:, j]
+        d1 = p[:, (j + 2) % 3] - p[:, j]
+        d0 = d0 / np.maximum(np.linalg.norm(d0, axis=1, keepdims=True), 1e-300)
+        d1 = d1 / np.maximum(np.linalg.norm(d1, axis=1, keepdims=True), 1e-300)
+        # the angle between unit vectors, accurate near 0 and pi (Mitsuba's unit_angle)
+        dot_ = np.sum(d0 * d1, axis=1)
+        angle = np.where(dot_ >= 0, 2 * np.arcsin(np.clip(0.5 * np.linalg.norm(d1 - d0, axis=1),
+                                                          0, 1)),
+                         np.pi - 2 * np.arcsin(np.clip(0.5 * np.linalg.norm(d1 + d0, axis=1),
+                                                       0, 1)))
+        np.add.at(out, f[:, j], n * angle[:, None])
+    length = np.linalg.norm(out, axis=1, keepdims=True)
+    return np.where(length > 0, out / np.where(length > 0, length, 1.0), [1.0, 0.0, 0.0])
 
 
 def _duals(u: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -40,7 +40,12 @@ from .data import (
     SceneError,
 )
 from .importers import load_mitsuba_xml, load_pbrt
-from .importers._common import has_texture_coordinates, load_mesh
+from .importers._common import (
+    has_texture_coordinates,
+    has_vertex_normals,
+    load_mesh,
+    load_mesh_with_normals,
+)
 
 
 class SceneWarning(UserWarning):
@@ -111,7 +116,7 @@ SHAPE_KEYS = {
     "quad": {"origin": "vec3", "edge_u": "vec3", "edge_v": "vec3"},
     "rectangle": {},
     "cube": {},
-    "mesh": {"file": "str"},
+    "mesh": {"file": "str", "flat": "bool"},
 }
 SHAPE_REQUIRED = {"sphere": ("center", "radius"), "quad": ("origin", "edge_u", "edge_v"),
                   "mesh": ("file",)}
@@ -577,16 +582,22 @@ class _TomlLoader:
         elif kind == "cube":
             b.cube(m, mat, e)
         else:
-            v, f = self.mesh(f"{key}.file", t["file"])
+            # the file's vertex normals shade it smoothly, unless flat = true; emitters are
+            # flat (they radiate about the geometric normal)
+            smooth = not t.get("flat", False) and e is None
+            v, f, normals = self.mesh(f"{key}.file", t["file"], smooth)
             if b.materials[b.material_names[mat]].textures and has_texture_coordinates(
                     (self.path.parent / t["file"]).resolve()):
                 self.fail(f"{key}.material", f"'{mat}' is textured and the mesh file has "
                                              "texture coordinates, which jgi does not read from "
                                              "files yet; allowed: an untextured material")
-            b.mesh(v, f, mat, e, to_world=m)
+            b.mesh(v, f, mat, e, to_world=m, normals=normals)
 
-    def mesh(self, key: str, name: str):
-        """Vertices and triangles of a mesh file (relative to the scene file), via trimesh."""
+    def mesh(self, key: str, name: str, normals: bool = False):
+        """Vertices, triangles and (with ``normals``) the vertex normals of a mesh file
+        (relative to the scene file): OBJ and PLY files that carry normals are read as Mitsuba
+        reads them (:func:`jgi.scene.importers._common.load_mesh_with_normals`), others via
+        trimesh; the normals are None where the file has none (the mesh shades flat)."""
 
         path = self.path.parent / name
         if path.suffix.lower() not in MESH_SUFFIXES:
@@ -600,10 +611,13 @@ class _TomlLoader:
                 pass
         except OSError as e:
             self.fail(key, f"cannot read mesh file '{path}': {e.strerror or e}")
-        # load_mesh raises SceneError naming `where` for unparsable or empty files; vertex
-        # normals are accepted and ignored (jgi shades with geometric normals)
+        # the loaders raise SceneError naming `where` for unparsable or empty files
+        nrm = None
         try:
-            v, f = load_mesh(path, f"{self.path}: {key}", allow_vertex_normals=True)
+            if normals and path.suffix.lower() in (".obj", ".ply") and has_vertex_normals(path):
+                v, f, _, nrm = load_mesh_with_normals(path, f"{self.path}: {key}")
+            else:
+                v, f = load_mesh(path, f"{self.path}: {key}")
         except SceneError as e:
             raise SceneError(f"{e} (expected a valid {path.suffix[1:].upper()} file that trimesh "
                              "can read)") from None
@@ -616,7 +630,9 @@ class _TomlLoader:
         if np.any(area2 == 0):
             warnings.warn(f"{self.path}: {key}: mesh '{name}' has {int(np.sum(area2 == 0))} "
                           "zero-area triangles (rays never hit them)", SceneWarning, stacklevel=5)
-        return v, f
+        if nrm is not None and not np.all(np.isfinite(nrm)):
+            self.fail(key, f"mesh '{name}' has non-finite vertex normals")
+        return v, f, nrm
 
     def light(self, b: SceneBuilder, key: str, l):
         kind = self.type_of(key, l, tuple(LIGHT_KEYS))

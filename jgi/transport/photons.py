@@ -9,7 +9,9 @@ P_photon = P_light / n_e, i.e. ``EmissionSample.weight / n_emitted``.
 At every hit on a surface where density estimates are taken (diffuse, Phong with k_d > 0, and
 microfacet surfaces too rough to sample through: :func:`jgi.transport.subpath.is_lookup_surface`)
 the photon is *stored*:
-position, power (RGB), incident direction (towards where it came from) and surface normal. It
+position, power (RGB), incident direction (towards where it came from) and geometric surface
+normal. On meshes with vertex normals the BSDF is sampled about the shading normal, and the
+weight carries Veach's adjoint correction (:func:`jgi.physics.bsdf.adjoint_correction`). It
 is then scattered by Russian roulette: the BSDF is sampled (importance transport) giving the
 weight f |cos| / pdf, the photon survives with probability q = min(1, max(weight)), and its
 power is multiplied by weight / q, so the expected power is unchanged while photons keep roughly
@@ -89,8 +91,11 @@ def trace_photon_paths(scene: Scene, seed, photon_index: Array, n_emitted, max_d
         through = samples_through(mp, lookup_rough=False)
         record = (hit.p, pw, -d, hit.n, store & ~through & spec_seen & only_spec, store)
         base = 5 + depth * DIMS_PER_BOUNCE
-        bs = B.sample(mats.kinds, mp, hit.n, -d, u(base), u(base + 1), u(base + 2),
+        ns = hit.n if hit.ns is None else hit.ns
+        bs = B.sample(mats.kinds, mp, ns, -d, u(base), u(base + 1), u(base + 2),
                       mode=B.IMPORTANCE)
+        if hit.ns is not None:   # Veach's adjoint correction for shading normals
+            bs = bs._replace(weight=bs.weight * B.adjoint_correction(ns, hit.n, -d, bs.wi))
         q = jnp.clip(max_component(bs.weight), 0.0, 1.0)
         survive = alive & bs.valid & (u(base + 3) < q)
         pw = where(survive, pw * bs.weight / jnp.where(q > 0, q, 1.0), pw)

@@ -23,6 +23,12 @@ Contents: the camera ray (:func:`camera_ray`); vertices (:class:`Vertices`, :fun
 the first non-specular vertex seen from the camera (:func:`trace_to_diffuse`,
 :func:`visible_points`).
 
+Shading normals (scenes with vertex normals; :func:`shading`): every BSDF evaluation and sample
+is about a vertex's shading normal ``ns`` and the value's cosines are ns's; ray offsets, shadow
+rays and :func:`convert_density` use the geometric ``n``; light subpaths (importance mode) and
+the t = 1 connection multiply by Veach's adjoint correction
+(:func:`jgi.physics.bsdf.adjoint_correction`), so both directions value a path alike.
+
 Random numbers: a camera path uses dimensions 0 and 1 of its stream for the pixel jitter; a
 light subpath draws from the stream :func:`light_key` (independent of the camera path's),
 ``LIGHT_DIMS0`` numbers for its emission sample, then ``LIGHT_DIMS_PER_STEP`` per bounce.
@@ -99,6 +105,20 @@ class Vertices(NamedTuple):
     material: Array
     emitter: Array    # light element at this surface, -1 if none
     uv: tuple | None = None  # surface coordinates (u, v), in scenes with textures (else None)
+    ns: V3 | None = None     # unit shading normal, in scenes with vertex normals (else None)
+
+
+def shading(v) -> V3:
+    """The normal a vertex's (or hit's) BSDF is evaluated about: its shading normal in a scene
+    with vertex normals, else its geometric normal (the same array: such scenes compile as
+    before). The geometric normal ``v.n`` stays for ray offsets and area densities."""
+    return v.n if v.ns is None else v.ns
+
+
+def vertex_ns(scene: Scene, n: V3) -> V3 | None:
+    """The ``ns`` of a vertex that is not on a mesh (camera, light): n in a scene with vertex
+    normals, None in one without."""
+    return n if scene.has_shading_normals else None
 
 
 def no_uv(scene: Scene, like: Array) -> tuple | None:
@@ -182,14 +202,18 @@ def random_walk(scene: Scene, key: Array, dim0: int, dims_per_step: int, n_steps
         delta = B.is_delta(mp)
         extra = visit(Visit(j, hit, mp, wo, s, valid, d2, u)) if visit is not None else None
         # ---- BSDF sampling: the next direction, and the reverse density of the previous vertex
-        bs = materialize(B.sample(kinds, mp, hit.n, wo, u(0), u(1), u(2), mode=mode))
-        _, pdf_back = B.evaluate(kinds, mp, hit.n, bs.wi, wo)
+        # (both about the shading normal; area conversions use geometric normals)
+        ns = shading(hit)
+        bs = materialize(B.sample(kinds, mp, ns, wo, u(0), u(1), u(2), mode=mode))
+        _, pdf_back = B.evaluate(kinds, mp, ns, bs.wi, wo)
         pdf_rev_prev = jnp.where(valid & ~delta,
                                  convert_density(pdf_back, d2, dot(s.prev_n, s.d), s.prev_surface),
                                  0.0)
         vert = Vertices(hit.p, hit.n, wo, s.beta, pdf_fwd, pdf_rev_prev, delta, valid, valid,
-                        hit.material, jnp.where(valid, hit.emitter, -1), hit.uv)
+                        hit.material, jnp.where(valid, hit.emitter, -1), hit.uv, hit.ns)
         beta = s.beta * bs.weight
+        if mode == B.IMPORTANCE and hit.ns is not None:   # Veach's adjoint correction
+            beta = beta * B.adjoint_correction(ns, hit.n, wo, bs.wi)
         alive = valid & bs.valid & (max_component(beta) > 0)
         nxt = WalkState(G.offset_origin(hit.p, hit.n, bs.wi), bs.wi, beta,
                         jnp.where(bs.delta, 0.0, bs.pdf), hit.p, hit.n, valid, delta, alive)
@@ -281,7 +305,7 @@ def light_subpath(scene: Scene, key: Array, max_depth: int, infinite: bool = Fal
     delta_light = em.delta_pos | em.delta_dir
     le = LT.emitted(lights, jnp.where(on_surface, em.element, -1), em.n, em.d)
     v0 = Vertices(em.p, em.n, V3(z, z, z), le, em.pdf_pos, z, z > 0, on_surface, ok,
-                  jnp.zeros_like(em.element), em.element, no_uv(scene, z))
+                  jnp.zeros_like(em.element), em.element, no_uv(scene, z), vertex_ns(scene, em.n))
     v0 = jax.tree_util.tree_map(lambda x: x[None], v0)
     if max_depth <= 1:
         return LightPath(v0, delta_light, em.element)
@@ -301,21 +325,23 @@ class NextEvent(NamedTuple):
     light: LT.LightSample  # wi (x -> y), dist, L_i, pdf (solid angle, selection included), delta
     f: V3                  # f(wo -> wi) at x
     pdf_bsdf: Array        # solid-angle density of BSDF sampling wi at x (for MIS against it)
-    cos: Array             # |cos theta_i| = |n . wi| at x
+    cos: Array             # |cos theta_i| = |ns . wi| at x (ns: the shading normal)
     shadow: tuple          # (origin, direction, t_max) of the shadow ray x -> y
     ok: Array              # a usable sample (before the visibility test)
 
 
 def sample_next_event(scene: Scene, mp: B.MaterialParams, p: V3, n: V3, wo: V3, u_select: Array,
-                      u1: Array, u2: Array, active: Array) -> NextEvent:
-    """Sample a light for the point p (normal n, ``wo`` towards the previous vertex) with
-    ``lights.sample_li``, and evaluate the BSDF mp towards it. Usable where ``active``, the
-    BSDF has a non-Dirac lobe, and the sample has a positive density; the caller tests the
-    shadow ray (now, or batched with others) and chooses the MIS weight."""
+                      u1: Array, u2: Array, active: Array, ns: V3 | None = None) -> NextEvent:
+    """Sample a light for the point p (geometric normal n, shading normal ``ns`` if not n,
+    ``wo`` towards the previous vertex) with ``lights.sample_li``, and evaluate the BSDF mp
+    towards it (about ns, as its cosine). Usable where ``active``, the BSDF has a non-Dirac
+    lobe, and the sample has a positive density; the caller tests the shadow ray (now, or
+    batched with others) and chooses the MIS weight."""
+    nb = n if ns is None else ns
     ls = LT.sample_li(scene.lights, p, u_select, u1, u2)
-    f, pdf_bsdf = B.evaluate(scene.materials.kinds, mp, n, wo, ls.wi)
+    f, pdf_bsdf = B.evaluate(scene.materials.kinds, mp, nb, wo, ls.wi)
     ok = active & ~B.is_delta(mp) & ls.valid & (ls.pdf > 0)
-    return NextEvent(ls, f, pdf_bsdf, jnp.abs(dot(ls.wi, n)),
+    return NextEvent(ls, f, pdf_bsdf, jnp.abs(dot(ls.wi, nb)),
                      G.shadow_ray(p, n, ls.wi, ls.dist), ok)
 
 
@@ -346,16 +372,21 @@ def connect_camera(scene: Scene, q: Vertices) -> CameraConnection:
     proj = C.project(cam, q.p)
     w = proj.wi                                  # from q towards the pinhole
     mp = B.lookup_specialised(scene.materials, q.material, q.uv)
-    f, _ = B.evaluate(kinds, mp, q.n, q.wo, w, mode=B.IMPORTANCE)   # a light vertex
-    _, pdf_q_rev = B.evaluate(kinds, mp, q.n, w, q.wo)
-    cos_q = jnp.abs(dot(q.n, w))
+    nq = shading(q)
+    f, _ = B.evaluate(kinds, mp, nq, q.wo, w, mode=B.IMPORTANCE)   # a light vertex
+    _, pdf_q_rev = B.evaluate(kinds, mp, nq, w, q.wo)
+    cos_q = jnp.abs(dot(q.n, w))     # geometric: the camera's area density of q
+    cos_f = cos_q                    # the cosine of the value: the shading normal's
+    if q.ns is not None:             # (pbrt-v4's BDPT), with Veach's adjoint correction
+        f = f * B.adjoint_correction(q.ns, q.n, q.wo, w)
+        cos_f = jnp.abs(dot(q.ns, w))
     d2 = proj.dist * proj.dist
     inv_d2 = jnp.where(d2 > 0, 1.0 / jnp.where(d2 > 0, d2, 1.0), 0.0)
     cos_cam = -dot(w, cam.forward)
     # W_e / p(pinhole as seen from q) with p = d^2 / cos_cam (pbrt's Camera::SampleWi)
     we_term = proj.importance * cos_cam * inv_d2
     ok = q.valid & ~q.delta & proj.visible
-    value = where(ok, q.beta * f * (cos_q * we_term), V3.full(0.0, cos_q))
+    value = where(ok, q.beta * f * (cos_f * we_term), V3.full(0.0, cos_q))
     W, H = cam.width, cam.height
     ix = jnp.clip(jnp.floor(proj.px).astype(jnp.int32), 0, W - 1)
     iy = jnp.clip(jnp.floor(proj.py).astype(jnp.int32), 0, H - 1)
@@ -422,6 +453,7 @@ class DiffuseVertex(NamedTuple):
     material: Array
     found: Array     # bool: the chain ended on a non-specular surface
     uv: tuple | None = None  # its surface coordinates, in scenes with textures (else None)
+    ns: V3 | None = None     # its shading normal, in scenes with vertex normals (else None)
 
 
 def trace_to_diffuse(scene: Scene, uniform, o: V3, d: V3, *, max_depth: int,
@@ -458,24 +490,25 @@ def trace_to_diffuse(scene: Scene, uniform, o: V3, d: V3, *, max_depth: int,
             for j in range(light_samples):
                 dj = base + 1 + 3 * j
                 ne = sample_next_event(scene, mp, hit.p, hit.n, wo, uniform(dj), uniform(dj + 1),
-                                       uniform(dj + 2), diffuse_end)
+                                       uniform(dj + 2), diffuse_end, ns=hit.ns)
                 value = next_event_value(ne, beta, n_samples=light_samples)
                 L = L + where(~G.occluded(scene, *ne.shadow), value, Z)
         v = DiffuseVertex(v.L, where(diffuse_end, beta, v.beta), where(diffuse_end, hit.p, v.p),
                           where(diffuse_end, hit.n, v.n), where(diffuse_end, wo, v.wo),
                           jnp.where(diffuse_end, hit.material, v.material), v.found | diffuse_end,
                           None if v.uv is None else
-                          tuple(jnp.where(diffuse_end, a, b) for a, b in zip(hit.uv, v.uv)))
+                          tuple(jnp.where(diffuse_end, a, b) for a, b in zip(hit.uv, v.uv)),
+                          None if v.ns is None else where(diffuse_end, hit.ns, v.ns))
         # ---- follow the specular (or glossy) chain ----
         u1, u2 = ((uniform(glossy_dim0 + 2 * depth), uniform(glossy_dim0 + 2 * depth + 1))
                   if rough else (z, z))
-        bs = B.sample(mats.kinds, mp, hit.n, wo, uniform(base), u1, u2)
+        bs = B.sample(mats.kinds, mp, shading(hit), wo, uniform(base), u1, u2)
         active = active & specular & bs.valid
         return (G.offset_origin(hit.p, hit.n, bs.wi), bs.wi, beta * bs.weight, L, active, v)
 
     one = jnp.ones_like(z)
     v0 = DiffuseVertex(Z, Z, o, V3(z, z, one), V3(z, z, one), jnp.zeros_like(z, jnp.int32), z > 0,
-                       no_uv(scene, z))
+                       no_uv(scene, z), vertex_ns(scene, V3(z, z, one)))
     state = (o, d, V3(one, one, one), Z, z == 0, v0)
     _, _, _, L, _, v = jax.lax.fori_loop(0, max_depth, step, state)
     return v._replace(L=L)
@@ -493,4 +526,10 @@ def visible_points(scene: Scene, seed, pixel, sample, *, max_depth: int,
     o, d = camera_ray(scene.camera, pixel, uniform)
     v = trace_to_diffuse(scene, uniform, o, d, max_depth=max_depth, light_samples=light_samples,
                          lookup_rough=lookup_rough)
-    return v._replace(n=B.facing(v.n, v.wo))
+    return face_viewer(v)
+
+
+def face_viewer(v: DiffuseVertex) -> DiffuseVertex:
+    """The vertex with its normals (geometric, and shading if any) turned towards ``wo``."""
+    v = v._replace(n=B.facing(v.n, v.wo))
+    return v if v.ns is None else v._replace(ns=B.facing(v.ns, v.wo))

@@ -2,8 +2,11 @@
 the microfacet kinds: rough conductor, rough dielectric and rough plastic (Mitsuba 3's).
 
 Conventions (pbrt's): ``wo`` points back along the path (towards the camera for camera paths),
-``wi`` is the sampled direction, both leave the surface; ``n`` is the primitive's unit
-geometric normal. :func:`evaluate` returns the BSDF value f(wo, wi) *without* the cosine, and its
+``wi`` is the sampled direction, both leave the surface; ``n`` is the normal the BSDF is
+evaluated about: the primitive's unit geometric normal, or on smooth meshes the shading normal
+(Mitsuba 3 and pbrt-v4 evaluate BSDFs in the shading frame alone: its side tests, two-sided
+flip and the dielectric's entering or leaving; callers keep the geometric normal for ray
+offsets and area densities, and apply :func:`adjoint_correction` in importance mode). :func:`evaluate` returns the BSDF value f(wo, wi) *without* the cosine, and its
 solid-angle pdf; :func:`sample` returns a direction and the weight f |cos theta_i| / pdf.
 Dirac (specular) lobes have no value and no pdf: ``evaluate`` gives 0 for them and ``sample``
 flags them with ``delta``. Opaque materials are two-sided (the normal is flipped to ``wo``'s
@@ -48,6 +51,7 @@ from .common import (
     RADIANCE,
     BSDFSample,
     MaterialParams,
+    adjoint_correction,
     facing,
     is_delta,
     is_glossy,
@@ -56,6 +60,7 @@ from .common import (
     lookup,
     lookup_specialised,
     no_sample,
+    shading_ratio,
     side,
 )
 from .fresnel import fresnel_conductor, fresnel_conductor_rgb, fresnel_dielectric, refract
@@ -66,7 +71,7 @@ __all__ = ["RADIANCE", "IMPORTANCE", "GLOSSY_ALPHA", "MaterialParams", "BSDFSamp
            "lookup_specialised", "is_delta", "is_glossy", "is_rough",
            "facing", "side", "lit", "specular_probability", "fresnel_dielectric", "refract",
            "fresnel_conductor", "fresnel_conductor_rgb", "mirror_reflectance",
-           "evaluate", "sample"]
+           "adjoint_correction", "shading_ratio", "evaluate", "sample"]
 
 
 def _rough(kinds, mp: MaterialParams, flipped: Array, wo_l: V3, wi_l: V3,

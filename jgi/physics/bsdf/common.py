@@ -186,6 +186,29 @@ def lit(cos: Array) -> Array:
     return cos > EDGE_ON_COS
 
 
+def adjoint_correction(ns: V3, ng: V3, wo: V3, wi: V3) -> Array:
+    """Veach's (1997, sec. 5.3) correction of the adjoint BSDF for shading normals, by which
+    a throughput sampled or evaluated in importance mode (light subpaths, photons, t = 1
+    camera connections) is multiplied: |wo . ns| |wi . ng| / (|wo . ng| |wi . ns|) (pbrt-v4's
+    CorrectShadingNormal, Mitsuba 3's particle tracer), wo towards the light, wi the direction
+    importance arrives from. With it, f |wi . ns| (the path tracer's cosine) times the factor
+    is f |wo . ns| |wi . ng| / |wo . ng|, so light paths value every path as camera paths do.
+    0 where a denominator vanishes (no NaN or Inf)."""
+    num = jnp.abs(dot(wo, ns)) * jnp.abs(dot(wi, ng))
+    den = jnp.abs(dot(wo, ng)) * jnp.abs(dot(wi, ns))
+    ok = den > 0
+    return jnp.where(ok, num / jnp.where(ok, den, 1.0), 0.0)
+
+
+def shading_ratio(ns: V3, ng: V3, wi: V3) -> Array:
+    """|wi . ns| / |wi . ng|: what turns a flux density on the geometric surface (photons
+    arriving from wi) into the path tracer's shading-normal cosine (photon density estimates
+    on smooth meshes). 0 where wi grazes the geometric surface."""
+    den = jnp.abs(dot(wi, ng))
+    ok = den > 0
+    return jnp.where(ok, jnp.abs(dot(wi, ns)) / jnp.where(ok, den, 1.0), 0.0)
+
+
 def no_sample(like: Array) -> BSDFSample:
     """An absorbed sample: what lanes of no listed kind return."""
     zero = jnp.zeros_like(like)

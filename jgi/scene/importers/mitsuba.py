@@ -35,9 +35,14 @@ supported):
              Textured OBJ meshes take the file's texture coordinates (v flipped, as Mitsuba's
              OBJ loader does), or Mitsuba's (0,0), (1,0), (0,1) per triangle without them;
              textured PLY meshes with texture coordinates are refused.
-  shape      rectangle, cube, sphere (center/radius or a uniform-scale to_world), obj, ply
-             (only with face_normals="true": otherwise Mitsuba shades with vertex normals, read
-             from the file or computed, and jgi shades flat)
+  shape      rectangle, cube, sphere (center/radius or a uniform-scale to_world), obj, ply:
+             with face_normals="true" shaded flat; otherwise, as Mitsuba, with vertex normals
+             (the file's, transformed and normalised, or, when it has none, Mitsuba's smooth
+             angle-weighted ones: jgi.scene.data.smooth_vertex_normals) interpolated into a
+             shading normal. OBJ files are then read as Mitsuba reads them (a vertex per
+             position / texture / normal index triple). Refused on smooth meshes: area
+             emission (jgi's emitters radiate about the geometric normal) and anisotropic
+             roughness
   emitter    area (radiance), point (intensity, position or to_world), spot (intensity,
              cutoff_angle; only with beam_width equal to cutoff_angle, since Mitsuba's falloff
              curve differs from jgi's), directional (direction, irradiance), constant (radiance)
@@ -59,13 +64,15 @@ from pathlib import Path
 import numpy as np
 
 from ...core import transform as xf
-from ..data import Scene, SceneBuilder, SceneError
+from ..data import Scene, SceneBuilder, SceneError, smooth_vertex_normals
 from ._common import (
     NAMED_IOR,
     ImportError_,
     has_texture_coordinates,
     load_mesh,
+    load_mesh_with_normals,
     named_metals,
+    normals_are_flat,
     tangent_frame,
 )
 
@@ -488,8 +495,16 @@ class _Importer:
             if not fname:
                 self.fail(el, f"{kind} shape needs a 'filename'")
             base = self.file_of(el).parent
-            v, f, uv = load_mesh(base / fname, self.where(el), allow_vertex_normals=True,
-                                 with_uv=True)
+            smooth = not p.get("face_normals", False)
+            if smooth:
+                # Mitsuba 3 shades with the file's vertex normals, or with smooth ones it
+                # computes when there are none (OBJMesh / PLYMesh: recompute_vertex_normals)
+                v, f, uv, normals = load_mesh_with_normals(base / fname, self.where(el))
+                normals = "smooth" if normals is None else normals
+            else:
+                v, f, uv = load_mesh(base / fname, self.where(el), allow_vertex_normals=True,
+                                     with_uv=True)
+                normals = None
             textured = bool(self.b.materials[self.b.material_names[material]].textures)
             if textured and has_texture_coordinates(base / fname):
                 if kind != "obj" or uv is None:
@@ -498,19 +513,31 @@ class _Importer:
                 uv = np.stack([uv[:, 0], 1.0 - uv[:, 1]], 1)   # Mitsuba's OBJ loader flips v
             else:
                 uv = None   # Mitsuba's (0,0), (1,0), (0,1) per triangle
-            if not p.get("face_normals", False):
-                # Mitsuba 3 reads the file's vertex normals, or computes smooth ones when there
-                # are none (PLYMesh / OBJMesh: recompute_vertex_normals), unless face_normals
-                self.fail(el, f"{kind} mesh '{fname}': Mitsuba shades it with vertex normals "
-                              "(the file's, or computed ones when it has none) unless "
-                              "face_normals is true; jgi shades flat (geometric normals). Add "
-                              "<boolean name=\"face_normals\" value=\"true\"/>")
             if material in self.anisotropic:
+                if smooth:
+                    self.fail(el, f"bsdf '{material}' is anisotropic (alpha_u != alpha_v) on "
+                                  f"the smooth-shaded mesh '{fname}': Mitsuba orients its frame "
+                                  "by the interpolated normal and dp/du, jgi by a frame built "
+                                  "from the normal, so the highlight would turn; give alpha, or "
+                                  "face_normals=true")
                 self.check_anisotropy_frame(el, kind, p, m, material,
                                             xf.apply_point(m, v), f)
             if p.get("flip_normals", False):
+                # Mitsuba negates both the geometric and the shading normal
                 f = f[:, ::-1]
-            self.b.mesh(v, f, material, emission, to_world=m, uv=uv)
+                if smooth and not isinstance(normals, str):
+                    normals = -normals
+            if emission is not None and smooth:
+                # Mitsuba's area emitter on a smooth mesh emits about the interpolated normal,
+                # jgi's about the geometric one: the same only where the mesh is flat
+                if not _flat_normals(xf.apply_point(m, v), f, normals, m):
+                    self.fail(el, f"{kind} mesh '{fname}' is an area emitter shaded with "
+                                  "vertex normals that differ from its face normals: jgi's "
+                                  "emitters radiate about their geometric normal; add "
+                                  "<boolean name=\"face_normals\" value=\"true\"/>")
+                normals = None
+            # (computed normals follow the flipped winding: negated as Mitsuba's are)
+            self.b.mesh(v, f, material, emission, to_world=m, uv=uv, normals=normals)
 
     def check_anisotropy_frame(self, el, kind, p, m, material, vertices=None, faces=None):
         """Anisotropic roughness is oriented by the shading frame. Mitsuba's tangent is dp/du of
@@ -640,6 +667,14 @@ class _Importer:
         if not self.sensor_done:
             raise ImportError_(f"{self.path}: the scene has no <sensor>")
         return self.b.build()
+
+
+def _flat_normals(v, f, normals, to_world) -> bool:
+    """Whether a mesh's vertex normals (an array in object space, or "smooth") equal its
+    face normals at every corner (``v`` in world space): smooth shading would not change it."""
+    if isinstance(normals, str):
+        return normals_are_flat(v, f, smooth_vertex_normals(v, f))
+    return normals_are_flat(v, f, normals @ np.linalg.inv(np.asarray(to_world, float)[:3, :3]))
 
 
 def load_mitsuba_xml(path) -> Scene:

@@ -28,8 +28,12 @@ supported):
              the uv mapping (uscale, vscale, udelta, vdelta), for diffuse "texture reflectance",
              on trianglemesh shapes with "point2 uv" (other shapes with a textured material are
              refused: pbrt's sphere uv is not jgi's).
-  shapes     "sphere" (radius), "trianglemesh" (P, indices; no shading normals N),
-             "plymesh" (filename), inside AreaLightSource "diffuse" (L, scale, power; one-sided)
+  shapes     "sphere" (radius), "trianglemesh" (P, indices, N: per-vertex shading normals,
+             interpolated and normalised as pbrt-v4 does), "plymesh" (filename; its normals, if
+             any, as N), inside AreaLightSource "diffuse" (L, scale, power; one-sided; N only
+             where it equals the face normals: jgi's emitters radiate about the geometric
+             normal). pbrt-v4 also turns the geometric normal towards N; jgi keeps it as
+             wound (it decides only which side an emitter lights)
   lights     LightSource "point" (I, from, scale, power), "spot" (I, from, to, coneangle,
              conedelta, scale, power), "distant" (L, from, to, scale, illuminance),
              "uniform" / "infinite" without a map (L, scale)
@@ -61,7 +65,7 @@ import numpy as np
 
 from ...core import transform as xf
 from ..data import Scene, SceneBuilder, SceneError
-from ._common import ImportError_, load_mesh, named_metals
+from ._common import ImportError_, load_mesh_with_normals, named_metals, normals_are_flat
 
 _TOKEN = re.compile(r'"[^"]*"|\[|\]|[^\s\[\]"]+')
 IGNORED = {"Sampler", "Integrator", "PixelFilter", "ColorSpace", "Option", "Accelerator",
@@ -469,11 +473,8 @@ class _Importer:
                                                       * _lum(emission))
             self.b.sphere(xf.apply_point(self.ctm, np.zeros(3)), r, mat, emission)
             return
-        uv = None
+        uv = normals = None
         if kind == "trianglemesh":
-            if "N" in p:
-                self.fail(where, "trianglemesh with shading normals N: jgi shades with geometric "
-                                 "normals only; remove N")
             P = self._get(p, "P", None, where)
             idx = self._get(p, "indices", None, where)
             if P is None or len(P) % 3:
@@ -494,20 +495,37 @@ class _Importer:
             elif textured:
                 self.fail(where, "trianglemesh with a textured material needs \"point2 uv\" "
                                  "(pbrt's default uv differs from jgi's)")
+            normals = self._get(p, "N", None, where)
+            if normals is not None:
+                if len(normals) != 3 * len(v):
+                    self.fail(where, "trianglemesh \"normal N\" needs 3 numbers per vertex")
+                normals = np.asarray(normals, float).reshape(-1, 3)
         else:  # plymesh
             fname = self._get(p, "filename", None, where)
             if not fname:
                 self.fail(where, "plymesh needs \"string filename\"")
-            v, f = load_mesh(Path(where[0]).parent / fname[0], f"{where[0]}:{where[1]}", False)
+            v, f, _, normals = load_mesh_with_normals(Path(where[0]).parent / fname[0],
+                                                      f"{where[0]}:{where[1]}")
         if self.reverse:
             f = f[:, ::-1]
         v = xf.apply_point(self.ctm, v)
+        if normals is not None:
+            # pbrt-v4's TriangleMesh: N to render space (the inverse transpose), negated under
+            # ReverseOrientation; the hit's shading normal is their interpolation
+            normals = normals @ np.linalg.inv(self.ctm[:3, :3])
+            if self.reverse:
+                normals = -normals
+            if emission is not None:
+                if not normals_are_flat(v, f, normals):
+                    self.fail(where, f"{kind} with shading normals N is an area light: jgi's "
+                                     "emitters radiate about their geometric normal; remove N")
+                normals = None
         if emission is not None and self.area[1] > 0:
             tri = v[f]
             area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]),
                                         axis=1).sum()
             emission = emission * self.area[1] / (math.pi * area * _lum(emission))
-        self.b.mesh(v, f, mat, emission, uv=uv)
+        self.b.mesh(v, f, mat, emission, uv=uv, normals=normals)
 
     def run_file(self, path: Path):
         toks = _Tokens(path)
