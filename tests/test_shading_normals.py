@@ -34,6 +34,7 @@ CASES = [
     ("bdpt", dict(max_depth=DEPTH), 32),
     # photons bounce max_depth times: paths of max_depth + 1 segments, the path tracer's DEPTH
     ("sppm", dict(max_depth=DEPTH - 1, photons=20_000, passes=8, radius=0.05), 4),
+    ("vcm", dict(max_depth=DEPTH, radius=0.03), 16),
 ]
 
 
@@ -372,12 +373,13 @@ def test_smooth_cornell_box_renders_like_mitsuba(smooth_scene, pt_reference):
 @pytest.mark.parametrize("estimator,params,spp", CASES[1:])
 def test_estimators_agree_with_the_path_tracer(smooth_scene, pt_reference, estimator, params,
                                                spp):
-    """Light paths (LT, BDPT's light subpaths and connections, SPPM's photons) carry Veach's
+    """Light paths (LT, BDPT's light subpaths and connections, SPPM's photons, VCM's light
+    subpaths, connections and merges) carry Veach's
     adjoint correction. Measured for the light tracer (16 x 256 spp): max |t| 2.8 (critical
     6.2) with it, 15.0 without it (experiments/shading_normals_adjoint.py). SPPM is
     consistent, not unbiased: its radius is small enough here that the bias is below the
     test's resolution (whole image only)."""
-    seeds = {"lt": range(16), "bdpt": range(8), "sppm": range(6)}[estimator]
+    seeds = {"lt": range(16), "bdpt": range(8), "sppm": range(6), "vcm": range(8)}[estimator]
     imgs = _stack(smooth_scene[1], estimator, seeds, spp=spp, **params)
     regions = 1 if estimator == "sppm" else 4
     t = assert_agree(imgs, pt_reference, regions=regions, label=f"{estimator} vs pt, smooth")

@@ -104,6 +104,7 @@ from ..transport.subpath import (
     pdf_emission_dir,
     pdf_light_origin,
     sample_next_event,
+    shading,
 )
 from .registry import Estimator, Render, param, register
 
@@ -332,6 +333,7 @@ class LightVertices(NamedTuple):
     stored: Array       # a valid vertex with a non-Dirac BSDF (connectable, mergeable)
     material: Array
     uv: tuple | None
+    ns: V3 | None       # shading normal, in scenes with vertex normals
 
 
 def light_walk(scene: Scene, cfg: VCMConfig, key: Array, f: MisFactors):
@@ -358,13 +360,16 @@ def light_walk(scene: Scene, cfg: VCMConfig, key: Array, f: MisFactors):
         mp = B.lookup_specialised(mats, hit.material, hit.uv)
         wo = -d
         vert = LightVertices(hit.p, hit.n, wo, beta, m, valid & ~B.is_delta(mp), hit.material,
-                             hit.uv)
-        bs = materialize(B.sample(kinds, mp, hit.n, wo, u(base), u(base + 1), u(base + 2),
+                             hit.uv, hit.ns)
+        ns = shading(hit)       # BSDFs about the shading normal; densities convert with hit.n
+        bs = materialize(B.sample(kinds, mp, ns, wo, u(base), u(base + 1), u(base + 2),
                                   mode=B.IMPORTANCE))
-        _, pdf_rev = B.evaluate(kinds, mp, hit.n, bs.wi, wo)
+        _, pdf_rev = B.evaluate(kinds, mp, ns, bs.wi, wo)
         q = continuation(mp, cfg.roulette)
         m = mis_scatter(m, dot(hit.n, bs.wi), bs.pdf * q, pdf_rev * q, bs.delta, f, b)
         beta = beta * bs.weight / q
+        if hit.ns is not None:   # Veach's adjoint correction (a light subpath)
+            beta = beta * B.adjoint_correction(hit.ns, hit.n, wo, bs.wi)
         alive = valid & bs.valid & (max_component(beta) > 0)
         if cfg.roulette:
             alive = alive & (rng.uniform(key, rr_dim0 + j) < q)
@@ -378,7 +383,7 @@ def _as_vertices(scene: Scene, y: LightVertices) -> Vertices:
     """Light vertices in :class:`~jgi.transport.subpath.Vertices` form (for connect_camera)."""
     z = jnp.zeros_like(y.p.x)
     return Vertices(y.p, y.n, y.wo, y.beta, z, z, ~y.stored, y.stored, y.stored, y.material,
-                    y.material * 0 - 1, y.uv if y.uv is not None else no_uv(scene, z))
+                    y.material * 0 - 1, y.uv if y.uv is not None else no_uv(scene, z), y.ns)
 
 
 def light_pass(scene: Scene, cfg: VCMConfig, seed, iteration, f: MisFactors, paths: Array):
@@ -426,6 +431,7 @@ class CameraVertices(NamedTuple):
     first_diffuse: Array   # the first non-Dirac vertex after a purely specular subpath
     material: Array
     uv: tuple | None
+    ns: V3 | None          # shading normal, in scenes with vertex normals
     emission: V3           # s = 0, unweighted
     w_emission: Array
     next_event: V3         # s = 1, unweighted (visibility tested)
@@ -471,18 +477,20 @@ def camera_walk(scene: Scene, cfg: VCMConfig, key: Array, pixel: Array,
         else:   # merging only: emitters count after purely specular subpaths alone
             w_e = jnp.where(specular_path, 1.0, 0.0)
         # ---- s = 1: next-event estimation ----
+        ns = shading(hit)       # BSDFs about the shading normal; densities convert with hit.n
         if cfg.connects and D >= 2:
             ne = sample_next_event(scene, mp, hit.p, hit.n, wo, u(3), u(4), u(5),
-                                   valid & (j + 2 <= D))
+                                   valid & (j + 2 <= D), ns=hit.ns)
             ls = ne.light
             k = LT.select(lights, u(3))
-            _, pdf_bsdf_rev = B.evaluate(kinds, mp, hit.n, ls.wi, wo)
+            _, pdf_bsdf_rev = B.evaluate(kinds, mp, ns, ls.wi, wo)
             y = hit.p + ls.wi * ls.dist
             n_y, y_surface = light_normal(lights, k, y)
             d2_y = ls.dist * ls.dist
             inv_d2 = _inv(d2_y)
             cos_y = jnp.where(y_surface, jnp.abs(dot(n_y, ls.wi)), 1.0)
-            pdf_emit_x = pdf_emission_dir(lights, k, n_y, -ls.wi) * ne.cos * inv_d2
+            cos_x = jnp.abs(dot(ls.wi, hit.n))
+            pdf_emit_x = pdf_emission_dir(lights, k, n_y, -ls.wi) * cos_x * inv_d2
             w_ne = weight_next_event(m, pdf_light_origin(lights, k),
                                      ne.pdf_bsdf * q * cos_y * inv_d2, pdf_emit_x,
                                      pdf_bsdf_rev * q, ls.delta, f, b)
@@ -491,11 +499,11 @@ def camera_walk(scene: Scene, cfg: VCMConfig, key: Array, pixel: Array,
         else:
             ne_value, w_ne = V3.full(0.0, z), z
         rec = CameraVertices(hit.p, hit.n, wo, beta, m, connectable,
-                             connectable & specular_path, hit.material, hit.uv, emission, w_e,
-                             ne_value, w_ne)
+                             connectable & specular_path, hit.material, hit.uv, hit.ns, emission,
+                             w_e, ne_value, w_ne)
         # ---- the next direction ----
-        bs = materialize(B.sample(kinds, mp, hit.n, wo, u(0), u(1), u(2)))
-        _, pdf_rev = B.evaluate(kinds, mp, hit.n, bs.wi, wo)
+        bs = materialize(B.sample(kinds, mp, ns, wo, u(0), u(1), u(2)))
+        _, pdf_rev = B.evaluate(kinds, mp, ns, bs.wi, wo)
         m = mis_scatter(m, dot(hit.n, bs.wi), bs.pdf * q, pdf_rev * q, bs.delta, f, b)
         beta = beta * bs.weight / q
         alive = valid & bs.valid & (max_component(beta) > 0)
@@ -528,17 +536,22 @@ def _connect(scene: Scene, cfg: VCMConfig, q: LightVertices, p: CameraVertices, 
     w = v / jnp.where(dist > 0, dist, 1.0)          # from y towards z
     mq = B.lookup_specialised(scene.materials, q.material, q.uv)
     mp = B.lookup_specialised(scene.materials, p.material, p.uv)
-    f_q, pdf_q_fwd = B.evaluate(kinds, mq, q.n, q.wo, w, mode=B.IMPORTANCE)
-    _, pdf_q_rev = B.evaluate(kinds, mq, q.n, w, q.wo)
-    f_p, pdf_p_fwd = B.evaluate(kinds, mp, p.n, p.wo, -w)
-    _, pdf_p_rev = B.evaluate(kinds, mp, p.n, -w, p.wo)
+    nq, np_ = shading(q), shading(p)    # BSDFs about the shading normals
+    f_q, pdf_q_fwd = B.evaluate(kinds, mq, nq, q.wo, w, mode=B.IMPORTANCE)
+    _, pdf_q_rev = B.evaluate(kinds, mq, nq, w, q.wo)
+    f_p, pdf_p_fwd = B.evaluate(kinds, mp, np_, p.wo, -w)
+    _, pdf_p_rev = B.evaluate(kinds, mp, np_, -w, p.wo)
     cq, cp = continuation(mq, cfg.roulette), continuation(mp, cfg.roulette)
     pdf_q_fwd, pdf_q_rev, pdf_p_fwd, pdf_p_rev = (pdf_q_fwd * cq, pdf_q_rev * cq, pdf_p_fwd * cp,
                                                   pdf_p_rev * cp)
-    cos_q, cos_p = jnp.abs(dot(q.n, w)), jnp.abs(dot(p.n, w))
+    cos_q, cos_p = jnp.abs(dot(q.n, w)), jnp.abs(dot(p.n, w))   # geometric: area densities
     ok = q.stored & p.connectable & (d2 > 0)
     inv_d2 = _inv(jnp.where(ok, d2, 1.0))
-    value = where(ok, q.beta * f_q * f_p * p.beta * (cos_q * cos_p * inv_d2), V3.full(0.0, d2))
+    g_value = cos_q * cos_p * inv_d2
+    if q.ns is not None:   # the value's cosines are the shading normals', y takes the correction
+        f_q = f_q * B.adjoint_correction(q.ns, q.n, q.wo, w)
+        g_value = jnp.abs(dot(q.ns, w) * dot(p.ns, w)) * inv_d2
+    value = where(ok, q.beta * f_q * f_p * p.beta * g_value, V3.full(0.0, d2))
     occ = occluded_many(scene, [G.shadow_ray(q.p, q.n, w, dist)])[0]
     value = where(occ, V3.full(0.0, d2), value)
     wt = weight_connection(q.mis, p.mis, pdf_p_fwd * cos_q * inv_d2, pdf_q_fwd * cos_p * inv_d2,
@@ -622,8 +635,11 @@ def _merge_queries(scene: Scene, cfg: VCMConfig, grid: MergeGrid, zj: Shading, j
     wi = v3(6)
     mp = jax.tree_util.tree_map(lambda a: a[:, None],
                                 B.lookup(scene.materials, zj.material, zj.uv))
-    f_z, pdf_fwd = B.evaluate(kinds, mp, col(zj.n), col(zj.wo), wi)
-    _, pdf_rev = B.evaluate(kinds, mp, col(zj.n), wi, col(zj.wo))
+    nz = col(shading(zj))
+    f_z, pdf_fwd = B.evaluate(kinds, mp, nz, col(zj.wo), wi)
+    _, pdf_rev = B.evaluate(kinds, mp, nz, wi, col(zj.wo))
+    if zj.ns is not None:   # photon flux through the stored surface -> the shading cosine
+        f_z = f_z * B.shading_ratio(nz, v3(3), wi)
     q = continuation(mp, cfg.roulette)
     pdf_fwd, pdf_rev = pdf_fwd * q, pdf_rev * q
     kern = PMap.filter_weight(cfg.kernel, jnp.where(ok, d2, 0.0), r2, **kernel_params)[0]
@@ -656,6 +672,7 @@ class Shading(NamedTuple):
     mis: Mis
     material: Array
     uv: tuple | None
+    ns: V3 | None
     j: Array
 
 
@@ -664,6 +681,7 @@ def _shading(z: CameraVertices) -> Shading:
     flat = lambda t: jax.tree_util.tree_map(lambda a: a.reshape(-1), t)  # noqa: E731
     return Shading(flat(z.p), flat(z.n), flat(z.wo), flat(z.beta), flat(z.mis),
                    z.material.reshape(-1), flat(z.uv) if z.uv is not None else None,
+                   flat(z.ns) if z.ns is not None else None,
                    jnp.repeat(jnp.arange(D, dtype=jnp.int32), N))
 
 
