@@ -200,9 +200,10 @@ def test_smooth_normals_are_mitsubas(tmp_path):
 def test_degenerate_normals_give_finite_renders(smooth_scene):
     """The smooth Cornell box with degenerate vertex normals on every triangle of the sphere:
     opposed corners (their interpolation vanishes inside the triangle: the hit falls back to
-    the geometric normal), a zero normal, and one almost in the triangle's plane. Every
-    estimator's image stays finite. (Same array shapes: the agreement tests' compiled kernels
-    serve.)"""
+    the geometric normal), a zero normal, and one almost in the triangle's plane. The path
+    tracer's and the light tracer's images stay finite (the hit's fallback is shared by every
+    estimator; the other estimators are rendered on the regular scene only, to keep compiles
+    down)."""
     scene = smooth_scene[1]
     normals = np.asarray(scene.triangles.normals).reshape(-1, 3, 3).copy()
     sphere = np.asarray(scene.triangles.material) == np.asarray(scene.triangles.material)[0]
@@ -223,7 +224,7 @@ def test_degenerate_normals_give_finite_renders(smooth_scene):
     assert on_sphere.sum() > 20 and np.isfinite(np.asarray(hit.ns.stack())).all()
     ns_len = np.linalg.norm(np.asarray(hit.ns.stack()), axis=-1)
     np.testing.assert_allclose(ns_len[on_sphere], 1.0, atol=1e-5)
-    for est, kw, spp in CASES:
+    for est, kw, spp in CASES[:2]:   # a camera and a light path (its adjoint correction)
         img = np.asarray(jgi.render(bad, est, spp=spp, seed=0, **kw))
         assert np.isfinite(img).all(), est
 

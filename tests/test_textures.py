@@ -311,6 +311,7 @@ def pt_reference(textured):
     ("pssmlt", dict(max_depth=DEPTH, chains=512), 32),
     ("mmlt", dict(max_depth=DEPTH, chains=512), 32),
     ("mlt", dict(max_depth=DEPTH), 64),
+    ("vcm", dict(max_depth=DEPTH, radius=0.03), 16),   # consistent: its bias is below resolution
 ])
 def test_unbiased_estimators_agree_with_the_path_tracer(textured, pt_reference, estimator,
                                                         params, spp):

@@ -607,7 +607,7 @@ def merge_grid(y_all: LightVertices, radius, table_size: int, n_light: int) -> M
     return MergeGrid(cells, jnp.stack([c[o] for c in cols] + [row], -1))
 
 
-TIER2 = 8    # tier t >= 1 of a merge batch: 1 / TIER2^t of its queries, TIER2^t x the budget
+TIER2 = 8    # retry tier t of a merge batch: 1 / TIER2^t of its queries, TIER2^t x the budget
 MERGE_BATCH = 4096      # camera vertices merged per batch (compact_map)
 CONNECT_BATCH = 4096    # light-camera vertex pairs connected per batch
 

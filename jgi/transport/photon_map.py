@@ -192,6 +192,11 @@ def index_cells(p: V3, valid: Array, cell, table_size: int) -> CellIndex:
     return CellIndex(order, start, count.astype(jnp.int32), origin, jnp.asarray(cell))
 
 
+_NEIGHBOURS = np.array([(dx, dy, dz) for dx in (-1, 0, 1) for dy in (-1, 0, 1)
+                        for dz in (-1, 0, 1)], np.int32)                  # [27, 3]
+_EARLIER = np.tril(np.ones((27, 27), bool), -1)                         # [i, j]: j < i
+
+
 def candidates(cells: CellIndex, table_size: int, x: V3, budget: int):
     """(slot [N, budget], valid [N, budget], overflow [N]): the entries of the 27 hashed cells
     around each query x, packed into ``budget`` slots (dense and empty cells share them, unlike
@@ -200,23 +205,19 @@ def candidates(cells: CellIndex, table_size: int, x: V3, budget: int):
     (``cells.order[slot]`` is the point's own index). Neighbour cells that collide in the hash
     table are read once."""
     c = cells.cell
-    ijk = [jnp.floor((a - o) / c).astype(jnp.int32) for a, o in zip(x, cells.origin)]
-    hs = [_hash(ijk[0] + dx, ijk[1] + dy, ijk[2] + dz, table_size)
-          for dx in (-1, 0, 1) for dy in (-1, 0, 1) for dz in (-1, 0, 1)]
+    ijk = [jnp.floor((a - o) / c).astype(jnp.int32)[..., None] + _NEIGHBOURS[:, i]
+           for i, (a, o) in enumerate(zip(x, cells.origin))]
+    h = _hash(*ijk, table_size)                                          # [N, 27]
+    dup = jnp.any((h[..., :, None] == h[..., None, :]) & _EARLIER, -1)
+    count = jnp.where(dup, 0, cells.count[h])
+    end = jnp.cumsum(count, -1)                                          # inclusive
     k = jnp.arange(budget, dtype=jnp.int32)
-    slot = jnp.zeros(x.x.shape + (budget,), jnp.int32)
-    before = jnp.zeros(x.x.shape, jnp.int32)
-    for i, h in enumerate(hs):
-        dup = jnp.zeros(h.shape, bool)
-        for g in hs[:i]:
-            dup = dup | (g == h)
-        count = jnp.where(dup, 0, cells.count[h])
-        # slots from ``before`` on belong to this cell (a later, non-empty cell overrides)
-        first = before[..., None]
-        slot = jnp.where(k >= first, (cells.start[h] - before)[..., None] + k, slot)
-        before = before + count
-    valid = k < before[..., None]
-    return jnp.where(valid, slot, 0), valid, before > budget
+    which = jnp.minimum(jnp.sum(end[..., None, :] <= k[:, None], -1), 26)  # [N, budget]
+    first = jnp.take_along_axis(end - count, which, -1)
+    slot = jnp.take_along_axis(cells.start[h], which, -1) + (k - first)
+    total = end[..., -1]
+    valid = k < total[..., None]
+    return jnp.where(valid, slot, 0), valid, total > budget
 
 
 def gather(grid: HashGrid, x: V3, n: V3, cap: int, thickness: float | None = None) -> Gathered:
