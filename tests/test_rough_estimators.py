@@ -10,8 +10,10 @@ the path tracer as photons are added. Every image is finite and non-negative.
 PSSMLT and MMLT are not rendered here: they evaluate paths with the path tracer's and BDPT's
 own code (explicit primary samples in place of the hashed stream), which is tested on this
 scene, and their chains do not depend on the materials (tests/test_pssmlt.py,
-tests/test_mmlt.py). Each costs a minute of compiles on this scene, and the suite must fit in
-15 minutes on two cores."""
+tests/test_mmlt.py). VCM's microfacet case is the smooth-normal scene's GGX strip
+(tests/test_shading_normals.py); its light walks and connections call the BSDFs as BDPT's do.
+Each costs a minute of compiles on this scene, and the suite must fit in 15 minutes on two
+cores."""
 
 from __future__ import annotations
 
@@ -62,14 +64,6 @@ def test_bdpt_agrees_with_path_tracer(scene, pt):
                      for s in SEEDS])
     _check(imgs, "bdpt")
     assert_agree(imgs, pt, label="bdpt vs pt, cornell_box_rough")
-
-
-def test_vcm_agrees_with_path_tracer(scene, pt):
-    """Consistent, not unbiased: at r_0 = 0.03 its merging bias is below the test's resolution."""
-    imgs = np.stack([jgi.render(scene, "vcm", spp=16, seed=s, max_depth=DEPTH, radius=0.03)
-                     for s in SEEDS])
-    _check(imgs, "vcm")
-    assert_agree(imgs, pt, label="vcm vs pt, cornell_box_rough")
 
 
 def test_light_tracing_agrees_with_path_tracer(scene, pt):
