@@ -31,7 +31,7 @@ from tests.test_import_mitsuba import _mitsuba
 
 RES = 16
 DEPTH = 4   # direct light and three bounces: every kind in both subpaths, short compiles
-SEEDS = range(12)
+SEEDS = range(8)
 LUM = np.array([0.2126, 0.7152, 0.0722])
 
 
