@@ -765,7 +765,7 @@ class Techniques(NamedTuple):
     next_event: tuple      # [D, N]: s = 1, t = j + 2
     connect: tuple         # (weighted, unweighted) [J, N], J over connection_pairs(cfg)
     merge: tuple           # weighted, unweighted: [D, N] (or [D, D - 1, N] by light row)
-    truncated: Array       # [N] a merge read a truncated grid cell
+    truncated: Array       # [N] a merge overflowed its budgets (the chunk runs again)
 
 
 def camera_pass(scene: Scene, cfg: VCMConfig, seed, iteration, f: MisFactors, radius,
