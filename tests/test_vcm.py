@@ -236,7 +236,7 @@ def test_image_is_differentiable_in_the_radius():
     @jax.value_and_grad
     def mean(r):
         return jnp.mean(vcm.iteration_image(scene, cfg, jnp.uint32(3), jnp.uint32(0), r, {},
-                                            budget=256))
+                                            pairs_per_vertex=256))
 
     r0, h = 0.3, 5e-4
     g = float(mean(jnp.float32(r0))[1])

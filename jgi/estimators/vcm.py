@@ -46,20 +46,22 @@ Modes (SmallVCM's): ``vcm`` (connections and merging), ``bpm`` (merging at every
 no connections: bidirectional photon mapping), ``bpt`` (connections only: BDPT), ``ppm``
 (merging at the first non-specular camera vertex, no MIS: progressive photon mapping). In the
 merging-only modes an emitter hit counts only after a purely specular camera subpath (it cannot
-be merged). No Russian roulette: subpaths end at ``max_depth`` segments or at absorption.
+be merged). Subpaths end at ``max_depth`` segments, at absorption, or by Russian roulette
+(SmallVCM's: at every vertex the subpath survives with the material's albedo q, and q enters
+both directional densities of the MIS; ``roulette=false`` keeps BDPT's random streams).
 Light subpaths start on lights with a position (area, point, spot); scenes with directional or
 environment lights are refused.
 
 Merging reads light vertices from a hash grid rebuilt on the device every iteration
 (:func:`jgi.transport.photon_map.index_cells`, the photon maps' hash and 27-cell query, cell =
-r): ``budget`` candidates per camera vertex, ``TIER2`` times as many for the few vertices (at
-most 1 / ``TIER2`` of them) whose 27 cells hold more, and ``TIER2``^2 times for the fewer still;
-paths whose vertices find more are traced again with doubled budgets, so no light vertex is
-ever dropped (the stats count the re-runs). The kernel K_r is any of photon mapping's filters
-(box, cone, Gaussian, Epanechnikov), normalised to integrate to one over the disc; the MIS uses
-the box's acceptance area pi r^2 for every kernel (as unified path sampling does). The image is
-differentiable in r_0 and the kernel's parameters (:func:`iteration_image`); with a kernel that
-vanishes at r (cone with k = 1, Epanechnikov) the image is continuous in r too.
+r). Every (camera vertex, light vertex) pair of a vertex's 27 cells is listed and evaluated,
+in blocks of fixed size, as many as there are pairs (:func:`merge_at_camera_vertices`): no
+vertex has a cap, so no light vertex is ever dropped. The kernel K_r is any of photon
+mapping's filters (box, cone, Gaussian, Epanechnikov), normalised to integrate to one over
+the disc; the MIS uses the box's acceptance area pi r^2 for every kernel (as unified path
+sampling does). The image is differentiable in r_0 and the kernel's parameters
+(:func:`iteration_image`); with a kernel that vanishes at r (cone with k = 1, Epanechnikov)
+the image is continuous in r too.
 
 Random numbers: iteration i of pixel p draws the camera subpath from the stream (seed, p, i)
 and the light subpath from :func:`jgi.transport.subpath.light_key` (seed, p, i), with BDPT's
@@ -136,8 +138,6 @@ class VCMConfig:
     gauss_beta: float = param(PMap.JENSEN_BETA, "Gaussian kernel beta", minimum=1e-3)
     roulette: bool = param(True, "Russian roulette at every vertex (SmallVCM's): survive with "
                            "the material's albedo q, densities times q (false: BDPT's streams)")
-    budget: int = param(16, "grid candidates read per merge (where more lie in the 27 cells, "
-                        "those paths run again with twice as many)", minimum=8, maximum=4096)
     technique_images: str = param("", "folder: also write each technique's weighted and "
                                   "unweighted image (connections by (s, t), merges by length)")
     chunk: int = 1 << 13      # camera subpaths per jitted call
@@ -167,7 +167,7 @@ class VCMConfig:
     def kernel_key(self) -> "VCMConfig":
         """The settings a compiled kernel depends on (the rest are traced or host-side)."""
         return replace(self, radius=0.0, radius_alpha=1.0, cone_k=1.0, gauss_alpha=1.0,
-                       gauss_beta=1.0, technique_images="", budget=8)
+                       gauss_beta=1.0, technique_images="")
 
     def techniques(self) -> list[tuple]:
         """Every technique with its own image, in pyramid order: ("connect", s, t) for
@@ -607,59 +607,40 @@ def merge_grid(y_all: LightVertices, radius, table_size: int, n_light: int) -> M
     return MergeGrid(cells, jnp.stack([c[o] for c in cols] + [row], -1))
 
 
-TIER2 = 8    # retry tier t of a merge batch: 1 / TIER2^t of its queries, TIER2^t x the budget
 MERGE_BATCH = 4096      # camera vertices merged per batch (compact_map)
+MERGE_PAIRS = 1 << 15   # (camera vertex, light vertex) candidate pairs evaluated per block
 CONNECT_BATCH = 4096    # light-camera vertex pairs connected per batch
 
 
-def _merge_queries(scene: Scene, cfg: VCMConfig, grid: MergeGrid, zj: Shading, j, active,
-                   f: MisFactors, r2, scale, kernel_params: dict, budget: int, table_size: int,
-                   by_length: bool):
-    """Merges at camera vertices zj (row j, [Q]) with the light vertices within r: (weighted,
-    unweighted) [Q] V3 sums (``by_length``: [D - 1, Q], by the light vertex's row), and
-    whether a query found more grid candidates than ``budget``."""
+def _merge_pairs(scene: Scene, cfg: VCMConfig, z: "Shading", y: Array, ok: Array,
+                 f: MisFactors, r2, scale, kernel_params: dict):
+    """Merges of camera vertices z (one per pair, [P]) with the light vertices of grid rows y
+    ([P, 16]; :class:`MergeGrid`): (weighted, unweighted) [P] V3, zero where ``ok`` is false or
+    y lies beyond r, and the light vertex's row (it is y_{row + 1})."""
     D = cfg.max_depth
     b = cfg.exponent
     kinds = scene.materials.kinds
-    col = lambda v: V3(*(c[:, None] for c in v))  # noqa: E731
-    slot, ok, over = PMap.candidates(grid.cells, table_size, zj.p, budget)
-    y = grid.rows[slot]                                           # [Q, K, 16]
-    v3 = lambda i: V3(y[..., i], y[..., i + 1], y[..., i + 2])  # noqa: E731
-    diff = v3(0) - col(zj.p)
+    v3 = lambda i: V3(y[:, i], y[:, i + 1], y[:, i + 2])  # noqa: E731
+    diff = v3(0) - z.p
     d2 = dot(diff, diff)
-    row = y[..., 15].astype(jnp.int32)                            # the light vertex is y_{row+1}
-    ok = (ok & active[:, None] & (d2 < r2) & (dot(v3(3), col(zj.n)) > 0)
-          & (row + j[:, None] + 2 <= D))
-    over = over & active
-    # ---- the camera BSDF at the light vertices' incident directions; MIS ----
+    row = y[:, 15].astype(jnp.int32)
+    ok = ok & (d2 < r2) & (dot(v3(3), z.n) > 0) & (row + z.j + 2 <= D)
+    # ---- the camera BSDF at the light vertex's incident direction; MIS ----
     wi = v3(6)
-    mp = jax.tree_util.tree_map(lambda a: a[:, None],
-                                B.lookup(scene.materials, zj.material, zj.uv))
-    nz = col(shading(zj))
-    f_z, pdf_fwd = B.evaluate(kinds, mp, nz, col(zj.wo), wi)
-    _, pdf_rev = B.evaluate(kinds, mp, nz, wi, col(zj.wo))
-    if zj.ns is not None:   # photon flux through the stored surface -> the shading cosine
+    mp = B.lookup(scene.materials, z.material, z.uv)
+    nz = shading(z)
+    f_z, pdf_fwd = B.evaluate(kinds, mp, nz, z.wo, wi)
+    _, pdf_rev = B.evaluate(kinds, mp, nz, wi, z.wo)
+    if z.ns is not None:   # photon flux through the stored surface -> the shading cosine
         f_z = f_z * B.shading_ratio(nz, v3(3), wi)
     q = continuation(mp, cfg.roulette)
-    pdf_fwd, pdf_rev = pdf_fwd * q, pdf_rev * q
     kern = PMap.filter_weight(cfg.kernel, jnp.where(ok, d2, 0.0), r2, **kernel_params)[0]
     c = jnp.where(ok, kern * scale, 0.0)
-    value = where(ok, f_z * v3(9) * c, V3.full(0.0, c))
+    value = where(ok, z.beta * f_z * v3(9) * c, V3.full(0.0, c))
     if cfg.mode == "ppm":
-        wt = jnp.ones_like(c)
-    else:
-        wt = weight_merge(Mis(y[..., 12], y[..., 13], y[..., 14]),
-                          Mis(*(x[:, None] for x in zj.mis)), pdf_fwd, pdf_rev, f, b)
-    beta = zj.beta
-    if by_length:
-        onehot = row[None] == jnp.arange(D - 1)[:, None, None]
-        s = lambda x: jnp.sum(jnp.where(onehot & ok[None], x[None], 0.0), -1)  # noqa: E731
-        unw = V3(*(s(a) * bb for a, bb in zip(value, beta)))
-        wtd = V3(*(s(a * wt) * bb for a, bb in zip(value, beta)))
-    else:
-        unw = V3(*(jnp.sum(a, -1) * bb for a, bb in zip(value, beta)))
-        wtd = V3(*(jnp.sum(a * wt, -1) * bb for a, bb in zip(value, beta)))
-    return wtd, unw, over
+        return value, value, row
+    wt = weight_merge(Mis(y[:, 12], y[:, 13], y[:, 14]), z.mis, pdf_fwd * q, pdf_rev * q, f, b)
+    return where(ok, value * wt, V3.full(0.0, c)), value, row
 
 
 class Shading(NamedTuple):
@@ -687,66 +668,53 @@ def _shading(z: CameraVertices) -> Shading:
 
 def merge_at_camera_vertices(scene: Scene, cfg: VCMConfig, grid: MergeGrid, z: CameraVertices,
                              f: MisFactors, radius, kernel_params: dict, n_light: int,
-                             budget: int, table_size: int, by_length: bool):
+                             table_size: int, by_length: bool, dense_pairs: int | None = None):
     """Vertex merging at every camera vertex (``ppm``: the first non-specular one), the live
     ones gathered into batches (:func:`jgi.core.compaction.compact_map`; ``cfg.compact``).
-    Each batch is queried with ``budget`` grid candidates; the few whose 27 cells hold more
-    are queried again, packed, with ``TIER2`` and then ``TIER2``^2 times the budget (a
-    fixed-size query costs its budget, so one dense caustic does not set every query's
-    cost). Returns (weighted, unweighted, overflow): [D, N] V3 per camera vertex
-    (``by_length``: [D, D - 1, N]), and [D, N] flags where even that was too small (the
-    caller re-runs with larger budgets)."""
+    A batch lists every (camera vertex, light vertex) pair of its vertices' 27 grid cells
+    (:func:`jgi.transport.photon_map.candidate_pairs`) and evaluates them ``MERGE_PAIRS`` at a
+    time, as many blocks as there are pairs: no vertex has a cap, so no light vertex is ever
+    dropped, and a dense caustic costs its own pairs only. Returns (weighted, unweighted) [D, N]
+    V3 per camera vertex (``by_length``: [D, D - 1, N], by the light vertex's row).
+
+    ``dense_pairs`` (the differentiable form, ``cfg.compact`` false): one block of that many
+    pairs for all vertices (a loop of traced length has no reverse-mode derivative); if the
+    vertices have more pairs the result is NaN, never a silently truncated sum."""
     D, N = z.material.shape
     r2 = radius * radius
     norm = PMap.filter_weight(cfg.kernel, jnp.float32(0.0), r2, **kernel_params)[1]
     scale = 1.0 / (norm * jnp.pi * r2 * n_light)
-    args = (f, r2, scale, kernel_params)
     active = (z.first_diffuse if cfg.mode == "ppm" else z.connectable).reshape(-1)
+    tail = (D - 1, 3) if by_length else (3,)
 
     def batch(zs: Shading, live):
-        B_ = live.shape[0]
-        wtd, unw, over = _merge_queries(scene, cfg, grid, zs, zs.j, live, *args, budget,
-                                        table_size, by_length)
-        wtd, unw = jnp.stack(list(wtd), -1), jnp.stack(list(unw), -1)
-        # vertices whose 27 cells held more than the budget: again, packed, with TIER2 times
-        # the budget, then TIER2^2 times (each tier only if the one before overflowed)
-        for tier in (1, 2):
-            n2 = max(B_ // TIER2 ** tier, 1)
-            (sel,) = jnp.nonzero(over, size=n2, fill_value=B_)
-            ok2 = sel < B_
-            sel = jnp.minimum(sel, B_ - 1)
+        Q = live.shape[0]
+        start, count = PMap.cell_ranges(grid.cells, table_size, zs.p)
+        pairs = PMap.candidate_pairs(start, jnp.where(live[:, None], count, 0))
 
-            def retry(sel=sel, ok2=ok2, tier=tier):
-                z2 = jax.tree_util.tree_map(lambda x: x[sel], zs)
-                w2, u2, o2 = _merge_queries(scene, cfg, grid, z2, z2.j, live[sel] & ok2, *args,
-                                            budget * TIER2 ** tier, table_size, by_length)
-                return jnp.stack(list(w2), -1), jnp.stack(list(u2), -1), o2 & ok2
+        def block(i, acc, size):
+            q, slot, ok = PMap.pair_block(pairs, size, i)
+            zq = jax.tree_util.tree_map(lambda a: a[q], zs)
+            wtd, unw, row = _merge_pairs(scene, cfg, zq, grid.rows[slot], ok, f, r2, scale,
+                                         kernel_params)
+            at = (q, row) if by_length else q
+            return (acc[0].at[at].add(jnp.stack(list(wtd), -1)),
+                    acc[1].at[at].add(jnp.stack(list(unw), -1)))
 
-            def none(sel=sel):
-                z = jnp.zeros(wtd.shape[:-2] + sel.shape + (3,)) if by_length else \
-                    jnp.zeros(sel.shape + (3,))
-                return z, z, jnp.zeros(sel.shape, bool)
-
-            w2, u2, o2 = jax.lax.cond(jnp.any(over), retry, none)
-            lanes = jnp.where(ok2, sel, B_)                     # B_: dropped by the scatter
-            m = over[..., None] if not by_length else over[None, :, None]
-            fix = lambda a, a2: jnp.where(m, 0.0, a).at[..., lanes, :].add(  # noqa: E731
-                a2, mode="drop")
-            wtd, unw = fix(wtd, w2), fix(unw, u2)
-            over = (jnp.zeros_like(over).at[lanes].max(o2, mode="drop")
-                    | (jnp.sum(over) > n2))
-        if by_length:   # [D - 1, B, 3] -> [B, D - 1, 3]
-            wtd, unw = jnp.swapaxes(wtd, 0, 1), jnp.swapaxes(unw, 0, 1)
-        return wtd, unw, over.astype(jnp.int32)
+        zero = (jnp.zeros((Q,) + tail), jnp.zeros((Q,) + tail))
+        if dense_pairs is None:
+            n_blocks = (pairs.total + MERGE_PAIRS - 1) // MERGE_PAIRS
+            return jax.lax.fori_loop(0, n_blocks, lambda i, a: block(i, a, MERGE_PAIRS), zero)
+        poison = jnp.where(pairs.total > dense_pairs, jnp.nan, 0.0)
+        return tuple(a + poison for a in block(0, zero, dense_pairs))
 
     inputs = _shading(z)
     M = D * N
-    tail = (D - 1, 3) if by_length else (3,)
-    like = (jnp.zeros((M,) + tail), jnp.zeros((M,) + tail), jnp.zeros((M,), jnp.int32))
+    like = (jnp.zeros((M,) + tail), jnp.zeros((M,) + tail))
     if cfg.compact:
-        wtd, unw, over = compact_map(batch, active, inputs, like, MERGE_BATCH)
+        wtd, unw = compact_map(batch, active, inputs, like, MERGE_BATCH)
     else:
-        wtd, unw, over = batch(inputs, active)
+        wtd, unw = batch(inputs, active)
 
     def back(a):   # [M, (D - 1,) 3] -> V3 of [D, (D - 1,) N]
         a = a.reshape((D, N) + tail)
@@ -754,7 +722,7 @@ def merge_at_camera_vertices(scene: Scene, cfg: VCMConfig, grid: MergeGrid, z: C
             a = jnp.moveaxis(a, 2, 1)
         return V3(*(a[..., c] for c in range(3)))
 
-    return back(wtd), back(unw), (over > 0).reshape(D, N)
+    return back(wtd), back(unw)
 
 
 # --- one iteration --------------------------------------------------------------------------------
@@ -765,12 +733,12 @@ class Techniques(NamedTuple):
     next_event: tuple      # [D, N]: s = 1, t = j + 2
     connect: tuple         # (weighted, unweighted) [J, N], J over connection_pairs(cfg)
     merge: tuple           # weighted, unweighted: [D, N] (or [D, D - 1, N] by light row)
-    truncated: Array       # [N] a merge overflowed its budgets (the chunk runs again)
 
 
 def camera_pass(scene: Scene, cfg: VCMConfig, seed, iteration, f: MisFactors, radius,
-                kernel_params: dict, y_all: LightVertices, cells, pixels: Array, budget: int,
-                table_size: int, by_technique: bool) -> Techniques:
+                kernel_params: dict, y_all: LightVertices, cells, pixels: Array,
+                table_size: int, by_technique: bool, dense_pairs: int | None = None
+                ) -> Techniques:
     """Camera subpaths of ``pixels`` in one iteration, with every technique at their vertices."""
     D = cfg.max_depth
     n_light = scene.camera.width * scene.camera.height
@@ -782,13 +750,11 @@ def camera_pass(scene: Scene, cfg: VCMConfig, seed, iteration, f: MisFactors, ra
     if cfg.connects and D >= 3:
         y_own = jax.tree_util.tree_map(lambda a: a.reshape(D - 1, -1)[:, pixels], y_all)
         conn = connections(scene, cfg, y_own, z, f)
-    mrg, trunc = (None, None), jnp.zeros(pixels.shape, bool)
+    mrg = (None, None)
     if cfg.merges and D >= 2:
-        wtd, unw, tr = merge_at_camera_vertices(scene, cfg, cells, z, f, radius,
-                                                kernel_params, n_light, budget, table_size,
-                                                by_technique)
-        mrg, trunc = (wtd, unw), jnp.any(tr, 0)
-    return Techniques(em, ne, conn, mrg, trunc)
+        mrg = merge_at_camera_vertices(scene, cfg, cells, z, f, radius, kernel_params, n_light,
+                                       table_size, by_technique, dense_pairs)
+    return Techniques(em, ne, conn, mrg)
 
 
 def _flatten_light(y: LightVertices) -> LightVertices:
@@ -835,18 +801,17 @@ def _own_sum(t: Techniques) -> V3:
     return out
 
 
-@partial(jax.jit, static_argnames=("cfg", "budget", "table_size", "by_technique"))
+@partial(jax.jit, static_argnames=("cfg", "table_size", "by_technique"))
 def _camera_stage(scene: Scene, cfg: VCMConfig, seed, iteration, radius, kernel_params,
-                  y_all, cells, pixel0, budget: int, table_size: int, by_technique: bool):
+                  y_all, cells, pixel0, table_size: int, by_technique: bool):
     """Camera subpaths of pixels pixel0 .. pixel0 + chunk - 1 (clamped to the image) with every
-    technique; ``by_technique``: the :class:`Techniques`, else their weighted sum ([chunk] V3);
-    and whether any merge overflowed its budget."""
+    technique; ``by_technique``: the :class:`Techniques`, else their weighted sum ([chunk] V3)."""
     P = scene.camera.width * scene.camera.height
     f = mis_factors(radius, P, cfg)
     pixels = jnp.minimum(pixel0 + jnp.arange(cfg.chunk, dtype=jnp.int32), P - 1)
     t = camera_pass(scene, cfg, seed, iteration, f, radius, kernel_params, y_all, cells, pixels,
-                    budget, table_size, by_technique)
-    return (t if by_technique else _own_sum(t)), jnp.any(t.truncated)
+                    table_size, by_technique)
+    return t if by_technique else _own_sum(t)
 
 
 def _check_scene(scene: Scene) -> None:
@@ -859,8 +824,8 @@ def _check_scene(scene: Scene) -> None:
 
 class _Iterations:
     """The host loop shared by :func:`render` and :func:`render_techniques`: per iteration, the
-    light stage, then the camera stage per chunk, re-run with doubled merge budgets where one
-    overflowed. Calls ``on_chunk(i, p0, result)`` and ``on_light(i, light stage outputs)``."""
+    light stage, then the camera stage per chunk. Calls ``on_chunk(i, p0, result)`` and
+    ``on_light(i, light stage outputs)``."""
 
     def __init__(self, scene: Scene, cfg: VCMConfig, chunk_limit: int):
         _check_scene(scene)
@@ -870,8 +835,6 @@ class _Iterations:
         self.key_cfg = replace(cfg.kernel_key(), chunk=self.chunk)
         self.table_size = table_size_for(scene, cfg)
         self.kernel_params = cfg.kernel_params()
-        self.budget = cfg.budget
-        self.reruns = 0
 
     def run(self, spp: int, seed: int, on_light, on_chunk, by_technique: bool, progress=False):
         scene, cfg, kc, ts = self.scene, self.cfg, self.key_cfg, self.table_size
@@ -881,14 +844,8 @@ class _Iterations:
             y_all, cells, img = _light_stage(scene, kc, s_, it, r, ts)
             on_light(i, img)
             for p0 in range(0, self.P, self.chunk):
-                while True:
-                    out, over = _camera_stage(scene, kc, s_, it, r, self.kernel_params, y_all,
-                                              cells, jnp.int32(p0), self.budget,
-                                              ts, by_technique)
-                    if not cfg.merges or not bool(over) or self.budget >= 4096:
-                        break
-                    self.budget *= 2        # kept for the following chunks and iterations
-                    self.reruns += 1
+                out = _camera_stage(scene, kc, s_, it, r, self.kernel_params, y_all, cells,
+                                    jnp.int32(p0), ts, by_technique)
                 on_chunk(i, p0, out)
             if progress:
                 print(f"\rvcm iteration {i}/{spp}", end="", flush=True)
@@ -900,8 +857,7 @@ def render(scene: Scene, cfg: VCMConfig = VCMConfig(), *, spp: int, seed: int,
            progress: bool = False) -> Render:
     """``spp`` iterations of VCM (see the module docstring); the mean of their images.
 
-    Stats: ``radius_final`` (r of the last iteration), ``budget`` (merge candidates read per
-    camera vertex at the end), ``reruns`` (chunks traced again with a doubled budget)."""
+    Stats: ``radius_final`` (r of the last iteration)."""
     W, H = scene.camera.width, scene.camera.height
     if cfg.technique_images:
         imgs = render_techniques(scene, cfg, spp=spp, seed=seed)
@@ -924,7 +880,7 @@ def render(scene: Scene, cfg: VCMConfig = VCMConfig(), *, spp: int, seed: int,
     loop.run(spp, seed, on_light, on_chunk, False, progress)
     image = (acc["splat"] + acc["own"][:P]) / spp
     return Render(np.asarray(image, np.float32).reshape(H, W, 3),
-                  dict(radius_final=radius_at(cfg, spp), budget=loop.budget, reruns=loop.reruns))
+                  dict(radius_final=radius_at(cfg, spp)))
 
 
 @jax.jit
@@ -1030,11 +986,12 @@ def write_technique_images(folder, images: dict, exposure: float = 0.0) -> list[
 # --- a differentiable iteration -------------------------------------------------------------------
 
 def iteration_image(scene: Scene, cfg: VCMConfig, seed, iteration, radius, kernel_params: dict,
-                    budget: int = 64) -> Array:
+                    pairs_per_vertex: int = 64) -> Array:
     """One iteration's image [H, W, 3] as a traced function of the merge ``radius`` and the
     kernel's parameters (jit it, or differentiate it: ``jax.grad`` of a loss of it with respect
-    to r fits r_0, as :mod:`jgi.analysis.density_fit` fits photon radii). ``budget``: grid
-    candidates read per merge (static; no re-runs here: choose it large enough)."""
+    to r fits r_0, as :mod:`jgi.analysis.density_fit` fits photon radii). The merges read
+    ``pairs_per_vertex`` times (max_depth x pixels) grid candidates in all (static; the image
+    is NaN if the iteration's camera vertices have more: choose it large enough)."""
     _check_scene(scene)
     W, H = scene.camera.width, scene.camera.height
     P = W * H
@@ -1049,7 +1006,7 @@ def iteration_image(scene: Scene, cfg: VCMConfig, seed, iteration, radius, kerne
         img = _splat(img, t1[0], t1[1])
     pixels = jnp.arange(P, dtype=jnp.int32)
     t = camera_pass(scene, cfg, seed, iteration, f, radius, kernel_params, y_all, cells, pixels,
-                    budget, ts, False)
+                    ts, False, pairs_per_vertex * cfg.max_depth * P)
     return _splat(img, pixels, _own_sum(t)).reshape(H, W, 3)
 
 

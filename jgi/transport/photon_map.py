@@ -197,27 +197,43 @@ _NEIGHBOURS = np.array([(dx, dy, dz) for dx in (-1, 0, 1) for dy in (-1, 0, 1)
 _EARLIER = np.tril(np.ones((27, 27), bool), -1)                         # [i, j]: j < i
 
 
-def candidates(cells: CellIndex, table_size: int, x: V3, budget: int):
-    """(slot [N, budget], valid [N, budget], overflow [N]): the entries of the 27 hashed cells
-    around each query x, packed into ``budget`` slots (dense and empty cells share them, unlike
-    a fixed cap per cell), so every point within ``cells.cell`` of x is among them unless the 27
-    cells hold more than ``budget`` (``overflow``). A slot indexes the points in grid order
-    (``cells.order[slot]`` is the point's own index). Neighbour cells that collide in the hash
-    table are read once."""
+def cell_ranges(cells: CellIndex, table_size: int, x: V3):
+    """(start, count) [N, 27]: the ranges (in grid order, ``cells.order``) of the 27 hashed
+    cells around each query x, so every point within ``cells.cell`` of x lies in one of them.
+    Neighbour cells that collide in the hash table get count 0 after their first occurrence
+    (read once)."""
     c = cells.cell
     ijk = [jnp.floor((a - o) / c).astype(jnp.int32)[..., None] + _NEIGHBOURS[:, i]
            for i, (a, o) in enumerate(zip(x, cells.origin))]
     h = _hash(*ijk, table_size)                                          # [N, 27]
     dup = jnp.any((h[..., :, None] == h[..., None, :]) & _EARLIER, -1)
-    count = jnp.where(dup, 0, cells.count[h])
-    end = jnp.cumsum(count, -1)                                          # inclusive
-    k = jnp.arange(budget, dtype=jnp.int32)
-    which = jnp.minimum(jnp.sum(end[..., None, :] <= k[:, None], -1), 26)  # [N, budget]
-    first = jnp.take_along_axis(end - count, which, -1)
-    slot = jnp.take_along_axis(cells.start[h], which, -1) + (k - first)
-    total = end[..., -1]
-    valid = k < total[..., None]
-    return jnp.where(valid, slot, 0), valid, total > budget
+    return cells.start[h], jnp.where(dup, 0, cells.count[h])
+
+
+class Pairs(NamedTuple):
+    """The (query, point) candidate pairs of :func:`cell_ranges`: every entry of every query's
+    27 cells, queries in order, as flat ranges; :func:`pair_block` reads them in blocks."""
+    start: Array      # [N * 27] first slot (grid order) of each (query, cell)
+    count: Array      # [N * 27] entries in it
+    end: Array        # [N * 27] inclusive prefix sum of count
+    total: Array      # scalar: number of pairs
+
+
+def candidate_pairs(start: Array, count: Array) -> Pairs:
+    count = count.reshape(-1)
+    end = jnp.cumsum(count)
+    return Pairs(start.reshape(-1), count, end, end[-1])
+
+
+def pair_block(pairs: Pairs, block: int, b) -> tuple[Array, Array, Array]:
+    """Pairs b * block .. (b + 1) * block - 1: (query [block], slot [block], valid [block]).
+    No query has a cap: a loop over ceil(total / block) blocks reads each pair once, so a dense
+    cell costs its own entries and nothing more."""
+    k = b * block + jnp.arange(block, dtype=jnp.int32)
+    seg = jnp.minimum(jnp.searchsorted(pairs.end, k, side="right"), pairs.count.shape[0] - 1)
+    slot = pairs.start[seg] + (k - (pairs.end[seg] - pairs.count[seg]))
+    valid = k < pairs.total
+    return seg // _NEIGHBOURS.shape[0], jnp.where(valid, slot, 0), valid
 
 
 def gather(grid: HashGrid, x: V3, n: V3, cap: int, thickness: float | None = None) -> Gathered:
