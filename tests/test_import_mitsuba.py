@@ -451,3 +451,23 @@ def test_rough_plastic_and_conductors_renders_like_mitsuba(tmp_path):
 def test_rough_dielectric_renders_like_mitsuba(tmp_path):
     _compare_with_mitsuba(tmp_path, DATA / "cornell_box_rough_glass_mitsuba.xml",
                           "roughdielectric vs Mitsuba 3")
+
+
+def test_textured_ply_and_cube_load(tmp_path):
+    """A textured PLY mesh takes its file's uv (Mitsuba's names, v as written), a textured
+    cube becomes Mitsuba's cube mesh (uv per face), an untextured cube stays a box."""
+    from tests.test_textures import _ply_quad
+
+    _ply_quad(tmp_path / "q.ply", ("texture_u", "texture_v"))
+    body = SENSOR + """
+    <texture type="checkerboard" id="c"/>
+    <bsdf type="diffuse" id="t"><ref name="reflectance" id="c"/></bsdf>
+    <shape type="ply"><string name="filename" value="q.ply"/><ref id="t"/></shape>
+    <shape type="cube"><ref id="t"/></shape>
+    <shape type="cube"><transform name="to_world"><translate x="3"/></transform></shape>
+    <emitter type="point"><point name="position" x="0" y="3" z="3"/></emitter>"""
+    scene = load_mitsuba_xml(write(tmp_path, body))
+    assert (scene.triangles.count, scene.boxes.count) == (2 + 12, 1)
+    uv = np.asarray(scene.triangles.uv)
+    np.testing.assert_allclose(uv[0], [0.1, 0.2, 0.8, -0.1, 0.7, 0.5], atol=1e-6)
+    np.testing.assert_allclose(uv[2:, :2].reshape(6, 2, 2)[:, 0], [[0, 1]] * 6)

@@ -106,11 +106,15 @@ def test_triangle_uv_interpolates_the_vertex_uvs(rng_np, bvh):
     np.testing.assert_allclose(np.stack([u, v], 1), np.stack([b1, b2], 1), atol=2e-5)
 
 
-def test_textured_cubes_are_refused():
+def test_textured_cube_is_mitsubas_cube_mesh():
+    """A cube with a textured material is Mitsuba's twelve-triangle mesh (its uv per face);
+    an untextured one stays an oriented box."""
     b = _builder()
+    b.material("plain", "diffuse", diffuse=0.5)
     b.cube(xf.scale(0.5), "m")
-    with pytest.raises(SceneError, match="textured cubes are not supported"):
-        b.build()
+    b.cube(xf.translate([2.0, 0, 0]), "plain")
+    scene = b.build()
+    assert (scene.triangles.count, scene.boxes.count, scene.quads.count) == (12, 1, 0)
 
 
 def test_untextured_hits_carry_no_uv():
@@ -552,3 +556,126 @@ def test_obj_uv_matches_mitsubas(tmp_path, with_vt):
     u, v, ok = _hit(load_mitsuba_xml(xml), o, d)
     assert ok.all()
     np.testing.assert_allclose(np.stack([u, v]), theirs, atol=1e-6)
+
+
+MI_SHAPE = ('<scene version="3.0.0"><sensor type="perspective"><film type="hdrfilm">'
+            '<integer name="width" value="4"/><integer name="height" value="4"/></film>'
+            '</sensor><shape type="{kind}">{inner}<bsdf type="diffuse">'
+            '<texture type="checkerboard" name="reflectance"/></bsdf></shape></scene>')
+
+
+def _mitsuba_uv(mi, xml, o, d):
+    """Mitsuba's ray_intersect: (uv [2, N], hit [N])."""
+    si = mi.load_file(str(xml)).ray_intersect(mi.Ray3f(mi.Point3f(*o.T), mi.Vector3f(*d.T)))
+    return np.array(mi.Vector2f(si.uv)), np.array(si.is_valid())
+
+
+def test_cube_uv_matches_mitsubas(tmp_path):
+    """A textured cube under a rotation, a non-uniform scale and a translation: jgi's hit uv
+    equals Mitsuba's ray_intersect uv on every face (rays from all directions)."""
+    mi = _mitsuba()
+    if mi is None:
+        pytest.skip("mitsuba is not installed")
+    xml = tmp_path / "c.xml"
+    xml.write_text(MI_SHAPE.format(kind="cube", inner=(
+        '<transform name="to_world"><scale x="0.5" y="0.7" z="0.9"/>'
+        '<rotate x="0.6" y="0.8" z="0" angle="25"/><translate x="0.1" y="0.2" z="-0.3"/>'
+        '</transform>')))
+    rng = np.random.default_rng(0)
+    d = rng.normal(size=(200, 3))
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    o = np.array([0.1, 0.2, -0.3]) - 4 * d + 0.2 * rng.normal(size=(200, 3))
+    theirs, hit = _mitsuba_uv(mi, xml, o, d)
+    u, v, ok = _hit(load_mitsuba_xml(xml), o, d)
+    assert hit.all() and ok.all()
+    np.testing.assert_allclose(np.stack([u, v]), theirs, atol=1e-5)
+
+
+def _ply_quad(path, names, binary=False):
+    """The OBJ_QUAD square as a PLY file whose texture coordinates are the vertex properties
+    ``names`` (None: none), with vertex normals."""
+    v = np.array([[-1, -1, 0], [1, -1, 0], [1, 1, 0], [-1, 1, 0]], float)
+    uv = np.array([[0.1, 0.2], [0.9, 0.1], [0.8, 0.7], [0.2, 0.9]])
+    props = ["x", "y", "z", "nx", "ny", "nz"] + list(names or ())
+    rows = np.c_[v, np.tile([0.0, 0.0, 1.0], (4, 1))] if names is None else \
+        np.c_[v, np.tile([0.0, 0.0, 1.0], (4, 1)), uv]
+    head = (f"ply\nformat {'binary_little_endian' if binary else 'ascii'} 1.0\n"
+            "element vertex 4\n" + "".join(f"property float {p}\n" for p in props)
+            + "element face 2\nproperty list uchar int vertex_indices\nend_header\n")
+    if binary:
+        faces = b"".join(np.uint8(3).tobytes() + np.asarray(f, "<i4").tobytes()
+                         for f in ([0, 1, 2], [0, 2, 3]))
+        path.write_bytes(head.encode() + rows.astype("<f4").tobytes() + faces)
+    else:
+        path.write_text(head + "".join(" ".join(map(str, r)) + "\n" for r in rows)
+                        + "3 0 1 2\n3 0 2 3\n")
+
+
+@pytest.mark.parametrize("names,smooth,binary", [
+    (("u", "v"), False, False), (("s", "t"), True, True), (("texture_u", "texture_v"), True,
+                                                            False),
+    (("texture_s", "texture_t"), False, False),   # Mitsuba does not read these: no uv
+    (None, False, True),
+])
+def test_ply_uv_matches_mitsubas(tmp_path, names, smooth, binary):
+    """A textured PLY mesh imported from Mitsuba XML: jgi's hit uv equals Mitsuba's (the file's
+    u, v under Mitsuba's three names, v not flipped; (0,0), (1,0), (0,1) per triangle
+    without them), flat and smooth-shaded, ASCII and binary."""
+    mi = _mitsuba()
+    if mi is None:
+        pytest.skip("mitsuba is not installed")
+    _ply_quad(tmp_path / "q.ply", names, binary)
+    xml = tmp_path / "q.xml"
+    xml.write_text(MI_SHAPE.format(kind="ply", inner=(
+        '<string name="filename" value="q.ply"/>'
+        f'<boolean name="face_normals" value="{str(not smooth).lower()}"/>')))
+    rng = np.random.default_rng(1)
+    o = np.c_[rng.uniform(-0.95, 0.95, (20, 2)), np.full(20, 2.0)]
+    d = np.tile([0.0, 0.0, -1.0], (20, 1))
+    theirs, hit = _mitsuba_uv(mi, xml, o, d)
+    u, v, ok = _hit(load_mitsuba_xml(xml), o, d)
+    assert hit.all() and ok.all()
+    np.testing.assert_allclose(np.stack([u, v]), theirs, atol=1e-6)
+
+
+TOML_MESH = """
+[camera]
+position = [0, 0, 3]
+look_at = [0, 0, 0]
+width = 4
+height = 4
+[[texture]]
+name = "checks"
+type = "checkerboard"
+[[material]]
+name = "m"
+type = "diffuse"
+diffuse = "checks"
+[[shape]]
+type = "mesh"
+file = "{file}"
+material = "m"
+[[shape]]
+type = "cube"
+material = "m"
+transform = {{ translate = [0, 0, -3] }}
+[[light]]
+type = "point"
+position = [0, 2, 2]
+intensity = 1
+"""
+
+
+@pytest.mark.parametrize("file", ["q.ply", "q.obj"])
+def test_toml_meshes_and_cubes_take_mitsubas_uv(tmp_path, file):
+    """A TOML scene reads a textured mesh's texture coordinates as Mitsuba does (PLY u, v as
+    written, OBJ vt with v flipped) and makes a textured cube Mitsuba's cube mesh."""
+    _ply_quad(tmp_path / "q.ply", ("u", "v"))
+    (tmp_path / "q.obj").write_text(OBJ_QUAD)
+    path = tmp_path / "s.toml"
+    path.write_text(TOML_MESH.format(file=file))
+    tri = jgi.load_scene(str(path)).triangles
+    assert tri.count == 2 + 12
+    uv0 = np.asarray(tri.uv)[0, :2]
+    np.testing.assert_allclose(uv0, [0.1, 0.2] if file == "q.ply" else [0.1, 0.8], atol=1e-6)
+    np.testing.assert_allclose(np.asarray(tri.uv)[2:, :2].reshape(6, 2, 2)[:, 0], [[0, 1]] * 6)

@@ -71,6 +71,20 @@ TEXTURE_KINDS = {"checkerboard": CHECKERBOARD, "bitmap": BITMAP}
 TEX_DIFFUSE, TEX_SPECULAR, TEX_ALPHA = range(3)
 TEXTURED_PARAMS = {"diffuse": TEX_DIFFUSE, "specular": TEX_SPECULAR, "alpha": TEX_ALPHA}
 
+# Mitsuba 3's ``cube`` as the mesh it is (Mitsuba 3.9.1's vertex_positions, vertex_texcoords
+# and faces, read with mitsuba.traverse): per face (-y, +y, +x, +z, -x, -z) four vertices and
+# two triangles wound outwards, the face's uv spanning [0, 1]^2.
+CUBE_VERTICES = np.array([
+    [1, -1, -1], [1, -1, 1], [-1, -1, 1], [-1, -1, -1],
+    [1, 1, -1], [-1, 1, -1], [-1, 1, 1], [1, 1, 1],
+    [1, -1, -1], [1, 1, -1], [1, 1, 1], [1, -1, 1],
+    [1, -1, 1], [1, 1, 1], [-1, 1, 1], [-1, -1, 1],
+    [-1, -1, 1], [-1, 1, 1], [-1, 1, -1], [-1, -1, -1],
+    [1, 1, -1], [1, -1, -1], [-1, -1, -1], [-1, 1, -1]], float)
+CUBE_UV = np.tile(np.array([[0, 1], [1, 1], [1, 0], [0, 0]], float), (6, 1))
+CUBE_FACES = np.array([[4 * k + i for i in tri] for k in range(6)
+                       for tri in ((0, 1, 2), (3, 0, 2))], np.int64)
+
 # Light element kinds (jgi.physics.lights implements each).
 AREA_QUAD, AREA_TRIANGLE, AREA_SPHERE, POINT, SPOT, DIRECTIONAL, ENVIRONMENT = range(7)
 LIGHT_KIND_NAMES = ("area_quad", "area_triangle", "area_sphere", "point", "spot", "directional",
@@ -622,7 +636,14 @@ class SceneBuilder:
 
     def cube(self, to_world: np.ndarray, material, emission=None):
         """Mitsuba's ``cube``: [-1, 1]^3 under ``to_world``. Without shear and emission it is
-        stored as one oriented box; otherwise as six outward-facing quads."""
+        stored as one oriented box; otherwise as six outward-facing quads. A cube whose
+        material is textured is Mitsuba's cube mesh itself (:data:`CUBE_VERTICES`: twelve
+        triangles, each face's uv spanning [0, 1]^2 as in Mitsuba's), so that its surface
+        coordinates are Mitsuba's."""
+        if self.materials[self._mat(material)].textures:
+            self.mesh(CUBE_VERTICES, CUBE_FACES, material, emission, to_world=to_world,
+                      uv=CUBE_UV)
+            return
         cols = np.asarray(to_world, float)[:3, :3]
         half = np.linalg.norm(cols, axis=0)
         if emission is None and np.all(half > 0):
@@ -746,13 +767,6 @@ class SceneBuilder:
         elements.extend(self.lights)
         center, radius = self._bounds()
         materials = self._build_materials()
-        if materials.has_textures:
-            for _, _, _, m in self.boxes:
-                if self.materials[m].textures:
-                    raise SceneError(
-                        f"material '{self._material_name(m)}' is textured and used by a cube: "
-                        "textured cubes are not supported (their per-face uv layout); use six "
-                        "rectangles or a mesh")
         return Scene(
             camera=self._build_camera(),
             spheres=self._build_spheres(sph_emit),

@@ -33,8 +33,10 @@ supported):
              the alpha of roughconductor (not alpha_u / alpha_v, not roughplastic's alpha).
              Other filters and wrap modes are refused. Textured spheres must not be rotated.
              Textured OBJ meshes take the file's texture coordinates (v flipped, as Mitsuba's
-             OBJ loader does), or Mitsuba's (0,0), (1,0), (0,1) per triangle without them;
-             textured PLY meshes with texture coordinates are refused.
+             OBJ loader does), textured PLY meshes the vertex properties u, v (or s, t, or
+             texture_u, texture_v: Mitsuba's names; v as written), both Mitsuba's (0,0), (1,0),
+             (0,1) per triangle without them. Textured cubes take Mitsuba's per-face uv
+             (SceneBuilder.cube).
   shape      rectangle, cube, sphere (center/radius or a uniform-scale to_world), obj, ply:
              with face_normals="true" shaded flat; otherwise, as Mitsuba, with vertex normals
              (the file's, transformed and normalised, or, when it has none, Mitsuba's smooth
@@ -507,10 +509,13 @@ class _Importer:
                 normals = None
             textured = bool(self.b.materials[self.b.material_names[material]].textures)
             if textured and has_texture_coordinates(base / fname):
-                if kind != "obj" or uv is None:
-                    self.fail(el, f"{kind} mesh '{fname}' with a textured material: jgi reads "
-                                  "texture coordinates from OBJ files only; remove the texture")
-                uv = np.stack([uv[:, 0], 1.0 - uv[:, 1]], 1)   # Mitsuba's OBJ loader flips v
+                if uv is None:
+                    self.fail(el, f"{kind} mesh '{fname}' with a textured material: its texture "
+                                  "coordinates cannot be read (an OBJ file must give vt on "
+                                  "every face vertex; a PLY file's are the vertex properties "
+                                  "u, v or s, t or texture_u, texture_v)")
+                if kind == "obj":   # Mitsuba's OBJ loader flips v; its PLY loader does not
+                    uv = np.stack([uv[:, 0], 1.0 - uv[:, 1]], 1)
             else:
                 uv = None   # Mitsuba's (0,0), (1,0), (0,1) per triangle
             if material in self.anisotropic:
