@@ -68,8 +68,12 @@ IOR_POLYPROPYLENE, IOR_BK7, IOR_AIR = 1.49, 1.5046, 1.000277
 # drive: columns of ``Materials.texture``.
 CHECKERBOARD, BITMAP = range(2)
 TEXTURE_KINDS = {"checkerboard": CHECKERBOARD, "bitmap": BITMAP}
-TEX_DIFFUSE, TEX_SPECULAR, TEX_ALPHA = range(3)
-TEXTURED_PARAMS = {"diffuse": TEX_DIFFUSE, "specular": TEX_SPECULAR, "alpha": TEX_ALPHA}
+# TEX_ALPHA drives alpha_u (an isotropic alpha: both), TEX_ALPHA_V alpha_v. An isotropic textured
+# alpha names its texture in both columns; a scene where every row's two agree drops the
+# TEX_ALPHA_V column (alpha_v then follows alpha_u where TEX_ALPHA is textured).
+TEX_DIFFUSE, TEX_SPECULAR, TEX_ALPHA, TEX_ALPHA_V = range(4)
+TEXTURED_PARAMS = {"diffuse": TEX_DIFFUSE, "specular": TEX_SPECULAR, "alpha": TEX_ALPHA,
+                   "alpha_v": TEX_ALPHA_V}
 
 # Mitsuba 3's ``cube`` as the mesh it is (Mitsuba 3.9.1's vertex_positions, vertex_texcoords
 # and faces, read with mitsuba.traverse): per face (-y, +y, +x, +z, -x, -z) four vertices and
@@ -522,10 +526,13 @@ class SceneBuilder:
             refuse(nonlinear=nonlinear)
         # textured parameters: a texture name where a colour (or alpha) is allowed
         textured = {}
+        microfacet = k_ in (ROUGH_CONDUCTOR, ROUGH_DIELECTRIC)
         allowed = {"diffuse": k_ in (DIFFUSE, PHONG, ROUGH_PLASTIC),
                    "specular": k_ != DIFFUSE,
-                   "alpha": k_ in (ROUGH_CONDUCTOR, ROUGH_DIELECTRIC)}
-        for key, v in (("diffuse", diffuse), ("specular", specular), ("alpha", alpha)):
+                   "alpha": microfacet, "alpha_u": microfacet, "alpha_v": microfacet}
+        columns = {**TEXTURED_PARAMS, "alpha_u": TEX_ALPHA}
+        for key, v in (("diffuse", diffuse), ("specular", specular), ("alpha", alpha),
+                       ("alpha_u", alpha_u), ("alpha_v", alpha_v)):
             if not isinstance(v, str):
                 continue
             if v not in self.texture_names:
@@ -535,13 +542,15 @@ class SceneBuilder:
                 fail(f"'{key}' cannot be textured for this type" +
                      (" (its coating tables are precomputed from one alpha)"
                       if key == "alpha" and k_ == ROUGH_PLASTIC else ""))
-            textured[TEXTURED_PARAMS[key]] = self.texture_names[v]
+            textured[columns[key]] = self.texture_names[v]
+        if isinstance(alpha, str):   # isotropic: alpha_v follows alpha_u
+            textured[TEX_ALPHA_V] = textured[TEX_ALPHA]
         if isinstance(diffuse, str):
             diffuse = (0.0, 0.0, 0.0)
         if isinstance(specular, str):
             specular = (1.0, 1.0, 1.0)
-        if isinstance(alpha, str):
-            alpha = DEFAULT_ALPHA
+        alpha, alpha_u, alpha_v = (DEFAULT_ALPHA if isinstance(a, str) else a
+                                   for a in (alpha, alpha_u, alpha_v))
         m = _Material(k_, _rgb(diffuse), _rgb(specular), float(exponent), textures=textured)
         # roughness
         if distribution not in MICROFACET_DISTRIBUTIONS:
@@ -961,8 +970,13 @@ class SceneBuilder:
             for i, m in enumerate(ms):
                 for col, t in m.textures.items():
                     index[i, col] = t
+            cols = {c for m in ms for c in m.textures}
+            if np.array_equal(index[:, TEX_ALPHA], index[:, TEX_ALPHA_V]):
+                cols.discard(TEX_ALPHA_V)   # isotropic only: alpha_v follows alpha_u
+            else:
+                cols.add(TEX_ALPHA_V)       # a constant alpha_v (-1) must not follow
             tex = dict(textures=self._build_textures(), texture=jnp.asarray(index),
-                       textured=tuple(sorted({c for m in ms for c in m.textures})))
+                       textured=tuple(sorted(cols)))
         return Materials(
             kind=jnp.asarray([m.kind for m in ms], jnp.int32),
             diffuse=_v3([m.diffuse for m in ms]),

@@ -66,7 +66,7 @@ FOV_AXES = ("x", "y", "smaller")
 # Each material type accepts only the parameters its BSDF uses (a key another type uses is a
 # likely mistake, e.g. `ior` on a mirror). Defaults are filled in by `_material`.
 # "rgb|texture" and "number|texture": a value, or the name of a [[texture]].
-_ROUGH = {"alpha": "number|texture", "alpha_u": "number", "alpha_v": "number",
+_ROUGH = {"alpha": "number|texture", "alpha_u": "number|texture", "alpha_v": "number|texture",
           "distribution": "str"}
 _METAL = {"metal": "str", "eta": "rgb", "k": "rgb", "specular": "rgb|texture"}
 _IOR = {"ior": "number", "int_ior": "number", "ext_ior": "number"}
@@ -502,7 +502,7 @@ class _TomlLoader:
         if kind in ("conductor", "roughconductor"):
             self.metal(key, mm)
         if "distribution" in MATERIAL_KEYS[kind]:
-            self.roughness(key, kind, mm)
+            self.roughness(key, kind, mm, textured)
         if kind == "roughplastic" and (mm.get("ior") == 1 or (
                 "int_ior" in mm and mm["int_ior"] == mm.get("ext_ior", IOR_AIR))):
             self.fail(f"{key}.{'ior' if 'ior' in mm else 'int_ior'}",
@@ -534,16 +534,18 @@ class _TomlLoader:
                 self.fail(f"{key}.{missing}", "missing: eta and k go together (the complex "
                                               "index of refraction eta + i k)")
 
-    def roughness(self, key: str, kind: str, mm: dict):
-        """distribution is ggx or beckmann; alpha, or alpha_u and alpha_v together, all > 0."""
+    def roughness(self, key: str, kind: str, mm: dict, textured=()):
+        """distribution is ggx or beckmann; alpha, or alpha_u and alpha_v together, all > 0
+        (``mm`` the constants, ``textured`` the keys given as texture names)."""
         if "distribution" in mm and mm["distribution"] not in MICROFACET_DISTRIBUTIONS:
             self.fail(f"{key}.distribution", f"unknown distribution {mm['distribution']!r}; "
                                              f"allowed: {', '.join(MICROFACET_DISTRIBUTIONS)}")
-        if "alpha" in mm and ("alpha_u" in mm or "alpha_v" in mm):
+        given = set(mm) | set(textured)
+        if "alpha" in given and ("alpha_u" in given or "alpha_v" in given):
             self.fail(f"{key}.alpha", "give either alpha (isotropic) or alpha_u and alpha_v "
                                       "(anisotropic), not both")
-        if ("alpha_u" in mm) != ("alpha_v" in mm):
-            missing = "alpha_v" if "alpha_u" in mm else "alpha_u"
+        if ("alpha_u" in given) != ("alpha_v" in given):
+            missing = "alpha_v" if "alpha_u" in given else "alpha_u"
             self.fail(f"{key}.{missing}", "missing: alpha_u and alpha_v go together")
         for k in ("alpha", "alpha_u", "alpha_v"):
             if k in mm and not mm[k] > 0:
