@@ -449,6 +449,9 @@ def test_toml_textures(tmp_path):
     np.testing.assert_allclose(np.asarray(tex.to_uv[0]), [4, 0, 0, 0, 2, 0])
     np.testing.assert_allclose(np.asarray(tex.atlas), srgb_decode(128 / 255), rtol=1e-6)
     assert np.isfinite(jgi.render(scene, "pt", spp=2)).all()
+    aniso = TOML_SCENE.replace('alpha = "checks"', 'alpha_u = "checks"\nalpha_v = 0.2')
+    mats = jgi.load_scene(str(_toml(tmp_path, aniso))).materials
+    assert mats.textured == (0, 1, 2, 3) and float(mats.alpha_v[1]) == pytest.approx(0.2)
 
 
 @pytest.mark.parametrize("old,new,match", [
@@ -458,6 +461,8 @@ def test_toml_textures(tmp_path):
                                                "allowed: checkerboard, bitmap"),
     ('scale = [4, 2]', 'scale = [4, 2, 1]', r"texture\[0\].scale: expected one number or 2"),
     ('color1 = 0.3', 'colour1 = 0.3', r"texture\[0\].colour1: unknown key .*did you mean"),
+    ('alpha = "checks"', 'alpha_u = "checks"', r"material\[1\].alpha_v: missing: alpha_u and "
+                                               "alpha_v go together"),
 ])
 def test_toml_texture_errors(tmp_path, old, new, match):
     with pytest.raises(SceneError, match=match):

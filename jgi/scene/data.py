@@ -497,6 +497,12 @@ class SceneBuilder:
           polypropylene 1.49 / air 1.000277; must differ), isotropic ``alpha``,
           ``distribution``, ``nonlinear``.
 
+        Textured parameters take a texture's name instead of a value: ``diffuse``,
+        ``specular`` (a dielectric's one tint, reflection and transmission alike), and the
+        roughness ``alpha`` or ``alpha_u`` / ``alpha_v`` (each on its own; its luminance) of
+        roughconductor and roughdielectric. A roughplastic's ``alpha`` cannot be textured (its
+        coating tables are computed from one value).
+
         Raises :class:`SceneError` naming the material and what is allowed."""
         if kind not in MATERIAL_KINDS:
             raise SceneError(f"material '{name}': unknown type '{kind}'; allowed: "
