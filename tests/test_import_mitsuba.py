@@ -130,7 +130,7 @@ def test_lights_materials_and_transforms(tmp_path):
      '<string name="filename" value="wood.png"/></texture></bsdf></shape>',
      "bitmap\\): cannot read '.*wood.png'"),
     ('<bsdf type="roughplastic" id="x"><texture type="checkerboard" name="alpha"/></bsdf>',
-     "roughplastic: 'alpha' cannot be textured"),
+     "roughplastic: 'alpha' cannot be a texture \\(Mitsuba's roughplastic takes a <float> alpha"),
     ('<texture type="checkerboard"/>', "a top-level <texture> needs an id"),
     ('<texture type="mesh_attribute" id="t"/>', "texture plugin 'mesh_attribute' is not "
      "supported by jgi; supported texture plugins: bitmap, checkerboard"),
@@ -451,3 +451,61 @@ def test_rough_plastic_and_conductors_renders_like_mitsuba(tmp_path):
 def test_rough_dielectric_renders_like_mitsuba(tmp_path):
     _compare_with_mitsuba(tmp_path, DATA / "cornell_box_rough_glass_mitsuba.xml",
                           "roughdielectric vs Mitsuba 3")
+
+
+def test_textured_ply_and_cube_load(tmp_path):
+    """A textured PLY mesh takes its file's uv (Mitsuba's names, v as written), a textured
+    cube becomes Mitsuba's cube mesh (uv per face), an untextured cube stays a box."""
+    from tests.test_textures import _ply_quad
+
+    _ply_quad(tmp_path / "q.ply", ("texture_u", "texture_v"))
+    body = SENSOR + """
+    <texture type="checkerboard" id="c"/>
+    <bsdf type="diffuse" id="t"><ref name="reflectance" id="c"/></bsdf>
+    <shape type="ply"><string name="filename" value="q.ply"/><ref id="t"/></shape>
+    <shape type="cube"><ref id="t"/></shape>
+    <shape type="cube"><transform name="to_world"><translate x="3"/></transform></shape>
+    <emitter type="point"><point name="position" x="0" y="3" z="3"/></emitter>"""
+    scene = load_mitsuba_xml(write(tmp_path, body))
+    assert (scene.triangles.count, scene.boxes.count) == (2 + 12, 1)
+    uv = np.asarray(scene.triangles.uv)
+    np.testing.assert_allclose(uv[0], [0.1, 0.2, 0.8, -0.1, 0.7, 0.5], atol=1e-6)
+    np.testing.assert_allclose(uv[2:, :2].reshape(6, 2, 2)[:, 0], [[0, 1]] * 6)
+
+
+def test_textured_roughness_and_dielectric_tint(tmp_path):
+    """Textured alpha_u / alpha_v (each alone, or both) and a dielectric whose reflectance and
+    transmittance are one texture: the builder's texture columns; an isotropic textured alpha
+    keeps alpha_v following alpha_u (no alpha_v column); different tints are refused. A
+    checkerboard roughness is Mitsuba 3.9.1's eval_1 of it, which exchanges color0 and color1
+    (mitsuba.load_dict of a checkerboard: eval_1 gives color1 where eval gives color0)."""
+    from jgi.scene.data import TEX_ALPHA, TEX_ALPHA_V, TEX_SPECULAR
+
+    def load(bsdfs):
+        shapes = "".join(f'<shape type="rectangle"><ref id="{i}"/></shape>'
+                         for i in re.findall(r'id="(b\d)"', bsdfs))
+        return load_mitsuba_xml(write(tmp_path, SENSOR + '<texture type="checkerboard" id="c"/>'
+                                      '<texture type="checkerboard" id="d"/>' + bsdfs + shapes))
+
+    iso = load('<bsdf type="roughconductor" id="b0"><ref name="alpha" id="c"/></bsdf>')
+    assert iso.materials.textured == (TEX_ALPHA,)
+    aniso = load('<bsdf type="roughconductor" id="b0"><ref name="alpha_u" id="c"/>'
+                 '<float name="alpha_v" value="0.3"/></bsdf>'
+                 '<bsdf type="roughdielectric" id="b1"><float name="alpha_u" value="0.2"/>'
+                 '<ref name="alpha_v" id="d"/></bsdf>'
+                 '<bsdf type="roughconductor" id="b2"><ref name="alpha" id="d"/></bsdf>'
+                 '<bsdf type="dielectric" id="b3"><ref name="specular_reflectance" id="c"/>'
+                 '<ref name="specular_transmittance" id="c"/></bsdf>')
+    m = aniso.materials
+    assert m.textured == (TEX_SPECULAR, TEX_ALPHA, TEX_ALPHA_V)
+    np.testing.assert_array_equal(np.asarray(m.texture)[:, [TEX_SPECULAR, TEX_ALPHA,
+                                                            TEX_ALPHA_V]],
+                                  [[-1, 2, -1], [-1, -1, 3], [-1, 3, 3], [0, -1, -1]])
+    # roughness reads Mitsuba's checkerboard eval_1: a twin with the colours exchanged
+    tex = m.textures
+    np.testing.assert_allclose([float(tex.color0.x[2]), float(tex.color1.x[2])], [0.2, 0.4])
+    np.testing.assert_allclose(np.asarray(m.alpha_v)[:2], [0.3, 0.1])
+    np.testing.assert_allclose(np.asarray(m.alpha_u)[:2], [0.1, 0.2])
+    with pytest.raises(SceneError, match="dielectric: jgi needs equal specular_reflectance and "
+                                         "specular_transmittance"):
+        load('<bsdf type="dielectric" id="b0"><ref name="specular_reflectance" id="c"/></bsdf>')

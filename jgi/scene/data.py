@@ -68,8 +68,26 @@ IOR_POLYPROPYLENE, IOR_BK7, IOR_AIR = 1.49, 1.5046, 1.000277
 # drive: columns of ``Materials.texture``.
 CHECKERBOARD, BITMAP = range(2)
 TEXTURE_KINDS = {"checkerboard": CHECKERBOARD, "bitmap": BITMAP}
-TEX_DIFFUSE, TEX_SPECULAR, TEX_ALPHA = range(3)
-TEXTURED_PARAMS = {"diffuse": TEX_DIFFUSE, "specular": TEX_SPECULAR, "alpha": TEX_ALPHA}
+# TEX_ALPHA drives alpha_u (an isotropic alpha: both), TEX_ALPHA_V alpha_v. An isotropic textured
+# alpha names its texture in both columns; a scene where every row's two agree drops the
+# TEX_ALPHA_V column (alpha_v then follows alpha_u where TEX_ALPHA is textured).
+TEX_DIFFUSE, TEX_SPECULAR, TEX_ALPHA, TEX_ALPHA_V = range(4)
+TEXTURED_PARAMS = {"diffuse": TEX_DIFFUSE, "specular": TEX_SPECULAR, "alpha": TEX_ALPHA,
+                   "alpha_v": TEX_ALPHA_V}
+
+# Mitsuba 3's ``cube`` as the mesh it is (Mitsuba 3.9.1's vertex_positions, vertex_texcoords
+# and faces, read with mitsuba.traverse): per face (-y, +y, +x, +z, -x, -z) four vertices and
+# two triangles wound outwards, the face's uv spanning [0, 1]^2.
+CUBE_VERTICES = np.array([
+    [1, -1, -1], [1, -1, 1], [-1, -1, 1], [-1, -1, -1],
+    [1, 1, -1], [-1, 1, -1], [-1, 1, 1], [1, 1, 1],
+    [1, -1, -1], [1, 1, -1], [1, 1, 1], [1, -1, 1],
+    [1, -1, 1], [1, 1, 1], [-1, 1, 1], [-1, -1, 1],
+    [-1, -1, 1], [-1, 1, 1], [-1, 1, -1], [-1, -1, -1],
+    [1, 1, -1], [1, -1, -1], [-1, -1, -1], [-1, 1, -1]], float)
+CUBE_UV = np.tile(np.array([[0, 1], [1, 1], [1, 0], [0, 0]], float), (6, 1))
+CUBE_FACES = np.array([[4 * k + i for i in tri] for k in range(6)
+                       for tri in ((0, 1, 2), (3, 0, 2))], np.int64)
 
 # Light element kinds (jgi.physics.lights implements each).
 AREA_QUAD, AREA_TRIANGLE, AREA_SPHERE, POINT, SPOT, DIRECTIONAL, ENVIRONMENT = range(7)
@@ -479,6 +497,12 @@ class SceneBuilder:
           polypropylene 1.49 / air 1.000277; must differ), isotropic ``alpha``,
           ``distribution``, ``nonlinear``.
 
+        Textured parameters take a texture's name instead of a value: ``diffuse``,
+        ``specular`` (a dielectric's one tint, reflection and transmission alike), and the
+        roughness ``alpha`` or ``alpha_u`` / ``alpha_v`` (each on its own; its luminance) of
+        roughconductor and roughdielectric. A roughplastic's ``alpha`` cannot be textured (its
+        coating tables are computed from one value).
+
         Raises :class:`SceneError` naming the material and what is allowed."""
         if kind not in MATERIAL_KINDS:
             raise SceneError(f"material '{name}': unknown type '{kind}'; allowed: "
@@ -508,10 +532,13 @@ class SceneBuilder:
             refuse(nonlinear=nonlinear)
         # textured parameters: a texture name where a colour (or alpha) is allowed
         textured = {}
+        microfacet = k_ in (ROUGH_CONDUCTOR, ROUGH_DIELECTRIC)
         allowed = {"diffuse": k_ in (DIFFUSE, PHONG, ROUGH_PLASTIC),
                    "specular": k_ != DIFFUSE,
-                   "alpha": k_ in (ROUGH_CONDUCTOR, ROUGH_DIELECTRIC)}
-        for key, v in (("diffuse", diffuse), ("specular", specular), ("alpha", alpha)):
+                   "alpha": microfacet, "alpha_u": microfacet, "alpha_v": microfacet}
+        columns = {**TEXTURED_PARAMS, "alpha_u": TEX_ALPHA}
+        for key, v in (("diffuse", diffuse), ("specular", specular), ("alpha", alpha),
+                       ("alpha_u", alpha_u), ("alpha_v", alpha_v)):
             if not isinstance(v, str):
                 continue
             if v not in self.texture_names:
@@ -521,13 +548,15 @@ class SceneBuilder:
                 fail(f"'{key}' cannot be textured for this type" +
                      (" (its coating tables are precomputed from one alpha)"
                       if key == "alpha" and k_ == ROUGH_PLASTIC else ""))
-            textured[TEXTURED_PARAMS[key]] = self.texture_names[v]
+            textured[columns[key]] = self.texture_names[v]
+        if isinstance(alpha, str):   # isotropic: alpha_v follows alpha_u
+            textured[TEX_ALPHA_V] = textured[TEX_ALPHA]
         if isinstance(diffuse, str):
             diffuse = (0.0, 0.0, 0.0)
         if isinstance(specular, str):
             specular = (1.0, 1.0, 1.0)
-        if isinstance(alpha, str):
-            alpha = DEFAULT_ALPHA
+        alpha, alpha_u, alpha_v = (DEFAULT_ALPHA if isinstance(a, str) else a
+                                   for a in (alpha, alpha_u, alpha_v))
         m = _Material(k_, _rgb(diffuse), _rgb(specular), float(exponent), textures=textured)
         # roughness
         if distribution not in MICROFACET_DISTRIBUTIONS:
@@ -622,7 +651,14 @@ class SceneBuilder:
 
     def cube(self, to_world: np.ndarray, material, emission=None):
         """Mitsuba's ``cube``: [-1, 1]^3 under ``to_world``. Without shear and emission it is
-        stored as one oriented box; otherwise as six outward-facing quads."""
+        stored as one oriented box; otherwise as six outward-facing quads. A cube whose
+        material is textured is Mitsuba's cube mesh itself (:data:`CUBE_VERTICES`: twelve
+        triangles, each face's uv spanning [0, 1]^2 as in Mitsuba's), so that its surface
+        coordinates are Mitsuba's."""
+        if self.materials[self._mat(material)].textures:
+            self.mesh(CUBE_VERTICES, CUBE_FACES, material, emission, to_world=to_world,
+                      uv=CUBE_UV)
+            return
         cols = np.asarray(to_world, float)[:3, :3]
         half = np.linalg.norm(cols, axis=0)
         if emission is None and np.all(half > 0):
@@ -746,13 +782,6 @@ class SceneBuilder:
         elements.extend(self.lights)
         center, radius = self._bounds()
         materials = self._build_materials()
-        if materials.has_textures:
-            for _, _, _, m in self.boxes:
-                if self.materials[m].textures:
-                    raise SceneError(
-                        f"material '{self._material_name(m)}' is textured and used by a cube: "
-                        "textured cubes are not supported (their per-face uv layout); use six "
-                        "rectangles or a mesh")
         return Scene(
             camera=self._build_camera(),
             spheres=self._build_spheres(sph_emit),
@@ -947,8 +976,13 @@ class SceneBuilder:
             for i, m in enumerate(ms):
                 for col, t in m.textures.items():
                     index[i, col] = t
+            cols = {c for m in ms for c in m.textures}
+            if np.array_equal(index[:, TEX_ALPHA], index[:, TEX_ALPHA_V]):
+                cols.discard(TEX_ALPHA_V)   # isotropic only: alpha_v follows alpha_u
+            else:
+                cols.add(TEX_ALPHA_V)       # a constant alpha_v (-1) must not follow
             tex = dict(textures=self._build_textures(), texture=jnp.asarray(index),
-                       textured=tuple(sorted({c for m in ms for c in m.textures})))
+                       textured=tuple(sorted(cols)))
         return Materials(
             kind=jnp.asarray([m.kind for m in ms], jnp.int32),
             diffuse=_v3([m.diffuse for m in ms]),

@@ -66,7 +66,7 @@ FOV_AXES = ("x", "y", "smaller")
 # Each material type accepts only the parameters its BSDF uses (a key another type uses is a
 # likely mistake, e.g. `ior` on a mirror). Defaults are filled in by `_material`.
 # "rgb|texture" and "number|texture": a value, or the name of a [[texture]].
-_ROUGH = {"alpha": "number|texture", "alpha_u": "number", "alpha_v": "number",
+_ROUGH = {"alpha": "number|texture", "alpha_u": "number|texture", "alpha_v": "number|texture",
           "distribution": "str"}
 _METAL = {"metal": "str", "eta": "rgb", "k": "rgb", "specular": "rgb|texture"}
 _IOR = {"ior": "number", "int_ior": "number", "ext_ior": "number"}
@@ -502,7 +502,7 @@ class _TomlLoader:
         if kind in ("conductor", "roughconductor"):
             self.metal(key, mm)
         if "distribution" in MATERIAL_KEYS[kind]:
-            self.roughness(key, kind, mm)
+            self.roughness(key, kind, mm, textured)
         if kind == "roughplastic" and (mm.get("ior") == 1 or (
                 "int_ior" in mm and mm["int_ior"] == mm.get("ext_ior", IOR_AIR))):
             self.fail(f"{key}.{'ior' if 'ior' in mm else 'int_ior'}",
@@ -534,16 +534,18 @@ class _TomlLoader:
                 self.fail(f"{key}.{missing}", "missing: eta and k go together (the complex "
                                               "index of refraction eta + i k)")
 
-    def roughness(self, key: str, kind: str, mm: dict):
-        """distribution is ggx or beckmann; alpha, or alpha_u and alpha_v together, all > 0."""
+    def roughness(self, key: str, kind: str, mm: dict, textured=()):
+        """distribution is ggx or beckmann; alpha, or alpha_u and alpha_v together, all > 0
+        (``mm`` the constants, ``textured`` the keys given as texture names)."""
         if "distribution" in mm and mm["distribution"] not in MICROFACET_DISTRIBUTIONS:
             self.fail(f"{key}.distribution", f"unknown distribution {mm['distribution']!r}; "
                                              f"allowed: {', '.join(MICROFACET_DISTRIBUTIONS)}")
-        if "alpha" in mm and ("alpha_u" in mm or "alpha_v" in mm):
+        given = set(mm) | set(textured)
+        if "alpha" in given and ("alpha_u" in given or "alpha_v" in given):
             self.fail(f"{key}.alpha", "give either alpha (isotropic) or alpha_u and alpha_v "
                                       "(anisotropic), not both")
-        if ("alpha_u" in mm) != ("alpha_v" in mm):
-            missing = "alpha_v" if "alpha_u" in mm else "alpha_u"
+        if ("alpha_u" in given) != ("alpha_v" in given):
+            missing = "alpha_v" if "alpha_u" in given else "alpha_u"
             self.fail(f"{key}.{missing}", "missing: alpha_u and alpha_v go together")
         for k in ("alpha", "alpha_u", "alpha_v"):
             if k in mm and not mm[k] > 0:
@@ -585,19 +587,19 @@ class _TomlLoader:
             # the file's vertex normals shade it smoothly, unless flat = true; emitters are
             # flat (they radiate about the geometric normal)
             smooth = not t.get("flat", False) and e is None
-            v, f, normals = self.mesh(f"{key}.file", t["file"], smooth)
-            if b.materials[b.material_names[mat]].textures and has_texture_coordinates(
-                    (self.path.parent / t["file"]).resolve()):
-                self.fail(f"{key}.material", f"'{mat}' is textured and the mesh file has "
-                                             "texture coordinates, which jgi does not read from "
-                                             "files yet; allowed: an untextured material")
-            b.mesh(v, f, mat, e, to_world=m, normals=normals)
+            textured = bool(b.materials[b.material_names[mat]].textures)
+            v, f, normals, uv = self.mesh(f"{key}.file", t["file"], smooth, textured)
+            b.mesh(v, f, mat, e, to_world=m, normals=normals, uv=uv)
 
-    def mesh(self, key: str, name: str, normals: bool = False):
-        """Vertices, triangles and (with ``normals``) the vertex normals of a mesh file
-        (relative to the scene file): OBJ and PLY files that carry normals are read as Mitsuba
-        reads them (:func:`jgi.scene.importers._common.load_mesh_with_normals`), others via
-        trimesh; the normals are None where the file has none (the mesh shades flat)."""
+    def mesh(self, key: str, name: str, normals: bool = False, uv: bool = False):
+        """Vertices, triangles, (with ``normals``) the vertex normals and (with ``uv``) the
+        texture coordinates of a mesh file (relative to the scene file): OBJ and PLY files
+        that carry normals are read as Mitsuba reads them
+        (:func:`jgi.scene.importers._common.load_mesh_with_normals`), others via trimesh; the
+        normals are None where the file has none (the mesh shades flat). The uv are Mitsuba's:
+        an OBJ file's vt with v flipped, a PLY file's u, v (or s, t, or texture_u, texture_v);
+        None where the file has none (each triangle then has (0,0), (1,0), (0,1)). Other
+        formats with texture coordinates (or that jgi cannot tell) are refused with ``uv``."""
 
         path = self.path.parent / name
         if path.suffix.lower() not in MESH_SUFFIXES:
@@ -612,15 +614,31 @@ class _TomlLoader:
         except OSError as e:
             self.fail(key, f"cannot read mesh file '{path}': {e.strerror or e}")
         # the loaders raise SceneError naming `where` for unparsable or empty files
-        nrm = None
+        nrm = tex = None
+        suffix = path.suffix.lower()
+        if uv and suffix not in (".obj", ".ply") and has_texture_coordinates(path):
+            self.fail(key, f"'{name}' is used with a textured material: texture coordinates "
+                           "are read from OBJ and PLY files only; allowed: an OBJ or PLY file, "
+                           "or an untextured material")
         try:
-            if normals and path.suffix.lower() in (".obj", ".ply") and has_vertex_normals(path):
-                v, f, _, nrm = load_mesh_with_normals(path, f"{self.path}: {key}")
+            if normals and suffix in (".obj", ".ply") and has_vertex_normals(path):
+                v, f, tex, nrm = load_mesh_with_normals(path, f"{self.path}: {key}")
+            elif uv:
+                v, f, tex = load_mesh(path, f"{self.path}: {key}", with_uv=True)
             else:
                 v, f = load_mesh(path, f"{self.path}: {key}")
         except SceneError as e:
             raise SceneError(f"{e} (expected a valid {path.suffix[1:].upper()} file that trimesh "
                              "can read)") from None
+        if uv and has_texture_coordinates(path):
+            if tex is None:
+                self.fail(key, f"mesh '{name}' has texture coordinates that cannot be read (an "
+                               "OBJ file must give vt on every face vertex; a PLY file's are "
+                               "the vertex properties u, v or s, t or texture_u, texture_v)")
+            if suffix == ".obj":   # as Mitsuba reads OBJ files: v flipped
+                tex = np.stack([tex[:, 0], 1.0 - tex[:, 1]], 1)
+        else:
+            tex = None
         if f.ndim != 2 or f.shape[1] != 3 or f.min() < 0 or f.max() >= len(v):
             self.fail(key, f"mesh '{name}' has malformed faces (expected triangles indexing "
                            f"{len(v)} vertices)")
@@ -632,7 +650,9 @@ class _TomlLoader:
                           "zero-area triangles (rays never hit them)", SceneWarning, stacklevel=5)
         if nrm is not None and not np.all(np.isfinite(nrm)):
             self.fail(key, f"mesh '{name}' has non-finite vertex normals")
-        return v, f, nrm
+        if tex is not None and not np.all(np.isfinite(tex)):
+            self.fail(key, f"mesh '{name}' has non-finite texture coordinates")
+        return v, f, nrm, tex
 
     def light(self, b: SceneBuilder, key: str, l):
         kind = self.type_of(key, l, tuple(LIGHT_KEYS))

@@ -22,6 +22,7 @@ from ...scene.data import (
     ROUGH_KINDS,
     ROUGH_PLASTIC,
     TEX_ALPHA,
+    TEX_ALPHA_V,
     TEX_DIFFUSE,
     TEX_SPECULAR,
     Materials,
@@ -86,7 +87,7 @@ def lookup(mats: Materials, m: Array, uv=None) -> MaterialParams:
 
 def textured(mats: Materials, m: Array, uv, mp: MaterialParams) -> MaterialParams:
     """``mp`` (rows ``m``) with its textured parameters (diffuse and specular reflectance,
-    isotropic roughness) evaluated at ``uv`` where the row names a texture. The one place
+    roughness alpha_u and alpha_v) evaluated at ``uv`` where the row names a texture. The one place
     textures enter the BSDFs; a scene without textures returns ``mp`` unchanged (its kernels
     are those of jgi before textures)."""
     if not mats.has_textures:
@@ -106,7 +107,10 @@ def textured(mats: Materials, m: Array, uv, mp: MaterialParams) -> MaterialParam
     if TEX_ALPHA in cols:
         i = index[m, TEX_ALPHA]
         au = T.textured_scalar(tex, i, (u, v), jnp.broadcast_to(au, m.shape))
-        av = jnp.where(i >= 0, au, av)
+        if TEX_ALPHA_V not in cols:   # isotropic textures only: alpha_v follows alpha_u
+            av = jnp.where(i >= 0, au, av)
+    if TEX_ALPHA_V in cols:           # anisotropic ones: alpha_v's own texture, or constant
+        av = T.textured_scalar(tex, index[m, TEX_ALPHA_V], (u, v), jnp.broadcast_to(av, m.shape))
     return mp._replace(kd=kd, ks=ks, alpha_u=au, alpha_v=av)
 
 

@@ -32,9 +32,18 @@ def tangent_frame(n) -> tuple[np.ndarray, np.ndarray]:
             np.array([b, sign + y * y * a, -y]))
 
 
+# The PLY vertex properties read as texture coordinates (u, v), the first pair present winning:
+# Mitsuba 3's PLY loader reads these three pairs (checked with Mitsuba 3.9.1: texture_s /
+# texture_t stay other attributes), pbrt-v4's (plymesh.cpp) texture_s / texture_t as well.
+# Neither flips v.
+MITSUBA_PLY_UV = (("u", "v"), ("s", "t"), ("texture_u", "texture_v"))
+PBRT_PLY_UV = MITSUBA_PLY_UV + (("texture_s", "texture_t"),)
+
+
 def _mesh_attributes(path: Path) -> set[str]:
     """What an OBJ or PLY file carries per vertex besides positions: "uv" (texture
-    coordinates) and "normal"; {"unknown"} for other formats."""
+    coordinates; for PLY, Mitsuba's property names) and "normal"; {"unknown"} for other
+    formats."""
     suffix = path.suffix.lower()
     if suffix == ".obj":
         with open(path, "rb") as fh:
@@ -46,7 +55,7 @@ def _mesh_attributes(path: Path) -> set[str]:
             header = fh.read(4096).split(b"end_header")[0].decode("latin-1")
         names = {line.split()[-1] for line in header.splitlines()
                  if line.startswith("property") and len(line.split()) >= 3}
-        uv = names & {"u", "v", "s", "t", "texture_u", "texture_v", "texture_s", "texture_t"}
+        uv = names & {n for pair in MITSUBA_PLY_UV for n in pair}
         return ({"uv"} if uv else set()) | ({"normal"} if "nx" in names else set())
     return {"unknown"}
 
@@ -138,37 +147,66 @@ def normals_are_flat(v, f, normals, tol: float = 1e-6) -> bool:
     return bool(np.all(np.sum(n[np.asarray(f)] * face[:, None, :], axis=2) > 1 - tol))
 
 
-def load_mesh_with_normals(path: Path, where: str):
+def _read_ply(path: Path, where: str, uv_names=MITSUBA_PLY_UV):
+    """Vertices, triangles, texture coordinates (the first pair of ``uv_names`` the file has,
+    or None) and vertex normals (or None) of a PLY file, all in the file's vertex order:
+    trimesh's parser without its re-indexing of textured vertices (``fix_texture``), so that
+    the uv and normals stay with their vertices."""
+    try:
+        with open(path, "rb") as fh:
+            kw = trimesh.exchange.ply.load_ply(fh, fix_texture=False, skip_materials=True)
+        mesh = trimesh.Trimesh(vertices=kw["vertices"], faces=kw.get("faces"), process=False)
+        data = kw["metadata"]["_ply_raw"]["vertex"]["data"]
+    except Exception as e:  # trimesh raises many kinds
+        raise ImportError_(f"{where}: cannot read mesh '{path}': {e}") from None
+    v, f = np.asarray(mesh.vertices, float), np.asarray(mesh.faces, np.int64)
+    if len(f) == 0:
+        raise ImportError_(f"{where}: mesh '{path}' has no faces")
+    uv = None
+    for a, b in uv_names:
+        try:
+            uv = np.stack([np.asarray(data[a], float).reshape(-1),
+                           np.asarray(data[b], float).reshape(-1)], 1)
+            break
+        except (KeyError, ValueError, IndexError):
+            continue
+    normals = kw.get("vertex_normals")
+    normals = None if normals is None else np.asarray(normals, float)
+    for what, arr in (("texture coordinates", uv), ("vertex normals", normals)):
+        if arr is not None and len(arr) != len(v):
+            raise ImportError_(f"{where}: mesh '{path.name}': expected {len(v)} {what}, got "
+                               f"{len(arr)}")
+    return v, f, uv, normals
+
+
+def load_mesh_with_normals(path: Path, where: str, ply_uv=MITSUBA_PLY_UV):
     """Vertices, faces, texture coordinates (or None) and the file's vertex normals (or None
     when it has none) of an OBJ or PLY file, for smooth shading: OBJ files as Mitsuba 3 reads
-    them (:func:`_read_obj`), PLY files through trimesh (vertices as listed)."""
+    them (:func:`_read_obj`; its vt as written, v not flipped), PLY files with the texture
+    coordinates named by ``ply_uv`` (:func:`_read_ply`)."""
     if not path.is_file():
         raise ImportError_(f"{where}: mesh file '{path}' does not exist")
     if path.suffix.lower() == ".obj":
         return _read_obj(path, where)
-    v, f, uv = load_mesh(path, where, allow_vertex_normals=True, with_uv=True)
-    normals = None
-    if has_vertex_normals(path):
-        try:   # the file's values (trimesh.load may replace normals it disagrees with)
-            with open(path, "rb") as fh:
-                normals = np.asarray(trimesh.exchange.ply.load_ply(fh)["vertex_normals"],
-                                     float)
-        except Exception as e:  # trimesh raises many kinds
-            raise ImportError_(f"{where}: cannot read the normals of mesh '{path}': {e}") from None
-        if normals.shape != v.shape:
-            raise ImportError_(f"{where}: mesh '{path.name}': expected {len(v)} vertex normals, "
-                               f"got {len(normals)}")
-    return v, f, uv, normals
+    if path.suffix.lower() == ".ply":
+        return _read_ply(path, where, ply_uv)
+    v, f, uv = load_mesh(path, where, with_uv=True)
+    return v, f, uv, None
 
 
-def load_mesh(path: Path, where: str, allow_vertex_normals: bool = True, with_uv: bool = False):
-    """Vertices and faces of an OBJ/PLY file via trimesh (any vertex normals it carries are
+def load_mesh(path: Path, where: str, allow_vertex_normals: bool = True, with_uv: bool = False,
+              ply_uv=MITSUBA_PLY_UV):
+    """Vertices and faces of a mesh file via trimesh (any vertex normals it carries are
     not read: callers that shade smoothly use :func:`load_mesh_with_normals`). With
-    ``with_uv``, also the vertices' texture coordinates (trimesh's, [V, 2]) or None.
+    ``with_uv``, also the vertices' texture coordinates ([V, 2], as the file has them) or None:
+    trimesh's for OBJ files, the pairs ``ply_uv`` names for PLY files (:func:`_read_ply`).
     ``allow_vertex_normals`` is kept for callers: every file is accepted."""
 
     if not path.is_file():
         raise ImportError_(f"{where}: mesh file '{path}' does not exist")
+    if path.suffix.lower() == ".ply":
+        v, f, uv, _ = _read_ply(path, where, ply_uv)
+        return (v, f, uv) if with_uv else (v, f)
     try:
         mesh = trimesh.load(str(path), force="mesh", process=False)
     except Exception as e:  # trimesh raises many kinds
@@ -181,4 +219,3 @@ def load_mesh(path: Path, where: str, allow_vertex_normals: bool = True, with_uv
     uv = getattr(mesh.visual, "uv", None)
     uv = None if uv is None or len(uv) != len(v) else np.asarray(uv, float)
     return v, f, uv
-

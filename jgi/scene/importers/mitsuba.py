@@ -10,7 +10,8 @@ supported):
              table of metals, or eta / k as rgb, float or constant spectrum;
              specular_reflectance; material "none" without eta and k is a 100 % reflector);
              dielectric and roughdielectric (int_ior / ext_ior as numbers or Mitsuba's names,
-             ior = int / ext; one tint: specular_reflectance equal to specular_transmittance);
+             ior = int / ext; one tint: specular_reflectance equal to specular_transmittance,
+             or both <ref>s to one texture; different tints are refused);
              roughplastic (diffuse_reflectance, specular_reflectance, int_ior, ext_ior,
              nonlinear); twosided (unwrapped: jgi's opaque BSDFs are two-sided, Mitsuba's are
              one-sided, so a one-sided Mitsuba surface seen from the back renders black there
@@ -30,11 +31,16 @@ supported):
              to_uv) and checkerboard (color0, color1, to_uv), nested or at the top level with an
              id and a <ref name=...>, for diffuse's reflectance, roughplastic's
              diffuse_reflectance, the specular_reflectance of conductors and roughplastic, and
-             the alpha of roughconductor (not alpha_u / alpha_v, not roughplastic's alpha).
+             the alpha or alpha_u / alpha_v of roughconductor and roughdielectric (not
+             roughplastic's alpha, a <float> in Mitsuba).
              Other filters and wrap modes are refused. Textured spheres must not be rotated.
+             A checkerboard that drives a roughness is read as Mitsuba 3.9.1's eval_1 reads
+             it: color0 and color1 exchanged (see _Importer.scalar_texture).
              Textured OBJ meshes take the file's texture coordinates (v flipped, as Mitsuba's
-             OBJ loader does), or Mitsuba's (0,0), (1,0), (0,1) per triangle without them;
-             textured PLY meshes with texture coordinates are refused.
+             OBJ loader does), textured PLY meshes the vertex properties u, v (or s, t, or
+             texture_u, texture_v: Mitsuba's names; v as written), both Mitsuba's (0,0), (1,0),
+             (0,1) per triangle without them. Textured cubes take Mitsuba's per-face uv
+             (SceneBuilder.cube).
   shape      rectangle, cube, sphere (center/radius or a uniform-scale to_world), obj, ply:
              with face_normals="true" shaded flat; otherwise, as Mitsuba, with vertex normals
              (the file's, transformed and normalised, or, when it has none, Mitsuba's smooth
@@ -148,6 +154,7 @@ class _Importer:
         self.bsdfs: dict[str, tuple] = {}   # id -> (kind, kwargs)
         self.anisotropic: set[str] = set()  # BSDFs with alpha_u != alpha_v
         self.n_anon = 0
+        self.checkerboards: dict[str, dict] = {}   # name -> the builder's checkerboard kwargs
         self.sensor_done = False
         self.source: dict = {}
 
@@ -241,9 +248,10 @@ class _Importer:
         to_uv = p.get("to_uv")
         try:
             if kind == "checkerboard":
-                self.b.texture(name, "checkerboard", to_uv=to_uv,
-                               color0=self.rgb(el, p, "color0", 0.4),
-                               color1=self.rgb(el, p, "color1", 0.2))
+                self.checkerboards[name] = dict(to_uv=to_uv,
+                                                color0=self.rgb(el, p, "color0", 0.4),
+                                                color1=self.rgb(el, p, "color1", 0.2))
+                self.b.texture(name, "checkerboard", **self.checkerboards[name])
             else:
                 for key, allowed in (("filter_type", ("bilinear",)), ("wrap_mode", ("repeat",))):
                     v = p.get(key, allowed[0])
@@ -330,11 +338,15 @@ class _Importer:
         elif kind in ("conductor", "roughconductor"):
             self.conductor(el, name, kind, p)
         elif kind in ("dielectric", "roughdielectric"):
-            refl = self.rgb(el, p, "specular_reflectance", 1.0)
-            trans = self.rgb(el, p, "specular_transmittance", 1.0)
-            if not np.allclose(refl, trans):
+            refl = self.rgb(el, p, "specular_reflectance", 1.0, texture=True)
+            trans = self.rgb(el, p, "specular_transmittance", 1.0, texture=True)
+            textures = isinstance(refl, str), isinstance(trans, str)
+            if (not all(textures) or refl != trans) if any(textures) else \
+                    not np.allclose(refl, trans):
                 self.fail(el, f"{kind}: jgi needs equal specular_reflectance and "
-                              "specular_transmittance (one tint)")
+                              "specular_transmittance (one tint): the same <rgb> / <float> / "
+                              "<spectrum>, or one texture for both (a <texture> with an id and "
+                              "two <ref>s)")
             int_ior, ext_ior = self.ior(el, p, "int_ior", "bk7"), self.ior(el, p, "ext_ior", "air")
             if kind == "dielectric":
                 self.b.material(name, "dielectric", specular=refl, ior=int_ior / ext_ior)
@@ -408,18 +420,34 @@ class _Importer:
         keys = ("alpha_u", "alpha_v") if has_uv else ("alpha",)
         for key in keys:
             a = p.get(key, 0.1)
-            if isinstance(a, TextureRef) and key == "alpha" and kind != "roughplastic":
-                out[key] = str(a)   # a textured roughness (Mitsuba clamps it to 1e-4 too)
+            if isinstance(a, TextureRef) and kind != "roughplastic":
+                out[key] = self.scalar_texture(str(a))   # (Mitsuba clamps it to 1e-4 too)
                 continue
             if isinstance(a, TextureRef):
-                self.fail(el, f"{kind}: '{key}' cannot be textured in jgi (only alpha of "
-                              "roughconductor and roughdielectric)")
+                self.fail(el, f"{kind}: '{key}' cannot be a texture (Mitsuba's roughplastic "
+                              "takes a <float> alpha: its coating tables are computed from one "
+                              "value); give a <float>")
             if isinstance(a, (str, bool, np.ndarray)):
                 self.fail(el, f"{kind}: '{key}' must be a <float>")
             if not a >= 0:
                 self.fail(el, f"{kind}: {key} must be >= 0, got {a}")
             out[key] = max(float(a), MIN_ALPHA)
         return out
+
+    def scalar_texture(self, name: str) -> str:
+        """The texture Mitsuba's ``eval_1`` (a scalar parameter: roughness) reads from texture
+        ``name``. Mitsuba 3.9.1's checkerboard ``eval_1`` returns color1 where its ``eval``
+        returns color0 and vice versa (checked with ``mitsuba.load_dict``), so a checkerboard
+        that drives a scalar becomes a twin with the two colours exchanged; other textures
+        are themselves."""
+        if name not in self.checkerboards:
+            return name
+        twin = f"_eval_1_{name}"
+        if twin not in self.b.texture_names:
+            c = self.checkerboards[name]
+            self.b.texture(twin, "checkerboard", to_uv=c["to_uv"], color0=c["color1"],
+                           color1=c["color0"])
+        return twin
 
     def ior(self, el, p: dict, key: str, default: str) -> float:
         """An index of refraction given as a number or by one of Mitsuba's names."""
@@ -507,10 +535,13 @@ class _Importer:
                 normals = None
             textured = bool(self.b.materials[self.b.material_names[material]].textures)
             if textured and has_texture_coordinates(base / fname):
-                if kind != "obj" or uv is None:
-                    self.fail(el, f"{kind} mesh '{fname}' with a textured material: jgi reads "
-                                  "texture coordinates from OBJ files only; remove the texture")
-                uv = np.stack([uv[:, 0], 1.0 - uv[:, 1]], 1)   # Mitsuba's OBJ loader flips v
+                if uv is None:
+                    self.fail(el, f"{kind} mesh '{fname}' with a textured material: its texture "
+                                  "coordinates cannot be read (an OBJ file must give vt on "
+                                  "every face vertex; a PLY file's are the vertex properties "
+                                  "u, v or s, t or texture_u, texture_v)")
+                if kind == "obj":   # Mitsuba's OBJ loader flips v; its PLY loader does not
+                    uv = np.stack([uv[:, 0], 1.0 - uv[:, 1]], 1)
             else:
                 uv = None   # Mitsuba's (0,0), (1,0), (0,1) per triangle
             if material in self.anisotropic:

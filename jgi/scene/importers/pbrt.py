@@ -26,8 +26,11 @@ supported):
   textures   Texture "name" "spectrum" "imagemap" (filename, filter bilinear, wrap repeat,
              encoding sRGB | linear) and "checkerboard" (dimension 2, rgb tex1 / tex2), with
              the uv mapping (uscale, vscale, udelta, vdelta), for diffuse "texture reflectance",
-             on trianglemesh shapes with "point2 uv" (other shapes with a textured material are
-             refused: pbrt's sphere uv is not jgi's).
+             on trianglemesh shapes with "point2 uv" and plymesh shapes whose file has texture
+             coordinates (pbrt-v4's names: vertex properties u, v or s, t or texture_u,
+             texture_v or texture_s, texture_t; v as written). Other shapes with a textured
+             material are refused (pbrt's sphere uv is not jgi's), as are meshes without uv
+             (pbrt's default triangle uv is not jgi's).
   shapes     "sphere" (radius), "trianglemesh" (P, indices, N: per-vertex shading normals,
              interpolated and normalised as pbrt-v4 does), "plymesh" (filename; its normals, if
              any, as N), inside AreaLightSource "diffuse" (L, scale, power; one-sided; N only
@@ -65,7 +68,13 @@ import numpy as np
 
 from ...core import transform as xf
 from ..data import Scene, SceneBuilder, SceneError
-from ._common import ImportError_, load_mesh_with_normals, named_metals, normals_are_flat
+from ._common import (
+    PBRT_PLY_UV,
+    ImportError_,
+    load_mesh_with_normals,
+    named_metals,
+    normals_are_flat,
+)
 
 _TOKEN = re.compile(r'"[^"]*"|\[|\]|[^\s\[\]"]+')
 IGNORED = {"Sampler", "Integrator", "PixelFilter", "ColorSpace", "Option", "Accelerator",
@@ -457,11 +466,11 @@ class _Importer:
             L, power, _ = self.area
             emission = L
         textured = bool(self.b.materials[self.b.material_names[mat]].textures)
-        if textured and kind != "trianglemesh":
+        if textured and kind not in ("trianglemesh", "plymesh"):
             self.fail(where, f"shape \"{kind}\" with a textured material: jgi imports textures "
-                             "of pbrt scenes on trianglemesh shapes with \"point2 uv\" only "
-                             "(pbrt's sphere parametrisation differs from jgi's, which is "
-                             "Mitsuba's)")
+                             "of pbrt scenes on trianglemesh shapes with \"point2 uv\" and "
+                             "plymesh shapes whose file has texture coordinates only (pbrt's "
+                             "sphere parametrisation differs from jgi's, which is Mitsuba's)")
         if kind == "sphere":
             cols = self.ctm[:3, :3]
             s = np.linalg.norm(cols, axis=0)
@@ -504,8 +513,14 @@ class _Importer:
             fname = self._get(p, "filename", None, where)
             if not fname:
                 self.fail(where, "plymesh needs \"string filename\"")
-            v, f, _, normals = load_mesh_with_normals(Path(where[0]).parent / fname[0],
-                                                      f"{where[0]}:{where[1]}")
+            v, f, uv, normals = load_mesh_with_normals(Path(where[0]).parent / fname[0],
+                                                       f"{where[0]}:{where[1]}", PBRT_PLY_UV)
+            if textured and uv is None:
+                self.fail(where, f"plymesh '{fname[0]}' with a textured material needs texture "
+                                 "coordinates in the file (vertex properties u, v or s, t or "
+                                 "texture_u, texture_v or texture_s, texture_t; pbrt's default "
+                                 "uv differs from jgi's)")
+            uv = uv if textured else None
         if self.reverse:
             f = f[:, ::-1]
         v = xf.apply_point(self.ctm, v)
