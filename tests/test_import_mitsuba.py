@@ -93,10 +93,11 @@ def test_lights_materials_and_transforms(tmp_path):
 @pytest.mark.parametrize("body, message", [
     ('<shape type="disk"/>',
      "shape plugin 'disk' is not supported.*rectangle, cube, sphere, obj, ply"),
-    ('<bsdf type="plastic" id="x"/>',
-     "bsdf plugin 'plastic' is not supported by jgi \\(smooth plastic is not supported; use "
-     "roughplastic.*supported bsdf plugins: diffuse, conductor, roughconductor, dielectric, "
-     "roughdielectric, roughplastic, twosided"),
+    ('<bsdf type="thindielectric" id="x"/>',
+     "bsdf plugin 'thindielectric' is not supported by jgi.*supported bsdf plugins: diffuse, "
+     "conductor, roughconductor, dielectric, roughdielectric, roughplastic, plastic, twosided"),
+    ('<bsdf type="plastic" id="x"><float name="alpha" value="0.1"/></bsdf>',
+     "plastic.*alpha"),
     ('<bsdf type="principled" id="x"/>', "bsdf plugin 'principled'.*diffuse, conductor"),
     ('<bsdf type="conductor" id="x"><string name="material" value="Unobtainium"/></bsdf>',
      "conductor: material 'Unobtainium' is not in jgi's table of metals; supported: none, a-C"),
