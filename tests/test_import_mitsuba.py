@@ -452,3 +452,11 @@ def test_rough_plastic_and_conductors_renders_like_mitsuba(tmp_path):
 def test_rough_dielectric_renders_like_mitsuba(tmp_path):
     _compare_with_mitsuba(tmp_path, DATA / "cornell_box_rough_glass_mitsuba.xml",
                           "roughdielectric vs Mitsuba 3")
+
+
+def test_smooth_plastic_renders_like_mitsuba(tmp_path):
+    """Mitsuba's smooth ``plastic`` (defaults; nonlinear with a tinted coating and int_ior 1.7;
+    a checkerboard base with a named int_ior; int_ior 2.2): its Dirac coating reflection shows
+    the lamp in the floor and the walls in the box and ball."""
+    _compare_with_mitsuba(tmp_path, DATA / "cornell_box_plastic_mitsuba.xml",
+                          "plastic vs Mitsuba 3")
