@@ -386,7 +386,8 @@ def test_plastic_sampling_matches_evaluate(case):
     p = F * w / (F * w + (1 - F) * (1 - w))
     se = np.sqrt(p * (1 - p) / N)
     print(f"plastic {theta}: p = {r.p_value:.3g}, Dirac fraction {d.mean():.5f} "
-          f"(expected {p:.5f}, z = {(d.mean() - p) / se:.2f}), 1 - base mass {1 - r.pdf_integral:.5f}")
+          f"(expected {p:.5f}, z = {(d.mean() - p) / se:.2f}), "
+          f"1 - base mass {1 - r.pdf_integral:.5f}")
     assert abs(d.mean() - p) < 5 * se
     assert abs(r.pdf_integral - (1 - p)) < 1e-4
     np.testing.assert_allclose(s["wi"][d], np.broadcast_to(reflect_np(wo, NORMAL), (d.sum(), 3)),
