@@ -93,10 +93,11 @@ def test_lights_materials_and_transforms(tmp_path):
 @pytest.mark.parametrize("body, message", [
     ('<shape type="disk"/>',
      "shape plugin 'disk' is not supported.*rectangle, cube, sphere, obj, ply"),
-    ('<bsdf type="plastic" id="x"/>',
-     "bsdf plugin 'plastic' is not supported by jgi \\(smooth plastic is not supported; use "
-     "roughplastic.*supported bsdf plugins: diffuse, conductor, roughconductor, dielectric, "
-     "roughdielectric, roughplastic, twosided"),
+    ('<bsdf type="thindielectric" id="x"/>',
+     "bsdf plugin 'thindielectric' is not supported by jgi.*supported bsdf plugins: diffuse, "
+     "conductor, roughconductor, dielectric, roughdielectric, roughplastic, plastic, twosided"),
+    ('<bsdf type="plastic" id="x"><float name="alpha" value="0.1"/></bsdf>',
+     "plastic.*alpha"),
     ('<bsdf type="principled" id="x"/>', "bsdf plugin 'principled'.*diffuse, conductor"),
     ('<bsdf type="conductor" id="x"><string name="material" value="Unobtainium"/></bsdf>',
      "conductor: material 'Unobtainium' is not in jgi's table of metals; supported: none, a-C"),
@@ -509,3 +510,11 @@ def test_textured_roughness_and_dielectric_tint(tmp_path):
     with pytest.raises(SceneError, match="dielectric: jgi needs equal specular_reflectance and "
                                          "specular_transmittance"):
         load('<bsdf type="dielectric" id="b0"><ref name="specular_reflectance" id="c"/></bsdf>')
+
+
+def test_smooth_plastic_renders_like_mitsuba(tmp_path):
+    """Mitsuba's smooth ``plastic`` (defaults; nonlinear with a tinted coating and int_ior 1.7;
+    a checkerboard base with a named int_ior; int_ior 2.2): its Dirac coating reflection shows
+    the lamp in the floor and the walls in the box and ball."""
+    _compare_with_mitsuba(tmp_path, DATA / "cornell_box_plastic_mitsuba.xml",
+                          "plastic vs Mitsuba 3")

@@ -152,7 +152,7 @@ def test_microfacet_materials_give_the_builder_rows(tmp_path):
      'Shape "disk" is not supported.*sphere, trianglemesh, plymesh'),
     ('Material "coateddiffuse"', "material 'coateddiffuse' is not supported: pbrt-v4's "
      "coateddiffuse is a stochastic layered BSDF.*Use a Mitsuba XML or TOML scene with a "
-     "roughplastic instead"),
+     "roughplastic \\(or, for a smooth coating, a plastic\\) instead"),
     ('Material "coateddiffuse" "float roughness" 0 "float thickness" 0.0001',
      "no choice of its parameters equals a jgi material"),
     ('Material "coatedconductor"', "material 'coatedconductor' is not supported; supported: "

@@ -30,6 +30,7 @@ from jgi.scene import (
     ENVIRONMENT,
     MIRROR,
     PHONG,
+    PLASTIC,
     POINT,
     SPOT,
     SceneError,
@@ -469,11 +470,22 @@ name = "glass"
 type = "dielectric"
 int_ior = 1.5
 ext_ior = 1.25
+
+[[material]]
+name = "smooth_plastic"
+type = "plastic"
+diffuse = [0.1, 0.2, 0.6]
+int_ior = 1.6
+nonlinear = true
+
+[[material]]
+name = "smooth_plastic_default"
+type = "plastic"
 """)
     mt = s.materials
     np.testing.assert_array_equal(np.asarray(mt.kind), [
         ROUGH_CONDUCTOR, ROUGH_CONDUCTOR, MIRROR, MIRROR, ROUGH_DIELECTRIC, ROUGH_DIELECTRIC,
-        ROUGH_PLASTIC, ROUGH_PLASTIC, DIELECTRIC])
+        ROUGH_PLASTIC, ROUGH_PLASTIC, DIELECTRIC, PLASTIC, PLASTIC])
     rough = [0, 1, 4, 5, 6, 7]
     np.testing.assert_allclose(np.asarray(mt.alpha_u)[rough], [0.2, 0.05, 0.15, 0.1, 0.3, 0.1],
                                rtol=1e-6)
@@ -495,6 +507,14 @@ ext_ior = 1.25
                                rtol=1e-6)
     np.testing.assert_allclose(v3(mt.diffuse)[[6, 7]], [[0.1, 0.2, 0.6], [0.5] * 3], atol=1e-7)
     np.testing.assert_array_equal(np.asarray(mt.nonlinear)[[6, 7]], [True, False])
+    # smooth plastic: roughplastic's parameters without the roughness, the same defaults;
+    # Ri is Mitsuba's fdr_int (its fit of the coating's diffuse reflectance from inside)
+    np.testing.assert_allclose(np.asarray(mt.ior)[[9, 10]],
+                               [1.6 / IOR_AIR, IOR_POLYPROPYLENE / IOR_AIR], rtol=1e-6)
+    np.testing.assert_allclose(v3(mt.diffuse)[[9, 10]], [[0.1, 0.2, 0.6], [0.5] * 3], atol=1e-7)
+    np.testing.assert_allclose(v3(mt.specular)[[9, 10]], [[1] * 3] * 2, atol=1e-7)
+    np.testing.assert_array_equal(np.asarray(mt.nonlinear)[[9, 10]], [True, False])
+    np.testing.assert_allclose(np.asarray(mt.internal_reflectance)[10], 0.5904790, rtol=1e-6)
 
 
 def test_lights(tmp_path):
@@ -806,9 +826,15 @@ BAD = {
     "duplicate material": (HEAD + MAT, "material[1].name", "defined twice"),
     "material type": (material("type = 'velvet'\n"), "material[0].type",
                       "unknown type 'velvet'; allowed: diffuse, mirror, dielectric, phong, "
-                      "conductor, roughconductor, roughdielectric, roughplastic"),
-    "smooth plastic": (material("type = 'plastic'\n"), "material[0].type",
-                       "smooth plastic is not supported; use 'roughplastic'"),
+                      "conductor, roughconductor, roughdielectric, roughplastic, plastic"),
+    "smooth plastic with a roughness": (material("type = 'plastic'\nalpha = 0.1\n"),
+                                        "material[0].alpha", "unknown key for type 'plastic'"),
+    "smooth plastic of ior 1": (material("type = 'plastic'\nior = 1\n"), "material[0].ior",
+                                "allowed: ior != 1, int_ior != ext_ior"),
+    "smooth plastic too bright": (material("type = 'plastic'\ndiffuse = [0.5, 1.5, 0.5]\n"),
+                                  "material[0].diffuse", "reflectance must be in [0, 1]"),
+    "smooth plastic nonlinear": (material("type = 'plastic'\nnonlinear = 'yes'\n"),
+                                 "material[0].nonlinear", "expected true or false"),
     "shape type": (HEAD + "[[shape]]\ntype = 'torus'\nmaterial = 'm'\n", "shape[0].type",
                    "unknown type 'torus'; allowed: sphere, quad, rectangle, cube, mesh"),
     "light type": (light("type = 'area'\n"), "light[0].type",

@@ -29,6 +29,9 @@ subpath get this strategy's reverse densities first (pbrt's ScopedAssignment).
 
 Dirac vertices (mirror, dielectric) are not connectable; their densities are 0 and count as 1
 in the ratios (remap0), and strategies that would connect at them are left out of the sum.
+A smooth plastic vertex is connectable (its base), but a path that leaves it by the coating's
+Dirac reflection is Dirac there: as in pbrt-v4, MIS reads the sampled lobe's flag
+(:func:`~jgi.transport.subpath.mis_delta`) and connectability the material's.
 Delta lights (point, spot: Dirac position; directional: Dirac direction) cannot be hit (no
 s = 0 strategy). Deliberate simplifications: light subpaths start only at lights with a
 position (area, point, spot); directional and environment lights are reached through the
@@ -76,6 +79,7 @@ from ..transport.subpath import (
     light_key,
     light_normal,
     light_subpath,
+    mis_delta,
     next_event_value,
     no_uv,
     occluded_many,
@@ -85,6 +89,7 @@ from ..transport.subpath import (
     rows,
     sample_next_event,
     shading,
+    vertex_lobe_delta,
     vertex_ns,
 )
 from .registry import Estimator, Render, param, register
@@ -237,7 +242,8 @@ def camera_subpath(scene: Scene, cfg: BDPTConfig, key: Array, pixel: Array, unif
     one = V3(z + 1, z + 1, z + 1)
     pdf_dir = C.project(cam, o + d).pdf_dir            # 1 / (A cos^3): the film's density
     z0 = Vertices(o, Z, Z, one, z + 1, z, z > 0, z > 0, z == 0, z.astype(jnp.int32),
-                  z.astype(jnp.int32) - 1, no_uv(scene, z), vertex_ns(scene, Z))
+                  z.astype(jnp.int32) - 1, no_uv(scene, z), vertex_ns(scene, Z),
+                  vertex_lobe_delta(scene, z))
     start = WalkState(o, d, one, pdf_dir, o, Z, z > 0, z > 0, z == 0)
     verts, pdf_rev0, rec = random_walk(scene, key, CAMERA_DIMS0, CAMERA_DIMS_PER_STEP,
                                        cfg.max_depth, start, B.RADIANCE,
@@ -370,7 +376,9 @@ def contributions(scene: Scene, cfg: BDPTConfig, seed, pixel: Array, sample: Arr
     if inner:
         in_rows = {k: P.add(rev_in[k]) for k in ("pt", "ptm", "qs", "qsm")}
     P.add(z)                                    # last row: density 0 (log remap0 = 0)
-    cam_delta, light_delta = F.add(cam.delta), F.add(light.delta)
+    # Dirac flags of the sampled bounces (a plastic vertex left by its coating's reflection is
+    # one, though connectable); the connection's own vertices count as non-Dirac (false_row)
+    cam_delta, light_delta = F.add(mis_delta(cam)), F.add(mis_delta(light))
     s1_delta_light = F.add(rec["s1_delta_light"])
     delta_light = F.add(lp.delta_light)
     false_row = F.add(z > 0)

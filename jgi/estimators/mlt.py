@@ -77,7 +77,7 @@ from ..physics import camera as C
 from ..physics import geometry as G
 from ..physics import lights as LT
 from ..physics.lights import AREA_KINDS
-from ..scene.data import DIELECTRIC, MIRROR, Scene
+from ..scene.data import DIELECTRIC, MIRROR, PLASTIC, Scene
 from ..transport import mcmc
 from . import path_tracer
 from .registry import Estimator, Render, param, register
@@ -637,6 +637,12 @@ def check_scene(scene: Scene) -> None:
         raise ParameterError("estimator 'mlt': path-space MLT needs area emitters only (quads, "
                              "triangles, spheres); this scene has point, spot, directional or "
                              "environment lights, or none")
+    if PLASTIC in scene.materials.kinds:
+        # its paths are vertices alone: a plastic vertex would need the lobe it was left by
+        # (Dirac or not) stored with it, for the perturbations and for P(x)
+        raise ParameterError("estimator 'mlt': path-space MLT does not support smooth plastic "
+                             "materials (a vertex that is both connectable and Dirac); use "
+                             "'pssmlt' or 'mmlt', or 'roughplastic'")
 
 
 def normalisation_from_path_tracer(scene: Scene, cfg: MLTConfig, seed: int, paths: int) -> float:

@@ -509,10 +509,13 @@ def camera_walk(scene: Scene, cfg: VCMConfig, key: Array, pixel: Array,
         alive = valid & bs.valid & (max_component(beta) > 0)
         if cfg.roulette:
             alive = alive & (rng.uniform(key, rr_dim0 + j) < q)
+        # left by a Dirac lobe (per sample on plastic: a merge there estimates its base alone,
+        # and the coating's reflection goes on)
+        delta_s = B.sampled_delta(kinds, mp, bs)
         if cfg.mode == "ppm":   # the subpath ends at its first merge
-            alive = alive & delta
+            alive = alive & delta_s
         nxt = (G.offset_origin(hit.p, hit.n, bs.wi), bs.wi, beta, hit.p, m, alive,
-               specular_path & delta)
+               specular_path & delta_s)
         return nxt, rec
 
     _, verts = jax.lax.scan(step, start, jnp.arange(D))

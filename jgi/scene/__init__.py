@@ -22,6 +22,7 @@ from .data import (
                    MIRROR,
                    NAMED_METALS,
                    PHONG,
+                   PLASTIC,
                    POINT,
                    ROUGH_CONDUCTOR,
                    ROUGH_DIELECTRIC,
@@ -48,6 +49,6 @@ __all__ = ["AREA_QUAD", "AREA_SPHERE", "AREA_TRIANGLE", "BECKMANN", "BVH_MIN_TRI
            "DELTA_DIRECTION_KINDS", "DELTA_POSITION_KINDS", "DIELECTRIC", "DIFFUSE",
            "DIRECTIONAL", "ENVIRONMENT", "GGX", "LIGHT_KIND_NAMES", "MATERIAL_KINDS",
            "MICROFACET_DISTRIBUTIONS", "MIRROR", "NAMED_METALS", "PHONG", "POINT",
-           "ROUGH_CONDUCTOR", "ROUGH_DIELECTRIC", "ROUGH_KINDS", "ROUGH_PLASTIC", "SPOT", "Boxes", "Camera", "Lights", "Materials", "Quads", "Rects", "Scene",
+           "ROUGH_CONDUCTOR", "ROUGH_DIELECTRIC", "ROUGH_KINDS", "ROUGH_PLASTIC", "PLASTIC", "SPOT", "Boxes", "Camera", "Lights", "Materials", "Quads", "Rects", "Scene",
            "SceneBuilder", "SceneError", "Spheres", "Triangles", "light_power", "luminance_np",
            "with_bvh"]

@@ -38,7 +38,7 @@ from ..core.bvh import BVH, build_bvh
 from ..core.imageio import read_image
 from ..core.vec import V3
 from .metals import METALS
-from .rough_coating import BECKMANN, GGX, TABLE_SIZE, plastic_tables
+from .rough_coating import BECKMANN, GGX, TABLE_SIZE, fresnel_diffuse_reflectance, plastic_tables
 
 # Triangle tables at least this large get a BVH. Measured (experiments/bench_bvh.py, CPU, one
 # closest-hit and one shadow ray per ray, 2^16 rays, interleaved best-of-3 timings) since the
@@ -51,15 +51,18 @@ BVH_MIN_TRIANGLES = 1400
 
 # Material kinds (jgi.physics.bsdf implements each). Mitsuba's smooth "conductor" is the
 # mirror with a complex index of refraction (eta = k = 0, the mirror's, reflects everything).
+# Mitsuba's smooth "plastic" is the one kind with both a Dirac lobe and a non-Dirac one.
 DIFFUSE, MIRROR, DIELECTRIC, PHONG, ROUGH_CONDUCTOR, ROUGH_DIELECTRIC, ROUGH_PLASTIC = range(7)
+PLASTIC = 7
 MATERIAL_KINDS = {"diffuse": DIFFUSE, "mirror": MIRROR, "dielectric": DIELECTRIC, "phong": PHONG,
                   "conductor": MIRROR, "roughconductor": ROUGH_CONDUCTOR,
-                  "roughdielectric": ROUGH_DIELECTRIC, "roughplastic": ROUGH_PLASTIC}
+                  "roughdielectric": ROUGH_DIELECTRIC, "roughplastic": ROUGH_PLASTIC,
+                  "plastic": PLASTIC}
 ROUGH_KINDS = (ROUGH_CONDUCTOR, ROUGH_DIELECTRIC, ROUGH_PLASTIC)
 # Microfacet normal distributions of the rough kinds (jgi.physics.bsdf.microfacet).
 MICROFACET_DISTRIBUTIONS = {"ggx": GGX, "beckmann": BECKMANN}
 NAMED_METALS = METALS  # Mitsuba's conductor names -> (eta, k) per RGB channel (jgi.scene.metals)
-# Defaults taken from Mitsuba 3: roughness alpha 0.1; roughplastic's int_ior (polypropylene)
+# Defaults taken from Mitsuba 3: roughness alpha 0.1; (rough)plastic's int_ior (polypropylene)
 # and ext_ior (air); a missing int_ior of a dielectric is bk7's.
 DEFAULT_ALPHA = 0.1
 IOR_POLYPROPYLENE, IOR_BK7, IOR_AIR = 1.49, 1.5046, 1.000277
@@ -240,19 +243,20 @@ class Materials(eqx.Module):
     roughplastic tables, which are computed from alpha and ior at build time."""
 
     kind: Array       # int32 [M]
-    diffuse: V3       # Lambertian albedo k_d (diffuse, phong, roughplastic)
+    diffuse: V3       # Lambertian albedo k_d (diffuse, phong, roughplastic, plastic)
     specular: V3      # k_s: mirror/conductor reflectance, dielectric tint, Phong specular albedo,
                       # the specular factor of the rough kinds
     exponent: Array   # Phong exponent n
-    ior: Array        # relative index of refraction inside / outside (dielectrics, roughplastic)
+    ior: Array        # relative index of refraction inside / outside (dielectrics, plastics)
     alpha_u: Array    # microfacet roughness along the tangent s of the shading frame
     alpha_v: Array    # ... along the bitangent t (= alpha_u when isotropic)
     distribution: Array  # int32 [M]: GGX or BECKMANN
     eta: V3           # conductor index of refraction eta + i k per channel (0, 0: a perfect
     k: V3             # mirror, F = 1)
     transmittance: Array  # [M, 64] roughplastic coating's external transmittance T(cos theta)
-    internal_reflectance: Array  # [M] roughplastic coating's internal reflectance
-    nonlinear: Array  # bool [M]: roughplastic's ``nonlinear`` (k_d Ri instead of Ri)
+    internal_reflectance: Array  # [M] the coating's internal reflectance Ri: roughplastic's
+                                 # table integral, plastic's fdr_int (Mitsuba's fits)
+    nonlinear: Array  # bool [M]: (rough)plastic's ``nonlinear`` (k_d Ri instead of Ri)
     kinds: tuple[int, ...] = eqx.field(static=True)  # kinds present, to skip dead code
     # distributions used by rough rows (empty without rough materials), to skip the absent one
     distributions: tuple[int, ...] = eqx.field(static=True, default=())
@@ -496,6 +500,8 @@ class SceneBuilder:
           (specular_reflectance), ``ior`` or ``int_ior`` / ``ext_ior`` (defaults
           polypropylene 1.49 / air 1.000277; must differ), isotropic ``alpha``,
           ``distribution``, ``nonlinear``.
+        * ``"plastic"`` (Mitsuba's smooth plastic): as ``"roughplastic"`` without the roughness:
+          ``diffuse``, ``specular``, ``ior`` or ``int_ior`` / ``ext_ior``, ``nonlinear``.
 
         Textured parameters take a texture's name instead of a value: ``diffuse``,
         ``specular`` (a dielectric's one tint, reflection and transmission alike), and the
@@ -521,19 +527,20 @@ class SceneBuilder:
 
         rough = k_ in ROUGH_KINDS
         conductor = kind in ("conductor", "roughconductor")
-        dielectric_like = k_ in (DIELECTRIC, ROUGH_DIELECTRIC, ROUGH_PLASTIC)
+        coated = k_ in (ROUGH_PLASTIC, PLASTIC)
+        dielectric_like = k_ in (DIELECTRIC, ROUGH_DIELECTRIC) or coated
         if not rough:
             refuse(alpha=alpha, alpha_u=alpha_u, alpha_v=alpha_v)
         if not conductor:
             refuse(metal=metal, eta=eta, k=k)
         if not dielectric_like:
             refuse(int_ior=int_ior, ext_ior=ext_ior)
-        if k_ != ROUGH_PLASTIC:
+        if not coated:
             refuse(nonlinear=nonlinear)
         # textured parameters: a texture name where a colour (or alpha) is allowed
         textured = {}
         microfacet = k_ in (ROUGH_CONDUCTOR, ROUGH_DIELECTRIC)
-        allowed = {"diffuse": k_ in (DIFFUSE, PHONG, ROUGH_PLASTIC),
+        allowed = {"diffuse": k_ in (DIFFUSE, PHONG) or coated,
                    "specular": k_ != DIFFUSE,
                    "alpha": microfacet, "alpha_u": microfacet, "alpha_v": microfacet}
         columns = {**TEXTURED_PARAMS, "alpha_u": TEX_ALPHA}
@@ -597,7 +604,7 @@ class SceneBuilder:
         if dielectric_like:
             if ior is not None and (int_ior is not None or ext_ior is not None):
                 fail("give either ior or int_ior / ext_ior, not both")
-            plastic = k_ == ROUGH_PLASTIC
+            plastic = coated
             if ior is None and int_ior is None and ext_ior is None:
                 m.ior = IOR_POLYPROPYLENE / IOR_AIR if plastic else 1.5
             elif ior is not None:
@@ -959,11 +966,14 @@ class SceneBuilder:
                 raise SceneError("phong exponent must be >= 0")
             if m.kind == DIELECTRIC and m.ior <= 0:
                 raise SceneError("dielectric ior must be > 0")
-        # roughplastic coatings: T(cos theta) and Ri, once per (distribution, alpha, eta)
+        # roughplastic coatings: T(cos theta) and Ri, once per (distribution, alpha, eta);
+        # plastic's smooth coating: Ri = fdr_int, the diffuse Fresnel reflectance seen from inside
         table = np.ones((len(ms), TABLE_SIZE), np.float64)
         internal = np.zeros(len(ms), np.float64)
         cache: dict = {}
         for i, m in enumerate(ms):
+            if m.kind == PLASTIC:
+                internal[i] = fresnel_diffuse_reflectance(1.0 / np.float32(m.ior))
             if m.kind == ROUGH_PLASTIC:
                 key = (m.distribution, np.float32(m.alpha_u), np.float32(m.ior))
                 if key not in cache:

@@ -80,6 +80,7 @@ MATERIAL_KEYS = {
     "roughdielectric": {**_IOR, "specular": "rgb|texture", **_ROUGH},
     "roughplastic": {"diffuse": "rgb|texture", "specular": "rgb|texture", **_IOR,
                      "nonlinear": "bool", "alpha": "number", "distribution": "str"},
+    "plastic": {"diffuse": "rgb|texture", "specular": "rgb|texture", **_IOR, "nonlinear": "bool"},
 }
 # [[texture]] tables: Mitsuba's checkerboard and bitmap (SceneBuilder.texture).
 TEXTURE_KEYS = {
@@ -99,16 +100,14 @@ MATERIAL_DEFAULTS = {
     "roughconductor": {"specular": 1.0},
     "roughdielectric": {"specular": 1.0},
     "roughplastic": {"diffuse": 0.5, "specular": 1.0},
+    "plastic": {"diffuse": 0.5, "specular": 1.0},
 }
 # English names of common metals, for the suggestion in an unknown-metal error
 METAL_WORDS = {"gold": "Au", "silver": "Ag", "copper": "Cu", "aluminium": "Al",
                "aluminum": "Al", "chromium": "Cr", "chrome": "Cr", "tungsten": "W",
                "mercury": "Hg", "nickel": "Ni_palik", "iridium": "Ir", "rhodium": "Rh"}
 # Material types that the importers know but the TOML format refuses, with what to use instead.
-MATERIAL_ALTERNATIVES = {
-    "plastic": "smooth plastic is not supported; use 'roughplastic' (a small alpha comes "
-               "close) or 'diffuse'",
-}
+MATERIAL_ALTERNATIVES: dict = {}
 
 SHAPE_COMMON = {"type": "str", "material": "str", "emission": "rgb", "transform": "table"}
 SHAPE_KEYS = {
@@ -503,7 +502,7 @@ class _TomlLoader:
             self.metal(key, mm)
         if "distribution" in MATERIAL_KEYS[kind]:
             self.roughness(key, kind, mm, textured)
-        if kind == "roughplastic" and (mm.get("ior") == 1 or (
+        if kind in ("roughplastic", "plastic") and (mm.get("ior") == 1 or (
                 "int_ior" in mm and mm["int_ior"] == mm.get("ext_ior", IOR_AIR))):
             self.fail(f"{key}.{'ior' if 'ior' in mm else 'int_ior'}",
                       "the coating's inside and outside indices are equal (no interface); "

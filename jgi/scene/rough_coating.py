@@ -145,6 +145,24 @@ def _integrate(dist: int, alpha: float, eta: float, transmit: bool) -> np.ndarra
     return np.sum(np.where(ok & (cos_im > 0), value * weight, 0.0) * ww, axis=-1)
 
 
+def fresnel_diffuse_reflectance(eta: float) -> float:
+    """Mitsuba 3's ``fresnel_diffuse_reflectance`` (``include/mitsuba/render/fresnel.h``): the
+    fraction of diffuse (cosine-weighted) light that a smooth interface of relative index eta
+    reflects, by the fits it uses, in float32 as Mitsuba evaluates them: Egan and Hilgeman's
+    (1973) for eta < 1, d'Eon and Irving's (2011) polynomial in 1 / eta otherwise. The smooth
+    ``plastic``'s fdr_int is this at 1 / eta (its coating seen from inside)."""
+    eta = np.float32(eta)
+    inv = np.float32(1.0) / eta
+    if eta < 1:
+        return float(np.float32(0.0636) * inv
+                     + (eta * (eta * np.float32(-1.4399) + np.float32(0.7099))
+                        + np.float32(0.6681)))
+    acc = np.float32(0.0)
+    for c in (-1.36881, 4.98554, -7.80989, 6.75335, -3.4793, 0.919317):   # Horner
+        acc = acc * inv + np.float32(c)
+    return float(acc)
+
+
 def plastic_tables(dist: int, alpha: float, eta: float) -> tuple[np.ndarray, float]:
     """(external transmittance T [64], internal reflectance Ri) of a roughplastic coating with
     relative index eta = int_ior / ext_ior (alpha clamped to >= 1e-4 as the BSDF does)."""

@@ -40,8 +40,8 @@ from jax import Array
 
 from ..core.vec import V3, dot, where
 from ..physics import bsdf as B
-from ..scene.data import Scene
-from .subpath import has_rough
+from ..scene.data import PLASTIC, Scene
+from .subpath import evaluates_whole
 
 _P1, _P2, _P3 = 73856093, 19349663, 83492791  # Teschner et al. 2003
 JENSEN_ALPHA, JENSEN_BETA = 0.918, 1.953       # the Gaussian filter's constants (Jensen 2001)
@@ -291,8 +291,9 @@ def photon_reflectance(scene: Scene, material, n: V3, wo: V3, wi: V3, uv=None,
     """f_r(x, w_p, w) of the estimate for candidate photons arriving from ``wi`` ([N, C]) at
     points with material rows ``material``, normal n and outgoing direction wo ([N]): k_d / pi
     on diffuse and Phong surfaces (the diffuse part alone), the whole BSDF on microfacet
-    surfaces (:func:`jgi.transport.subpath.is_lookup_surface`). [N, 1] columns when the scene
-    has no microfacet material and no shading normals.
+    surfaces, the base (``evaluate``'s non-Dirac part) on smooth plastic
+    (:func:`jgi.transport.subpath.is_lookup_surface`). [N, 1] columns when the scene has no
+    microfacet or plastic material and no shading normals.
 
     With shading normals ``ns`` (facing wo, as n does) the BSDF is evaluated about ns and
     multiplied by |wi . ns| / |wi . n_p| (:func:`jgi.physics.bsdf.shading_ratio`), n_p the
@@ -311,7 +312,7 @@ def photon_reflectance(scene: Scene, material, n: V3, wo: V3, wi: V3, uv=None,
         n_p = col(n) if n_photon is None else n_photon
         ratio = jnp.where(above, B.shading_ratio(col(ns), n_p, wi), 0.0)
         f = V3(*(c * ratio for c in f))
-    if not has_rough(mats.kinds):
+    if not evaluates_whole(mats.kinds):
         return f
     mp = B.lookup(mats, jnp.broadcast_to(material[:, None], wi.x.shape),
                   None if uv is None else tuple(c[:, None] for c in uv))
@@ -319,7 +320,10 @@ def photon_reflectance(scene: Scene, material, n: V3, wo: V3, wi: V3, uv=None,
     f_rough, _ = B.evaluate(mats.kinds, mp, col(nb), col(wo), wi)
     if ns is not None:
         f_rough = f_rough * B.shading_ratio(col(ns), col(n) if n_photon is None else n_photon, wi)
-    return where(B.is_rough(mp), f_rough, V3(*(jnp.broadcast_to(c, wi.x.shape) for c in f)))
+    whole = B.is_rough(mp)
+    if PLASTIC in mats.kinds:
+        whole = whole | (mp.kind == PLASTIC)
+    return where(whole, f_rough, V3(*(jnp.broadcast_to(c, wi.x.shape) for c in f)))
 
 
 @partial(jax.jit, static_argnames=("cap", "k", "kind", "thickness"))

@@ -6,8 +6,9 @@ directional lights: parallel rays over the scene's bounding disc; area lights: u
 cosine-distributed directions; several lights chosen in proportion to power) with power
 P_photon = P_light / n_e, i.e. ``EmissionSample.weight / n_emitted``.
 
-At every hit on a surface where density estimates are taken (diffuse, Phong with k_d > 0, and
-microfacet surfaces too rough to sample through: :func:`jgi.transport.subpath.is_lookup_surface`)
+At every hit on a surface where density estimates are taken (diffuse, Phong with k_d > 0, smooth
+plastic, and microfacet surfaces too rough to sample through:
+:func:`jgi.transport.subpath.is_lookup_surface`)
 the photon is *stored*:
 position, power (RGB), incident direction (towards where it came from) and geometric surface
 normal. On meshes with vertex normals the BSDF is sampled about the shading normal, and the
@@ -20,8 +21,8 @@ without storing them (Fresnel chooses reflection or transmission).
 
 Two maps are distinguished by a flag per stored photon:
   * global: every non-specular hit;
-  * caustic: photons whose path so far is L S+ D (one or more specular or microfacet bounces,
-    then the first diffuse or Phong hit).
+  * caustic: photons whose path so far is L S+ D (one or more specular, microfacet or smooth
+    plastic bounces, then the first diffuse or Phong hit).
 """
 
 from __future__ import annotations
@@ -85,10 +86,10 @@ def trace_photon_paths(scene: Scene, seed, photon_index: Array, n_emitted, max_d
         hit = G.intersect(scene, o, d)
         alive = alive & hit.valid
         mp = B.lookup(mats, hit.material, hit.uv)
-        store = alive & is_lookup_surface(mp)
+        store = alive & is_lookup_surface(mp, mats.kinds)
         # caustic: L S+ D with S what Jensen's split samples through (Dirac and microfacet
         # lobes) and D a diffuse or Phong surface, where its camera chains end
-        through = samples_through(mp, lookup_rough=False)
+        through = samples_through(mp, lookup_rough=False, kinds=mats.kinds)
         record = (hit.p, pw, -d, hit.n, store & ~through & spec_seen & only_spec, store)
         base = 5 + depth * DIMS_PER_BOUNCE
         ns = hit.n if hit.ns is None else hit.ns

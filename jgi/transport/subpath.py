@@ -60,6 +60,7 @@ from ..scene.data import (
     DIRECTIONAL,
     ENVIRONMENT,
     PHONG,
+    PLASTIC,
     POINT,
     ROUGH_DIELECTRIC,
     ROUGH_KINDS,
@@ -106,6 +107,22 @@ class Vertices(NamedTuple):
     emitter: Array    # light element at this surface, -1 if none
     uv: tuple | None = None  # surface coordinates (u, v), in scenes with textures (else None)
     ns: V3 | None = None     # unit shading normal, in scenes with vertex normals (else None)
+    # the direction sampled here left by a Dirac lobe (pbrt-v4's Vertex::delta, what MIS
+    # reads), in scenes with smooth plastic, whose vertices are connectable (``delta`` False)
+    # and yet may be left by a Dirac lobe; None elsewhere, where ``delta`` says both
+    lobe_delta: Array | None = None
+
+
+def mis_delta(v: Vertices) -> Array:
+    """The Dirac flags that MIS reads: whether each vertex's sampled direction left it by a
+    Dirac lobe (:attr:`Vertices.lobe_delta`, or ``delta`` where the scene has no plastic)."""
+    return v.delta if v.lobe_delta is None else v.lobe_delta
+
+
+def vertex_lobe_delta(scene: Scene, like: Array) -> Array | None:
+    """The ``lobe_delta`` of a vertex that sampled no BSDF (camera, light): False in a scene
+    with smooth plastic, None in one without."""
+    return (like != like) if PLASTIC in scene.materials.kinds else None
 
 
 def shading(v) -> V3:
@@ -205,18 +222,22 @@ def random_walk(scene: Scene, key: Array, dim0: int, dims_per_step: int, n_steps
         # (both about the shading normal; area conversions use geometric normals)
         ns = shading(hit)
         bs = materialize(B.sample(kinds, mp, ns, wo, u(0), u(1), u(2), mode=mode))
+        # left by a Dirac lobe: no density either way through this vertex (pbrt-v4 zeroes
+        # pdfFwd and pdfRev); per sample on plastic, else the material's flag
+        delta_s = B.sampled_delta(kinds, mp, bs)
         _, pdf_back = B.evaluate(kinds, mp, ns, bs.wi, wo)
-        pdf_rev_prev = jnp.where(valid & ~delta,
+        pdf_rev_prev = jnp.where(valid & ~delta_s,
                                  convert_density(pdf_back, d2, dot(s.prev_n, s.d), s.prev_surface),
                                  0.0)
         vert = Vertices(hit.p, hit.n, wo, s.beta, pdf_fwd, pdf_rev_prev, delta, valid, valid,
-                        hit.material, jnp.where(valid, hit.emitter, -1), hit.uv, hit.ns)
+                        hit.material, jnp.where(valid, hit.emitter, -1), hit.uv, hit.ns,
+                        delta_s if PLASTIC in kinds else None)
         beta = s.beta * bs.weight
         if mode == B.IMPORTANCE and hit.ns is not None:   # Veach's adjoint correction
             beta = beta * B.adjoint_correction(ns, hit.n, wo, bs.wi)
         alive = valid & bs.valid & (max_component(beta) > 0)
         nxt = WalkState(G.offset_origin(hit.p, hit.n, bs.wi), bs.wi, beta,
-                        jnp.where(bs.delta, 0.0, bs.pdf), hit.p, hit.n, valid, delta, alive)
+                        jnp.where(bs.delta, 0.0, bs.pdf), hit.p, hit.n, valid, delta_s, alive)
         return nxt, (vert, extra)
 
     _, (verts, extras) = jax.lax.scan(step, start, jnp.arange(n_steps))
@@ -305,7 +326,8 @@ def light_subpath(scene: Scene, key: Array, max_depth: int, infinite: bool = Fal
     delta_light = em.delta_pos | em.delta_dir
     le = LT.emitted(lights, jnp.where(on_surface, em.element, -1), em.n, em.d)
     v0 = Vertices(em.p, em.n, V3(z, z, z), le, em.pdf_pos, z, z > 0, on_surface, ok,
-                  jnp.zeros_like(em.element), em.element, no_uv(scene, z), vertex_ns(scene, em.n))
+                  jnp.zeros_like(em.element), em.element, no_uv(scene, z), vertex_ns(scene, em.n),
+                  vertex_lobe_delta(scene, z))
     v0 = jax.tree_util.tree_map(lambda x: x[None], v0)
     if max_depth <= 1:
         return LightPath(v0, delta_light, em.element)
@@ -415,31 +437,45 @@ def occluded_many(scene: Scene, rays: list[tuple]) -> list[Array]:
 
 # --- visible points: the first non-specular vertex seen from the camera ---------------------------
 
-def samples_through(mp: B.MaterialParams, lookup_rough: bool = True) -> Array:
+def samples_through(mp: B.MaterialParams, lookup_rough: bool = True, kinds=()) -> Array:
     """Vertices a chain of camera (or photon) scattering continues through by sampling the BSDF
     instead of ending there with a lookup (a photon density estimate, an irradiance record, a
     final gather): Dirac lobes; glossy lobes too narrow for a density estimate
     (``bsdf.is_glossy``) and rough dielectrics (whose transmitted photons arrive from the other
-    side); with ``lookup_rough=False`` every microfacet material (Jensen's split and the
-    irradiance cache, whose lookups assume a diffuse or Phong surface: glossy light by Monte
-    Carlo, as Jensen prescribes). Photons are stored exactly where chains may end, so every
-    path is counted once (:func:`is_lookup_surface`)."""
+    side); with ``lookup_rough=False`` every microfacet material and the smooth plastic
+    (Jensen's split and the irradiance cache, whose lookups assume a diffuse or Phong surface:
+    glossy light by Monte Carlo, as Jensen prescribes). Photons are stored exactly where chains
+    may end, so every path is counted once (:func:`is_lookup_surface`). With lookups, a smooth
+    plastic vertex is a lookup surface for its base and is sampled through by its coating's
+    Dirac lobe alone, a choice per sample (:func:`trace_to_diffuse`). ``kinds``: the scene's
+    (static), to test for plastic only in scenes that have it."""
     through = B.is_delta(mp) | B.is_glossy(mp) | (mp.kind == ROUGH_DIELECTRIC)
-    return (through | B.is_rough(mp)) if not lookup_rough else through
+    if lookup_rough:
+        return through
+    through = through | B.is_rough(mp)
+    return (through | (mp.kind == PLASTIC)) if PLASTIC in kinds else through
 
 
-def is_lookup_surface(mp: B.MaterialParams) -> Array:
+def is_lookup_surface(mp: B.MaterialParams, kinds=()) -> Array:
     """Where photons are stored and density estimates taken: diffuse surfaces, Phong with a
-    diffuse part (only k_d / pi of it reflects photons in the estimates), and microfacet
-    surfaces that chains do not sample through (their estimates use the whole BSDF)."""
+    diffuse part (only k_d / pi of it reflects photons in the estimates), microfacet
+    surfaces that chains do not sample through (their estimates use the whole BSDF), and the
+    smooth plastic (its base: the non-Dirac part of the BSDF). ``kinds``: the scene's."""
     kd_max = jnp.maximum(jnp.maximum(mp.kd.x, mp.kd.y), mp.kd.z)
-    return ((mp.kind == DIFFUSE) | ((mp.kind == PHONG) & (kd_max > 0))
-            | (B.is_rough(mp) & ~samples_through(mp)))
+    out = ((mp.kind == DIFFUSE) | ((mp.kind == PHONG) & (kd_max > 0))
+           | (B.is_rough(mp) & ~samples_through(mp)))
+    return (out | (mp.kind == PLASTIC)) if PLASTIC in kinds else out
 
 
 def has_rough(kinds) -> bool:
     """The static kinds of a scene include a microfacet material."""
     return any(k in kinds for k in ROUGH_KINDS)
+
+
+def evaluates_whole(kinds) -> bool:
+    """Density estimates in a scene of these kinds use the BSDF's value, not k_d / pi, at some
+    of its lookup surfaces: the microfacet kinds and the smooth plastic's base."""
+    return has_rough(kinds) or PLASTIC in kinds
 
 
 class DiffuseVertex(NamedTuple):
@@ -464,13 +500,20 @@ def trace_to_diffuse(scene: Scene, uniform, o: V3, d: V3, *, max_depth: int,
     Segment k draws ``uniform(2 + k * (1 + 3 light_samples) + ...)``: the lobe choice, then the
     light samples; a glossy lobe's direction draws two more, past all of those
     (``uniform(2 + max_depth (1 + 3 light_samples) + 2 k + ...)``), so scenes without microfacet
-    materials keep their streams."""
+    materials keep their streams.
+
+    Smooth plastic (with lookups): its BSDF is sampled first; where the coating's Dirac lobe is
+    chosen (probability p) the chain continues with its weight k_s F / p, else it ends there
+    with beta / (1 - p) (the lookup and the direct light estimate the base alone): each part of
+    the BSDF is counted once, in expectation."""
     mats, lights = scene.materials, scene.lights
     z = jnp.zeros_like(o.x)
     Z = V3(z, z, z)
     dims = 1 + 3 * light_samples
     glossy_dim0 = 2 + max_depth * dims
-    rough = has_rough(mats.kinds)
+    kinds = mats.kinds
+    rough = has_rough(kinds) or PLASTIC in kinds   # lobes that draw a direction (u1, u2)
+    plastic = lookup_rough and PLASTIC in kinds     # a lookup surface with a Dirac lobe
 
     def step(depth, s):
         o, d, beta, L, active, v = s
@@ -483,7 +526,17 @@ def trace_to_diffuse(scene: Scene, uniform, o: V3, d: V3, *, max_depth: int,
                 L = L + where(active & ~hit.valid, beta * LT.environment_radiance(lights, z), Z)
         active = active & hit.valid
         mp = B.lookup(mats, hit.material, hit.uv)
-        specular = samples_through(mp, lookup_rough)
+        specular = samples_through(mp, lookup_rough, kinds)
+        u1, u2 = ((uniform(glossy_dim0 + 2 * depth), uniform(glossy_dim0 + 2 * depth + 1))
+                  if rough else (z, z))
+        beta_end = beta
+        if plastic:   # the lobe sampled at a plastic vertex decides: continue, or end here
+            bs = B.sample(kinds, mp, shading(hit), wo, uniform(base), u1, u2)
+            is_plastic = mp.kind == PLASTIC
+            specular = specular | (is_plastic & bs.delta)
+            p_base = 1.0 - B.plastic.coating_probability(mp, B.side(shading(hit), wo)[1])
+            beta_end = beta * jnp.where(is_plastic & (p_base > 0),
+                                        1.0 / jnp.where(p_base > 0, p_base, 1.0), 1.0)
         diffuse_end = active & ~specular
         # ---- direct light at the first non-specular surface ----
         if lights.count:
@@ -491,18 +544,17 @@ def trace_to_diffuse(scene: Scene, uniform, o: V3, d: V3, *, max_depth: int,
                 dj = base + 1 + 3 * j
                 ne = sample_next_event(scene, mp, hit.p, hit.n, wo, uniform(dj), uniform(dj + 1),
                                        uniform(dj + 2), diffuse_end, ns=hit.ns)
-                value = next_event_value(ne, beta, n_samples=light_samples)
+                value = next_event_value(ne, beta_end, n_samples=light_samples)
                 L = L + where(~G.occluded(scene, *ne.shadow), value, Z)
-        v = DiffuseVertex(v.L, where(diffuse_end, beta, v.beta), where(diffuse_end, hit.p, v.p),
+        v = DiffuseVertex(v.L, where(diffuse_end, beta_end, v.beta), where(diffuse_end, hit.p, v.p),
                           where(diffuse_end, hit.n, v.n), where(diffuse_end, wo, v.wo),
                           jnp.where(diffuse_end, hit.material, v.material), v.found | diffuse_end,
                           None if v.uv is None else
                           tuple(jnp.where(diffuse_end, a, b) for a, b in zip(hit.uv, v.uv)),
                           None if v.ns is None else where(diffuse_end, hit.ns, v.ns))
         # ---- follow the specular (or glossy) chain ----
-        u1, u2 = ((uniform(glossy_dim0 + 2 * depth), uniform(glossy_dim0 + 2 * depth + 1))
-                  if rough else (z, z))
-        bs = B.sample(mats.kinds, mp, shading(hit), wo, uniform(base), u1, u2)
+        if not plastic:
+            bs = B.sample(kinds, mp, shading(hit), wo, uniform(base), u1, u2)
         active = active & specular & bs.valid
         return (G.offset_origin(hit.p, hit.n, bs.wi), bs.wi, beta * bs.weight, L, active, v)
 

@@ -1,5 +1,6 @@
-"""BSDFs: Lambertian diffuse, mirror / smooth conductor, smooth dielectric, modified Phong, and
-the microfacet kinds: rough conductor, rough dielectric and rough plastic (Mitsuba 3's).
+"""BSDFs: Lambertian diffuse, mirror / smooth conductor, smooth dielectric, modified Phong,
+smooth plastic, and the microfacet kinds: rough conductor, rough dielectric and rough plastic
+(Mitsuba 3's).
 
 Conventions (pbrt's): ``wo`` points back along the path (towards the camera for camera paths),
 ``wi`` is the sampled direction, both leave the surface; ``n`` is the normal the BSDF is
@@ -17,10 +18,12 @@ Reflection-only kinds give f = 0 for wi on the other side from wo; the rough die
 its transmission lobe there, whose value depends on the transport ``mode`` (radiance or
 importance, Veach 1997 sec. 5.2), as the smooth dielectric's sampled weight does. The rough
 kinds are never Dirac (:func:`is_delta`), however small alpha; :func:`is_glossy` tells the
-sharp ones.
+sharp ones. The smooth plastic has a Dirac lobe (its coating's reflection) beside a non-Dirac
+one (its base): :func:`is_delta` (no non-Dirac lobe: not connectable) is False for it, and
+whether a *sampled* direction is Dirac is the sample's ``delta`` (:func:`sampled_delta`).
 
 One module per material (:mod:`.diffuse`, :mod:`.phong`, :mod:`.specular` for the mirror and
-the dielectric, :mod:`.roughconductor`, :mod:`.roughdielectric`, :mod:`.roughplastic`;
+the dielectric, :mod:`.plastic`, :mod:`.roughconductor`, :mod:`.roughdielectric`, :mod:`.roughplastic`;
 :mod:`.microfacet` for the distributions, :mod:`.fresnel` for the interface optics); this
 module dispatches on the material kind. ``kinds`` is the static tuple of kinds a scene uses, so
 a kernel contains only the lobes it needs, and the kind of each lane is a traced array.
@@ -38,12 +41,13 @@ from ...scene.data import (
     DIFFUSE,
     MIRROR,
     PHONG,
+    PLASTIC,
     ROUGH_CONDUCTOR,
     ROUGH_DIELECTRIC,
     ROUGH_KINDS,
     ROUGH_PLASTIC,
 )
-from . import diffuse, phong, roughconductor, roughdielectric, roughplastic, specular
+from . import diffuse, phong, plastic, roughconductor, roughdielectric, roughplastic, specular
 from . import microfacet as mf
 from .common import (
     GLOSSY_ALPHA,
@@ -60,6 +64,7 @@ from .common import (
     lookup,
     lookup_specialised,
     no_sample,
+    sampled_delta,
     shading_ratio,
     side,
 )
@@ -68,7 +73,7 @@ from .phong import specular_probability
 from .specular import mirror_reflectance
 
 __all__ = ["RADIANCE", "IMPORTANCE", "GLOSSY_ALPHA", "MaterialParams", "BSDFSample", "lookup",
-           "lookup_specialised", "is_delta", "is_glossy", "is_rough",
+           "lookup_specialised", "is_delta", "sampled_delta", "is_glossy", "is_rough",
            "facing", "side", "lit", "specular_probability", "fresnel_dielectric", "refract",
            "fresnel_conductor", "fresnel_conductor_rgb", "mirror_reflectance",
            "adjoint_correction", "shading_ratio", "evaluate", "sample"]
@@ -127,6 +132,11 @@ def evaluate(kinds, mp: MaterialParams, n: V3, wo: V3, wi: V3,
         f_p, pdf_p = phong.evaluate(mp, nf, wo, wi, cos_i)
         f = where(sel, f_p, f)
         pdf = jnp.where(sel, pdf_p, pdf)
+    if PLASTIC in kinds:   # the base alone (the coating's reflection is Dirac)
+        sel = mp.kind == PLASTIC
+        f_p, pdf_p = plastic.evaluate(mp, cos_o, jnp.maximum(cos_i, 0.0))
+        f = where(sel, f_p, f)
+        pdf = jnp.where(sel, pdf_p, pdf)
     f = where(above, f, V3(zero, zero, zero))
     pdf = jnp.where(above, pdf, 0.0)
     if any(k in kinds for k in ROUGH_KINDS):
@@ -158,6 +168,8 @@ def sample(kinds, mp: MaterialParams, n: V3, wo: V3, u_lobe: Array, u1: Array, u
     if DIELECTRIC in kinds:
         out = choose(mp.kind == DIELECTRIC,
                      specular.sample_dielectric(mp, nf, wo, cos_o, flipped, u_lobe, mode), out)
+    if PLASTIC in kinds:
+        out = choose(mp.kind == PLASTIC, plastic.sample(mp, nf, wo, cos_o, u_lobe, u1, u2), out)
     if any(k in kinds for k in ROUGH_KINDS):
         out = choose(is_rough(mp), _sample_rough(kinds, mp, n, nf, cos_o, flipped, wo, u_lobe,
                                                  u1, u2, mode), out)

@@ -17,6 +17,7 @@ from ...scene.data import (
     GGX,
     MIRROR,
     PHONG,
+    PLASTIC,
     ROUGH_CONDUCTOR,
     ROUGH_DIELECTRIC,
     ROUGH_KINDS,
@@ -128,10 +129,11 @@ def lookup_specialised(mats: Materials, m: Array, uv=None) -> MaterialParams:
     zero3 = V3(zero, zero, zero)
     has = lambda *ks: any(k in kinds for k in ks)  # noqa: E731
     col3 = lambda v: V3(*(take(c, m) for c in v))  # noqa: E731
-    kd = col3(mats.diffuse) if has(DIFFUSE, PHONG, ROUGH_PLASTIC) else zero3
-    ks = col3(mats.specular) if has(MIRROR, DIELECTRIC, PHONG, *ROUGH_KINDS) else zero3
+    kd = col3(mats.diffuse) if has(DIFFUSE, PHONG, ROUGH_PLASTIC, PLASTIC) else zero3
+    ks = col3(mats.specular) if has(MIRROR, DIELECTRIC, PHONG, PLASTIC, *ROUGH_KINDS) else zero3
     exponent = take(mats.exponent, m) if PHONG in kinds else zero
-    ior = take(mats.ior, m) if has(DIELECTRIC, ROUGH_DIELECTRIC, ROUGH_PLASTIC) else zero + 1.0
+    ior = (take(mats.ior, m) if has(DIELECTRIC, ROUGH_DIELECTRIC, ROUGH_PLASTIC, PLASTIC)
+           else zero + 1.0)
     rough = has(*ROUGH_KINDS)
     alpha_u = take(mats.alpha_u, m) if rough else zero + 0.1
     alpha_v = take(mats.alpha_v, m) if rough else zero + 0.1
@@ -142,18 +144,30 @@ def lookup_specialised(mats: Materials, m: Array, uv=None) -> MaterialParams:
     eta = col3(mats.eta) if conductor else zero3
     k = col3(mats.k) if conductor else zero3
     plastic = ROUGH_PLASTIC in kinds
+    coated = has(ROUGH_PLASTIC, PLASTIC)   # both read Ri and nonlinear
     return textured(mats, m, uv, MaterialParams(
         kind, kd, ks, exponent, ior, alpha_u, alpha_v, distribution, eta, k,
         m if plastic else jnp.zeros(m.shape, jnp.int32),
         mats.transmittance if plastic else _NO_TABLE,
-        take(mats.internal_reflectance, m) if plastic else zero,
-        take(mats.nonlinear, m) if plastic else zero > 0))
+        take(mats.internal_reflectance, m) if coated else zero,
+        take(mats.nonlinear, m) if coated else zero > 0))
 
 
 def is_delta(mp: MaterialParams) -> Array:
-    """True for purely specular materials (no lobe that ``evaluate`` or NEE can use). The rough
-    kinds are never Dirac, however small their roughness."""
+    """True for purely specular materials (no lobe that ``evaluate`` or NEE can use): the
+    vertex cannot be connected to. The rough kinds are never Dirac, however small their
+    roughness; nor is the smooth plastic (its base is not), though its samples may be."""
     return (mp.kind == MIRROR) | (mp.kind == DIELECTRIC)
+
+
+def sampled_delta(kinds, mp: MaterialParams, bs: BSDFSample) -> Array:
+    """Whether the direction ``bs`` sampled at a vertex of material ``mp`` left it by a Dirac
+    lobe: what MIS needs of a path's bounce (pbrt-v4's Vertex::delta). Per sample in scenes with
+    smooth plastic (``kinds`` static), whose vertices mix Dirac and non-Dirac lobes; elsewhere
+    the material's :func:`is_delta`, as before plastic (the same program)."""
+    if PLASTIC not in kinds:
+        return is_delta(mp)
+    return is_delta(mp) | ((mp.kind == PLASTIC) & bs.delta)
 
 
 def is_rough(mp: MaterialParams) -> Array:

@@ -39,8 +39,17 @@ def transmittance(mp: MaterialParams, cos: Array) -> Array:
     return (1.0 - w) * flat[base] + w * flat[base + 1]
 
 
+def base_albedo(mp: MaterialParams) -> V3:
+    """The base's albedo under the coating, with the light that the coating reflects back
+    down (internal reflectance Ri) and the base scatters again, summed:
+    k_d / (1 - Ri), or k_d / (1 - k_d Ri) with ``nonlinear`` (Mitsuba's (rough)plastic)."""
+    ri = mp.internal_reflectance
+    return mp.kd / V3(*(1.0 - jnp.where(mp.nonlinear, c * ri, ri) for c in mp.kd))
+
+
 def specular_probability(mp: MaterialParams, t_o: Array) -> Array:
-    """Probability of sampling the coating's lobe given T(cos_o) = t_o."""
+    """Probability of sampling the coating's lobe given T(cos_o) = t_o (the smooth
+    ``plastic`` passes t_o = 1 - F(cos_o): Mitsuba's two choices are the same formula)."""
     mean = lambda v: (v.x + v.y + v.z) * (1.0 / 3.0)  # noqa: E731
     sd, ss = mean(mp.kd), mean(mp.ks)
     tot = sd + ss
@@ -61,9 +70,7 @@ def evaluate(mp: MaterialParams, wo: V3, wi: V3, ok: Array) -> tuple[V3, Array]:
     F = fresnel_dielectric(jnp.maximum(cos_oh, 0.0), mp.ior)
     spec = F * d * g / jnp.where(good, 4.0 * wo.z * wi.z, 1.0)
     t_o, t_i = transmittance(mp, wo.z), transmittance(mp, wi.z)
-    ri = mp.internal_reflectance
-    base = mp.kd / V3(*(1.0 - jnp.where(mp.nonlinear, c * ri, ri) for c in mp.kd))
-    f = mp.ks * spec + base * (t_o * t_i / (jnp.pi * mp.ior * mp.ior))
+    f = mp.ks * spec + base_albedo(mp) * (t_o * t_i / (jnp.pi * mp.ior * mp.ior))
     p = specular_probability(mp, t_o)
     p_spec = mf.pdf_normal(mp.distribution, wo, h, au, av) / jnp.where(good, 4.0 * cos_oh, 1.0)
     pdf = p * jnp.where(good, p_spec, 0.0) + (1.0 - p) * warps.pdf_cosine_hemisphere(wi.z)

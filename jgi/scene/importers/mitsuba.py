@@ -12,7 +12,8 @@ supported):
              dielectric and roughdielectric (int_ior / ext_ior as numbers or Mitsuba's names,
              ior = int / ext; one tint: specular_reflectance equal to specular_transmittance,
              or both <ref>s to one texture; different tints are refused);
-             roughplastic (diffuse_reflectance, specular_reflectance, int_ior, ext_ior,
+             roughplastic and plastic (smooth: a Dirac coating reflection over a diffuse
+             base) (diffuse_reflectance, specular_reflectance, int_ior, ext_ior,
              nonlinear); twosided (unwrapped: jgi's opaque BSDFs are two-sided, Mitsuba's are
              one-sided, so a one-sided Mitsuba surface seen from the back renders black there
              and not in jgi).
@@ -23,14 +24,14 @@ supported):
              changes Mitsuba's sampling, not the BSDF). Omitted parameters take Mitsuba's
              defaults: distribution beckmann, alpha 0.1 (values below 1e-4 are raised to 1e-4,
              as Mitsuba does), specular_reflectance 1, conductor material "none", dielectric
-             int_ior bk7 (1.5046), roughplastic diffuse_reflectance 0.5, int_ior polypropylene
-             (1.49), nonlinear false, ext_ior air (1.000277). Unknown parameters are refused
-             (Mitsuba refuses unreferenced properties too). Refused: plastic (smooth; use
-             roughplastic), and the other plugins.
+             int_ior bk7 (1.5046), (rough)plastic diffuse_reflectance 0.5, int_ior
+             polypropylene (1.49), nonlinear false, ext_ior air (1.000277). Unknown parameters
+             are refused (Mitsuba refuses unreferenced properties too). Refused: the other
+             plugins.
   texture    bitmap (filename: PNG, JPEG or EXR; filter_type bilinear; wrap_mode repeat; raw;
              to_uv) and checkerboard (color0, color1, to_uv), nested or at the top level with an
-             id and a <ref name=...>, for diffuse's reflectance, roughplastic's
-             diffuse_reflectance, the specular_reflectance of conductors and roughplastic, and
+             id and a <ref name=...>, for diffuse's reflectance, (rough)plastic's
+             diffuse_reflectance, the specular_reflectance of conductors and (rough)plastic, and
              the alpha or alpha_u / alpha_v of roughconductor and roughdielectric (not
              roughplastic's alpha, a <float> in Mitsuba).
              Other filters and wrap modes are refused. Textured spheres must not be rotated.
@@ -85,7 +86,7 @@ from ._common import (
 SUPPORTED = {
     "sensor": ("perspective",),
     "bsdf": ("diffuse", "conductor", "roughconductor", "dielectric", "roughdielectric",
-             "roughplastic", "twosided"),
+             "roughplastic", "plastic", "twosided"),
     "shape": ("rectangle", "cube", "sphere", "obj", "ply"),
     "emitter": ("area", "point", "spot", "directional", "constant"),
 }
@@ -103,6 +104,7 @@ BSDF_PARAMETERS = {
                         "specular_transmittance") + _ROUGH,
     "roughplastic": ("diffuse_reflectance", "specular_reflectance", "int_ior", "ext_ior",
                      "nonlinear") + _ROUGH,   # alpha_u / alpha_v: refused as Mitsuba does
+    "plastic": ("diffuse_reflectance", "specular_reflectance", "int_ior", "ext_ior", "nonlinear"),
     "twosided": (),
 }
 DISTRIBUTIONS = ("beckmann", "ggx")
@@ -117,10 +119,7 @@ class TextureRef(str):
     """A parameter given as a <texture> or a <ref> to one: the texture's name in the builder."""
 MIN_ALPHA = 1e-4   # Mitsuba's MicrofacetDistribution clamps alpha_u, alpha_v to at least this
 # Plugins refused with a pointer to what jgi has instead.
-ALTERNATIVES = {
-    "plastic": "smooth plastic is not supported; use roughplastic (a small alpha comes close) "
-               "or diffuse",
-}
+ALTERNATIVES: dict = {}
 
 
 def _parse(path: Path, source: dict) -> ET.Element:
@@ -356,7 +355,7 @@ class _Importer:
                                   "equal indices)")
                 self.b.material(name, "roughdielectric", specular=refl, ior=int_ior / ext_ior,
                                 **self.roughness(el, kind, p))
-        elif kind == "roughplastic":
+        elif kind in ("roughplastic", "plastic"):
             int_ior = self.ior(el, p, "int_ior", "polypropylene")
             ext_ior = self.ior(el, p, "ext_ior", "air")
             if int_ior == ext_ior:
@@ -365,11 +364,12 @@ class _Importer:
             nonlinear = p.get("nonlinear", False)
             if not isinstance(nonlinear, bool):
                 self.fail(el, f"{kind}: 'nonlinear' must be a <boolean>")
-            self.b.material(name, "roughplastic",
+            rough = (self.roughness(el, kind, p, anisotropic=False) if kind == "roughplastic"
+                     else {})
+            self.b.material(name, kind,
                             diffuse=self.rgb(el, p, "diffuse_reflectance", 0.5, texture=True),
                             specular=self.rgb(el, p, "specular_reflectance", 1.0, texture=True),
-                            int_ior=int_ior, ext_ior=ext_ior, nonlinear=nonlinear,
-                            **self.roughness(el, kind, p, anisotropic=False))
+                            int_ior=int_ior, ext_ior=ext_ior, nonlinear=nonlinear, **rough)
         if "alpha_u" in p and p["alpha_u"] != p["alpha_v"]:
             self.anisotropic.add(name)
         self.bsdfs[name] = (kind, p)

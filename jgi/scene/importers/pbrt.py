@@ -21,7 +21,8 @@ supported):
              microfacets, jgi's roughconductor / roughdielectric; where pbrt treats the surface
              as smooth (the smaller alpha below 1e-3) jgi's smooth conductor / dielectric.
              Refused: "coateddiffuse" (a stochastic layered BSDF that no jgi material equals;
-             use a Mitsuba or TOML roughplastic), the other materials, displacement and normal
+             use a Mitsuba or TOML roughplastic, or plastic for a smooth coating), the other
+             materials, displacement and normal
              maps.
   textures   Texture "name" "spectrum" "imagemap" (filename, filter bilinear, wrap repeat,
              encoding sRGB | linear) and "checkerboard" (dimension 2, rgb tex1 / tex2), with
@@ -107,9 +108,9 @@ COATEDDIFFUSE_REFUSAL = (
     "material 'coateddiffuse' is not supported: pbrt-v4's coateddiffuse is a stochastic "
     "layered BSDF (a random walk, truncated at maxdepth, between a dielectric coating and a "
     "diffuse base through a medium of the given thickness and albedo), and no choice of its "
-    "parameters equals a jgi material: Mitsuba's roughplastic (jgi's 'roughplastic') is an "
-    "analytic approximation of such a layer. Use a Mitsuba XML or TOML scene with a "
-    "roughplastic instead.")
+    "parameters equals a jgi material: Mitsuba's roughplastic and smooth plastic (jgi's "
+    "'roughplastic' and 'plastic') are analytic approximations of such a layer. Use a Mitsuba "
+    "XML or TOML scene with a roughplastic (or, for a smooth coating, a plastic) instead.")
 
 
 def _lum(rgb) -> float:
