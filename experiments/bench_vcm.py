@@ -12,8 +12,8 @@ measured on this 2-core CPU, from the issue, are the peer: VCM 0.12, BPT 0.18, P
 0.47 M samples/s. jgi's path tracer (NEE + MIS, no Russian roulette) is measured in the same run.
 
 Prints per mode: compile seconds (first iteration, compiles included), then samples per second
-of wall clock and per CPU-second of the process (less sensitive to other jobs), the merge
-budget reached, and the ratio to SmallVCM's figure. One JSON object on stdout (or --json FILE).
+of wall clock and per CPU-second of the process (less sensitive to other jobs), and the ratio
+to SmallVCM's figure. One JSON object on stdout (or --json FILE).
 """
 
 from __future__ import annotations

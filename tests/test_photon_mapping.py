@@ -57,6 +57,47 @@ def test_knn_and_ball_queries_agree_with_ckdtree(rng_np, clustered):
     assert np.all((counts >= ref_counts) & (counts <= ref_counts_hi))
 
 
+def test_neighbour_hash_gives_a_cells_27_neighbours_distinct_entries():
+    """The device grid's linear hash (:func:`photon_map.neighbour_hash`): for every table size
+    VCM uses, the 27 cells around a cell land on 27 distinct entries (so a query reads no entry
+    twice), checked on random cells including negative and large coordinates."""
+    rng = np.random.default_rng(5)
+    ijk = rng.integers(-2**20, 2**20, (2000, 3)).astype(np.int32)
+    off = PMap._NEIGHBOURS
+    for T in (128, 1024, 1 << 16, 1 << 23):
+        h = np.asarray(PMap.neighbour_hash(*(jnp.asarray(ijk[:, None, i] + off[:, i])
+                                              for i in range(3)), T))
+        assert h.min() >= 0 and h.max() < T
+        assert all(len(set(row)) == 27 for row in h), T
+
+
+@pytest.mark.parametrize("capacity", [None, 4000, 1000])   # 1000 < valid points: full sort
+def test_device_grid_pairs_list_every_point_within_the_cell_once(rng_np, capacity):
+    """index_cells + cell_ranges + candidate_pairs / pair_block (VCM's merges): every valid
+    point within the cell size of a query is listed exactly once for it, in blocks of any
+    size, whether only the valid points are sorted (capacity) or all slots are."""
+    pm, xy = plane_photons(rng_np, 3000, clustered=True)
+    valid = rng_np.random(3000) < 0.7
+    cell = 0.03
+    T = 1 << 13
+    cells = PMap.index_cells(pm.position, jnp.asarray(valid), jnp.float32(cell), T, capacity)
+    q = rng_np.random((300, 2))
+    x, _ = queries(q)
+    start, count = PMap.cell_ranges(cells, T, x)
+    pairs = PMap.candidate_pairs(start, count)
+    got = []
+    for b in range(-(-int(pairs.total) // 1024)):
+        qi, slot, ok = (np.asarray(a) for a in PMap.pair_block(pairs, 1024, b))
+        got += list(zip(qi[ok], np.asarray(cells.order)[slot[ok]]))
+    assert len(got) == len(set(got)) == int(pairs.total)       # no pair twice
+    assert all(valid[i] for _, i in got)
+    tree = cKDTree(xy[valid])
+    index = np.flatnonzero(valid)
+    near = {(k, int(index[i])) for k, ids in enumerate(tree.query_ball_point(q, cell * 0.999))
+            for i in ids}
+    assert near and near <= set(got)
+
+
 @pytest.mark.parametrize("kind, params", [("box", {}), ("cone", dict(k=1.1)), ("cone", dict(k=3.0)),
                                           ("gaussian", dict(gauss_alpha=0.918, gauss_beta=1.953)),
                                           ("epanechnikov", {})])

@@ -30,7 +30,7 @@ differentiable function of r and the filter parameters.
 from __future__ import annotations
 
 import warnings
-from functools import partial
+from functools import lru_cache, partial
 from typing import NamedTuple
 
 import jax
@@ -169,24 +169,74 @@ def cells_around(origin: V3, cell, start: Array, count: Array, table_size, x: V3
 class CellIndex(NamedTuple):
     """A hash grid built on the device (inside jit), for points that change every iteration
     (vertex merging's light vertices): ``order`` lists the point indices sorted by hashed cell,
-    ``start`` / ``count`` give each hashed cell's range in it. Same hash and layout as
-    :class:`HashGrid`; invalid points are hashed past the table and never referenced."""
-    order: Array      # [M] point indices by hashed cell
+    ``start`` / ``count`` give each hashed cell's range in it (invalid points are hashed past
+    the table and never referenced). The hash is :func:`neighbour_hash`, not
+    :class:`HashGrid`'s: the 27 cells around any cell occupy 27 distinct table entries, so a
+    query reads each entry once without comparing its cells' hashes."""
+    order: Array      # [M] point indices by hashed cell (the first ``count.sum()`` are valid)
     start: Array      # [table]
     count: Array      # [table]
     origin: V3        # scalar
     cell: Array       # scalar cell size
 
 
-def index_cells(p: V3, valid: Array, cell, table_size: int) -> CellIndex:
-    """Sort the points p ([M], where ``valid``) into hashed cells of size ``cell`` (traced)."""
+@lru_cache(maxsize=None)
+def _neighbour_strides(table_size: int) -> tuple[int, int]:
+    """Strides (a, b) of h = (i + a j + b k) mod T (T a power of two) such that no two cells of
+    any 3 x 3 x 3 block share an entry (no nonzero offset in {-2..2}^3 maps to 0 mod T) and,
+    among such pairs of Teschner et al.'s and Knuth's odd multipliers, the nearest two cells
+    that do share one (a lattice of offsets: the hash is linear) are as far apart as can be."""
+    assert table_size & (table_size - 1) == 0 and table_size >= 128, table_size
+    r = np.arange(-12, 13)
+    d = np.stack(np.meshgrid(r, r, r, indexing="ij"), -1).reshape(-1, 3).astype(np.int64)
+    d = d[np.any(d != 0, 1)]
+    reach = np.abs(d).max(1)
+    best, best_reach = None, -1
+    for a in (19349663, 83492791, 73856093, 2654435761, 40503, 1640531527):
+        for b in (83492791, 73856093, 19349663, 2246822519, 3266489917, 668265263):
+            a_, b_ = a % table_size, b % table_size
+            hit = (d[:, 0] + a_ * d[:, 1] + b_ * d[:, 2]) % table_size == 0
+            nearest = reach[hit].min() if hit.any() else 13
+            if nearest > 2 and nearest > best_reach:
+                best, best_reach = (a_, b_), nearest
+    assert best is not None, f"no neighbour-distinct strides for table size {table_size}"
+    return best
+
+
+def neighbour_hash(ix, iy, iz, table_size: int):
+    """(i + a j + b k) mod T with :func:`_neighbour_strides` (int32 arithmetic wraps modulo
+    2^32, which T divides, so the result is exact)."""
+    a, b = _neighbour_strides(table_size)
+    return (ix + iy * np.int32(a) + iz * np.int32(b)) & np.int32(table_size - 1)
+
+
+def index_cells(p: V3, valid: Array, cell, table_size: int, capacity: int | None = None
+                ) -> CellIndex:
+    """Sort the points p ([M], where ``valid``) into hashed cells of size ``cell`` (traced).
+    ``capacity``: when at most that many points are valid, only they are sorted (a sort of
+    ``capacity`` keys, not M; the full sort otherwise, under ``lax.cond``)."""
+    M = valid.shape[0]
     big = jnp.float32(3e38)
     lo = V3(*(jnp.min(jnp.where(valid, c, big)) for c in p))
     lo = V3(*(jnp.where(jnp.any(valid), c, 0.0) for c in lo))
     origin = lo - V3.full(cell, cell)
     ijk = [jnp.floor((c - o) / cell).astype(jnp.int32) for c, o in zip(p, origin)]
-    h = jnp.where(valid, _hash(*ijk, table_size), table_size)
-    order = jnp.argsort(h, stable=True).astype(jnp.int32)
+    h = jnp.where(valid, neighbour_hash(*ijk, table_size), table_size)
+
+    def sort_all():
+        return jnp.argsort(h, stable=True).astype(jnp.int32)
+
+    def sort_valid():
+        (idx,) = jnp.nonzero(valid, size=capacity, fill_value=M - 1)
+        hv = jnp.where(jnp.arange(capacity) < n_valid, h[idx], table_size)
+        order = idx[jnp.argsort(hv, stable=True)].astype(jnp.int32)
+        return jnp.concatenate([order, jnp.full((M - capacity,), M - 1, jnp.int32)])
+
+    n_valid = jnp.sum(valid)
+    if capacity is None or capacity >= M:
+        order = sort_all()
+    else:
+        order = jax.lax.cond(n_valid <= capacity, sort_valid, sort_all)
     count = jax.ops.segment_sum(jnp.ones_like(h), h, num_segments=table_size + 1)[:table_size]
     start = (jnp.cumsum(count) - count).astype(jnp.int32)
     return CellIndex(order, start, count.astype(jnp.int32), origin, jnp.asarray(cell))
@@ -194,20 +244,17 @@ def index_cells(p: V3, valid: Array, cell, table_size: int) -> CellIndex:
 
 _NEIGHBOURS = np.array([(dx, dy, dz) for dx in (-1, 0, 1) for dy in (-1, 0, 1)
                         for dz in (-1, 0, 1)], np.int32)                  # [27, 3]
-_EARLIER = np.tril(np.ones((27, 27), bool), -1)                         # [i, j]: j < i
 
 
 def cell_ranges(cells: CellIndex, table_size: int, x: V3):
     """(start, count) [N, 27]: the ranges (in grid order, ``cells.order``) of the 27 hashed
-    cells around each query x, so every point within ``cells.cell`` of x lies in one of them.
-    Neighbour cells that collide in the hash table get count 0 after their first occurrence
-    (read once)."""
+    cells around each query x, so every point within ``cells.cell`` of x lies in one of them;
+    the 27 are distinct table entries (:func:`neighbour_hash`), so no point is read twice."""
     c = cells.cell
     ijk = [jnp.floor((a - o) / c).astype(jnp.int32)[..., None] + _NEIGHBOURS[:, i]
            for i, (a, o) in enumerate(zip(x, cells.origin))]
-    h = _hash(*ijk, table_size)                                          # [N, 27]
-    dup = jnp.any((h[..., :, None] == h[..., None, :]) & _EARLIER, -1)
-    return cells.start[h], jnp.where(dup, 0, cells.count[h])
+    h = neighbour_hash(*ijk, table_size)                                 # [N, 27]
+    return cells.start[h], cells.count[h]
 
 
 class Pairs(NamedTuple):
