@@ -177,9 +177,33 @@ def test_smoke_keeps_structure_and_caps_sizes(tmp_path):
             assert v <= 20_000
 
 
+# Every bundled config is validated as shipped (estimator names and parameters, the scene, the
+# plan); these run end to end at the smoke size too, together covering every kind of reference
+# (closed-form number and scene, rendered, matched per sweep value), sweeps over spp, photons
+# and strategies, and the estimator families (PT, BDPT, PSSMLT, photon mapping, VCM). The others
+# differ from them in scene and estimator parameters only, which the validation covers; a run
+# costs mostly compilation (about 15-30 s each on the 2-core CI machine).
+END_TO_END = ("furnace", "quickstart", "path_lengths", "photon_count_vs_k", "pt_vs_mlt",
+              "vcm_sds_convergence")
+
+
 @pytest.mark.parametrize("config", CONFIGS, ids=[c.stem for c in CONFIGS])
-def test_bundled_config_runs_end_to_end_reduced(tmp_path, config):
+def test_bundled_config_is_valid_and_plans(config):
+    from jgi.experiment import _scene
+
     doc = load_config(config)  # the full-size config is valid as shipped
+    scene, _ = _scene(smoke(doc), config)
+    assert scene.camera.width <= 8 and plan(smoke(doc))
+
+
+def test_end_to_end_configs_exist():
+    assert set(END_TO_END) <= {c.stem for c in CONFIGS}
+
+
+@pytest.mark.parametrize("config", [c for c in CONFIGS if c.stem in END_TO_END],
+                         ids=[c.stem for c in CONFIGS if c.stem in END_TO_END])
+def test_bundled_config_runs_end_to_end_reduced(tmp_path, config):
+    doc = load_config(config)
     out = run(config, out_root=tmp_path, reduced=True, progress=False)
     rows = json.loads((out / "metrics.json").read_text())
     n_points = len({(r["index"], json.dumps(r["point"], sort_keys=True)) for r in plan(smoke(doc))})
