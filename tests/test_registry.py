@@ -238,13 +238,14 @@ def test_cli_renders_with_the_new_key(tmp_path, capsys):
 # --- results --------------------------------------------------------------------------------------
 
 def test_render_result_returns_image_and_stats():
-    scene = jgi.scenes.cornell_box(resolution=8)
-    params = dict(chains=64, bootstrap_samples=512, max_depth=3)
+    # tests/test_pssmlt.py's settings: its compiled kernels serve this test too
+    scene = jgi.scenes.cornell_box(resolution=16)
+    params = dict(chains=512, bootstrap_samples=8192, p_large=0.3)
     result = jgi.render_result(scene, "pssmlt", spp=2, seed=1, **params)
     assert isinstance(result, Render) and isinstance(result, tuple)
     image, stats = result
-    assert image.dtype == np.float32 and image.shape == (8, 8, 3)
-    assert set(stats) == {"b", "acceptance", "mutations"} and stats["mutations"] >= 2 * 8 * 8
+    assert image.dtype == np.float32 and image.shape == (16, 16, 3)
+    assert set(stats) == {"b", "acceptance", "mutations"} and stats["mutations"] >= 2 * 16 * 16
     np.testing.assert_array_equal(image, jgi.render(scene, "pssmlt", spp=2, seed=1, **params))
     # the module's render is the registered one
     cfg = pssmlt.PSSMLTConfig(**params)
@@ -254,11 +255,14 @@ def test_render_result_returns_image_and_stats():
 
 
 def test_stats_of_photon_mapping_and_the_irradiance_cache():
-    scene = jgi.scenes.cornell_box(resolution=8)
-    pm = jgi.render_result(scene, "pm", spp=1, photons=2000).stats
+    # photon counts and sizes of tests/test_photon_mapping.py: its compiled kernels serve here
+    scene = jgi.scenes.cornell_box(resolution=16)
+    pm = jgi.render_result(scene, "pm", spp=1, photons=10_000, radius=0.15).stats
     assert pm["stored"] > 0 and pm["truncated"] in (True, False)
-    sppm = jgi.render_result(scene, "sppm", spp=1, passes=2, photons=2000, radius=0.2).stats
-    assert 0 < sppm["radius_final"] < 0.2
+    sppm = jgi.render_result(scene, "sppm", spp=1, passes=2, photons=10_000, radius=0.15,
+                             radius_alpha=0.7).stats
+    assert 0 < sppm["radius_final"] < 0.15
+    scene = jgi.scenes.cornell_box(resolution=8)
     ic = jgi.render_result(scene, "irradiance_cache", spp=1, gather_m=2, gather_n=4, passes=1).stats
     assert ic["records"] > 0 and ic["gather_rays"] == (ic["records"] + ic["direct_points"]) * 8
     assert dataclasses.asdict(irradiance_cache.CacheStats(**ic)) == ic
