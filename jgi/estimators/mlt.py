@@ -53,6 +53,15 @@ the shading normal, and a non-specular vertex's value carries |wi . ns| / |wi . 
 tracer's shading cosine over the geometric one of the area measure), so the path space is the
 path tracer's; geometry terms, densities and the targets' cosines stay geometric.
 
+Smooth plastic (a Dirac coating over a diffuse base) is the one material whose vertices are
+specular or not according to the path: each path records per vertex (``Path.coat``) whether it
+left a plastic vertex by the coating's reflection. Such a vertex is specular everywhere a
+mirror's is - in P(x) (Dirac coefficient k_s F(cos_o), the large step's 1 / p for the lobe
+choice p, halved at the last bounce, where the large step light-samples half the time since a
+plastic vertex is connectable), in the perturbations' chains (retraced as a reflection; a
+retraced chain may swap a mirror for a coating-reflected plastic and back) - and one left by its
+base is diffuse. Scenes without plastic carry no flags and compile to the program of before.
+
 Only area emitters (quads, triangles, spheres) are supported: a point or directional light has no
 area measure for x_k. Where two emitters lie along one ray the large step's light-sampling
 density counts only the nearer one (harmless in the bundled scenes, which have one emitter).
@@ -151,6 +160,9 @@ class Path(NamedTuple):
     fy: Array         # [chains] (row, float; 0 at the top)
     uv: tuple | None = None  # surface coordinates (u, v) [K + 1, chains], in textured scenes
     ns: V3 | None = None     # shading normals [K + 1, chains], in scenes with vertex normals
+    coat: Array | None = None  # [K + 1, chains] bool, in scenes with smooth plastic: the path
+                               # leaves a plastic vertex i by its coating's Dirac reflection
+                               # (else by the base); read only at plastic vertices
 
 
 class PathValue(NamedTuple):
@@ -194,6 +206,11 @@ def _uv_rows(uv, lo, hi):
     return None if uv is None else tuple(c[lo:hi] for c in uv)
 
 
+def _set_coat(coat, i, value, where_):
+    """:func:`_set` on the coating flags (None in scenes without smooth plastic)."""
+    return None if coat is None else _set(coat, i, value, where_)
+
+
 def _set_ns(ns, i, hit, where_):
     """:func:`_set3` on shading normals (None in scenes without vertex normals)."""
     return None if ns is None else _set3(ns, i, hit.ns, where_)
@@ -216,12 +233,14 @@ def _first(mask: Array, fallback: Array) -> Array:
     return jnp.where(idx < mask.shape[0], idx, fallback)
 
 
-def specular_coefficient(mp: B.MaterialParams, n: V3, wo: V3, wi: V3):
+def specular_coefficient(mp: B.MaterialParams, n: V3, wo: V3, wi: V3, plastic: bool = False):
     """The Dirac coefficient of a specular vertex (f |cos| without the delta) for the pair
     (wo, wi), and the probability with which ``bsdf.sample`` picks that lobe. Mirror (smooth
     conductor): k_s F_conductor(cos_o) (k_s for the perfect mirror), 1. Dielectric: F k_s with
     probability F (reflection), (1 - F) k_s / eta^2 with 1 - F (transmission, radiance scaling
-    as in jgi.physics.bsdf)."""
+    as in jgi.physics.bsdf). Smooth plastic's coating (``plastic``, static: the scene has it):
+    k_s F(cos_o) with probability p (:func:`jgi.physics.bsdf.plastic.coating_probability`), so
+    coefficient / probability is the weight ``bsdf.sample`` returns for that lobe."""
     cos_o = dot(wo, n)
     transmit = cos_o * dot(wi, n) < 0
     eta = jnp.where(cos_o > 0, mp.ior, 1.0 / mp.ior)
@@ -232,21 +251,32 @@ def specular_coefficient(mp: B.MaterialParams, n: V3, wo: V3, wi: V3):
     zero = jnp.zeros_like(cos_o)
     coeff = where(mp.kind == DIELECTRIC, mp.ks * diel,
                   where(transmit, V3(zero, zero, zero), mirror))
+    if plastic:
+        sel = mp.kind == PLASTIC
+        cos_c = jnp.abs(cos_o)
+        coat = mp.ks * B.plastic.reflectance(mp, cos_c)
+        coeff = where(sel, where(transmit, V3(zero, zero, zero), coat), coeff)
+        prob = jnp.where(sel, B.plastic.coating_probability(mp, cos_c), prob)
     return coeff, prob
 
 
-def specular_continue(mp: B.MaterialParams, n: V3, w_from: V3, transmit: Array):
+def specular_continue(mp: B.MaterialParams, n: V3, w_from: V3, transmit: Array,
+                      plastic: bool = False):
     """The direction leaving a specular vertex when the path arrives from ``w_from`` (pointing
     back along the path), reflecting or refracting as ``transmit`` says; (direction, valid).
     Specular scattering is reversible, so the same rule serves chains traced from the eye and
-    from the light."""
+    from the light. With ``plastic`` (static) a smooth plastic vertex reflects too (its
+    coating)."""
     cos_f = dot(w_from, n)
     nside = n * jnp.where(cos_f > 0, 1.0, -1.0)
     eta = jnp.where(cos_f > 0, mp.ior, 1.0 / mp.ior)
     wt, can_refract = B.refract(w_from, nside, eta)
     d = where(transmit, wt, reflect(w_from, nside))
-    ok = jnp.where(transmit, (mp.kind == DIELECTRIC) & can_refract,
-                   (mp.kind == MIRROR) | (mp.kind == DIELECTRIC))
+    refracts = (mp.kind == DIELECTRIC) & can_refract
+    reflects = (mp.kind == MIRROR) | (mp.kind == DIELECTRIC)
+    if plastic:
+        reflects = reflects | (mp.kind == PLASTIC)
+    ok = jnp.where(transmit, refracts, reflects)
     # edge-on: nothing scattered, as in jgi.physics.bsdf
     return d, ok & (jnp.abs(cos_f) > EDGE_ON_COS)
 
@@ -260,11 +290,32 @@ def transmits(path: Path) -> Array:
     return jnp.concatenate([f, t, f], 0)
 
 
+def dirac(mp: B.MaterialParams, coat: Array | None) -> Array:
+    """Whether the path leaves vertices of material ``mp`` by a Dirac lobe: a mirror or
+    dielectric always, a smooth plastic where its ``coat`` flag says the coating reflected it
+    (``coat`` None in scenes without plastic: the material's flag alone, as before plastic)."""
+    if coat is None:
+        return B.is_delta(mp)
+    return B.is_delta(mp) | ((mp.kind == PLASTIC) & coat)
+
+
+def can_take(delta: Array, mp: B.MaterialParams, specular, plastic: bool) -> Array:
+    """Whether a vertex of material ``mp`` (``delta`` its :func:`jgi.physics.bsdf.is_delta`)
+    that a retraced chain finds can take the place of a specular vertex (``specular``) or of a
+    non-specular one: a plastic vertex can be either, by its coating or its base; mirrors and
+    dielectrics only specular ones, the rest only non-specular ones (``plastic`` static: the
+    scene has smooth plastic)."""
+    if not plastic:
+        return delta == specular
+    return jnp.where(specular, delta | (mp.kind == PLASTIC), ~delta)
+
+
 def is_specular(scene: Scene, path: Path) -> Array:
-    """[K + 1, C]: vertex i is a Dirac (mirror/dielectric) vertex; rows 0 and k are never."""
+    """[K + 1, C]: the path leaves vertex i by a Dirac lobe (a mirror or dielectric vertex,
+    a plastic one reflected by its coating); rows 0 and k are never."""
     mp = B.lookup(scene.materials, path.material, path.uv)
     rows = jnp.arange(path.material.shape[0])[:, None]
-    return B.is_delta(mp) & (rows >= 1) & (rows < path.length[None, :])
+    return dirac(mp, path.coat) & (rows >= 1) & (rows < path.length[None, :])
 
 
 # --- the path's value: P(x) and the large step's density ----------------------------------------
@@ -288,15 +339,20 @@ def evaluate(scene: Scene, cfg: MLTConfig, path: Path) -> PathValue:
         ns = _shading_rows(path, 1, K)
         wo, wi = normalize(prev - cur), normalize(nxt - cur)
         mp = B.lookup(mats, path.material[1:K], _uv_rows(path.uv, 1, K))
-        delta = B.is_delta(mp)
+        coat = None if path.coat is None else path.coat[1:K]
+        delta = dirac(mp, coat)
         f, pdf_bsdf = B.evaluate(mats.kinds, mp, ns, wo, wi)
         if path.ns is not None:
             # in the area measure (geometric G) the path tracer's shading cosine |wi . ns|
             # is the factor |wi . ns| / |wi . ng| of the BSDF
             f = f * B.shading_ratio(ns, n, wi)
-        coeff, prob = specular_coefficient(mp, ns, wo, wi)
+        coeff, prob = specular_coefficient(mp, ns, wo, wi, plastic=coat is not None)
         rows = jnp.arange(1, K)[:, None]
         last = rows == (k - 1)[None, :]
+        if coat is not None:
+            # a coating-reflected last bounce was the BSDF's half of the mixture (a plastic
+            # vertex is not Dirac, so the large step light-samples there half the time)
+            prob = jnp.where(last & ~B.is_delta(mp), 0.5 * prob, prob)
         # the last direction came from the mixture (1/2) p_bsdf + (1/2) p_light
         pdf_light = LT.pdf_li(lights, e_k[None, :], cur, V3(*(c[None, :] for c in x_k)),
                               V3(*(c[None, :] for c in n_k)))
@@ -327,7 +383,8 @@ def _empty(scene: Scene, cfg: MLTConfig, n_chains: int) -> Path:
     zi = jnp.zeros((K + 1, n_chains), jnp.int32)
     return Path(p, V3(z, z, z + 1.0), zi, zi - 1, jnp.zeros(n_chains, jnp.int32), z[0], z[0],
                 (z, z) if scene.materials.has_textures else None,
-                V3(z, z, z + 1.0) if scene.has_shading_normals else None)
+                V3(z, z, z + 1.0) if scene.has_shading_normals else None,
+                zi > 0 if PLASTIC in scene.materials.kinds else None)
 
 
 def sample_path(scene: Scene, cfg: MLTConfig, key: Array) -> Path:
@@ -359,6 +416,8 @@ def sample_path(scene: Scene, cfg: MLTConfig, key: Array) -> Path:
         ls = LT.sample_li(lights, hit.p, u(base + 3), u(base + 4), u(base + 5))
         nee = (i == k - 1) & ~B.is_delta(mp) & (u(base + 6) < 0.5)
         wi = where(nee, ls.wi, bs.wi)
+        if path.coat is not None:   # the lobe the path leaves a plastic vertex by
+            path = path._replace(coat=_set(path.coat, i, bs.delta & ~nee & (i < k), here))
         alive = alive & (~(i < k) | jnp.where(nee, ls.valid, bs.valid))
         return path, G.offset_origin(hit.p, hit.n, wi), wi, alive
 
@@ -417,6 +476,7 @@ def retrace_lens(scene: Scene, cfg: MLTConfig, x: Path, fx: Array, fy: Array):
     k = x.length
     m, applicable = lens_vertex(scene, x)
     modes = transmits(x)
+    plastic = x.coat is not None
     inside = (fx >= 0) & (fx < cam.width) & (fy >= 0) & (fy < cam.height)
     px = jnp.clip(jnp.floor(fx), 0, cam.width - 1).astype(jnp.int32)
     py = jnp.clip(jnp.floor(fy), 0, cam.height - 1).astype(jnp.int32)
@@ -427,15 +487,16 @@ def retrace_lens(scene: Scene, cfg: MLTConfig, x: Path, fx: Array, fy: Array):
         hit = G.intersect(scene, o, d)
         here = i <= m
         mp = B.lookup(scene.materials, hit.material, hit.uv)
-        good = hit.valid & (B.is_delta(mp) == (i < m))
+        good = hit.valid & can_take(B.is_delta(mp), mp, i < m, plastic)
         good = good & ((i < k) | (hit.emitter >= 0))  # a light vertex must stay on a light
         ok = ok & (~here | good)
         y = y._replace(p=_set3(y.p, i, hit.p, here), n=_set3(y.n, i, hit.n, here),
                        material=_set(y.material, i, hit.material, here),
                        emitter=_set(y.emitter, i, hit.emitter, here),
-                       uv=_set_uv(y.uv, i, hit.uv, here), ns=_set_ns(y.ns, i, hit, here))
+                       uv=_set_uv(y.uv, i, hit.uv, here), ns=_set_ns(y.ns, i, hit, here),
+                       coat=_set_coat(y.coat, i, i < m, here))
         w, valid = specular_continue(mp, _hit_shading(hit), -d,
-                                     _row(modes, jnp.full((n_chains,), i)))
+                                     _row(modes, jnp.full((n_chains,), i)), plastic)
         ok = ok & (~(i < m) | valid)
         return y, G.offset_origin(hit.p, hit.n, w), w, ok
 
@@ -524,6 +585,7 @@ def retrace_caustic(scene: Scene, cfg: MLTConfig, x: Path, w_new: V3):
     k = x.length
     j, applicable = caustic_vertex(scene, x)
     modes = transmits(x)
+    plastic = x.coat is not None
     xj, nj = _row3(x.p, j), _row3(x.n, j)
 
     def body(s, carry):
@@ -532,13 +594,15 @@ def retrace_caustic(scene: Scene, cfg: MLTConfig, x: Path, w_new: V3):
         here = i >= 1
         hit = G.intersect(scene, o, d)
         mp = B.lookup(scene.materials, hit.material, hit.uv)
-        good = hit.valid & (B.is_delta(mp) == (i >= 2))
+        good = hit.valid & can_take(B.is_delta(mp), mp, i >= 2, plastic)
         ok = ok & (~here | good)
         y = y._replace(p=_set3(y.p, i, hit.p, here), n=_set3(y.n, i, hit.n, here),
                        material=_set(y.material, i, hit.material, here),
                        emitter=_set(y.emitter, i, hit.emitter, here),
-                       uv=_set_uv(y.uv, i, hit.uv, here), ns=_set_ns(y.ns, i, hit, here))
-        dn, valid = specular_continue(mp, _hit_shading(hit), -d, _row(modes, jnp.maximum(i, 0)))
+                       uv=_set_uv(y.uv, i, hit.uv, here), ns=_set_ns(y.ns, i, hit, here),
+                       coat=_set_coat(y.coat, i, i >= 2, here))
+        dn, valid = specular_continue(mp, _hit_shading(hit), -d, _row(modes, jnp.maximum(i, 0)),
+                                      plastic)
         ok = ok & (~(i >= 2) | valid)
         return y, G.offset_origin(hit.p, hit.n, dn), dn, ok
 
@@ -637,12 +701,6 @@ def check_scene(scene: Scene) -> None:
         raise ParameterError("estimator 'mlt': path-space MLT needs area emitters only (quads, "
                              "triangles, spheres); this scene has point, spot, directional or "
                              "environment lights, or none")
-    if PLASTIC in scene.materials.kinds:
-        # its paths are vertices alone: a plastic vertex would need the lobe it was left by
-        # (Dirac or not) stored with it, for the perturbations and for P(x)
-        raise ParameterError("estimator 'mlt': path-space MLT does not support smooth plastic "
-                             "materials (a vertex that is both connectable and Dirac); use "
-                             "'pssmlt' or 'mmlt', or 'roughplastic'")
 
 
 def normalisation_from_path_tracer(scene: Scene, cfg: MLTConfig, seed: int, paths: int) -> float:
