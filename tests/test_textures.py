@@ -315,7 +315,7 @@ def pt_reference(textured):
 @pytest.mark.parametrize("estimator,params,spp", [
     ("lt", dict(max_depth=DEPTH), 64),
     ("bdpt", dict(max_depth=DEPTH), 32),
-    ("mlt", dict(max_depth=DEPTH), 64),
+    ("mlt", dict(max_depth=DEPTH), 32),
 ])
 def test_unbiased_estimators_agree_with_the_path_tracer(textured, pt_reference, estimator,
                                                         params, spp):
