@@ -118,7 +118,7 @@ def test_photon_gathering_small_a_reproduces_the_uncached_photon_gather():
 
 def test_jensen_with_irradiance_cache_agrees_with_plain_final_gathering():
     scene = jgi.scenes.cornell_box(resolution=8)
-    params = dict(spp=2, photons=20_000, caustic_photons=2_000, final_gather=24, k=20)
+    params = dict(spp=2, photons=20_000, caustic_photons=2_000, final_gather=12, k=20)
     seeds = range(4)
     plain = np.stack([jgi.render(scene, "pm_jensen", seed=s, **params) for s in seeds])
     cached = np.stack([jgi.render(scene, "pm_jensen", seed=s, irradiance_cache=True, **params)

@@ -79,7 +79,7 @@ def test_veach_mlt_agrees_with_path_tracer(scene, pt):
     and the acceptance uses their BSDF like a diffuse vertex's."""
     cfg = replace(mlt.MLTConfig(), chains=1024, bootstrap_samples=65536, max_depth=DEPTH,
                   p_large=0.2, p_lens=0.5, p_caustic=0.3)
-    imgs = np.stack([mlt.render(scene, cfg, spp=64, seed=10 + s).image for s in range(8)])
+    imgs = np.stack([mlt.render(scene, cfg, spp=32, seed=10 + s).image for s in range(8)])
     _check(imgs, "mlt")
     # each render divided by its mean luminance (b's bootstrap noise out: see test_mlt)
     shape = lambda im: im / (im @ LUM).mean(axis=(1, 2))[:, None, None, None]  # noqa: E731
