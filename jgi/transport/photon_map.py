@@ -277,7 +277,8 @@ def pair_block(pairs: Pairs, block: int, b) -> tuple[Array, Array, Array]:
     No query has a cap: a loop over ceil(total / block) blocks reads each pair once, so a dense
     cell costs its own entries and nothing more."""
     k = b * block + jnp.arange(block, dtype=jnp.int32)
-    seg = jnp.minimum(jnp.searchsorted(pairs.end, k, side="right"), pairs.count.shape[0] - 1)
+    seg = jnp.minimum(jnp.searchsorted(pairs.end, k, side="right", method="scan_unrolled"),
+                      pairs.count.shape[0] - 1)
     slot = pairs.start[seg] + (k - (pairs.end[seg] - pairs.count[seg]))
     valid = k < pairs.total
     return seg // _NEIGHBOURS.shape[0], jnp.where(valid, slot, 0), valid
