@@ -101,11 +101,15 @@ def test_sppm_converges_to_path_tracer(scene, pt):
 
 
 def coat_caustic(resolution: int = RES):
-    """mirror_caustic with the mirror a smooth plastic (dark base, int_ior 2): the floor is lit
+    """mirror_caustic with the mirror a smooth plastic (dark base, int_ior 2) and a textured
+    floor: the floor is lit
     through the ceiling's coating (E D S L) and its base (E D D L), and the camera, below the
     lamp, sees the ceiling's coating reflect the floor (E S D ...)."""
     b = SceneBuilder("plastic_caustic")
-    b.material("floor", "diffuse", diffuse=(0.8, 0.8, 0.8))
+    # a checkerboard floor: Veach's MLT carries each vertex's uv (tests/test_textures.py)
+    b.texture("checks", "checkerboard", color0=(0.8, 0.8, 0.8), color1=(0.2, 0.35, 0.7),
+              scale=4)
+    b.material("floor", "diffuse", diffuse="checks")
     b.material("coat", "plastic", diffuse=(0.3, 0.3, 0.3), int_ior=2.0)
     b.material("lamp", "diffuse", diffuse=(0.0, 0.0, 0.0))
     b.quad((-2, 0, -2), (0, 0, 4), (4, 0, 0), "floor")
@@ -121,8 +125,9 @@ def test_veach_mlt_perturbs_through_the_coating():
     """Veach's MLT: caustic and lens perturbations through coating-reflected vertices (kept
     specular: retraced as mirrors, valued by k_s F / p) agree with the path tracer. Ignoring the
     recorded lobe fails (max |t| = 10.4, limit 7.8), as does dropping the coating's Fresnel
-    factor (13.9, limit 9.3). (The plastic room above is not used for MLT: its coating carries
-    too little light for the lobe bug to show, 2.2, and this scene catches both.)"""
+    factor (13.9, limit 9.3), and so do perturbed vertices that keep a stale uv on the
+    checkerboard floor (8.3, limit 7.9). (The plastic room above is not used for MLT: its
+    coating carries too little light for the lobe bug to show, 2.2; this scene catches it.)"""
     scene = coat_caustic()
     cfg = replace(mlt.MLTConfig(), chains=4096, bootstrap_samples=65536, max_depth=DEPTH,
                   p_large=0.1, p_lens=0.45, p_caustic=0.45)
