@@ -680,9 +680,10 @@ def merge_at_camera_vertices(scene: Scene, cfg: VCMConfig, grid: MergeGrid, z: C
     """Vertex merging at every camera vertex (``ppm``: the first non-specular one), the live
     ones gathered into batches (:func:`jgi.core.compaction.compact_map`; ``cfg.compact``).
     A batch lists every (camera vertex, light vertex) pair of its vertices' 27 grid cells
-    (:func:`jgi.transport.photon_map.candidate_pairs`) and evaluates them ``MERGE_PAIRS`` at a
-    time, as many blocks as there are pairs: no vertex has a cap, so no light vertex is ever
-    dropped, and a dense caustic costs its own pairs only. Returns (weighted, unweighted) [D, N]
+    (:func:`jgi.transport.photon_map.candidate_pairs`), tests their distance ``MERGE_PAIRS`` at
+    a time, as many blocks as there are pairs, and evaluates the pairs within r ``MERGE_NEAR``
+    at a time: no vertex has a cap, so no light vertex is ever dropped, and a dense caustic
+    costs its own pairs only. Returns (weighted, unweighted) [D, N]
     V3 per camera vertex (``by_length``: [D, D - 1, N], by the light vertex's row).
 
     ``dense_pairs`` (the differentiable form, ``cfg.compact`` false): one block of that many
