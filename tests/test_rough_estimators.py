@@ -104,20 +104,24 @@ def test_photon_mapping_converges_to_path_tracing(scene, pt):
     assert rel[0] > rel[1] > rel[2], rel
 
 
-@pytest.mark.xfail(strict=True, reason="known bias: photon mapping is about 2x the path tracer "
-                   "and BDPT in the image region of the glossy copper sphere (region (2, 1); "
-                   "SPPM 1.44x after 36 passes); cause not yet found")
 def test_photon_mapping_matches_the_path_tracer_per_region(scene, pt):
-    """Every 4 x 4 pixel region of photon mapping (160 000 photons, the settings above, so its
-    compilation is shared) within 25% of the path tracer: far wider than the regions' noise (PT
-    about 6%, seeds of this test) and the kernel's blur at r = 0.095. Measured 2026-12-03:
-    0.85..1.22 except 1.96 in region (2, 1) at 10 000 and 160 000 photons alike (PT and BDPT
-    agree there: 0.074 and 0.063 +- 0.003), so the excess does not shrink with the radius."""
+    """Every 4 x 4 pixel region of photon mapping (8 seeds, 40 000 photons: the settings of the
+    convergence test above, so the compilation is shared) within 25% of the path tracer plus
+    five standard errors of the difference. 25% is the bias budget: the kernel's blur at
+    r = 0.119 and the photons' extra bounce (a visible point plus ``max_depth`` photon
+    segments) give 0.94..1.12 where the regions are precise (the rough glass sphere: 1.12 at
+    t = 6.5; measured 2026-12-03). The standard errors are needed in the copper sphere's region:
+    its chains see the light's highlight by BSDF sampling alone (no light samples along a
+    glossy chain), so one camera sample in 64 carries most of the region; one seed of 32 gave
+    0.34 where the mean is 0.067 +- 0.014 (PT 0.074 +- 0.004)."""
     regions = lambda x: x.reshape(RES // 4, 4, RES // 4, 4, 3).mean(axis=(1, 3, 4))  # noqa: E731
-    img = jgi.render(scene, "pm", spp=4, seed=2, photons=160_000,
-                     radius=0.15 * 16 ** (-1 / 6), max_depth=DEPTH)
-    ratio = regions(img) / regions(pt.mean(0))
-    assert np.all((ratio > 0.75) & (ratio < 1.33)), np.round(ratio, 2)
+    pm = np.stack([regions(jgi.render(scene, "pm", spp=4, seed=s, photons=40_000,
+                                      radius=0.15 * 4 ** (-1 / 6), max_depth=DEPTH))
+                   for s in SEEDS])
+    ref = np.stack([regions(im) for im in pt])
+    excess = np.abs(pm.mean(0) - ref.mean(0)) - 0.25 * ref.mean(0)
+    se = np.sqrt(pm.var(0, ddof=1) / len(pm) + ref.var(0, ddof=1) / len(ref))
+    assert np.all(excess < 5 * se), np.round(excess / se, 2)
 
 
 def test_sppm_is_consistent(scene, pt):
