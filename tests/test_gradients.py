@@ -1,12 +1,15 @@
 """Differentiability: with common random numbers the path-traced estimate is a smooth function
 of albedos and emission (no Russian roulette before max_depth), so jax.grad must match central
-differences of the same estimator; the XLA materialisation trick must not block derivatives."""
+differences of the same estimator; the XLA materialisation trick must not block derivatives.
+With respect to roughness the path tracer's detached derivatives (sampling held fixed) are
+checked statistically against central differences of the expected image."""
 
 from __future__ import annotations
 
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+import numpy as np
 import pytest
 
 import jgi
@@ -48,35 +51,59 @@ def test_gradient_matches_central_differences(setup, strategy, what):
     assert g > 0
 
 
-def test_roughness_gradient_matches_central_differences():
-    """d(image)/d(alpha) of every microfacet material (rough conductors, dielectric, plastic) on
-    cornell_box_rough. Light sampling alone, direct light only: the sampled light points do not
-    depend on alpha, so the estimate is a smooth function of it (BSDF sampling would move the
-    sampled directions across object edges and make it piecewise constant there)."""
-    scene = jgi.scenes.cornell_box_rough(resolution=8)
-    pixel = jnp.tile(jnp.arange(64, dtype=jnp.int32), 16)
-    sample = jnp.repeat(jnp.arange(16, dtype=jnp.int32), 64)
-    cfg = PathTracerConfig(strategy="light", max_depth=2, rr_depth=-1)
+def _rough_spheres():
+    """Four microfacet spheres under a white sky, one of each kind: GGX copper, rough glass,
+    Beckmann rough plastic, anisotropic gold (alpha 0.3; gold 0.3 x 0.1)."""
+    b = jgi.scenes.SceneBuilder("rough_spheres")
+    b.material("copper", "roughconductor", metal="Cu", alpha=0.3)
+    b.material("glass", "roughdielectric", alpha=0.3, ior=1.5)
+    b.material("plastic", "roughplastic", diffuse=(0.2, 0.3, 0.6), alpha=0.3,
+               distribution="beckmann")
+    b.material("gold", "roughconductor", metal="Au", alpha_u=0.3, alpha_v=0.1)
+    for (x, y), m in zip([(-0.55, 0.55), (0.55, 0.55), (-0.55, -0.55), (0.55, -0.55)],
+                         ["copper", "glass", "plastic", "gold"]):
+        b.sphere((x, y, 0.0), 0.5, m)
+    b.environment_light((1.0, 1.0, 1.0))
+    b.camera((0.0, 0.0, 5.0), (0.0, 0.0, 0.0), fov=30.0, width=8, height=8)
+    return b.build()
 
-    def estimate(scale):
-        mats = scene.materials
-        sc = eqx.tree_at(lambda s: (s.materials.alpha_u, s.materials.alpha_v), scene,
-                         (mats.alpha_u * scale, mats.alpha_v * scale))
-        L = trace_pixels(sc, cfg, jnp.uint32(0), pixel, sample)
-        return L.x.mean() + L.y.mean() + L.z.mean()
 
-    # forward mode: one parameter. (Reverse mode, jax.grad, through this scene's kernel had not
-    # finished compiling after 10 minutes and 11 GB here: left for the gradient-fitting work.)
-    # One compiled function gives the value (its primal) and the derivative.
-    jvp = jax.jit(lambda x: jax.jvp(estimate, (x,), (jnp.float32(1.0),)))
-    f = lambda x: jvp(x)[0]  # noqa: E731
-    g = float(jvp(jnp.float32(1.0))[1])
-    h = 1e-2
-    fd = (float(f(jnp.float32(1 + h))) - float(f(jnp.float32(1 - h)))) / (2 * h)
-    f0 = float(f(jnp.float32(1.0)))
-    # the estimate is smooth but not polynomial in alpha: the h^2 term of the central
-    # difference, estimated from a second step size, bounds the tolerance
-    fd2 = (float(f(jnp.float32(1 + 2 * h))) - float(f(jnp.float32(1 - 2 * h)))) / (4 * h)
-    tol = abs(fd2 - fd) + 1e-4 * abs(f0)
-    assert abs(g - fd) < tol + 2e-3 * abs(fd), (g, fd, fd2)
-    assert abs(g) > 10 * tol, (g, tol)   # the roughness really changes the image
+def test_detached_roughness_gradient_in_reverse_mode():
+    """jax.grad (reverse mode) of an image with respect to the roughness of every microfacet
+    kind in one scene, by the path tracer's detached derivatives (MIS, three segments): an
+    unbiased estimate of the derivative of the expected image, so over 8 seeds its mean agrees
+    with central differences of the (attached) estimate on the same streams within five
+    standard errors of the paired difference, plus the difference quotient's h^2 error (bounded
+    by a second step size). Measured 2026-12-03 (16 seeds): -0.112 +- 0.009 against -0.107 +-
+    0.007; with the weights' derivative dropped (every sample field detached) the mean is
+    +0.028 and the paired t 13.9. (Attached reverse mode through all four kinds at once had not
+    compiled after 7 minutes; detached compiles in about 20 s.)"""
+    scene = _rough_spheres()
+    spp = 16
+    pixel = jnp.tile(jnp.arange(64, dtype=jnp.int32), spp)
+    sample = jnp.repeat(jnp.arange(spp, dtype=jnp.int32), 64)
+
+    def estimator(gradient):
+        cfg = PathTracerConfig(strategy="mis", max_depth=3, rr_depth=-1, gradient=gradient)
+
+        def estimate(scale, seed):
+            mats = scene.materials
+            sc = eqx.tree_at(lambda s: (s.materials.alpha_u, s.materials.alpha_v), scene,
+                             (mats.alpha_u * scale, mats.alpha_v * scale))
+            L = trace_pixels(sc, cfg, seed, pixel, sample)
+            return L.x.mean() + L.y.mean() + L.z.mean()
+        return estimate
+
+    grad = jax.jit(jax.grad(estimator("detached")))
+    f = jax.jit(estimator("attached"))
+    h = 2e-2
+    one = jnp.float32(1.0)
+    g, fd, fd2 = (np.array(x) for x in zip(*[
+        (float(grad(one, jnp.uint32(s))),
+         (float(f(one + h, jnp.uint32(s))) - float(f(one - h, jnp.uint32(s)))) / (2 * h),
+         (float(f(one + 2 * h, jnp.uint32(s))) - float(f(one - 2 * h, jnp.uint32(s)))) / (4 * h))
+        for s in range(8)]))
+    se = lambda x: x.std(ddof=1) / np.sqrt(len(x))  # noqa: E731
+    curvature = abs(fd2.mean() - fd.mean())
+    assert abs(g.mean() - fd.mean()) < 5 * se(g - fd) + curvature, (g.mean(), fd.mean(), se(g - fd))
+    assert abs(g.mean()) > 5 * se(g), (g.mean(), se(g))   # the roughness changes the image
