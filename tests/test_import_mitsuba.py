@@ -122,8 +122,8 @@ def test_lights_materials_and_transforms(tmp_path):
     ('<bsdf type="roughplastic" id="x"><float name="roughness" value="0.1"/></bsdf>',
      "bsdf 'roughplastic': unknown parameter 'roughness'; roughplastic takes: "
      "diffuse_reflectance"),
-    ('<bsdf type="roughdielectric" id="x"><rgb name="specular_transmittance" value="0.5"/>'
-     '</bsdf>', "equal specular_reflectance and specular_transmittance"),
+    ('<bsdf type="roughdielectric" id="x"><texture type="checkerboard" '
+     'name="specular_transmittance"/></bsdf>', "must be one texture for both"),
     ('<emitter type="spot"><float name="cutoff_angle" value="30"/></emitter>', "beam_width"),
     ('<shape type="rectangle"><ref id="nope"/></shape>', "unknown bsdf 'nope'"),
     ('<shape type="obj"><string name="filename" value="missing.obj"/></shape>', "does not exist"),
@@ -477,7 +477,7 @@ def test_textured_ply_and_cube_load(tmp_path):
 def test_textured_roughness_and_dielectric_tint(tmp_path):
     """Textured alpha_u / alpha_v (each alone, or both) and a dielectric whose reflectance and
     transmittance are one texture: the builder's texture columns; an isotropic textured alpha
-    keeps alpha_v following alpha_u (no alpha_v column); different tints are refused. A
+    keeps alpha_v following alpha_u (no alpha_v column); a texture on one tint alone is refused. A
     checkerboard roughness is Mitsuba 3.9.1's eval_1 of it, which exchanges color0 and color1
     (mitsuba.load_dict of a checkerboard: eval_1 gives color1 where eval gives color0)."""
     from jgi.scene.data import TEX_ALPHA, TEX_ALPHA_V, TEX_SPECULAR
@@ -507,8 +507,8 @@ def test_textured_roughness_and_dielectric_tint(tmp_path):
     np.testing.assert_allclose([float(tex.color0.x[2]), float(tex.color1.x[2])], [0.2, 0.4])
     np.testing.assert_allclose(np.asarray(m.alpha_v)[:2], [0.3, 0.1])
     np.testing.assert_allclose(np.asarray(m.alpha_u)[:2], [0.1, 0.2])
-    with pytest.raises(SceneError, match="dielectric: jgi needs equal specular_reflectance and "
-                                         "specular_transmittance"):
+    with pytest.raises(SceneError, match="dielectric: a textured specular_reflectance or "
+                                         "specular_transmittance must be one texture for both"):
         load('<bsdf type="dielectric" id="b0"><ref name="specular_reflectance" id="c"/></bsdf>')
 
 

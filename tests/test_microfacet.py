@@ -908,6 +908,9 @@ def test_builder_fills_the_table():
     ("roughplastic", dict(int_ior=1.0, ext_ior=1.0), "must differ"),
     ("diffuse", dict(alpha=0.1), "'alpha' does not apply"),
     ("roughdielectric", dict(metal="Au"), "'metal' does not apply"),
+    ("roughdielectric", dict(transmittance=(0.5, -0.1, 0.5)), "'transmittance' must be one "
+                                                               "number or three (RGB)"),
+    ("roughconductor", dict(transmittance=0.5), "'transmittance' does not apply"),
 ])
 def test_builder_errors_name_the_material_and_what_is_allowed(kind, kw, message):
     with pytest.raises(SceneError, match=f"material 'x'.*{re.escape(message)}"):

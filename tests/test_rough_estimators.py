@@ -152,7 +152,8 @@ def test_other_estimators_render_microfacets(scene, estimator, params):
 
 def _mitsuba_scene(mi):
     """``cornell_box_rough`` (isotropic gold: Mitsuba's tangent frame on a cube is not jgi's)
-    built from Mitsuba's own ``cornell_box()``."""
+    built from Mitsuba's own ``cornell_box()``, its glass tinted in reflection and (otherwise)
+    in transmission."""
     T = mi.ScalarTransform4f
     d = mi.cornell_box()
     for key in ("small-box", "large-box"):
@@ -166,7 +167,10 @@ def _mitsuba_scene(mi):
                             "distribution": "ggx"}}
     d["frosted"] = {"type": "sphere", "center": [0.45, -0.7, 0.45], "radius": 0.3,
                     "bsdf": {"type": "roughdielectric", "alpha": 0.2, "int_ior": 1.5,
-                             "ext_ior": 1.0, "distribution": "ggx"}}
+                             "ext_ior": 1.0, "distribution": "ggx",
+                             "specular_reflectance": {"type": "rgb", "value": [0.85, 0.9, 1.0]},
+                             "specular_transmittance": {"type": "rgb",
+                                                        "value": [0.9, 0.65, 0.4]}}}
     d["plastic"] = {"type": "cube",
                     "to_world": T().translate([-0.33, -0.45, -0.4]).rotate([0, 1, 0], 18.25)
                     .scale([0.28, 0.55, 0.28]),
@@ -184,7 +188,8 @@ def _jgi_isotropic():
     builtin.cornell_room(b, RES)
     T, R, S = xf.translate, xf.rotate, xf.scale
     b.material("copper", "roughconductor", metal="Cu", alpha=0.05)
-    b.material("frosted", "roughdielectric", alpha=0.2, ior=1.5)
+    b.material("frosted", "roughdielectric", alpha=0.2, ior=1.5, specular=(0.85, 0.9, 1.0),
+               transmittance=(0.9, 0.65, 0.4))
     b.material("plastic", "roughplastic", diffuse=(0.2, 0.3, 0.6), alpha=0.3,
                distribution="beckmann")
     b.material("gold", "roughconductor", metal="Au", alpha=0.15)

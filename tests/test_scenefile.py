@@ -787,6 +787,11 @@ BAD = {
                                    "material[0].specular", "reflectance must be in [0, 1]"),
     "negative k": (material("type = 'conductor'\neta = 0.2\nk = -1\n"), "material[0].k",
                    "must be non-negative"),
+    "glass transmittance above 1": (material("type = 'dielectric'\ntransmittance = [1, 1.3, 1]\n"),
+                                    "material[0].transmittance",
+                                    "transmittance must be in [0, 1]"),
+    "transmittance on a mirror": (material("type = 'mirror'\ntransmittance = 0.5\n"),
+                                  "material[0].transmittance", "unknown key for type 'mirror'"),
     "fov": (camera(fov="200"), "camera.fov", "must be in (0, 180) degrees"),
     "width": (camera(width="0"), "camera.width", "must be a positive number of pixels"),
     "spot cutoff": (light("type = 'spot'\nposition = [0, 1, 0]\ntarget = [0, 0, 0]\n"

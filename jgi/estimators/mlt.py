@@ -237,10 +237,11 @@ def specular_coefficient(mp: B.MaterialParams, n: V3, wo: V3, wi: V3, plastic: b
     """The Dirac coefficient of a specular vertex (f |cos| without the delta) for the pair
     (wo, wi), and the probability with which ``bsdf.sample`` picks that lobe. Mirror (smooth
     conductor): k_s F_conductor(cos_o) (k_s for the perfect mirror), 1. Dielectric: F k_s with
-    probability F (reflection), (1 - F) k_s / eta^2 with 1 - F (transmission, radiance scaling
-    as in jgi.physics.bsdf). Smooth plastic's coating (``plastic``, static: the scene has it):
-    k_s F(cos_o) with probability p (:func:`jgi.physics.bsdf.plastic.coating_probability`), so
-    coefficient / probability is the weight ``bsdf.sample`` returns for that lobe."""
+    probability F (reflection), (1 - F) k_t / eta^2 with 1 - F (transmission, radiance scaling
+    as in jgi.physics.bsdf; k_t the transmission tint). Smooth plastic's coating
+    (``plastic``, static: the scene has it): k_s F(cos_o) with probability p
+    (:func:`jgi.physics.bsdf.plastic.coating_probability`), so coefficient / probability is
+    the weight ``bsdf.sample`` returns for that lobe."""
     cos_o = dot(wo, n)
     transmit = cos_o * dot(wi, n) < 0
     eta = jnp.where(cos_o > 0, mp.ior, 1.0 / mp.ior)
@@ -249,7 +250,7 @@ def specular_coefficient(mp: B.MaterialParams, n: V3, wo: V3, wi: V3, plastic: b
     prob = jnp.where(mp.kind == DIELECTRIC, jnp.where(transmit, 1.0 - F, F), 1.0)
     mirror = B.mirror_reflectance(mp, jnp.abs(cos_o))
     zero = jnp.zeros_like(cos_o)
-    coeff = where(mp.kind == DIELECTRIC, mp.ks * diel,
+    coeff = where(mp.kind == DIELECTRIC, where(transmit, B.transmission_tint(mp), mp.ks) * diel,
                   where(transmit, V3(zero, zero, zero), mirror))
     if plastic:
         sel = mp.kind == PLASTIC

@@ -239,13 +239,14 @@ def veach_plates_builder(resolution: int, alphas: tuple | None = None) -> SceneB
 def cornell_box_rough(resolution: int = 256) -> Scene:
     """The Cornell room with microfacet objects, one of each kind (GGX unless noted): a glossy
     copper sphere (alpha 0.05: photon mapping samples through it), a rough glass sphere
-    (alpha 0.2, ior 1.5), a Beckmann rough-plastic block (alpha 0.3, a photon lookup
-    surface) and an anisotropic gold block (alpha_u 0.3, alpha_v 0.08)."""
+    (alpha 0.2, ior 1.5; amber in transmission, clear in reflection), a Beckmann rough-plastic
+    block (alpha 0.3, a photon lookup surface) and an anisotropic gold block (alpha_u 0.3,
+    alpha_v 0.08)."""
     b = SceneBuilder("cornell_box_rough")
     cornell_room(b, resolution)
     T, R, S = xf.translate, xf.rotate, xf.scale
     b.material("copper", "roughconductor", metal="Cu", alpha=0.05)
-    b.material("frosted", "roughdielectric", alpha=0.2, ior=1.5)
+    b.material("frosted", "roughdielectric", alpha=0.2, ior=1.5, transmittance=(0.9, 0.65, 0.4))
     b.material("plastic", "roughplastic", diffuse=(0.2, 0.3, 0.6), alpha=0.3,
                distribution="beckmann")
     b.material("gold", "roughconductor", metal="Au", alpha_u=0.3, alpha_v=0.08)

@@ -257,6 +257,8 @@ class Materials(eqx.Module):
     internal_reflectance: Array  # [M] the coating's internal reflectance Ri: roughplastic's
                                  # table integral, plastic's fdr_int (Mitsuba's fits)
     nonlinear: Array  # bool [M]: (rough)plastic's ``nonlinear`` (k_d Ri instead of Ri)
+    transmission_tint: V3  # k_t: a (rough) dielectric's transmitted-light factor (Mitsuba's
+                           # specular_transmittance; = specular unless given)
     kinds: tuple[int, ...] = eqx.field(static=True)  # kinds present, to skip dead code
     # distributions used by rough rows (empty without rough materials), to skip the absent one
     distributions: tuple[int, ...] = eqx.field(static=True, default=())
@@ -373,6 +375,7 @@ class _Material:
     eta: tuple = (0.0, 0.0, 0.0)
     k: tuple = (0.0, 0.0, 0.0)
     nonlinear: bool = False
+    transmission: tuple | None = None   # dielectrics' k_t (None: specular)
     textures: dict = dc_field(default_factory=dict)  # TEX_* column -> texture row
 
 
@@ -478,7 +481,8 @@ class SceneBuilder:
                  alpha: float | None = None, alpha_u: float | None = None,
                  alpha_v: float | None = None, distribution: str = "ggx", eta=None, k=None,
                  metal: str | None = None, int_ior: float | None = None,
-                 ext_ior: float | None = None, nonlinear: bool = False) -> int:
+                 ext_ior: float | None = None, nonlinear: bool = False,
+                 transmittance=None) -> int:
         """Define material ``name``; returns its row. Parameters by ``kind``:
 
         * ``"diffuse"``: ``diffuse`` (k_d).
@@ -488,7 +492,9 @@ class SceneBuilder:
           name of :data:`NAMED_METALS`, Mitsuba's) or as ``eta`` and ``k`` (RGB or scalars,
           >= 0; a missing one is Mitsuba's default, eta 0 or k 1). Neither: Mitsuba's
           "none", a perfect mirror. Stored as the mirror kind.
-        * ``"dielectric"``: ``specular`` (tint), ``ior`` = inside / outside (default 1.5), or
+        * ``"dielectric"``: ``specular`` (the tint of reflected light, and of transmitted light
+          unless ``transmittance`` is given: Mitsuba's specular_reflectance and
+          specular_transmittance), ``ior`` = inside / outside (default 1.5), or
           ``int_ior`` / ``ext_ior`` (defaults bk7 1.5046 / air 1.000277).
         * ``"phong"``: ``diffuse``, ``specular``, ``exponent``.
         * ``"roughconductor"``: as ``"conductor"``, plus the roughness: ``alpha`` (isotropic)
@@ -504,7 +510,8 @@ class SceneBuilder:
           ``diffuse``, ``specular``, ``ior`` or ``int_ior`` / ``ext_ior``, ``nonlinear``.
 
         Textured parameters take a texture's name instead of a value: ``diffuse``,
-        ``specular`` (a dielectric's one tint, reflection and transmission alike), and the
+        ``specular`` (a dielectric's one tint, reflection and transmission alike: a textured
+        ``specular`` takes no ``transmittance``, which is a constant colour), and the
         roughness ``alpha`` or ``alpha_u`` / ``alpha_v`` (each on its own; its luminance) of
         roughconductor and roughdielectric. A roughplastic's ``alpha`` cannot be textured (its
         coating tables are computed from one value).
@@ -537,6 +544,22 @@ class SceneBuilder:
             refuse(int_ior=int_ior, ext_ior=ext_ior)
         if not coated:
             refuse(nonlinear=nonlinear)
+        if k_ not in (DIELECTRIC, ROUGH_DIELECTRIC):
+            refuse(transmittance=transmittance)
+        elif transmittance is not None:
+            if isinstance(transmittance, str):
+                fail("'transmittance' cannot be textured; a texture given as 'specular' tints "
+                     "reflection and transmission alike")
+            if isinstance(specular, str):
+                fail("'specular' is a texture, which tints transmission too: give no "
+                     "'transmittance'")
+            try:
+                t = np.broadcast_to(np.asarray(transmittance, float), (3,))
+            except (TypeError, ValueError):
+                t = np.array([np.nan])
+            if not (np.all(np.isfinite(t)) and np.all(t >= 0)):
+                fail(f"'transmittance' must be one number or three (RGB), finite and >= 0, got "
+                     f"{transmittance!r}")
         # textured parameters: a texture name where a colour (or alpha) is allowed
         textured = {}
         microfacet = k_ in (ROUGH_CONDUCTOR, ROUGH_DIELECTRIC)
@@ -564,7 +587,8 @@ class SceneBuilder:
             specular = (1.0, 1.0, 1.0)
         alpha, alpha_u, alpha_v = (DEFAULT_ALPHA if isinstance(a, str) else a
                                    for a in (alpha, alpha_u, alpha_v))
-        m = _Material(k_, _rgb(diffuse), _rgb(specular), float(exponent), textures=textured)
+        m = _Material(k_, _rgb(diffuse), _rgb(specular), float(exponent), textures=textured,
+                      transmission=None if transmittance is None else _rgb(transmittance))
         # roughness
         if distribution not in MICROFACET_DISTRIBUTIONS:
             fail(f"unknown distribution '{distribution}'; allowed: "
@@ -1007,6 +1031,8 @@ class SceneBuilder:
             transmittance=f32(table),
             internal_reflectance=f32(internal),
             nonlinear=jnp.asarray([m.nonlinear for m in ms], bool),
+            transmission_tint=_v3([m.specular if m.transmission is None else m.transmission
+                                   for m in ms]),
             kinds=tuple(sorted({m.kind for m in ms})),
             distributions=tuple(sorted({m.distribution for m in ms if m.kind in ROUGH_KINDS})),
             **tex,

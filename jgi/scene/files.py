@@ -73,11 +73,11 @@ _IOR = {"ior": "number", "int_ior": "number", "ext_ior": "number"}
 MATERIAL_KEYS = {
     "diffuse": {"diffuse": "rgb|texture"},
     "mirror": {"specular": "rgb|texture"},
-    "dielectric": {**_IOR, "specular": "rgb|texture"},
+    "dielectric": {**_IOR, "specular": "rgb|texture", "transmittance": "rgb"},
     "phong": {"diffuse": "rgb|texture", "specular": "rgb|texture", "exponent": "number"},
     "conductor": _METAL,
     "roughconductor": {**_METAL, **_ROUGH},
-    "roughdielectric": {**_IOR, "specular": "rgb|texture", **_ROUGH},
+    "roughdielectric": {**_IOR, "specular": "rgb|texture", "transmittance": "rgb", **_ROUGH},
     "roughplastic": {"diffuse": "rgb|texture", "specular": "rgb|texture", **_IOR,
                      "nonlinear": "bool", "alpha": "number", "distribution": "str"},
     "plastic": {"diffuse": "rgb|texture", "specular": "rgb|texture", **_IOR, "nonlinear": "bool"},
@@ -482,9 +482,13 @@ class _TomlLoader:
                     and MATERIAL_KEYS[kind][k].endswith("|texture")}
         mm = {k: v for k, v in mm.items() if k not in textured}   # the checks below: values only
         # Reflectances above 1 create energy; the estimators' variance would then diverge.
-        for k in ("diffuse", "specular"):
+        for k in ("diffuse", "specular", "transmittance"):
             if k in mm and np.any(mm[k] > 1):
-                self.fail(f"{key}.{k}", f"reflectance must be in [0, 1], got {mm[k].tolist()}")
+                what = "transmittance" if k == "transmittance" else "reflectance"
+                self.fail(f"{key}.{k}", f"{what} must be in [0, 1], got {mm[k].tolist()}")
+        if "transmittance" in mm and "specular" in textured:
+            self.fail(f"{key}.transmittance", "'specular' is a texture, which tints the "
+                                              "transmitted light too; give no transmittance")
         if kind == "phong" and not textured and np.any(np.broadcast_to(p["diffuse"], 3)
                                                        + mm["specular"] > 1):
             self.fail(f"{key}.specular", "diffuse + specular must be <= 1 in every channel "

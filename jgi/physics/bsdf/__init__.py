@@ -67,6 +67,7 @@ from .common import (
     sampled_delta,
     shading_ratio,
     side,
+    transmission_tint,
 )
 from .fresnel import fresnel_conductor, fresnel_conductor_rgb, fresnel_dielectric, refract
 from .phong import specular_probability
@@ -76,7 +77,7 @@ __all__ = ["RADIANCE", "IMPORTANCE", "GLOSSY_ALPHA", "MaterialParams", "BSDFSamp
            "lookup_specialised", "is_delta", "sampled_delta", "is_glossy", "is_rough",
            "facing", "side", "lit", "specular_probability", "fresnel_dielectric", "refract",
            "fresnel_conductor", "fresnel_conductor_rgb", "mirror_reflectance",
-           "adjoint_correction", "shading_ratio", "evaluate", "sample"]
+           "adjoint_correction", "shading_ratio", "evaluate", "sample", "transmission_tint"]
 
 
 def _rough(kinds, mp: MaterialParams, flipped: Array, wo_l: V3, wi_l: V3,
@@ -203,6 +204,6 @@ def _sample_rough(kinds, mp: MaterialParams, n: V3, nf: V3, cos_o: Array, flippe
     w = f * (jnp.abs(wi_l.z) / jnp.where(ok, pdf, 1.0))
     w = where(ok, w, V3(zero, zero, zero))
     pass_ok = through & lit(cos_o)
-    w = where(pass_ok, mp.ks, w)
+    w = where(pass_ok, transmission_tint(mp), w)
     wi = where(pass_ok, -wo, where(ok, wi, nf))
     return BSDFSample(wi, w, jnp.where(ok, pdf, 0.0), pass_ok, ok | pass_ok)

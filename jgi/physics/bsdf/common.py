@@ -10,7 +10,7 @@ import numpy as np
 from jax import Array
 
 from ..._xla import take
-from ...core.vec import EDGE_ON_COS, V3, dot
+from ...core.vec import EDGE_ON_COS, V3, dot, where
 from ...scene.data import (
     DIELECTRIC,
     DIFFUSE,
@@ -64,6 +64,14 @@ class MaterialParams(NamedTuple):
                                       # whole table, not per lane (read at row, cos)
     internal_reflectance: Array = 0.0  # roughplastic coating's Ri (per lane)
     nonlinear: Array = False          # roughplastic's nonlinear option (per lane)
+    kt: V3 | None = None              # a (rough) dielectric's transmission tint (Mitsuba's
+                                      # specular_transmittance); None: ks tints both lobes
+
+
+def transmission_tint(mp: MaterialParams) -> V3:
+    """The factor of a dielectric's transmitted (refracted or passed-through) light: ``kt``,
+    or the one tint ``ks`` where the params carry none. Reflection is tinted by ``ks``."""
+    return mp.ks if mp.kt is None else mp.kt
 
 
 class BSDFSample(NamedTuple):
@@ -83,7 +91,8 @@ def lookup(mats: Materials, m: Array, uv=None) -> MaterialParams:
     return textured(mats, m, uv, MaterialParams(mats.kind[m], row3(mats.diffuse), row3(mats.specular),
                           mats.exponent[m], mats.ior[m], mats.alpha_u[m], mats.alpha_v[m],
                           mats.distribution[m], row3(mats.eta), row3(mats.k), m,
-                          mats.transmittance, mats.internal_reflectance[m], mats.nonlinear[m]))
+                          mats.transmittance, mats.internal_reflectance[m], mats.nonlinear[m],
+                          row3(mats.transmission_tint)))
 
 
 def textured(mats: Materials, m: Array, uv, mp: MaterialParams) -> MaterialParams:
@@ -102,9 +111,12 @@ def textured(mats: Materials, m: Array, uv, mp: MaterialParams) -> MaterialParam
     if TEX_DIFFUSE in cols:
         kd = T.textured(tex, index[m, TEX_DIFFUSE], (u, v), V3(*(jnp.broadcast_to(c, m.shape)
                                                                    for c in kd)))
+    kt = mp.kt
     if TEX_SPECULAR in cols:
-        ks = T.textured(tex, index[m, TEX_SPECULAR], (u, v), V3(*(jnp.broadcast_to(c, m.shape)
-                                                                  for c in ks)))
+        i = index[m, TEX_SPECULAR]
+        ks = T.textured(tex, i, (u, v), V3(*(jnp.broadcast_to(c, m.shape) for c in ks)))
+        if kt is not None:   # a textured dielectric tint tints both lobes (the builder's rule)
+            kt = where(i >= 0, ks, V3(*(jnp.broadcast_to(c, m.shape) for c in kt)))
     if TEX_ALPHA in cols:
         i = index[m, TEX_ALPHA]
         au = T.textured_scalar(tex, i, (u, v), jnp.broadcast_to(au, m.shape))
@@ -112,7 +124,7 @@ def textured(mats: Materials, m: Array, uv, mp: MaterialParams) -> MaterialParam
             av = jnp.where(i >= 0, au, av)
     if TEX_ALPHA_V in cols:           # anisotropic ones: alpha_v's own texture, or constant
         av = T.textured_scalar(tex, index[m, TEX_ALPHA_V], (u, v), jnp.broadcast_to(av, m.shape))
-    return mp._replace(kd=kd, ks=ks, alpha_u=au, alpha_v=av)
+    return mp._replace(kd=kd, ks=ks, alpha_u=au, alpha_v=av, kt=kt)
 
 
 def lookup_specialised(mats: Materials, m: Array, uv=None) -> MaterialParams:
@@ -150,7 +162,8 @@ def lookup_specialised(mats: Materials, m: Array, uv=None) -> MaterialParams:
         m if plastic else jnp.zeros(m.shape, jnp.int32),
         mats.transmittance if plastic else _NO_TABLE,
         take(mats.internal_reflectance, m) if coated else zero,
-        take(mats.nonlinear, m) if coated else zero > 0))
+        take(mats.nonlinear, m) if coated else zero > 0,
+        col3(mats.transmission_tint) if has(DIELECTRIC, ROUGH_DIELECTRIC) else None))
 
 
 def is_delta(mp: MaterialParams) -> Array:

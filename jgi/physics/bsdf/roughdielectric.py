@@ -31,7 +31,7 @@ from jax import Array
 
 from ...core.vec import V3, dot, normalize, reflect, where
 from . import microfacet as mf
-from .common import IMPORTANCE, MaterialParams
+from .common import IMPORTANCE, MaterialParams, transmission_tint
 from .fresnel import fresnel_dielectric, refract
 
 
@@ -74,7 +74,7 @@ def evaluate(mp: MaterialParams, wo: V3, wi: V3, eta: Array, ok: Array,
     p_m = mf.pdf_normal(mp.distribution, wo, h, au, av)
     f = jnp.where(side_ok, jnp.where(refl, f_r, f_t), 0.0)
     pdf = jnp.where(side_ok, p_m * jnp.where(refl, F * jac_r, (1.0 - F) * jac_t), 0.0)
-    return mp.ks * f, pdf
+    return where(refl, mp.ks, transmission_tint(mp)) * f, pdf
 
 
 def sample_direction(mp: MaterialParams, wo: V3, eta: Array, u_lobe: Array, u1: Array,

@@ -1,7 +1,8 @@
 """Dirac lobes: the mirror / smooth conductor (wi = reflect(wo), weight k_s F_conductor(cos_o),
 F = 1 for the perfect mirror's eta = k = 0) and the smooth dielectric
 (reflect with probability F, the unpolarised Fresnel reflectance, else refract by Snell's law;
-total internal reflection gives F = 1). Radiance is scaled by (eta_i / eta_t)^2 across the
+total internal reflection gives F = 1; reflection tinted by k_s, transmission by k_t, Mitsuba's
+specular_reflectance and specular_transmittance). Radiance is scaled by (eta_i / eta_t)^2 across the
 interface for camera paths (``mode=RADIANCE``), not for light paths (Veach 1997, 5.2)."""
 
 from __future__ import annotations
@@ -10,7 +11,7 @@ import jax.numpy as jnp
 from jax import Array
 
 from ...core.vec import V3, reflect, where
-from .common import IMPORTANCE, BSDFSample, MaterialParams, lit
+from .common import IMPORTANCE, BSDFSample, MaterialParams, lit, transmission_tint
 from .fresnel import fresnel_conductor_rgb, fresnel_dielectric, refract
 
 
@@ -39,4 +40,5 @@ def sample_dielectric(mp: MaterialParams, nf: V3, wo: V3, cos_o: Array, flipped:
     ok = lit(cos_o)
     w = jnp.where(ok, jnp.where(reflect_it, 1.0, scale), 0.0)
     zero = jnp.zeros_like(cos_o)
-    return BSDFSample(wi, mp.ks * w, zero, zero == 0, ok)
+    return BSDFSample(wi, where(reflect_it, mp.ks, transmission_tint(mp)) * w, zero, zero == 0,
+                      ok)

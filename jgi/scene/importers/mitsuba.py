@@ -10,8 +10,9 @@ supported):
              table of metals, or eta / k as rgb, float or constant spectrum;
              specular_reflectance; material "none" without eta and k is a 100 % reflector);
              dielectric and roughdielectric (int_ior / ext_ior as numbers or Mitsuba's names,
-             ior = int / ext; one tint: specular_reflectance equal to specular_transmittance,
-             or both <ref>s to one texture; different tints are refused);
+             ior = int / ext; specular_reflectance tints reflection and
+             specular_transmittance transmission, constants; a texture tints both, as both
+             <ref>s to one texture; other textured tints are refused);
              roughplastic and plastic (smooth: a Dirac coating reflection over a diffuse
              base) (diffuse_reflectance, specular_reflectance, int_ior, ext_ior,
              nonlinear); twosided (unwrapped: jgi's opaque BSDFs are two-sided, Mitsuba's are
@@ -340,21 +341,22 @@ class _Importer:
             refl = self.rgb(el, p, "specular_reflectance", 1.0, texture=True)
             trans = self.rgb(el, p, "specular_transmittance", 1.0, texture=True)
             textures = isinstance(refl, str), isinstance(trans, str)
-            if (not all(textures) or refl != trans) if any(textures) else \
-                    not np.allclose(refl, trans):
-                self.fail(el, f"{kind}: jgi needs equal specular_reflectance and "
-                              "specular_transmittance (one tint): the same <rgb> / <float> / "
-                              "<spectrum>, or one texture for both (a <texture> with an id and "
-                              "two <ref>s)")
+            if any(textures) and (not all(textures) or refl != trans):
+                self.fail(el, f"{kind}: a textured specular_reflectance or "
+                              "specular_transmittance must be one texture for both (a <texture> "
+                              "with an id and two <ref>s); jgi's transmission tint is otherwise "
+                              "a constant <rgb> / <float> / <spectrum>")
+            tint = {} if any(textures) or np.array_equal(refl, trans) else \
+                {"transmittance": trans}
             int_ior, ext_ior = self.ior(el, p, "int_ior", "bk7"), self.ior(el, p, "ext_ior", "air")
             if kind == "dielectric":
-                self.b.material(name, "dielectric", specular=refl, ior=int_ior / ext_ior)
+                self.b.material(name, "dielectric", specular=refl, ior=int_ior / ext_ior, **tint)
             else:
                 if int_ior == ext_ior:
                     self.fail(el, f"{kind}: int_ior and ext_ior must differ (Mitsuba refuses "
                                   "equal indices)")
                 self.b.material(name, "roughdielectric", specular=refl, ior=int_ior / ext_ior,
-                                **self.roughness(el, kind, p))
+                                **tint, **self.roughness(el, kind, p))
         elif kind in ("roughplastic", "plastic"):
             int_ior = self.ior(el, p, "int_ior", "polypropylene")
             ext_ior = self.ior(el, p, "ext_ior", "air")
