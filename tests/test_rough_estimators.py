@@ -216,5 +216,5 @@ def test_photon_mapping_approaches_mitsuba(mitsuba_renders):
     ref = mitsuba_renders.mean(0)
     rel = [_rel_error(jgi.render(ours, "sppm", spp=1, seed=4, passes=p, photons=10_000,
                                  radius=0.15, radius_alpha=0.7, max_depth=DEPTH), ref)
-           for p in (1, 6, 36)]
+           for p in (1, 4, 16)]
     assert rel[0] > rel[1] > rel[2], rel
