@@ -259,7 +259,7 @@ def test_checkerboard_plane_under_point_light_matches_closed_form(checker_plane,
 
 @pytest.mark.parametrize("estimator,sizes", [
     ("pm", [dict(photons=20_000, radius=0.3), dict(photons=320_000, radius=0.1)]),
-    ("sppm", [dict(photons=20_000, passes=1, radius=0.3), dict(photons=20_000, passes=16,
+    ("sppm", [dict(photons=20_000, passes=1, radius=0.3), dict(photons=20_000, passes=8,
                                                                radius=0.3)]),
 ])   # ppm is sppm with the first pass's visible points: the same textured density estimate
 def test_photon_mapping_of_the_checkerboard_converges(checker_plane, estimator, sizes):
