@@ -110,11 +110,12 @@ def test_photon_mapping_matches_the_path_tracer_per_region(scene, pt):
     convergence test above, so the compilation is shared) within 25% of the path tracer plus
     five standard errors of the difference. 25% is the bias budget: the kernel's blur at
     r = 0.119 and the photons' extra bounce (a visible point plus ``max_depth`` photon
-    segments) give 0.94..1.12 where the regions are precise (the rough glass sphere: 1.12 at
-    t = 6.5; measured 2026-12-03). The standard errors are needed in the copper sphere's region:
-    its chains see the light's highlight by BSDF sampling alone (no light samples along a
-    glossy chain), so one camera sample in 64 carries most of the region; one seed of 32 gave
-    0.34 where the mean is 0.067 +- 0.014 (PT 0.074 +- 0.004)."""
+    segments) give 0.94..1.08 where the regions are precise (the amber rough glass sphere: 1.08
+    at t = 4.8; the light's region 1.31 at t = 2.0; measured 2026-12-03). The standard errors
+    are needed in the copper sphere's region: its chains see the light's highlight by BSDF
+    sampling alone (no light samples along a glossy chain), so one camera sample in 64 carries
+    most of the region; one seed of 32 gave 0.34 where the mean is 0.067 +- 0.014 (PT 0.074
+    +- 0.004)."""
     regions = lambda x: x.reshape(RES // 4, 4, RES // 4, 4, 3).mean(axis=(1, 3, 4))  # noqa: E731
     pm = np.stack([regions(jgi.render(scene, "pm", spp=4, seed=s, photons=40_000,
                                       radius=0.15 * 4 ** (-1 / 6), max_depth=DEPTH))
