@@ -107,11 +107,12 @@ def test_photon_mapping_converges_to_path_tracing(scene, pt):
 
 def test_photon_mapping_matches_the_path_tracer_per_region(scene, pt):
     """Every 4 x 4 pixel region of photon mapping (8 seeds, 40 000 photons: the settings of the
-    convergence test above, so the compilation is shared) within 25% of the path tracer plus
-    five standard errors of the difference. 25% is the bias budget: the kernel's blur at
+    convergence test above, so the compilation is shared) within 15% of the path tracer plus
+    five standard errors of the difference. 15% is the bias budget: the kernel's blur at
     r = 0.119 and the photons' extra bounce (a visible point plus ``max_depth`` photon
     segments) give 0.94..1.08 where the regions are precise (the amber rough glass sphere: 1.08
-    at t = 4.8; the light's region 1.31 at t = 2.0; measured 2026-12-03). The standard errors
+    at t = 4.8, and 1.12 at t = 6.5 when it was clear; the light's region 1.31 at t = 2.0, 1.0
+    standard errors beyond the budget; measured 2026-12-03). The standard errors
     are needed in the copper sphere's region: its chains see the light's highlight by BSDF
     sampling alone (no light samples along a glossy chain), so one camera sample in 64 carries
     most of the region; one seed of 32 gave 0.34 where the mean is 0.067 +- 0.014 (PT 0.074
@@ -121,7 +122,7 @@ def test_photon_mapping_matches_the_path_tracer_per_region(scene, pt):
                                       radius=0.15 * 4 ** (-1 / 6), max_depth=DEPTH))
                    for s in SEEDS])
     ref = np.stack([regions(im) for im in pt])
-    excess = np.abs(pm.mean(0) - ref.mean(0)) - 0.25 * ref.mean(0)
+    excess = np.abs(pm.mean(0) - ref.mean(0)) - 0.15 * ref.mean(0)
     se = np.sqrt(pm.var(0, ddof=1) / len(pm) + ref.var(0, ddof=1) / len(ref))
     assert np.all(excess < 5 * se), np.round(excess / se, 2)
 
