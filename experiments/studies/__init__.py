@@ -1,0 +1,1 @@
+"""Studies: one question each, answered with measurements (``python -m experiments.studies.<name>``)."""
