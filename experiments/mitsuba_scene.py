@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 
 from jgi.scene import SceneBuilder
-from jgi.scene.data import (
+from jgi.scene.tables import (
     BECKMANN,
     DIELECTRIC,
     DIFFUSE,

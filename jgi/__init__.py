@@ -12,7 +12,8 @@ from .api import render, render_result
 from .core.errors import ParameterError
 from .estimators.registry import REGISTRY, Render
 from .scene import builtin as scenes
-from .scene.data import Scene, SceneBuilder, SceneError
+from .scene.builder import SceneBuilder, SceneError
+from .scene.tables import Scene
 from .scene.files import load_scene
 
 __version__ = "0.1.0"

@@ -14,7 +14,7 @@ from . import estimators  # noqa: F401  (registers every estimator)
 from .core.errors import ParameterError
 from .estimators import registry
 from .estimators.registry import Render
-from .scene.data import Scene
+from .scene.tables import Scene
 from .scene.files import load_scene
 
 

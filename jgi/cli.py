@@ -19,7 +19,7 @@ from .core.errors import ParameterError
 from .core.imageio import write_exr, write_png
 from .estimators.registry import REGISTRY, get
 from .experiment import main_run
-from .scene.data import SceneError
+from .scene.builder import SceneError
 from .scene.files import load_scene
 
 

@@ -13,7 +13,7 @@ import pytest
 
 import jgi
 from jgi.scene import SceneError
-from jgi.scene.data import (
+from jgi.scene.tables import (
     BECKMANN,
     GGX,
     MIRROR,
@@ -480,7 +480,7 @@ def test_textured_roughness_and_dielectric_tint(tmp_path):
     keeps alpha_v following alpha_u (no alpha_v column); a texture on one tint alone is refused. A
     checkerboard roughness is Mitsuba 3.9.1's eval_1 of it, which exchanges color0 and color1
     (mitsuba.load_dict of a checkerboard: eval_1 gives color1 where eval gives color0)."""
-    from jgi.scene.data import TEX_ALPHA, TEX_ALPHA_V, TEX_SPECULAR
+    from jgi.scene.tables import TEX_ALPHA, TEX_ALPHA_V, TEX_SPECULAR
 
     def load(bsdfs):
         shapes = "".join(f'<shape type="rectangle"><ref id="{i}"/></shape>'

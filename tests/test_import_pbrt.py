@@ -9,7 +9,7 @@ import pytest
 
 import jgi
 from jgi.scene import SceneBuilder, SceneError
-from jgi.scene.data import DIELECTRIC, GGX, MIRROR, NAMED_METALS, ROUGH_CONDUCTOR, ROUGH_DIELECTRIC
+from jgi.scene.tables import DIELECTRIC, GGX, MIRROR, NAMED_METALS, ROUGH_CONDUCTOR, ROUGH_DIELECTRIC
 from jgi.scene.importers import load_pbrt, pbrt
 from tests.conftest import assert_agree
 from tests.test_import_mitsuba import leaves_equal

@@ -151,7 +151,7 @@ def test_subpaths_flag_the_sampled_lobe_not_the_material(scene):
     import jax.numpy as jnp
 
     from jgi.physics import bsdf as B
-    from jgi.scene.data import PLASTIC
+    from jgi.scene.tables import PLASTIC
     from jgi.transport import subpath as SP
 
     n_paths = 4096

@@ -35,17 +35,16 @@ from jgi.scene import (
     SPOT,
     SceneError,
 )
-from jgi.scene.data import (
+from jgi.scene.builder import IOR_AIR, IOR_POLYPROPYLENE
+from jgi.scene.files import SceneWarning
+from jgi.scene.tables import (
     BECKMANN,
     GGX,
-    IOR_AIR,
-    IOR_POLYPROPYLENE,
     NAMED_METALS,
     ROUGH_CONDUCTOR,
     ROUGH_DIELECTRIC,
     ROUGH_PLASTIC,
 )
-from jgi.scene.files import SceneWarning
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -18,7 +18,7 @@ import jgi
 from jgi.core import transform as xf
 from jgi.core.vec import V3
 from jgi.physics import geometry as G
-from jgi.scene.data import SceneBuilder, SceneError, smooth_vertex_normals
+from jgi.scene.builder import SceneBuilder, SceneError, smooth_vertex_normals
 from jgi.scene.importers.mitsuba import load_mitsuba_xml
 from tests.conftest import assert_agree
 from tests.test_import_mitsuba import _mitsuba

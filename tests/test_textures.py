@@ -23,7 +23,7 @@ from jgi.physics import camera as C
 from jgi.physics import geometry as G
 from jgi.physics import textures as T
 from jgi.scene import builtin as scenes
-from jgi.scene.data import SceneBuilder, SceneError
+from jgi.scene.builder import SceneBuilder, SceneError
 from jgi.scene.importers.mitsuba import load_mitsuba_xml
 from tests.conftest import assert_agree, critical_t, region_stats
 from tests.test_import_mitsuba import _mitsuba

@@ -12,7 +12,7 @@ import numpy as np
 
 from ..physics import camera as C
 from ..scene.builtin import MIRROR_SDS
-from ..scene.data import Scene
+from ..scene.tables import Scene
 
 
 def _film_rays(scene: Scene, per_axis: int):

@@ -38,7 +38,7 @@ import numpy as np
 from ..core import calls
 from ..core.sharding import device_mesh, sharded_calls
 from ..core.vec import V3
-from ..scene.data import Scene
+from ..scene.tables import Scene
 
 DEFAULT_CHUNK = 1 << 16
 CHUNKS_PER_CALL = 4

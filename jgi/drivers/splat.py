@@ -14,7 +14,7 @@ from typing import Callable
 
 import numpy as np
 
-from ..scene.data import Scene
+from ..scene.tables import Scene
 from .chunked import default_chunk, sum_path_chunks
 
 DEFAULT_CHUNK = 1 << 13   # smaller than render_paths': a light path carries max_depth splats

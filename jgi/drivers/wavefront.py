@@ -29,7 +29,7 @@ from .._xla import materialize
 from ..core import calls
 from ..core.errors import ParameterError
 from ..core.vec import V3
-from ..scene.data import Scene
+from ..scene.tables import Scene
 from .chunked import progress_line
 
 # two loops of 2^12 lanes in flight beat one of 2^14 (perf: docs/performance.md#wavefront-lanes)

@@ -65,7 +65,7 @@ from ..physics import bsdf as B
 from ..physics import camera as C
 from ..physics import geometry as G
 from ..physics import lights as LT
-from ..scene.data import Scene
+from ..scene.tables import Scene
 from ..transport import mis
 from ..transport.subpath import (
     Vertices,

@@ -50,7 +50,7 @@ from ..core import rng
 from ..core.vec import V3, coordinate_system, cross, dot, length
 from ..physics import geometry as G
 from ..physics import lights as LT
-from ..scene.data import Scene
+from ..scene.tables import Scene
 from ..transport import photon_map as PMap
 from ..transport.photons import trace_photons
 from ..transport.subpath import face_viewer, trace_to_diffuse, visible_points

@@ -49,7 +49,7 @@ from ..drivers.splat import render_splats
 from ..physics import camera as C
 from ..physics import geometry as G
 from ..physics import lights as LT
-from ..scene.data import Scene
+from ..scene.tables import Scene
 from ..transport.subpath import connect_camera, light_key, light_subpath, occluded_many, rows
 from .registry import Estimator, Render, param, register
 

@@ -86,7 +86,7 @@ from ..physics import camera as C
 from ..physics import geometry as G
 from ..physics import lights as LT
 from ..physics.lights import AREA_KINDS
-from ..scene.data import DIELECTRIC, MIRROR, PLASTIC, Scene
+from ..scene.tables import DIELECTRIC, MIRROR, PLASTIC, Scene
 from ..transport import mcmc
 from . import path_tracer
 from .registry import Estimator, Render, param, register

@@ -52,7 +52,7 @@ import numpy as np
 
 from ..core import rng
 from ..core.vec import V3, luminance, where
-from ..scene.data import Scene
+from ..scene.tables import Scene
 from ..transport import mcmc
 from ..transport.subpath import LIGHT_DIMS0, LIGHT_DIMS_PER_STEP
 from .bdpt import CAMERA_DIMS0, CAMERA_DIMS_PER_STEP, BDPTConfig, contributions

@@ -57,7 +57,7 @@ from ..drivers.wavefront import render_wavefront
 from ..physics import bsdf as B
 from ..physics import geometry as G
 from ..physics import lights as LT
-from ..scene.data import Scene
+from ..scene.tables import Scene
 from ..transport import mis
 from ..transport.subpath import camera_ray, next_event_value, sample_next_event, shading
 from .registry import Estimator, Render, param, register

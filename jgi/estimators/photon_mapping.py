@@ -43,7 +43,7 @@ from ..core import rng
 from ..core.vec import V3, coordinate_system
 from ..core.warps import sample_cosine_hemisphere
 from ..physics import geometry as G
-from ..scene.data import Scene
+from ..scene.tables import Scene
 from ..transport import photon_map as PMap
 from ..transport.photons import trace_photons
 from ..transport.subpath import face_viewer, shading, trace_to_diffuse, visible_points

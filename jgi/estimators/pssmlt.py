@@ -36,7 +36,7 @@ from jax import Array
 from ..core import rng
 from ..core.vec import V3, luminance
 from ..physics import camera as C
-from ..scene.data import Scene
+from ..scene.tables import Scene
 from ..transport import mcmc
 from .path_tracer import PathTracerConfig, radiance
 from .registry import Estimator, Render, param, register

@@ -90,7 +90,7 @@ from ..physics import bsdf as B
 from ..physics import camera as C
 from ..physics import geometry as G
 from ..physics import lights as LT
-from ..scene.data import DIELECTRIC, DIRECTIONAL, ENVIRONMENT, ROUGH_DIELECTRIC, Scene
+from ..scene.tables import DIELECTRIC, DIRECTIONAL, ENVIRONMENT, ROUGH_DIELECTRIC, Scene
 from ..transport import photon_map as PMap
 from ..transport.subpath import (
     LIGHT_DIMS0,

@@ -21,7 +21,7 @@ from ..core import rng
 from ..core.configured import Configured
 from ..core.vec import V3
 from ..drivers.chunked import render_paths
-from ..scene.data import Scene
+from ..scene.tables import Scene
 from ..transport.subpath import camera_ray, trace_to_diffuse
 from .registry import Estimator, Render, param, register
 

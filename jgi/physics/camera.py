@@ -16,7 +16,7 @@ import jax.numpy as jnp
 from jax import Array
 
 from ..core.vec import V3, dot, length, normalize
-from ..scene.data import Camera
+from ..scene.tables import Camera
 
 
 def sample_ray(cam: Camera, px: Array, py: Array, u1: Array, u2: Array) -> tuple[V3, V3]:

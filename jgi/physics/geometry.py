@@ -21,7 +21,7 @@ from .. import _xla as X
 from .._xla import materialize
 from ..core import bvh
 from ..core.vec import EDGE_ON_COS, V3, cross, dot, normalize, where
-from ..scene.data import Boxes, Quads, Rects, Scene, Spheres, Triangles
+from ..scene.tables import Boxes, Quads, Rects, Scene, Spheres, Triangles
 
 INF = jnp.float32(jnp.inf)
 T_MIN = 1e-6          # reject hits this close to the origin (origins are also offset, see spawn)

@@ -33,7 +33,7 @@ from .. import _xla as X
 from .._xla import SMALL_TABLE, take
 from ..core import warps
 from ..core.vec import EDGE_ON_COS, V3, coordinate_system, dot, normalize, to_world, where
-from ..scene.data import (
+from ..scene.tables import (
     AREA_QUAD,
     AREA_SPHERE,
     AREA_TRIANGLE,

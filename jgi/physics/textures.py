@@ -1,7 +1,7 @@
 """Textures evaluated at surface coordinates (u, v): Mitsuba's ``checkerboard`` and ``bitmap``
 (bilinear filter, ``repeat`` wrap), pbrt-v4's ``checkerboard`` and ``imagemap``.
 
-A texture row i of :class:`jgi.scene.data.Textures` first maps (u, v) by its affine ``to_uv``;
+A texture row i of :class:`jgi.scene.tables.Textures` first maps (u, v) by its affine ``to_uv``;
 then
 
 * checkerboard: ``color0`` where frac(u') > 1/2 and frac(v') > 1/2 agree, else ``color1``
@@ -19,7 +19,7 @@ import jax.numpy as jnp
 from jax import Array
 
 from ..core.vec import V3, where
-from ..scene.data import BITMAP, CHECKERBOARD, Textures
+from ..scene.tables import BITMAP, CHECKERBOARD, Textures
 
 
 def _row(a: Array, i: Array) -> Array:

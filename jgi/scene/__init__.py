@@ -1,9 +1,11 @@
-"""The scene: immutable pytree tables (:mod:`.data`), loading from files (:mod:`.files`:
-jgi TOML, Mitsuba 3 XML, pbrt-v4), the built-in scenes (:mod:`.builtin`) and the importers.
+"""The scene: immutable pytree tables (:mod:`.tables`), their builder (:mod:`.builder`), loading
+from files (:mod:`.files`: jgi TOML, Mitsuba 3 XML, pbrt-v4), the built-in scenes
+(:mod:`.builtin`) and the importers.
 
 The scene types are re-exported here: ``from jgi.scene import Scene, SceneBuilder, DIFFUSE``."""
 
-from .data import (
+from .builder import SceneBuilder, SceneError, light_power, luminance_np
+from .tables import (
                    AREA_QUAD,
                    AREA_SPHERE,
                    AREA_TRIANGLE,
@@ -36,12 +38,8 @@ from .data import (
                    Quads,
                    Rects,
                    Scene,
-                   SceneBuilder,
-                   SceneError,
                    Spheres,
                    Triangles,
-                   light_power,
-                   luminance_np,
                    with_bvh,
 )
 

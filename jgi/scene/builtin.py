@@ -28,7 +28,8 @@ import numpy as np
 import trimesh
 
 from ..core import transform as xf
-from .data import Scene, SceneBuilder
+from .builder import SceneBuilder
+from .tables import Scene
 
 WHITE = (0.885809, 0.698859, 0.666422)
 GREEN = (0.105421, 0.37798, 0.076425)

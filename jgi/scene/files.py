@@ -29,16 +29,7 @@ import numpy as np
 
 from ..core import transform as xf
 from . import builtin as scenes
-from .data import (
-    ENVIRONMENT,
-    IOR_AIR,
-    MATERIAL_KINDS,
-    MICROFACET_DISTRIBUTIONS,
-    NAMED_METALS,
-    Scene,
-    SceneBuilder,
-    SceneError,
-)
+from .builder import IOR_AIR, SceneBuilder, SceneError
 from .importers import load_mitsuba_xml, load_pbrt
 from .importers._common import (
     has_texture_coordinates,
@@ -46,6 +37,7 @@ from .importers._common import (
     load_mesh,
     load_mesh_with_normals,
 )
+from .tables import ENVIRONMENT, MATERIAL_KINDS, MICROFACET_DISTRIBUTIONS, NAMED_METALS, Scene
 
 
 class SceneWarning(UserWarning):

@@ -37,8 +37,9 @@ from __future__ import annotations
 import numpy as np
 from scipy import special
 
+from .tables import BECKMANN, GGX
+
 TABLE_SIZE = 64        # Mitsuba's MI_ROUGH_TRANSMITTANCE_RES
-GGX, BECKMANN = 0, 1   # microfacet distributions (jgi.scene.data re-exports them)
 # Gauss-Legendre nodes per axis of the unit square: GGX as Mitsuba (32, or 128 for eta < 1),
 # through the same map, so that the tables agree with Mitsuba's to float32 rounding; Beckmann
 # (another map, with a kink) with enough nodes to converge to 2e-5 (measured against 512).

@@ -40,7 +40,7 @@ from jax import Array
 
 from ..core.vec import V3, dot, where
 from ..physics import bsdf as B
-from ..scene.data import PLASTIC, Scene
+from ..scene.tables import PLASTIC, Scene
 from .subpath import evaluates_whole
 
 _P1, _P2, _P3 = 73856093, 19349663, 83492791  # Teschner et al. 2003

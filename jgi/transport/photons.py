@@ -43,7 +43,7 @@ from ..core.vec import V3, max_component, where
 from ..physics import bsdf as B
 from ..physics import geometry as G
 from ..physics import lights as LT
-from ..scene.data import Scene
+from ..scene.tables import Scene
 from .subpath import is_lookup_surface, samples_through
 
 DIMS_PER_BOUNCE = 4

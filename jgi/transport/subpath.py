@@ -52,7 +52,7 @@ from ..physics import bsdf as B
 from ..physics import camera as C
 from ..physics import geometry as G
 from ..physics import lights as LT
-from ..scene.data import (
+from ..scene.tables import (
     AREA_QUAD,
     AREA_SPHERE,
     AREA_TRIANGLE,

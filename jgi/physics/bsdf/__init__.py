@@ -36,7 +36,7 @@ from jax import Array
 
 from ..._xla import materialize
 from ...core.vec import V3, dot, where
-from ...scene.data import (
+from ...scene.tables import (
     DIELECTRIC,
     DIFFUSE,
     MIRROR,

@@ -11,7 +11,8 @@ from jax import Array
 
 from ..._xla import take
 from ...core.vec import EDGE_ON_COS, V3, dot, where
-from ...scene.data import (
+from ...scene.rough_coating import TABLE_SIZE
+from ...scene.tables import (
     DIELECTRIC,
     DIFFUSE,
     GGX,
@@ -28,7 +29,6 @@ from ...scene.data import (
     TEX_SPECULAR,
     Materials,
 )
-from ...scene.rough_coating import TABLE_SIZE
 from .. import textures as T
 
 # Transport modes: camera paths carry radiance, light paths importance (Veach 1997, 5.2).

@@ -38,7 +38,7 @@ from jax import Array
 from ... import _xla as X
 from ...core import warps
 from ...core.vec import V3, coordinate_system, cross, dot, normalize
-from ...scene.data import BECKMANN, GGX
+from ...scene.tables import BECKMANN, GGX
 
 MIN_ALPHA = 1e-4
 _INV_PI = 1.0 / jnp.pi

@@ -7,7 +7,8 @@ from pathlib import Path
 import numpy as np
 import trimesh
 
-from ..data import NAMED_METALS, SceneError
+from ..builder import SceneError
+from ..tables import NAMED_METALS
 
 # Indices of refraction by name (Mitsuba 3's documented table; facts, not code).
 NAMED_IOR = {

@@ -46,7 +46,7 @@ supported):
   shape      rectangle, cube, sphere (center/radius or a uniform-scale to_world), obj, ply:
              with face_normals="true" shaded flat; otherwise, as Mitsuba, with vertex normals
              (the file's, transformed and normalised, or, when it has none, Mitsuba's smooth
-             angle-weighted ones: jgi.scene.data.smooth_vertex_normals) interpolated into a
+             angle-weighted ones: jgi.scene.builder.smooth_vertex_normals) interpolated into a
              shading normal. OBJ files are then read as Mitsuba reads them (a vertex per
              position / texture / normal index triple). Refused on smooth meshes: area
              emission (jgi's emitters radiate about the geometric normal) and anisotropic
@@ -72,7 +72,8 @@ from pathlib import Path
 import numpy as np
 
 from ...core import transform as xf
-from ..data import Scene, SceneBuilder, SceneError, smooth_vertex_normals
+from ..builder import SceneBuilder, SceneError, smooth_vertex_normals
+from ..tables import Scene
 from ._common import (
     NAMED_IOR,
     ImportError_,

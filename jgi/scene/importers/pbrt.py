@@ -68,7 +68,8 @@ from pathlib import Path
 import numpy as np
 
 from ...core import transform as xf
-from ..data import Scene, SceneBuilder, SceneError
+from ..builder import SceneBuilder, SceneError
+from ..tables import Scene
 from ._common import (
     PBRT_PLY_UV,
     ImportError_,

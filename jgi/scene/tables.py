@@ -1,0 +1,323 @@
+"""The scene: an immutable pytree of struct-of-arrays tables with static sizes, and the kind
+constants their integer columns hold.
+
+Every float in a scene is a pytree leaf, so one compiled estimator serves every scene with the
+same *structure* (primitive counts and which material/light kinds occur), and ``jax.grad`` can
+differentiate an image with respect to any of them (albedos, light emission, positions).
+
+Tables:
+  * ``Spheres``, ``Rects`` (axis-aligned rectangles), ``Boxes`` (oriented cubes), ``Quads``
+    (other parallelograms), ``Triangles``: geometry, a material index and an emitter index (the
+    light element that makes the primitive emissive, or -1). The builder files each quad and
+    cube under the most specific table that represents it exactly, since the ray test is the
+    renderer's inner loop.
+  * ``Materials``: one row per material; ``kind`` selects the BSDF (see :mod:`jgi.physics.bsdf`).
+    Its ``textures`` (a :class:`Textures` table, or None in scenes without textures) and
+    ``texture`` (texture row of each textured parameter, -1 for a constant) make diffuse
+    reflectance, specular reflectance and roughness vary over surfaces
+    (:mod:`jgi.physics.textures`).
+  * ``Lights``: a flat table of *light elements* chosen for next-event estimation with
+    probability proportional to power. A diffuse area light on a mesh contributes one element per
+    triangle, so light selection and ``pdf_li`` are the same code for every emitter shape.
+  * ``Camera``: a pinhole camera (see :mod:`jgi.physics.camera`).
+
+Scenes are made with :class:`jgi.scene.builder.SceneBuilder` (used by :mod:`jgi.scene.builtin`
+and the file loaders).
+"""
+
+from __future__ import annotations
+
+import equinox as eqx
+import numpy as np
+from jax import Array
+
+from ..core.bvh import BVH, build_bvh
+from ..core.vec import V3
+from .metals import METALS
+
+# Triangle tables at least this large get a BVH. Measured (experiments/bench_bvh.py, CPU, one
+# closest-hit and one shadow ray per ray, 2^16 rays, interleaved best-of-3 timings) since the
+# brute-force scan takes blocks of rows per loop iteration (jgi.physics.geometry._scan): brute force
+# falls as 1/T (4.2 Mrays/s at 196 triangles, 2.2 at 400, 0.92 at 1024, 0.22 at 4096) while
+# the BVH stays at 0.6-0.9; BVH/brute is 0.22 at 196, 0.40 at 400, 0.79 at 1024, 1.16 at 1600,
+# 1.7 at 2304, 2.7 at 4096: the crossover is at about 1400. (With one row per iteration it was
+# at 250-280.) The BVH traversal also adds compile time.
+BVH_MIN_TRIANGLES = 1400
+
+# Material kinds (jgi.physics.bsdf implements each). Mitsuba's smooth "conductor" is the
+# mirror with a complex index of refraction (eta = k = 0, the mirror's, reflects everything).
+# Mitsuba's smooth "plastic" is the one kind with both a Dirac lobe and a non-Dirac one.
+DIFFUSE, MIRROR, DIELECTRIC, PHONG, ROUGH_CONDUCTOR, ROUGH_DIELECTRIC, ROUGH_PLASTIC = range(7)
+PLASTIC = 7
+MATERIAL_KINDS = {"diffuse": DIFFUSE, "mirror": MIRROR, "dielectric": DIELECTRIC, "phong": PHONG,
+                  "conductor": MIRROR, "roughconductor": ROUGH_CONDUCTOR,
+                  "roughdielectric": ROUGH_DIELECTRIC, "roughplastic": ROUGH_PLASTIC,
+                  "plastic": PLASTIC}
+ROUGH_KINDS = (ROUGH_CONDUCTOR, ROUGH_DIELECTRIC, ROUGH_PLASTIC)
+# Microfacet normal distributions of the rough kinds (jgi.physics.bsdf.microfacet).
+GGX, BECKMANN = 0, 1
+MICROFACET_DISTRIBUTIONS = {"ggx": GGX, "beckmann": BECKMANN}
+NAMED_METALS = METALS  # Mitsuba's conductor names -> (eta, k) per RGB channel (jgi.scene.metals)
+
+# Texture kinds (jgi.physics.textures evaluates each), and the material parameters a texture can
+# drive: columns of ``Materials.texture``.
+CHECKERBOARD, BITMAP = range(2)
+TEXTURE_KINDS = {"checkerboard": CHECKERBOARD, "bitmap": BITMAP}
+# TEX_ALPHA drives alpha_u (an isotropic alpha: both), TEX_ALPHA_V alpha_v. An isotropic textured
+# alpha names its texture in both columns; a scene where every row's two agree drops the
+# TEX_ALPHA_V column (alpha_v then follows alpha_u where TEX_ALPHA is textured).
+TEX_DIFFUSE, TEX_SPECULAR, TEX_ALPHA, TEX_ALPHA_V = range(4)
+TEXTURED_PARAMS = {"diffuse": TEX_DIFFUSE, "specular": TEX_SPECULAR, "alpha": TEX_ALPHA,
+                   "alpha_v": TEX_ALPHA_V}
+
+# Light element kinds (jgi.physics.lights implements each).
+AREA_QUAD, AREA_TRIANGLE, AREA_SPHERE, POINT, SPOT, DIRECTIONAL, ENVIRONMENT = range(7)
+LIGHT_KIND_NAMES = ("area_quad", "area_triangle", "area_sphere", "point", "spot", "directional",
+                    "environment")
+DELTA_POSITION_KINDS = (POINT, SPOT)
+DELTA_DIRECTION_KINDS = (DIRECTIONAL,)
+
+
+class Spheres(eqx.Module):
+    center: V3
+    radius: Array
+    material: Array
+    emitter: Array
+
+    @property
+    def count(self) -> int:
+        return int(self.radius.shape[0])
+
+
+class Quads(eqx.Module):
+    """Parallelograms origin + a * edge_u + b * edge_v, (a, b) in [0, 1]^2."""
+
+    origin: V3
+    edge_u: V3
+    edge_v: V3
+    normal: V3  # unit cross(edge_u, edge_v); emitters radiate on this side only
+    material: Array
+    emitter: Array
+
+    @property
+    def count(self) -> int:
+        return int(self.material.shape[0])
+
+
+class Rects(eqx.Module):
+    """Axis-aligned rectangles, a specialisation of quads chosen automatically by the builder.
+
+    Rectangle i lies in the plane x_axis = ``plane`` (axis static, rows sorted by axis, with
+    ``axis_counts`` rows per axis) and spans [lo_a, hi_a] x [lo_b, hi_b] in the other two axes
+    in increasing order (for axis y: a = x, b = z). Its ray test is about a fifth of a general
+    parallelogram's, which matters for architectural scenes such as the Cornell box."""
+
+    plane: Array
+    lo_a: Array
+    hi_a: Array
+    lo_b: Array
+    hi_b: Array
+    normal: V3  # unit normal (+-1 along the axis), the side cross(edge_u, edge_v) points to
+    material: Array
+    emitter: Array
+    axis_counts: tuple[int, int, int] = eqx.field(static=True)
+    # textured scenes only (else None): the quad's (a, b) parameters of a point p are
+    # (p - origin) . dual_u and (p - origin) . dual_v, its surface coordinates uv
+    origin: V3 | None = None
+    dual_u: V3 | None = None
+    dual_v: V3 | None = None
+
+    @property
+    def count(self) -> int:
+        return int(self.material.shape[0])
+
+
+class Boxes(eqx.Module):
+    """Oriented boxes (Mitsuba's ``cube`` under a rotation/scale transform without shear):
+    centre + sum_k s_k half_k axis_k with s_k in [-1, 1]; one slab test replaces six quads."""
+
+    center: V3
+    axis_u: V3   # unit box axes (rows of the world-to-box rotation)
+    axis_v: V3
+    axis_w: V3
+    half: V3     # half extents along the axes
+    material: Array
+    emitter: Array  # always -1: emissive cubes are built from quads so they can be sampled
+
+    @property
+    def count(self) -> int:
+        return int(self.material.shape[0])
+
+
+class Triangles(eqx.Module):
+    """Triangles v0 + b1 * edge1 + b2 * edge2 (Moller-Trumbore layout).
+
+    ``bvh`` is a :class:`jgi.core.bvh.BVH` over the same triangles, built with the scene when
+    there are at least ``BVH_MIN_TRIANGLES`` of them (:mod:`jgi.physics.geometry` then traverses
+    it instead of testing every triangle), or None. Its arrays are pytree leaves like the rest,
+    so the scene's structure, and hence the compiled kernel, depends on their sizes only. It is
+    a copy of the geometry: a scene whose triangles are edited afterwards (``eqx.tree_at``)
+    must rebuild it (:func:`with_bvh`); gradients with respect to vertices flow through the
+    hit triangle's own intersection, not the traversal."""
+
+    v0: V3
+    edge1: V3
+    edge2: V3
+    normal: V3  # unit geometric normal cross(edge1, edge2)
+    material: Array
+    emitter: Array
+    bvh: BVH | None = None
+    # textured scenes only (else None): [T, 6] (u0, v0, u1 - u0, v1 - v0, u2 - u0, v2 - v0),
+    # the vertices' surface coordinates; a mesh without them has Mitsuba's (0,0), (1,0), (0,1)
+    uv: Array | None = None
+    # scenes with shading normals only (else None): [T, 9] the unit vertex normals n0, n1, n2
+    # of each triangle (a flat triangle's are its geometric normal); the hit's shading normal
+    # is their barycentric interpolation, normalised (jgi.physics.geometry)
+    normals: Array | None = None
+
+    @property
+    def count(self) -> int:
+        return int(self.material.shape[0])
+
+
+class Textures(eqx.Module):
+    """One row per texture (Mitsuba's ``checkerboard`` and ``bitmap``, pbrt-v4's
+    ``checkerboard`` and ``imagemap``), looked up at surface coordinates (u, v) mapped by the
+    affine ``to_uv`` first (Mitsuba's ``to_uv`` transform; pbrt's uscale, vscale, udelta,
+    vdelta): (u', v') = (a u + b v + c, d u + e v + f) with ``to_uv`` row (a, b, c, d, e, f).
+
+    Bitmaps are linear RGB, all packed into one flat ``atlas`` [P, 3] (row-major, row 0 the
+    image's top row, which v' = 0 addresses, as in Mitsuba); texture i occupies rows
+    ``offset[i]`` .. ``offset[i] + width[i] * height[i] - 1``. Every texel is a pytree leaf,
+    so ``jax.grad`` of an image with respect to a bitmap works."""
+
+    kind: Array       # int32 [T]: CHECKERBOARD or BITMAP
+    color0: V3        # checkerboard: colour where frac(u') and frac(v') lie on the same side of 1/2
+    color1: V3        # ... and elsewhere
+    to_uv: Array      # [T, 6] affine map of (u, v), see above
+    offset: Array     # int32 [T]: first atlas row of a bitmap
+    width: Array      # int32 [T]
+    height: Array     # int32 [T]
+    atlas: Array      # [P, 3] linear RGB texels of every bitmap (one zero row if there are none)
+    kinds: tuple[int, ...] = eqx.field(static=True)  # texture kinds present
+
+    @property
+    def count(self) -> int:
+        return int(self.kind.shape[0])
+
+
+class Materials(eqx.Module):
+    """One row per material. Every float is a pytree leaf (differentiable), except the
+    roughplastic tables, which are computed from alpha and ior at build time."""
+
+    kind: Array       # int32 [M]
+    diffuse: V3       # Lambertian albedo k_d (diffuse, phong, roughplastic, plastic)
+    specular: V3      # k_s: mirror/conductor reflectance, dielectric tint, Phong specular albedo,
+                      # the specular factor of the rough kinds
+    exponent: Array   # Phong exponent n
+    ior: Array        # relative index of refraction inside / outside (dielectrics, plastics)
+    alpha_u: Array    # microfacet roughness along the tangent s of the shading frame
+    alpha_v: Array    # ... along the bitangent t (= alpha_u when isotropic)
+    distribution: Array  # int32 [M]: GGX or BECKMANN
+    eta: V3           # conductor index of refraction eta + i k per channel (0, 0: a perfect
+    k: V3             # mirror, F = 1)
+    transmittance: Array  # [M, 64] roughplastic coating's external transmittance T(cos theta)
+    internal_reflectance: Array  # [M] the coating's internal reflectance Ri: roughplastic's
+                                 # table integral, plastic's fdr_int (Mitsuba's fits)
+    nonlinear: Array  # bool [M]: (rough)plastic's ``nonlinear`` (k_d Ri instead of Ri)
+    transmission_tint: V3  # k_t: a (rough) dielectric's transmitted-light factor (Mitsuba's
+                           # specular_transmittance; = specular unless given)
+    kinds: tuple[int, ...] = eqx.field(static=True)  # kinds present, to skip dead code
+    # distributions used by rough rows (empty without rough materials), to skip the absent one
+    distributions: tuple[int, ...] = eqx.field(static=True, default=())
+    # Textures (None in a scene without any: its kernels are those of a scene before textures)
+    textures: Textures | None = None
+    texture: Array | None = None   # int32 [M, 3]: texture row per TEX_* column, -1 = constant
+    textured: tuple[int, ...] = eqx.field(static=True, default=())  # TEX_* columns in use
+
+    @property
+    def has_textures(self) -> bool:
+        """Static: the scene uses textures (hits then carry surface coordinates uv)."""
+        return self.textures is not None
+
+
+class Lights(eqx.Module):
+    kind: Array         # int32 [K]
+    p0: V3              # quad/triangle corner, sphere centre, point/spot position
+    e1: V3              # quad/triangle edge 1
+    e2: V3              # quad/triangle edge 2
+    radius: Array       # sphere radius
+    normal: V3          # unit normal of quad/triangle emitters (emitting side)
+    direction: V3       # spot axis / directional travel direction (unit)
+    emission: V3        # radiance L_e (area, environment), intensity I (point, spot),
+                        # irradiance E (directional)
+    cos_total: Array    # spot: cosine of the cone half-angle (no light outside)
+    cos_falloff: Array  # spot: cosine where the smooth falloff starts
+    area: Array         # area of area-light elements (0 otherwise)
+    pmf: Array          # selection probability (proportional to power)
+    cdf: Array          # inclusive running sum of pmf, for inversion
+    bound_center: V3    # scene bounding sphere (directional and environment emission)
+    bound_radius: Array
+    kinds: tuple[int, ...] = eqx.field(static=True)
+    environment: int = eqx.field(static=True)  # element index of the environment light or -1
+
+    @property
+    def count(self) -> int:
+        return int(self.kind.shape[0])
+
+
+class Camera(eqx.Module):
+    """Pinhole camera. ``forward`` is unit; ``right``/``up`` are scaled to the image-plane
+    half-extents at distance 1, so a film point (sx, sy) in [-1, 1]^2 maps to the direction
+    forward + sx * right + sy * up."""
+
+    position: V3
+    forward: V3
+    right: V3
+    up: V3
+    width: int = eqx.field(static=True)
+    height: int = eqx.field(static=True)
+
+
+class Scene(eqx.Module):
+    camera: Camera
+    spheres: Spheres
+    rects: Rects
+    boxes: Boxes
+    quads: Quads
+    triangles: Triangles
+    materials: Materials
+    lights: Lights
+    name: str = eqx.field(static=True, default="scene")
+
+    @property
+    def resolution(self) -> tuple[int, int]:
+        return self.camera.width, self.camera.height
+
+    @property
+    def has_shading_normals(self) -> bool:
+        """Static: some mesh has vertex normals (hits and path vertices then carry a shading
+        normal ``ns`` besides the geometric ``n``; scenes without compile as before)."""
+        return self.triangles.normals is not None
+
+    def with_resolution(self, width: int, height: int) -> "Scene":
+        """Same scene and field of view, another film size."""
+        cam = self.camera
+        aspect_old = cam.width / cam.height
+        aspect_new = width / height
+        right = cam.right * (aspect_new / aspect_old)
+        new = Camera(cam.position, cam.forward, right, cam.up, int(width), int(height))
+        return eqx.tree_at(lambda s: s.camera, self, new)
+
+
+def with_bvh(scene: "Scene", bvh: bool | None = None) -> "Scene":
+    """The scene with its triangles' BVH rebuilt from the current triangles (``bvh`` None: if
+    there are at least BVH_MIN_TRIANGLES of them), or removed (``bvh=False``)."""
+    tr = scene.triangles
+    n = tr.count
+    use = n >= BVH_MIN_TRIANGLES if bvh is None else bool(bvh) and n > 0
+    new = None
+    if use:
+        v0 = np.asarray(tr.v0.stack(), np.float64)
+        new = build_bvh(v0, v0 + np.asarray(tr.edge1.stack()), v0 + np.asarray(tr.edge2.stack()))
+    return eqx.tree_at(lambda s: s.triangles.bvh, scene, new, is_leaf=lambda x: x is None)
