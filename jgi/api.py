@@ -14,8 +14,8 @@ from . import estimators  # noqa: F401  (registers every estimator)
 from .core.errors import ParameterError
 from .estimators import registry
 from .estimators.registry import Render
-from .scene.tables import Scene
 from .scene.files import load_scene
+from .scene.tables import Scene
 
 
 def render_result(scene: Scene | str, estimator: str = "pt", spp: int = 16, seed: int = 0,
