@@ -15,8 +15,8 @@ import pytest
 import jgi
 from jgi.estimators import bdpt as BD
 from jgi.scene import builtin as scenes
-from tests.conftest import assert_agree, critical_t, region_stats
-from tests.test_path_tracer import degenerate_scene, point_light_reference
+from tests.support.scenes import degenerate_scene, point_light_reference
+from tests.support.stats import assert_agree, critical_t, region_stats
 
 DEPTH = 3   # lengths 1..3: every kind of strategy, (2, 2) included; compile time grows with
             # the number of strategies

@@ -29,11 +29,11 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 
+from jgi.analysis.chi2 import SphereDomain, assert_chi2, bucket
 from jgi.core.vec import EDGE_ON_COS, V3
 from jgi.physics import bsdf as B
 from jgi.scene import DIELECTRIC, DIFFUSE, MIRROR, PHONG
-from tests.chi2 import SphereDomain, assert_chi2, bucket
-from tests.directions import NORMAL, direction, reflect_np
+from tests.support.directions import NORMAL, direction, reflect_np
 
 KINDS = (DIFFUSE, MIRROR, DIELECTRIC, PHONG)
 N = 1 << 18

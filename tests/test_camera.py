@@ -17,10 +17,10 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from jgi.analysis.chi2 import SphereDomain, assert_chi2
 from jgi.core.vec import V3
 from jgi.physics import camera as C
 from jgi.scene import SceneBuilder
-from tests.chi2 import SphereDomain, assert_chi2
 
 CAMERAS = {
     "square": dict(position=(0.0, 1.0, 5.0), look_at=(0.0, 1.0, 0.0), up=(0, 1, 0), fov=40.0,

@@ -45,7 +45,7 @@ def test_minimise_recovers_the_mse_optimal_parameter():
         est, jnp.float32(1.0), jax.random.normal(jax.random.PRNGKey(10 + k), (R, 1))), 1.0,
         log_space=True).theta) for k in range(6)]
     se = np.std(fits, ddof=1) / np.sqrt(len(fits))
-    from tests.conftest import critical_t
+    from tests.support.stats import critical_t
 
     crit = critical_t(len(fits) - 1, 1)
     assert abs(np.mean(fits) - optimum) < crit * se + 1e-3 * optimum, (np.mean(fits), optimum, se)

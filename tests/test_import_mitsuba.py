@@ -2,17 +2,15 @@
 
 from __future__ import annotations
 
-import glob
-import os
 import re
 from pathlib import Path
 
-import jax
 import numpy as np
 import pytest
 
 import jgi
 from jgi.scene import SceneError
+from jgi.scene.importers import _common, load_mitsuba_xml, mitsuba
 from jgi.scene.tables import (
     BECKMANN,
     GGX,
@@ -22,19 +20,12 @@ from jgi.scene.tables import (
     ROUGH_DIELECTRIC,
     ROUGH_PLASTIC,
 )
-from jgi.scene.importers import _common, load_mitsuba_xml, mitsuba
-from tests.conftest import assert_agree
+from tests.support.mitsuba import load_mitsuba
+from tests.support.scenes import leaves_equal, ply_quad
+from tests.support.stats import assert_agree
 
 DATA = Path(__file__).parent / "data"
 CORNELL_XML = DATA / "cornell_box_mitsuba.xml"
-
-
-def leaves_equal(a, b):
-    la, ta = jax.tree_util.tree_flatten(a)
-    lb, tb = jax.tree_util.tree_flatten(b)
-    assert len(la) == len(lb)
-    for x, y in zip(la, lb):
-        np.testing.assert_allclose(np.asarray(x), np.asarray(y), rtol=1e-6, atol=1e-7)
 
 
 def test_cornell_box_xml_loads_to_the_builtin_scene():
@@ -229,7 +220,7 @@ def test_microfacet_bsdfs_give_the_builder_rows(tmp_path):
 def test_microfacet_parameters_as_mitsuba_reads_them(tmp_path):
     """Each <bsdf> above, loaded by Mitsuba 3 itself: the same alpha, distribution, eta, k, ior,
     reflectances and nonlinear flag as jgi's rows (Mitsuba's defaults are what it applies)."""
-    mi = _mitsuba()
+    mi = load_mitsuba()
     if mi is None:
         pytest.skip("mitsuba is not installed")
     imp = mitsuba._Importer(write(tmp_path, SENSOR + "".join(MICROFACET_BSDFS.values())))
@@ -309,7 +300,7 @@ def test_anisotropy_only_where_the_frames_agree(tmp_path, shape, ok):
 def test_mitsubas_tangent_is_the_one_the_importer_assumes(tmp_path, shape, origin):
     """Mitsuba 3's own shading tangent (si.sh_frame.s at a ray hit) against the importer's
     rule: jgi's tangent on the accepted shapes, something else on the refused tri2.obj."""
-    mi = _mitsuba()
+    mi = load_mitsuba()
     if mi is None:
         pytest.skip("mitsuba is not installed")
     (tmp_path / "tri.obj").write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n")
@@ -340,7 +331,7 @@ def test_material_preview_scene_loads_in_jgi_and_mitsuba():
     s = jgi.load_scene(path, resolution=8)
     assert s.materials.kinds == (0, ROUGH_CONDUCTOR, ROUGH_PLASTIC)
     assert s.spheres.count == 2 and s.triangles.count == 2304 and s.lights.environment >= 0
-    mi = _mitsuba()
+    mi = load_mitsuba()
     if mi is not None:
         assert len(mi.load_file(str(path)).shapes()) == 5
 
@@ -381,29 +372,8 @@ def test_meshes_shade_smooth_unless_face_normals(tmp_path):
         load_mitsuba_xml(write(tmp_path, body, "em2.xml"))
 
 
-def _mitsuba():
-    try:
-        if "DRJIT_LIBLLVM_PATH" not in os.environ:
-            found = sorted(glob.glob("/usr/lib/*/libLLVM.so.19.1"))
-            if found:
-                os.environ["DRJIT_LIBLLVM_PATH"] = found[0]
-        import mitsuba as mi
-    except Exception:
-        return None
-    # llvm_ad_rgb aborts the process (uncatchable) with LLVM older than 19: use it only when
-    # Debian's libllvm19 is there (./dev installs it), else the scalar variant.
-    llvm = os.environ.get("DRJIT_LIBLLVM_PATH", "").endswith(".so.19.1")
-    for variant in ("llvm_ad_rgb", "scalar_rgb") if llvm else ("scalar_rgb",):
-        try:
-            mi.set_variant(variant)
-            return mi
-        except Exception:
-            continue
-    return None
-
-
 def test_cornell_box_renders_like_mitsuba(tmp_path):
-    mi = _mitsuba()
+    mi = load_mitsuba()
     if mi is None:
         pytest.skip("mitsuba is not installed")
     xml = tmp_path / "cb.xml"
@@ -426,7 +396,7 @@ def _compare_with_mitsuba(tmp_path, xml_path, label):
     relative difference of about 5 % (median over regions; more in the darkest), the whole
     image about 2.5 %; with 32 x 512 spp the whole-image means agreed within 0.22 % (rough
     plastic / conductors, |t| <= 0.63) and 0.13 % (rough glass, |t| <= 0.41)."""
-    mi = _mitsuba()
+    mi = load_mitsuba()
     if mi is None:
         pytest.skip("mitsuba is not installed")
     xml = tmp_path / xml_path.name
@@ -457,9 +427,8 @@ def test_rough_dielectric_renders_like_mitsuba(tmp_path):
 def test_textured_ply_and_cube_load(tmp_path):
     """A textured PLY mesh takes its file's uv (Mitsuba's names, v as written), a textured
     cube becomes Mitsuba's cube mesh (uv per face), an untextured cube stays a box."""
-    from tests.test_textures import _ply_quad
 
-    _ply_quad(tmp_path / "q.ply", ("texture_u", "texture_v"))
+    ply_quad(tmp_path / "q.ply", ("texture_u", "texture_v"))
     body = SENSOR + """
     <texture type="checkerboard" id="c"/>
     <bsdf type="diffuse" id="t"><ref name="reflectance" id="c"/></bsdf>

@@ -9,10 +9,17 @@ import pytest
 
 import jgi
 from jgi.scene import SceneBuilder, SceneError
-from jgi.scene.tables import DIELECTRIC, GGX, MIRROR, NAMED_METALS, ROUGH_CONDUCTOR, ROUGH_DIELECTRIC
 from jgi.scene.importers import load_pbrt, pbrt
-from tests.conftest import assert_agree
-from tests.test_import_mitsuba import leaves_equal
+from jgi.scene.tables import (
+    DIELECTRIC,
+    GGX,
+    MIRROR,
+    NAMED_METALS,
+    ROUGH_CONDUCTOR,
+    ROUGH_DIELECTRIC,
+)
+from tests.support.scenes import leaves_equal, ply_quad
+from tests.support.stats import assert_agree
 
 HEADER = """
 Scale -1 1 1
@@ -258,9 +265,8 @@ def test_cornell_box_as_pbrt_renders_like_the_builtin(tmp_path, flip):
 def test_textured_plymesh_takes_the_files_uv(tmp_path, names):
     """A plymesh with a textured material: the triangles' uv are the file's (pbrt-v4's names,
     texture_s / texture_t included; v as written); without uv in the file it is refused."""
-    from tests.test_textures import _ply_quad
 
-    _ply_quad(tmp_path / "q.ply", names)
+    ply_quad(tmp_path / "q.ply", names)
     body = ('Texture "c" "spectrum" "checkerboard" "rgb tex1" [.8 .1 .1] "rgb tex2" [.1 .1 .8]\n'
             'Material "diffuse" "texture reflectance" "c"\n'
             'Shape "plymesh" "string filename" "q.ply"\n')
@@ -268,7 +274,7 @@ def test_textured_plymesh_takes_the_files_uv(tmp_path, names):
     uv = np.asarray(tri.uv)
     # triangle (0, 1, 2): uv0 and the edges uv1 - uv0, uv2 - uv0
     np.testing.assert_allclose(uv[0], [0.1, 0.2, 0.8, -0.1, 0.7, 0.5], atol=1e-6)
-    _ply_quad(tmp_path / "q.ply", None)
+    ply_quad(tmp_path / "q.ply", None)
     with pytest.raises(SceneError, match=r"plymesh 'q.ply' with a textured material needs "
                                          "texture coordinates"):
         load_pbrt(write(tmp_path, body))

@@ -12,7 +12,7 @@ import pytest
 import jgi
 from jgi.core.vec import V3
 from jgi.estimators import irradiance_cache as IC
-from tests.conftest import assert_agree
+from tests.support.stats import assert_agree
 
 
 @pytest.fixture(scope="module")

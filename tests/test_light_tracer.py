@@ -11,8 +11,8 @@ import pytest
 
 import jgi
 from jgi.scene import builtin as scenes
-from tests.conftest import assert_agree, critical_t, region_stats
-from tests.test_path_tracer import degenerate_scene, point_light_reference
+from tests.support.scenes import degenerate_scene, point_light_reference
+from tests.support.stats import assert_agree, critical_t, region_stats
 
 SEEDS = range(12)
 

@@ -21,10 +21,10 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from jgi.analysis.chi2 import PlaneDomain, SphereDomain, assert_chi2, bucket, pearson
 from jgi.core.vec import V3
 from jgi.physics import lights as LT
 from jgi.scene import AREA_QUAD, AREA_SPHERE, SceneBuilder
-from tests.chi2 import PlaneDomain, SphereDomain, assert_chi2, bucket, pearson
 
 N = 1 << 18
 L_RGB = np.array([4.0, 2.0, 1.0])

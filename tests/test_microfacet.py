@@ -35,6 +35,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from jgi.analysis.chi2 import SphereDomain, assert_chi2, cell_integrals
 from jgi.core.vec import V3
 from jgi.physics import bsdf as B
 from jgi.physics.bsdf import microfacet as mf
@@ -50,8 +51,7 @@ from jgi.scene import (
     SceneBuilder,
     SceneError,
 )
-from tests.chi2 import SphereDomain, assert_chi2, cell_integrals
-from tests.directions import NORMAL, direction, reflect_np
+from tests.support.directions import NORMAL, direction, reflect_np
 
 KINDS = (MIRROR, ROUGH_CONDUCTOR, ROUGH_DIELECTRIC, ROUGH_PLASTIC, PLASTIC)
 N = 1 << 18

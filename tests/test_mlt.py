@@ -16,7 +16,7 @@ import jgi
 from jgi.core.errors import ParameterError
 from jgi.core.vec import V3, dot, normalize
 from jgi.estimators import mlt
-from tests.conftest import assert_agree
+from tests.support.stats import assert_agree
 
 CFG = mlt.MLTConfig(max_depth=5)
 LUM = np.array([0.2126, 0.7152, 0.0722])

@@ -15,7 +15,7 @@ import pytest
 import jgi
 from jgi.estimators import bdpt as BD
 from jgi.estimators import mmlt, pssmlt
-from tests.conftest import assert_agree
+from tests.support.stats import assert_agree
 
 DEPTH = 2
 SEEDS = range(12)

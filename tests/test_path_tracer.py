@@ -15,10 +15,9 @@ import jgi
 from jgi.core.configured import Configured
 from jgi.drivers import chunked as R
 from jgi.drivers import wavefront as W
-from jgi.physics import camera as C
-from jgi.scene import SceneBuilder
 from jgi.scene import builtin as scenes
-from tests.conftest import assert_agree, critical_t, region_stats
+from tests.support.scenes import degenerate_scene, point_light_reference
+from tests.support.stats import assert_agree, critical_t, region_stats
 
 SEEDS = range(16)  # enough repetitions for a well-estimated standard error
 
@@ -54,24 +53,6 @@ def test_white_furnace_russian_roulette_is_unbiased(furnace):
     assert np.all(se > 0), "Russian roulette should add variance"
     assert np.all(np.abs(mean - expected)
                   <= critical_t(len(imgs) - 1, mean.size) * se), (mean, se, expected)
-
-
-def point_light_reference(scene, rho, intensity, height, sub=12):
-    """Pixel integrals of L = (rho / pi) I cos(theta) / d^2 by a sub-pixel grid of rays."""
-    cam = scene.camera
-    W, H = cam.width, cam.height
-    u = (np.arange(sub) + 0.5) / sub
-    py, px, v, w = np.meshgrid(np.arange(H), np.arange(W), u, u, indexing="ij")
-    o, d = C.sample_ray(cam, jnp.asarray(px.ravel()), jnp.asarray(py.ravel()),
-                        jnp.asarray(w.ravel(), jnp.float32), jnp.asarray(v.ravel(), jnp.float32))
-    o, d = np.asarray(o.stack()), np.asarray(d.stack())
-    t = -o[:, 1] / d[:, 1]
-    x = o + d * t[:, None]
-    to_light = np.array([0.0, height, 0.0]) - x
-    d2 = (to_light**2).sum(1)
-    cos = height / np.sqrt(d2)
-    L = np.where(t > 0, rho / np.pi * intensity * cos / d2, 0.0)
-    return L.reshape(H, W, sub * sub).mean(-1)
 
 
 @pytest.mark.parametrize("strategy", ["light", "mis"])
@@ -212,28 +193,6 @@ def test_scene_values_are_arguments_not_constants(cornell):
 
 
 # --- robustness -----------------------------------------------------------------------------------
-
-def degenerate_scene():
-    b = SceneBuilder("degenerate")
-    b.material("white", "diffuse", diffuse=(0.8, 0.8, 0.8))
-    b.material("glass", "dielectric", ior=1.5)
-    b.material("same", "dielectric", ior=1.0)
-    b.material("shiny", "phong", diffuse=(0.2, 0.2, 0.2), specular=(0.7, 0.7, 0.7), exponent=5000)
-    b.quad((-5, 0, -5), (0, 0, 10), (10, 0, 0), "white")            # floor, seen edge-on below
-    b.quad((0, 1, 0), (0, 0, 0), (1, 0, 0), "white", emission=(5, 5, 5))  # zero-area light
-    b.quad((-1, 2, -1), (0, 0, 0.5), (0.5, 0, 0), "white", emission=(5, 5, 5))
-    b.sphere((0, 0.5, 0), 0.0, "white", emission=(3, 3, 3))         # zero-radius light
-    b.sphere((0.8, 0.5, 0.2), 0.4, "glass")                          # total internal reflection
-    b.sphere((-0.8, 0.5, 0.2), 0.4, "same")                          # index-matched
-    b.sphere((0.0, 0.3, -1.0), 0.3, "shiny")
-    b.point_light((0, 3, 0), (2, 2, 2))
-    b.spot_light((2, 3, 0), (0, 0, 0), (5, 5, 5), cutoff_deg=30)
-    b.directional_light((0.3, -1, 0.1), (0.5, 0.5, 0.5))
-    b.environment_light((0.1, 0.1, 0.1))
-    # eye in the floor plane
-    b.camera(position=(0, 0.0, 4), look_at=(0, 0.0, 0), fov=60, width=12, height=12)
-    return b.build()
-
 
 @pytest.mark.parametrize("strategy", ["bsdf", "mis"])
 def test_no_nan_or_inf_on_degenerate_inputs(strategy):

@@ -12,7 +12,7 @@ import jgi
 from jgi.core.vec import V3
 from jgi.transport import photon_map as PMap
 from jgi.transport.photons import PhotonMap
-from tests.conftest import critical_t
+from tests.support.stats import critical_t
 
 
 def plane_photons(rng, n, size=1.0, power=1.0, clustered=False):
@@ -169,7 +169,7 @@ def test_truncation_is_reported(rng_np):
 
 def test_photon_mapping_point_light_converges_to_closed_form():
     """Irradiance bias shrinks with r and variance with N r^2: error falls along the sweep."""
-    from tests.test_path_tracer import point_light_reference
+    from tests.support.scenes import point_light_reference
 
     scene = jgi.scenes.point_light_plane(resolution=8, intensity=10.0, height=1.0, albedo=0.5)
     ref = point_light_reference(scene, 0.5, 10.0, 1.0)

@@ -26,7 +26,7 @@ import pytest
 import jgi
 from jgi.estimators import mlt
 from jgi.scene import SceneBuilder, builtin
-from tests.conftest import assert_agree
+from tests.support.stats import assert_agree
 
 RES = 8
 DEPTH = 3

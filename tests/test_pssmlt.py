@@ -7,7 +7,7 @@ import pytest
 
 import jgi
 from jgi.estimators import pssmlt
-from tests.conftest import assert_agree
+from tests.support.stats import assert_agree
 
 
 def test_kelemen_small_step_is_symmetric_and_stays_on_the_torus(rng_np):

@@ -26,8 +26,8 @@ import jgi
 from jgi.core import transform as xf
 from jgi.estimators import mlt
 from jgi.scene import SceneBuilder, builtin
-from tests.conftest import assert_agree
-from tests.test_import_mitsuba import _mitsuba
+from tests.support.mitsuba import load_mitsuba
+from tests.support.stats import assert_agree
 
 RES = 16
 DEPTH = 4   # direct light and three bounces: every kind in both subpaths, short compiles
@@ -194,7 +194,7 @@ def _jgi_isotropic():
 
 @pytest.fixture(scope="module")
 def mitsuba_renders():
-    mi = _mitsuba()
+    mi = load_mitsuba()
     if mi is None:
         pytest.skip("mitsuba is not installed")
     scene_mi = _mitsuba_scene(mi)

@@ -3,11 +3,9 @@ Mitsuba's smooth normals, degenerate normals, the importers, and renders: jgi's 
 against Mitsuba 3 on a Cornell box holding a smooth low-poly sphere and a smooth bent metal
 strip, and the light tracer, BDPT and SPPM against the path tracer on it (light paths carry
 Veach's adjoint correction; without it the light tracer is measurably off,
-experiments/shading_normals_adjoint.py)."""
+experiments/studies/shading_normals_adjoint.py)."""
 
 from __future__ import annotations
-
-from pathlib import Path
 
 import equinox as eqx
 import jax.numpy as jnp
@@ -20,12 +18,10 @@ from jgi.core.vec import V3
 from jgi.physics import geometry as G
 from jgi.scene.builder import SceneBuilder, SceneError, smooth_vertex_normals
 from jgi.scene.importers.mitsuba import load_mitsuba_xml
-from tests.conftest import assert_agree
-from tests.test_import_mitsuba import _mitsuba
+from tests.support.mitsuba import load_mitsuba
+from tests.support.smooth_cornell import DEPTH, bent_strip, smooth_cornell_xml, uv_sphere, write_obj
+from tests.support.stats import assert_agree
 
-DATA = Path(__file__).parent / "data"
-DEPTH = 3       # path segments: direct light and two bounces (short compiles)
-RES = 16
 SPP = 256       # per render of the path tracer, Mitsuba and the light tracer
 # (estimator, parameters, spp) of the renders
 CASES = [
@@ -41,100 +37,6 @@ CASES = [
 def _v3(a):
     a = np.asarray(a, np.float32).reshape(-1, 3)
     return V3(*(jnp.asarray(a[:, k]) for k in range(3)))
-
-
-def uv_sphere(nu: int = 8, nv: int = 5):
-    """A low-poly unit sphere: (vertices, outward-wound triangles), poles on z."""
-    verts = [[0.0, 0.0, 1.0]]
-    for j in range(1, nv):
-        th = np.pi * j / nv
-        verts += [[np.sin(th) * np.cos(2 * np.pi * i / nu), np.sin(th) * np.sin(2 * np.pi * i / nu),
-                   np.cos(th)] for i in range(nu)]
-    verts.append([0.0, 0.0, -1.0])
-    last = len(verts) - 1
-    f = [[0, 1 + i, 1 + (i + 1) % nu] for i in range(nu)]
-    for j in range(nv - 2):
-        a, b = 1 + j * nu, 1 + (j + 1) * nu
-        for i in range(nu):
-            i1 = (i + 1) % nu
-            f += [[a + i, b + i, b + i1], [a + i, b + i1, a + i1]]
-    ring = 1 + (nv - 2) * nu
-    f += [[last, ring + (i + 1) % nu, ring + i] for i in range(nu)]
-    return np.array(verts), np.array(f)
-
-
-def bent_strip(n: int = 4):
-    """A quarter cylinder (radius 1, y in [-1, 1]) as 2n triangles, with the cylinder's normals:
-    (vertices, triangles, vertex normals)."""
-    v, nrm = [], []
-    for i in range(n + 1):
-        a = 0.5 * np.pi * i / n
-        for y in (-1.0, 1.0):
-            v.append([np.cos(a), y, np.sin(a)])
-            nrm.append([np.cos(a), 0.0, np.sin(a)])
-    f = []
-    for i in range(n):
-        k = 2 * i
-        f += [[k, k + 1, k + 2], [k + 1, k + 3, k + 2]]     # wound outwards, as the normals
-    return np.array(v), np.array(f), np.array(nrm)
-
-
-def _obj(path: Path, v, f, normals=None):
-    lines = [f"v {a:.9g} {b:.9g} {c:.9g}" for a, b, c in v]
-    if normals is None:
-        lines += [f"f {a + 1} {b + 1} {c + 1}" for a, b, c in f]
-    else:
-        lines += [f"vn {a:.9g} {b:.9g} {c:.9g}" for a, b, c in normals]
-        lines += [f"f {a + 1}//{a + 1} {b + 1}//{b + 1} {c + 1}//{c + 1}" for a, b, c in f]
-    path.write_text("\n".join(lines) + "\n")
-
-
-SMOOTH_SHAPES = """    <bsdf type="twosided" id="metal">
-        <bsdf type="roughconductor">
-            <string name="material" value="Au"/>
-            <string name="distribution" value="ggx"/>
-            <float name="alpha" value="0.2"/>
-        </bsdf>
-    </bsdf>
-    <shape type="obj">
-        <string name="filename" value="sphere.obj"/>
-        <transform name="to_world">
-            <scale value="0.4"/><translate x="-0.35" y="-0.6" z="0"/>
-        </transform>
-        <ref id="white"/>
-    </shape>
-    <shape type="obj">
-        <string name="filename" value="strip.obj"/>
-        <transform name="to_world">
-            <scale x="0.4" y="0.45" z="0.4"/><rotate y="1" angle="-45"/>
-            <translate x="0.35" y="-0.55" z="-0.4"/>
-        </transform>
-        <ref id="metal"/>
-    </shape>
-</scene>
-"""
-
-
-CAMERA = '<lookat origin="0, 0, 3.9" target="0, 0, 0" up="0, 1, 0"/>'
-CLOSE_UP = '<lookat origin="0, 0.1, 2" target="0, -0.6, 0" up="0, 1, 0"/>'
-
-
-def smooth_cornell_xml(folder: Path, res: int = RES, depth: int = DEPTH,
-                       camera: str = CLOSE_UP) -> Path:
-    """Mitsuba's Cornell box with a smooth low-poly diffuse sphere (an OBJ without normals:
-    Mitsuba computes them) and a bent gold strip (rough conductor, an OBJ with the cylinder's
-    normals) in place of the blocks; no face_normals, so both shade with vertex normals. The
-    camera looks at the two from close by, so that most regions of the image show them."""
-    _obj(folder / "sphere.obj", *uv_sphere(6, 4))
-    _obj(folder / "strip.obj", *bent_strip())
-    xml = (DATA / "cornell_box_mitsuba.xml").read_text()
-    xml = xml.replace('value="256"', f'value="{res}"').replace(
-        '<integer name="max_depth" value="8"/>', f'<integer name="max_depth" value="{depth}"/>')
-    xml = xml.replace(CAMERA, camera)
-    head = xml[:xml.index('    <shape type="cube">')]
-    path = folder / "smooth_cornell.xml"
-    path.write_text(head + SMOOTH_SHAPES)
-    return path
 
 
 @pytest.fixture(scope="module")
@@ -186,12 +88,12 @@ def test_smooth_normals_are_mitsubas(tmp_path):
     n2 = np.array([0, 0, -1.0]) * np.pi / 2 + np.array([0, 1.0, 0]) * np.arccos(3 / 5)
     np.testing.assert_allclose(n[0], n2 / np.linalg.norm(n2), atol=1e-12)
     np.testing.assert_allclose(n[1:], [[0, 0, -1], [0, 0, -1], [0, 1, 0], [0, 1, 0]], atol=1e-12)
-    mi = _mitsuba()
+    mi = load_mitsuba()
     if mi is None:
         pytest.skip("mitsuba is not installed")
     sv, sf = uv_sphere(7, 4)
     sv = sv * [1.0, 0.6, 1.3]   # non-uniform: the angle weights matter
-    _obj(tmp_path / "s.obj", sv, sf)
+    write_obj(tmp_path / "s.obj", sv, sf)
     shape = mi.load_dict({"type": "obj", "filename": str(tmp_path / "s.obj")})
     theirs = np.array(mi.traverse(shape)["vertex_normals"]).reshape(-1, 3)
     np.testing.assert_allclose(smooth_vertex_normals(sv, sf), theirs, atol=2e-6)
@@ -244,7 +146,7 @@ def test_mitsuba_meshes_without_face_normals_shade_like_mitsuba(tmp_path, kind, 
     """OBJ and PLY without face_normals: jgi's shading normal at hits equals Mitsuba's
     ray_intersect sh_frame.n (the file's normals, or Mitsuba's computed ones), under a
     non-uniform to_world."""
-    mi = _mitsuba()
+    mi = load_mitsuba()
     if mi is None:
         pytest.skip("mitsuba is not installed")
     import trimesh
@@ -252,7 +154,7 @@ def test_mitsuba_meshes_without_face_normals_shade_like_mitsuba(tmp_path, kind, 
     v, f, nrm = bent_strip(3)
     nrm = nrm + [0.0, 0.3, 0.0]     # not unit, not the cylinder's: the loader normalises
     if kind == "obj":
-        _obj(tmp_path / "m.obj", v, f, nrm if with_normals else None)
+        write_obj(tmp_path / "m.obj", v, f, nrm if with_normals else None)
     else:
         mesh = trimesh.Trimesh(v, f, vertex_normals=nrm if with_normals else None, process=False)
         (tmp_path / "m.ply").write_bytes(trimesh.exchange.ply.export_ply(
@@ -333,7 +235,7 @@ intensity = 5
 @pytest.mark.parametrize("extra,smooth", [("", True), ("flat = true", False)])
 def test_toml_meshes_keep_their_normals(tmp_path, extra, smooth):
     v, f, nrm = bent_strip(2)
-    _obj(tmp_path / "m.obj", v, f, nrm)
+    write_obj(tmp_path / "m.obj", v, f, nrm)
     (tmp_path / "s.toml").write_text(TOML_MESH.format(extra=extra))
     scene = jgi.load_scene(str(tmp_path / "s.toml"))
     assert scene.has_shading_normals == smooth
@@ -357,8 +259,8 @@ def test_smooth_cornell_box_renders_like_mitsuba(smooth_scene, pt_reference):
     """jgi's path tracer against Mitsuba's path integrator on the same XML (12 renders each,
     256 spp, 16^2 pixels, max_depth 3), per 4 x 4 region and over the image. Measured with 16
     renders each: max |t| 2.4 (critical 5.9) and 2.2 over the image; jgi shading the same
-    meshes flat gives 39 over the regions (experiments/shading_normals_adjoint.py)."""
-    mi = _mitsuba()
+    meshes flat gives 39 over the regions (experiments/studies/shading_normals_adjoint.py)."""
+    mi = load_mitsuba()
     if mi is None:
         pytest.skip("mitsuba is not installed")
     xml, _ = smooth_scene
@@ -377,7 +279,7 @@ def test_estimators_agree_with_the_path_tracer(smooth_scene, pt_reference, estim
     """Light paths (LT, BDPT's light subpaths and connections, SPPM's photons, VCM's light
     subpaths, connections and merges) carry Veach's
     adjoint correction. Measured for the light tracer (16 x 256 spp): max |t| 2.8 (critical
-    6.2) with it, 15.0 without it (experiments/shading_normals_adjoint.py). SPPM is
+    6.2) with it, 15.0 without it (experiments/studies/shading_normals_adjoint.py). SPPM is
     consistent, not unbiased: its radius is small enough here that the bias is below the
     test's resolution (whole image only)."""
     seeds = {"lt": range(12), "bdpt": range(8), "sppm": range(6), "vcm": range(8)}[estimator]

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from jgi.analysis import stats
-from tests.conftest import critical_t
+from tests.support.stats import critical_t
 
 
 def test_error_stats_recover_known_bias_and_variance(rng_np):

@@ -25,8 +25,9 @@ from jgi.physics import textures as T
 from jgi.scene import builtin as scenes
 from jgi.scene.builder import SceneBuilder, SceneError
 from jgi.scene.importers.mitsuba import load_mitsuba_xml
-from tests.conftest import assert_agree, critical_t, region_stats
-from tests.test_import_mitsuba import _mitsuba
+from tests.support.mitsuba import load_mitsuba
+from tests.support.scenes import ply_quad
+from tests.support.stats import assert_agree, critical_t, region_stats
 
 DATA = Path(__file__).parent / "data"
 
@@ -375,7 +376,7 @@ def _textured_cornell_xml(tmp_path) -> Path:
 
 
 def test_textured_cornell_box_renders_like_mitsuba(tmp_path):
-    mi = _mitsuba()
+    mi = load_mitsuba()
     if mi is None:
         pytest.skip("mitsuba is not installed")
     xml = _textured_cornell_xml(tmp_path)
@@ -541,7 +542,7 @@ f 1/1 3/3 4/4
 def test_obj_uv_matches_mitsubas(tmp_path, with_vt):
     """A textured OBJ imported from Mitsuba XML: jgi's hit uv equals Mitsuba's ray_intersect
     uv (Mitsuba flips the file's v; without vt each triangle has (0,0), (1,0), (0,1))."""
-    mi = _mitsuba()
+    mi = load_mitsuba()
     if mi is None:
         pytest.skip("mitsuba is not installed")
     text = OBJ_QUAD if with_vt else "".join(
@@ -578,7 +579,7 @@ def _mitsuba_uv(mi, xml, o, d):
 def test_cube_uv_matches_mitsubas(tmp_path):
     """A textured cube under a rotation, a non-uniform scale and a translation: jgi's hit uv
     equals Mitsuba's ray_intersect uv on every face (rays from all directions)."""
-    mi = _mitsuba()
+    mi = load_mitsuba()
     if mi is None:
         pytest.skip("mitsuba is not installed")
     xml = tmp_path / "c.xml"
@@ -596,26 +597,6 @@ def test_cube_uv_matches_mitsubas(tmp_path):
     np.testing.assert_allclose(np.stack([u, v]), theirs, atol=1e-5)
 
 
-def _ply_quad(path, names, binary=False):
-    """The OBJ_QUAD square as a PLY file whose texture coordinates are the vertex properties
-    ``names`` (None: none), with vertex normals."""
-    v = np.array([[-1, -1, 0], [1, -1, 0], [1, 1, 0], [-1, 1, 0]], float)
-    uv = np.array([[0.1, 0.2], [0.9, 0.1], [0.8, 0.7], [0.2, 0.9]])
-    props = ["x", "y", "z", "nx", "ny", "nz"] + list(names or ())
-    rows = np.c_[v, np.tile([0.0, 0.0, 1.0], (4, 1))] if names is None else \
-        np.c_[v, np.tile([0.0, 0.0, 1.0], (4, 1)), uv]
-    head = (f"ply\nformat {'binary_little_endian' if binary else 'ascii'} 1.0\n"
-            "element vertex 4\n" + "".join(f"property float {p}\n" for p in props)
-            + "element face 2\nproperty list uchar int vertex_indices\nend_header\n")
-    if binary:
-        faces = b"".join(np.uint8(3).tobytes() + np.asarray(f, "<i4").tobytes()
-                         for f in ([0, 1, 2], [0, 2, 3]))
-        path.write_bytes(head.encode() + rows.astype("<f4").tobytes() + faces)
-    else:
-        path.write_text(head + "".join(" ".join(map(str, r)) + "\n" for r in rows)
-                        + "3 0 1 2\n3 0 2 3\n")
-
-
 @pytest.mark.parametrize("names,smooth,binary", [
     (("u", "v"), False, False), (("s", "t"), True, True), (("texture_u", "texture_v"), True,
                                                             False),
@@ -626,10 +607,10 @@ def test_ply_uv_matches_mitsubas(tmp_path, names, smooth, binary):
     """A textured PLY mesh imported from Mitsuba XML: jgi's hit uv equals Mitsuba's (the file's
     u, v under Mitsuba's three names, v not flipped; (0,0), (1,0), (0,1) per triangle
     without them), flat and smooth-shaded, ASCII and binary."""
-    mi = _mitsuba()
+    mi = load_mitsuba()
     if mi is None:
         pytest.skip("mitsuba is not installed")
-    _ply_quad(tmp_path / "q.ply", names, binary)
+    ply_quad(tmp_path / "q.ply", names, binary)
     xml = tmp_path / "q.xml"
     xml.write_text(MI_SHAPE.format(kind="ply", inner=(
         '<string name="filename" value="q.ply"/>'
@@ -675,7 +656,7 @@ intensity = 1
 def test_toml_meshes_and_cubes_take_mitsubas_uv(tmp_path, file):
     """A TOML scene reads a textured mesh's texture coordinates as Mitsuba does (PLY u, v as
     written, OBJ vt with v flipped) and makes a textured cube Mitsuba's cube mesh."""
-    _ply_quad(tmp_path / "q.ply", ("u", "v"))
+    ply_quad(tmp_path / "q.ply", ("u", "v"))
     (tmp_path / "q.obj").write_text(OBJ_QUAD)
     path = tmp_path / "s.toml"
     path.write_text(TOML_MESH.format(file=file))
@@ -754,10 +735,10 @@ def test_textured_ply_cube_and_anisotropic_roughness_render_like_mitsuba(tmp_pat
     """A textured PLY floor (the file's uv), a textured cube (Mitsuba's per-face uv) and a gold
     wall whose alpha_u is a checkerboard (alpha_v constant) under an area light: jgi's path
     tracer and Mitsuba's path integrator agree per 4 x 4 region and over the image."""
-    mi = _mitsuba()
+    mi = load_mitsuba()
     if mi is None:
         pytest.skip("mitsuba is not installed")
-    _ply_quad(tmp_path / "q.ply", ("u", "v"))
+    ply_quad(tmp_path / "q.ply", ("u", "v"))
     xml = tmp_path / "texgaps.xml"
     xml.write_text(TEXGAPS_XML)
     ours = load_mitsuba_xml(xml)

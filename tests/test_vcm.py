@@ -24,7 +24,7 @@ from jgi.analysis.closed_form import mirror_sds_image
 from jgi.core.errors import ParameterError
 from jgi.estimators import vcm
 from jgi.scene import SceneBuilder, builtin
-from tests.conftest import FAMILY_ALPHA, assert_agree, critical_t, region_stats
+from tests.support.stats import FAMILY_ALPHA, assert_agree, critical_t, region_stats
 
 # --- MIS: recursive weights against full path densities -------------------------------------------
 

@@ -13,8 +13,8 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from jgi.analysis.chi2 import PlaneDomain, SphereDomain, assert_chi2, chi2_test
 from jgi.core import warps
-from tests.chi2 import PlaneDomain, SphereDomain, assert_chi2, chi2_test
 
 N = 200_000
 

@@ -7,8 +7,8 @@ import numpy as np
 
 import jgi
 from jgi.scene import builtin as scenes
-from tests.conftest import assert_agree, critical_t
-from tests.test_path_tracer import point_light_reference, region_stats
+from tests.support.scenes import point_light_reference
+from tests.support.stats import assert_agree, critical_t, region_stats
 
 
 def path_tracer_one_diffuse_vertex(scene, seed, spp, eps=1e-3):

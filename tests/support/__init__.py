@@ -1,0 +1,4 @@
+"""Helpers the tests share, imported as a package (``from tests.support.stats import
+assert_agree``): statistics, directions, Mitsuba, and scenes with known answers. Test modules
+import these, never each other; ``tests/conftest.py`` holds only pytest's settings and
+fixtures."""
