@@ -1,1 +1,2 @@
-"""The paper: ``python -m paper.pipeline`` writes every number, table and figure jgi.tex includes."""
+"""The paper: ``python -m paper.pipeline`` writes every number, table and figure that jgi.tex
+includes."""

@@ -1,6 +1,6 @@
 """Chi-square goodness of fit of every sampling routine, as a table (the paper's validation).
 
-    python experiments/chi2_table.py [--samples 262144] [--alpha 0.01] [--out runs/chi2]
+    python -m paper.chi2_table [--samples 262144] [--alpha 0.01] [--out runs/chi2]
 
 The cases are the test suite's: this script reuses the tests' samplers, reference densities
 (float64 ray casts for the lights) and grids, and :mod:`jgi.analysis.chi2` for the statistic, but
@@ -22,8 +22,6 @@ import time
 from pathlib import Path
 
 import numpy as np
-
-ROOT = Path(__file__).resolve().parents[1]
 
 
 def _cells(domain) -> int:
@@ -309,8 +307,6 @@ def main(argv=None) -> dict:
     ap.add_argument("--alpha", type=float, default=0.01, help="family-wise significance")
     ap.add_argument("--out", default="runs/chi2")
     a = ap.parse_args(argv)
-    if str(ROOT) not in sys.path:
-        sys.path.insert(0, str(ROOT))   # the tests' samplers and reference densities
 
     n = a.samples
     cases = warp_cases(n) + bsdf_cases(n) + light_cases(n) + camera_cases(n)

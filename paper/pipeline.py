@@ -1,6 +1,6 @@
 """The paper's pipeline: every number, table and figure in jgi.tex is written by a step here.
 
-    python paper/pipeline.py [--scale small|full] [--only STEP ...] [--no-pdf]
+    python -m paper.pipeline [--scale small|full] [--only STEP ...] [--no-pdf]
 
 Each step is a function ``step(scale, out) -> None`` that writes exactly the files it
 declares in ``STEPS`` under ``paper/generated/``. ``tests/test_paper.py`` checks that every
@@ -147,8 +147,7 @@ def strategies(scale, out: Path):
 
 def performance(scale, out: Path):
     """Throughput against Mitsuba 3 on the same Cornell box, measured in the same run."""
-    sys.path.insert(0, str(HERE.parent / "experiments"))
-    import bench_pt
+    from experiments.bench import pt as bench_pt
 
     spp = 4 if scale == "small" else 64
     res = 64 if scale == "small" else 256
@@ -168,8 +167,7 @@ def performance(scale, out: Path):
 
 def density_fit(scale, out: Path):
     """MSE-optimal photon radius against photon count, and fitted filters (exact irradiance)."""
-    sys.path.insert(0, str(HERE.parent / "experiments"))
-    import fit_density
+    from experiments.studies import fit_density
 
     args = (["--photons", "2500", "5000", "10000", "--reps", "4"] if scale == "small"
             else ["--reps", "16"])
@@ -199,15 +197,14 @@ def density_fit(scale, out: Path):
 
 def equal_time(scale, out: Path):
     """Path tracing, BDPT and MLT at equal render time on the caustic Cornell box."""
-    sys.path.insert(0, str(HERE.parent / "experiments"))
-    import equal_time as et
+    from experiments.studies import equal_time as study
 
     # the reference needs many more paths than the fastest estimator traces in the budget (the
     # path tracer: ~28k spp at 16^2 in 2 s), else its variance dominates the error estimate
     args = (["--res", "16", "--budget", "2", "--reps", "2", "--ref-spp", "262144"]
             if scale == "small"
             else ["--res", "64", "--budget", "30", "--reps", "4", "--ref-spp", "262144"])
-    r = et.main(["--out", str(out / "equal_time_run")] + args)
+    r = study.main(["--out", str(out / "equal_time_run")] + args)
     shutil.copy(out / "equal_time_run" / "equal_time.png", out / "equal_time.png")
     lines = [r"\begin{tabular}{lrrrrr}", r"\toprule",
              r"estimator & spp & time (s) & relative MSE & acceptance & lens / caustic \\",
@@ -230,17 +227,16 @@ def vcm_equal_time(scale, out: Path):
     """Path tracing, BDPT, SPPM and VCM at equal time, on the caustic Cornell box with its
     area light and with a point light (references: path tracing, and VCM for the point light,
     whose caustics seen in the spheres no unbiased technique samples)."""
-    sys.path.insert(0, str(HERE.parent / "experiments"))
-    import equal_time as et
+    from experiments.studies import equal_time as study
 
     small = scale == "small"
     base = (["--res", "16", "--budget", "2", "--reps", "2"] if small
             else ["--res", "64", "--budget", "30", "--reps", "4"])
-    runs = {"area": et.main(["--set", "vcm", "--out", str(out / "vcm_equal_time_area"),
-                             "--ref-spp", "65536" if small else "262144"] + base),
-            "point": et.main(["--set", "vcm", "--scene", "cornell_box_caustics_point",
-                              "--ref", "vcm", "--ref-spp", "2048" if small else "4096",
-                              "--out", str(out / "vcm_equal_time_point")] + base)}
+    runs = {"area": study.main(["--set", "vcm", "--out", str(out / "vcm_equal_time_area"),
+                                "--ref-spp", "65536" if small else "262144"] + base),
+            "point": study.main(["--set", "vcm", "--scene", "cornell_box_caustics_point",
+                                 "--ref", "vcm", "--ref-spp", "2048" if small else "4096",
+                                 "--out", str(out / "vcm_equal_time_point")] + base)}
     lines = [r"\begin{tabular}{llrrr}", r"\toprule",
              r"light & estimator & samples & time (s) & relative MSE \\", r"\midrule"]
     for light, r in runs.items():
@@ -260,8 +256,7 @@ def vcm_equal_time(scale, out: Path):
 
 def chi2(scale, out: Path):
     """Chi-square goodness of fit of every sampling routine (the test suite's cases), tabulated."""
-    sys.path.insert(0, str(HERE.parent / "experiments"))
-    import chi2_table
+    from paper import chi2_table
 
     n = 1 << 18 if scale == "small" else 1 << 20
     r = chi2_table.main(["--samples", str(n), "--out", str(out / "chi2_run")])
@@ -298,7 +293,7 @@ AGREEMENT = [  # label, registry name, parameters, unbiased?  (every path has <=
     ("PSSMLT", "pssmlt", dict(max_depth=5), True),
     ("Veach MLT", "mlt", dict(max_depth=5), True),
     # photon bounces 0..3 before storage, plus the camera segment: paths of <= 5 segments
-    ("photon mapping", "pm", dict(max_depth=4, photons=50_000, radius=0.05), False),
+    ("photon mapping", "pm", dict(max_bounces=4, photons=50_000, radius=0.05), False),
 ]
 AGREEMENT_SPP = {"pm": 0.25}  # fraction of the common spp (pm's cost is its photon queries)
 AGREEMENT_REFERENCE = "PT, MIS balance"

@@ -179,3 +179,58 @@ def test_readme_layout_table_matches_the_tree():
             covered = rel == "jgi/__init__.py" or any(
                 n.startswith(rel.rsplit("/", 1)[0] + "/") for n in named)
         assert covered, f"{rel} is not in the README's layout table"
+
+
+ROOT = PACKAGE.parent
+SCRIPT_TREES = ("jgi", "tests", "experiments", "paper")
+# experiment modules that are libraries, not scripts: tests may import these
+EXPERIMENT_LIBRARIES = {"experiments.mitsuba_scene"}
+
+
+def _sources(*trees: str):
+    for tree in trees:
+        for path in sorted((ROOT / tree).rglob("*.py")):
+            yield path, ast.parse(path.read_text(), str(path))
+
+
+def _absolute_imports(tree: ast.Module):
+    """(module, node) for every import anywhere in the file, ``from pkg import sub`` giving
+    ``pkg.sub`` as well as ``pkg``."""
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            for a in node.names:
+                yield a.name, node
+        elif isinstance(node, ast.ImportFrom) and not node.level and node.module:
+            yield node.module, node
+            for a in node.names:
+                yield f"{node.module}.{a.name}", node
+
+
+def test_no_sys_path_edits():
+    """Scripts run as modules (``python -m experiments.bench.bench``, ``python -m
+    paper.pipeline``) and tests import packages, so nothing edits ``sys.path``."""
+    bad = []
+    for path, tree in _sources(*SCRIPT_TREES):
+        for node in ast.walk(tree):
+            if (isinstance(node, ast.Attribute) and node.attr == "path"
+                    and isinstance(node.value, ast.Name) and node.value.id == "sys"):
+                bad.append(f"{path.relative_to(ROOT)}:{node.lineno}")
+    assert not bad, "sys.path used:\n" + "\n".join(bad)
+
+
+def test_tests_import_no_test_module_nor_experiment_script():
+    """A test reads shared helpers from ``tests.support`` (and experiments' library modules),
+    never from another test module, ``conftest`` or an experiment script."""
+    bad = []
+    for path, tree in _sources("tests"):
+        for module, node in _absolute_imports(tree):
+            parts = module.split(".")
+            to_test = (parts[0] == "tests" and len(parts) > 1
+                       and (parts[1].startswith("test_") or parts[1] == "conftest"))
+            to_script = (parts[0] == "experiments" and len(parts) > 1
+                         and not any(module == lib or module.startswith(lib + ".")
+                                     or lib.startswith(module + ".")
+                                     for lib in EXPERIMENT_LIBRARIES))
+            if to_test or to_script:
+                bad.append(f"{path.relative_to(ROOT)}:{node.lineno}: {module}")
+    assert not bad, "tests importing test modules or experiment scripts:\n" + "\n".join(bad)

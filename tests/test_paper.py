@@ -3,16 +3,14 @@
 from __future__ import annotations
 
 import re
-import sys
 from pathlib import Path
+
+from paper import pipeline
 
 PAPER = Path(__file__).resolve().parents[1] / "paper"
 
 
 def test_every_included_file_is_declared_by_a_pipeline_step():
-    sys.path.insert(0, str(PAPER))
-    import pipeline
-
     tex = (PAPER / "jgi.tex").read_text()
     inputs = re.findall(r"\\input\{generated/([^}]+)\}", tex)
     graphics = re.findall(r"\\includegraphics(?:\[[^\]]*\])?\{([^}]+)\}", tex)
@@ -38,9 +36,6 @@ def test_no_digits_typed_into_results_sentences():
 def test_tables_and_macros_come_from_the_pipeline():
     """jgi.tex typesets no table body of its own (tables are generated files), and every macro
     file a step writes is read by jgi.tex (a step's numbers cannot silently go unused)."""
-    sys.path.insert(0, str(PAPER))
-    import pipeline
-
     tex = (PAPER / "jgi.tex").read_text()
     assert r"\begin{tabular}" not in tex
     inputs = set(re.findall(r"\\input\{generated/([^}]+)\}", tex))

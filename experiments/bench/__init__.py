@@ -1,2 +1,2 @@
-"""Benchmarks: ``python -m experiments.bench.bench`` runs the suite; each ``experiments.bench.<name>``
-module also runs alone."""
+"""Benchmarks: ``python -m experiments.bench.bench`` runs the suite; each module
+``experiments.bench.<name>`` also runs alone."""

@@ -1,6 +1,6 @@
 """BDPT throughput beside the path tracer's, on the Cornell box (same run, same machine).
 
-    python experiments/bench_bdpt.py [--spp 16] [--resolution 64] [--max-depth 5] [--json out.json]
+    python -m experiments.bench.bdpt [--spp 16] [--resolution 64] [--max-depth 5] [--json out.json]
 
 Prints, for pt (NEE + MIS, no Russian roulette) and bdpt (all (s, t) strategies, power
 heuristic) at the same max depth: compile time, samples (camera paths; for BDPT each with its

@@ -1,6 +1,6 @@
 """The benchmark suite: one command, figures as a table and as JSON.
 
-    python experiments/bench.py [--quick] [--json runs/bench.json] [--no-mitsuba]
+    python -m experiments.bench.bench [--quick] [--json runs/bench.json] [--no-mitsuba]
 
 Measures, each after a warm-up call so compile time is reported separately:
   * path tracing throughput (Mpaths/s) on the Cornell box, and the ratio against Mitsuba 3
@@ -9,7 +9,7 @@ Measures, each after a warm-up call so compile time is reported separately:
   * photon tracing throughput (photons/s) and its scaling with the photon count;
   * triangle-count scaling (a subdivided sphere, brute force or BVH as the scene builder
     chooses);
-  * the BVH (``experiments/bench_bvh.py``): build time, traversal rays/s up to 10^6 triangles
+  * the BVH (``experiments/bench/bvh.py``): build time, traversal rays/s up to 10^6 triangles
     (10^5 with --quick), the brute-force crossover, path tracing a 10^5 / 10^6-triangle mesh;
   * BDPT samples/s, and hash-grid density queries/s beside scipy's cKDTree;
   * compile times and the process's peak resident memory.
@@ -20,14 +20,10 @@ from __future__ import annotations
 import argparse
 import json
 import resource
-import sys
 import time
 from pathlib import Path
 
 import numpy as np
-
-HERE = Path(__file__).resolve().parent
-sys.path.insert(0, str(HERE))
 
 
 def _timed(fn, repeats=2):
@@ -124,11 +120,11 @@ def bench_triangles(quick: bool) -> list[dict]:
 
 
 def bench_bvh(quick: bool) -> list[dict]:
-    """experiments/bench_bvh.py: BVH build, traversal rays/s, brute-force crossover, mesh
+    """experiments/bench/bvh.py: BVH build, traversal rays/s, brute-force crossover, mesh
     renders."""
-    import bench_bvh as bb
+    from experiments.bench import bvh
 
-    return bb.run(quick)
+    return bvh.run(quick)
 
 
 def bench_optional(quick: bool) -> list[dict]:
@@ -144,13 +140,13 @@ def bench_optional(quick: bool) -> list[dict]:
 
 
 def bench_density(quick: bool) -> list[dict]:
-    """experiments/bench_density.py: hash-grid build and density queries/s beside scipy's
+    """experiments/bench/density.py: hash-grid build and density queries/s beside scipy's
     cKDTree in the same run (10^5, 10^6 and, unless quick, 10^7 uniform photons)."""
-    import bench_density as bd
+    from experiments.bench import density
 
     sizes = ["100000", "1000000"] + ([] if quick else ["10000000"])
     rows = []
-    for r in bd.main(["--sizes", *sizes, "--kinds", "uniform",
+    for r in density.main(["--sizes", *sizes, "--kinds", "uniform",
                       "--queries", "16384" if quick else "65536"]):
         rows.append(dict(bench="density", photons=r["photons"], grid_build_s=r["jgi"]["build_s"],
                          mqueries_per_s=r["jgi"]["queries_per_s"] / 1e6,
@@ -165,9 +161,9 @@ def main(argv=None) -> dict:
     ap.add_argument("--json", default=None)
     ap.add_argument("--no-mitsuba", action="store_true")
     a = ap.parse_args(argv)
-    import bench_pt
+    from experiments.bench import pt
 
-    out = {"cornell_vs_mitsuba": bench_pt.main(
+    out = {"cornell_vs_mitsuba": pt.main(
         ["--spp", "8" if a.quick else "64", "--repeats", "2"]
         + (["--no-mitsuba"] if a.no_mitsuba else []))}
     rows = []

@@ -1,6 +1,6 @@
 """BVH benchmark: build time, traversal rays/s, brute force vs BVH crossover, mesh renders.
 
-    python experiments/bench_bvh.py [--quick] [--json runs/bench_bvh.json]
+    python -m experiments.bench.bvh [--quick] [--json runs/bench_bvh.json]
 
 Meshes are tori made by code (``trimesh.creation.torus`` with 2n x n sections: exactly 4 n^2
 triangles, none degenerate), so the sizes are 10^3 (n = 16: 1024), 10^4, 10^5 (99 856) and 10^6.
@@ -187,7 +187,7 @@ def _fmt(row: dict) -> str:
 
 
 def run(quick: bool) -> list[dict]:
-    """All benchmarks (the hook for experiments/bench.py)."""
+    """All benchmarks (the hook for experiments/bench/bench.py)."""
     sizes = [10**3, 10**4, 10**5] if quick else [10**3, 10**4, 10**5, 10**6]
     small = CROSSOVER_SIZES[:-2] if quick else CROSSOVER_SIZES
     rows = bench_build_and_traversal(sizes, repeats=2)

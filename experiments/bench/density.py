@@ -1,7 +1,7 @@
 """Photon-density benchmark: hash-grid build time and density queries per second at 10^5, 10^6
 and 10^7 photons, beside scipy's cKDTree on the same points and queries (the same run).
 
-    python experiments/bench_density.py [--sizes 100000 1000000 10000000] [--queries 65536] [--k 50]
+    python -m experiments.bench.density [--sizes 100000 1000000 10000000] [--queries 65536] [--k 50]
 
 Photons lie on the plane z = 0, uniformly or in Gaussian clusters (the lumpy distribution of a
 caustic). Both libraries answer the same question: the density estimate over the disc holding

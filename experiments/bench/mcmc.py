@@ -1,6 +1,6 @@
 """Speed and reproducibility of the Metropolis estimators (PSSMLT, MMLT, path-space MLT).
 
-    python experiments/bench_mcmc.py [--which pssmlt,mmlt,mlt] [--resolution 64] [--repeats 3]
+    python -m experiments.bench.mcmc [--which pssmlt,mmlt,mlt] [--resolution 64] [--repeats 3]
                                      [--save-images DIR]
 
 For each estimator: one warm-up render (compilation), then ``--repeats`` timed renders of the

@@ -1,6 +1,6 @@
 """Path-tracing throughput on the Cornell box: jgi against Mitsuba 3 measured in the same run.
 
-    python experiments/bench_pt.py [--spp 64] [--resolution 256] [--devices N] [--no-mitsuba]
+    python -m experiments.bench.pt [--spp 64] [--resolution 256] [--devices N] [--no-mitsuba]
                                    [--objects blocks|spheres] [--json out.json]
 
 Both render the same scene (jgi's ``cornell_box`` replicates Mitsuba's ``cornell_box()``) at
@@ -89,8 +89,7 @@ def bench_mitsuba(resolution: int, spp: int, repeats: int, objects: str = "block
         return None
     desc = mi.cornell_box()
     if objects == "veach_ggx":
-        from mitsuba_scene import to_mitsuba
-
+        from experiments.mitsuba_scene import to_mitsuba
         from jgi.scene import builtin
 
         desc = to_mitsuba(builtin.veach_plates_builder(resolution, builtin.VEACH_GGX_ALPHAS), mi)

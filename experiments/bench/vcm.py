@@ -1,6 +1,6 @@
 """VCM throughput: light and camera subpaths per second on the caustic Cornell box.
 
-    python experiments/bench_vcm.py [--resolution 512] [--max-depth 10] [--iterations 3]
+    python -m experiments.bench.vcm [--resolution 512] [--max-depth 10] [--iterations 3]
                                     [--modes vcm,bpm,bpt,ppm] [--json out.json]
 
 The issue's setting (SmallVCM's own benchmark): a Cornell box with a mirror and a glass sphere

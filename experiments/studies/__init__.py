@@ -1,1 +1,2 @@
-"""Studies: one question each, answered with measurements (``python -m experiments.studies.<name>``)."""
+"""Studies: one question each, answered with measurements
+(``python -m experiments.studies.<name>``)."""

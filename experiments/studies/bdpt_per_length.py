@@ -1,6 +1,6 @@
 """BDPT against path tracing, one path length at a time: a bias check finer than the tests'.
 
-    python experiments/bdpt_per_length.py [--scene cornell_box] [--resolution 16]
+    python -m experiments.studies.bdpt_per_length [--scene cornell_box] [--resolution 16]
                                           [--lengths 2 3 4 5] [--seeds 96]
                                           [--bdpt-spp 256] [--pt-spp 2048]
 

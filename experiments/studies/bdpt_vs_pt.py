@@ -1,7 +1,7 @@
 """Equal-time comparison of path tracing, BDPT and light tracing on the caustic Cornell box
 (or ``--scene``).
 
-    python experiments/bdpt_vs_pt.py [--scene cornell_box_caustics] [--resolution 32]
+    python -m experiments.studies.bdpt_vs_pt [--scene cornell_box_caustics] [--resolution 32]
                                      [--budget 2 8] [--repetitions 3] [--reference-spp 4096]
                                      [--out out/bdpt_vs_pt]
 

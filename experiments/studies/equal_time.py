@@ -2,7 +2,7 @@
 scene where light arrives through a glass caustic, reporting relative MSE against a long
 reference and the MLT chains' acceptance rates.
 
-    python experiments/equal_time.py [--scene cornell_box_caustics] [--res 64] [--budget 20]
+    python -m experiments.studies.equal_time [--scene cornell_box_caustics] [--res 64] [--budget 20]
                                      [--reps 3] [--max-depth 5] [--set mlt|vcm]
                                      [--ref pt|vcm] [--only LABEL ...] [--out runs/equal_time]
 
@@ -88,7 +88,9 @@ def main(argv=None) -> dict:
         key = key[0] if key else "spp"
         if a.only is not None and label not in a.only and name not in a.only:
             continue
-        params = dict(params, max_depth=a.max_depth)
+        # photon mapping bounds each subpath (max_bounces), the others a whole path (max_depth)
+        depth = "max_bounces" if name in ("pm", "ppm", "sppm") else "max_depth"
+        params = dict(params, **{depth: a.max_depth})
         render_result = _budgeted(jgi.render_result, key)
         render = lambda *args, **kw: render_result(*args, **kw)[0]  # noqa: E731
         if name not in jgi.REGISTRY:

@@ -4,7 +4,8 @@ and its scaling exponent (theory: -1/6), the optimal cone k, a Gaussian filter f
 gradient beside Jensen's constants (gauss_alpha = 0.918, gauss_beta = 1.953), and progressive
 photon mapping's radius_alpha.
 
-    python experiments/fit_density.py [--out runs/fit_density] [--reps 8] [--photons 2500 5000 ...]
+    python -m experiments.studies.fit_density [--out runs/fit_density] [--reps 8]
+                                              [--photons 2500 5000 ...]
 
 Prints a table and writes fit_density.json and fit_density.png.
 """

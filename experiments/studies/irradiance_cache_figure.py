@@ -1,7 +1,7 @@
 """Irradiance cache figure: record positions over the Cornell box, and the error of indirect
 irradiance against the number of gather rays, with and without the cache.
 
-    python experiments/irradiance_cache_figure.py [--res 48] [--out runs/irradiance_cache]
+    python -m experiments.studies.irradiance_cache_figure [--res 48] [--out runs/irradiance_cache]
 """
 
 from __future__ import annotations

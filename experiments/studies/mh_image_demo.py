@@ -1,7 +1,7 @@
 """The lecture's "Metropolis-Hastings: sampling an image": random-walk steps with occasional
 uniform jumps, short and long walks against the image.
 
-    python experiments/mh_image_demo.py [--out runs/mh_image_demo] [--image file.exr]
+    python -m experiments.studies.mh_image_demo [--out runs/mh_image_demo] [--image file.exr]
 """
 
 from __future__ import annotations

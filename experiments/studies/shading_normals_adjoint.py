@@ -8,7 +8,7 @@ smooth Cornell box (16^2, max_depth 3):
 2. jgi's path tracer with flat shading (the same meshes, face_normals="true") against
    Mitsuba 3's smooth render: the Mitsuba comparison must fail then.
 
-Run: PYTHONPATH=. python experiments/shading_normals_adjoint.py [--skip-mitsuba]
+Run: python -m experiments.studies.shading_normals_adjoint [--skip-mitsuba]
 """
 
 from __future__ import annotations
@@ -21,13 +21,12 @@ from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]   # the children run the module from here
 SPP = 256       # samples per pixel of each of the 16 renders per estimator
-sys.path.insert(0, str(ROOT))
 
 
 def welch(a, b, regions):
-    from tests.conftest import critical_t, region_stats
+    from tests.support.stats import critical_t, region_stats
     ma, sa = region_stats(a, regions)
     mb, sb = region_stats(b, regions)
     var = sa**2 + sb**2
@@ -45,7 +44,7 @@ def light_tracer(corrected: bool) -> None:
     """Child process: the light tracer with or without the correction, and the path tracer."""
     import jgi.physics.bsdf as B
     from jgi.scene.importers.mitsuba import load_mitsuba_xml
-    from tests.test_shading_normals import DEPTH, smooth_cornell_xml
+    from tests.support.smooth_cornell import DEPTH, smooth_cornell_xml
     if not corrected:
         B.adjoint_correction = lambda ns, ng, wo, wi: 1.0   # noqa: E731
     folder = Path(tempfile.mkdtemp())
@@ -66,9 +65,9 @@ def light_tracer(corrected: bool) -> None:
 
 def flat_vs_mitsuba() -> None:
     from jgi.scene.importers.mitsuba import load_mitsuba_xml
-    from tests.test_import_mitsuba import _mitsuba
-    from tests.test_shading_normals import DEPTH, smooth_cornell_xml
-    mi = _mitsuba()
+    from tests.support.mitsuba import load_mitsuba
+    from tests.support.smooth_cornell import DEPTH, smooth_cornell_xml
+    mi = load_mitsuba()
     folder = Path(tempfile.mkdtemp())
     xml = smooth_cornell_xml(folder)
     theirs = np.stack([np.asarray(mi.render(mi.load_file(str(xml)), spp=SPP, seed=s))[..., :3]
@@ -98,6 +97,7 @@ if __name__ == "__main__":
         light_tracer(a.child == "corrected")
     else:
         for mode in ("uncorrected", "corrected"):   # separate processes: no shared jit cache
-            subprocess.run([sys.executable, __file__, "--child", mode], check=True)
+            subprocess.run([sys.executable, "-m", __spec__.name, "--child", mode], check=True,
+                           cwd=ROOT)
         if not a.skip_mitsuba:
             flat_vs_mitsuba()
