@@ -1,8 +1,8 @@
 """BDPT against path tracing, one path length at a time: a bias check finer than the tests'.
 
     python -m experiments.studies.bdpt_per_length [--scene cornell_box] [--resolution 16]
-                                          [--lengths 2 3 4 5] [--seeds 96]
-                                          [--bdpt-spp 256] [--pt-spp 2048]
+                                                  [--lengths 2 3 4 5] [--seeds 96]
+                                                  [--bdpt-spp 256] [--pt-spp 2048]
 
 For every length L, both estimators keep only paths of exactly L segments (``path_length = L``;
 path tracing without Russian roulette), and each of ``--seeds`` independent renders gives one

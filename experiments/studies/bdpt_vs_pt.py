@@ -2,8 +2,8 @@
 (or ``--scene``).
 
     python -m experiments.studies.bdpt_vs_pt [--scene cornell_box_caustics] [--resolution 32]
-                                     [--budget 2 8] [--repetitions 3] [--reference-spp 4096]
-                                     [--out out/bdpt_vs_pt]
+                                             [--budget 2 8] [--repetitions 3] [--reference-spp 4096]
+                                             [--out out/bdpt_vs_pt]
 
 A long path-tracing render (max depth 5, no Russian roulette, ``--reference-spp``; cached in
 ``OUT/reference.npy`` with its per-pixel variance) is the reference. For every time budget T

@@ -3,8 +3,9 @@ scene where light arrives through a glass caustic, reporting relative MSE agains
 reference and the MLT chains' acceptance rates.
 
     python -m experiments.studies.equal_time [--scene cornell_box_caustics] [--res 64] [--budget 20]
-                                     [--reps 3] [--max-depth 5] [--set mlt|vcm]
-                                     [--ref pt|vcm] [--only LABEL ...] [--out runs/equal_time]
+                                             [--reps 3] [--max-depth 5] [--set mlt|vcm]
+                                             [--ref pt|vcm] [--only LABEL ...]
+                                             [--out runs/equal_time]
 
 ``--set vcm`` compares path tracing, BDPT, SPPM and VCM instead (SPPM's budget sets its passes,
 VCM's its iterations); ``--ref vcm`` renders the reference with VCM (for point-lit scenes,
