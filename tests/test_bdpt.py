@@ -2,7 +2,7 @@
 tracer, delta lights, robustness.
 
 Statistical checks use fixed seeds and Student-t thresholds with Bonferroni correction on
-standard errors measured from independent renders (tests.conftest.assert_agree). Images are
+standard errors measured from independent renders (tests.support.stats.assert_agree). Images are
 16 x 16 and every configuration is compiled once per session (module fixtures).
 """
 
