@@ -78,6 +78,133 @@ CUBE_FACES = np.array([[4 * k + i for i in tri] for k in range(6)
                        for tri in ((0, 1, 2), (3, 0, 2))], np.int64)
 
 
+# --- material rules ---------------------------------------------------------------------------
+
+# The optional material parameters that only some types take, in the order they are checked.
+OPTIONAL_KEYS = ("alpha", "alpha_u", "alpha_v", "metal", "eta", "k", "int_ior", "ext_ior",
+                 "nonlinear", "transmittance")
+_ROUGHNESS = ("alpha", "alpha_u", "alpha_v")
+_CONDUCTOR = ("metal", "eta", "k")
+_IOR = ("int_ior", "ext_ior")
+
+
+@dataclass(frozen=True)
+class MaterialRule:
+    """What one material type of :meth:`SceneBuilder.material` takes.
+
+    ``keys``: the :data:`OPTIONAL_KEYS` it accepts (a conductor's index when it has "metal");
+    ``colours``: the colours it uses (the others are stored as 0), which may also name a
+    texture; ``textured``: every parameter that may name a texture; ``interface``: None, or
+    the defaults of its index of refraction: "dielectric" (ior 1.5, int_ior bk7) or "coating"
+    (polypropylene, which must differ from ext_ior); ``isotropic``: one alpha only;
+    ``untextured_why``: why a parameter cannot be textured, appended to that error."""
+
+    kind: int
+    keys: tuple[str, ...] = ()
+    colours: tuple[str, ...] = ("specular",)
+    textured: tuple[str, ...] = ("specular",)
+    interface: str | None = None
+    isotropic: bool = False
+    untextured_why: dict = dc_field(default_factory=dict)
+
+
+MATERIAL_RULES = {
+    "diffuse": MaterialRule(DIFFUSE, colours=("diffuse",), textured=("diffuse",)),
+    "mirror": MaterialRule(MIRROR),
+    "conductor": MaterialRule(MIRROR, keys=_CONDUCTOR),
+    "dielectric": MaterialRule(DIELECTRIC, keys=(*_IOR, "transmittance"),
+                               interface="dielectric"),
+    "phong": MaterialRule(PHONG, colours=("diffuse", "specular"),
+                          textured=("diffuse", "specular")),
+    "roughconductor": MaterialRule(ROUGH_CONDUCTOR, keys=(*_ROUGHNESS, *_CONDUCTOR),
+                                   textured=("specular", *_ROUGHNESS)),
+    "roughdielectric": MaterialRule(ROUGH_DIELECTRIC, keys=(*_ROUGHNESS, *_IOR, "transmittance"),
+                                    textured=("specular", *_ROUGHNESS), interface="dielectric"),
+    "roughplastic": MaterialRule(
+        ROUGH_PLASTIC, keys=(*_ROUGHNESS, *_IOR, "nonlinear"), colours=("diffuse", "specular"),
+        textured=("diffuse", "specular"), interface="coating", isotropic=True,
+        untextured_why={"alpha": " (its coating tables are precomputed from one alpha)"}),
+    "plastic": MaterialRule(PLASTIC, keys=(*_IOR, "nonlinear"), colours=("diffuse", "specular"),
+                            textured=("diffuse", "specular"), interface="coating"),
+}
+assert {k: r.kind for k, r in MATERIAL_RULES.items()} == MATERIAL_KINDS
+
+
+def _check_transmittance(transmittance, specular, fail):
+    """A dielectric's constant transmitted-light tint, refused beside a textured specular."""
+    if isinstance(transmittance, str):
+        fail("'transmittance' cannot be textured; a texture given as 'specular' tints "
+             "reflection and transmission alike")
+    if isinstance(specular, str):
+        fail("'specular' is a texture, which tints transmission too: give no "
+             "'transmittance'")
+    try:
+        t = np.broadcast_to(np.asarray(transmittance, float), (3,))
+    except (TypeError, ValueError):
+        t = np.array([np.nan])
+    if not (np.all(np.isfinite(t)) and np.all(t >= 0)):
+        fail(f"'transmittance' must be one number or three (RGB), finite and >= 0, got "
+             f"{transmittance!r}")
+
+
+def _roughness(rule: MaterialRule, alpha, alpha_u, alpha_v, fail) -> tuple[float, float]:
+    """(alpha_u, alpha_v) from alpha or the pair (default 0.1), each finite and > 0."""
+    if alpha is not None and (alpha_u is not None or alpha_v is not None):
+        fail("give either alpha or alpha_u and alpha_v, not both")
+    if (alpha_u is None) != (alpha_v is None):
+        fail("give both alpha_u and alpha_v (or alpha)")
+    au = av = DEFAULT_ALPHA if alpha is None else alpha
+    if alpha_u is not None:
+        au, av = alpha_u, alpha_v
+    names = ("alpha", "alpha") if alpha_u is None else ("alpha_u", "alpha_v")
+    for key, v in zip(names, (au, av)):
+        if not np.isfinite(float(v)) or float(v) <= 0:
+            fail(f"{key} must be a finite number > 0, got {v}")
+    if rule.isotropic and float(au) != float(av):
+        fail("roughplastic is isotropic (as in Mitsuba): give alpha, not alpha_u / alpha_v")
+    return float(au), float(av)
+
+
+def _conductor_index(metal, eta, k, fail) -> tuple[tuple, tuple]:
+    """A conductor's (eta, k): a named metal, or eta (default 0) and k (default 1); neither is
+    Mitsuba's "none", a perfect mirror."""
+    if metal is not None:
+        if eta is not None or k is not None:
+            fail("give either metal or eta / k, not both")
+        if metal not in NAMED_METALS:
+            fail(f"unknown metal '{metal}'; allowed: {', '.join(NAMED_METALS)}")
+        return NAMED_METALS[metal]
+    if eta is None and k is None:
+        return NAMED_METALS["none"]
+    eta_k = (_rgb(0.0 if eta is None else eta), _rgb(1.0 if k is None else k))
+    for key, v in zip(("eta", "k"), eta_k):
+        if min(v) < 0:
+            fail(f"{key} must be >= 0 in every channel, got {list(v)}")
+    return eta_k
+
+
+def _relative_ior(interface: str, ior, int_ior, ext_ior, fail) -> float:
+    """inside / outside, from ior or int_ior / ext_ior (defaults by ``interface``)."""
+    coating = interface == "coating"
+    if ior is not None and (int_ior is not None or ext_ior is not None):
+        fail("give either ior or int_ior / ext_ior, not both")
+    if ior is None and int_ior is None and ext_ior is None:
+        out = IOR_POLYPROPYLENE / IOR_AIR if coating else 1.5
+    elif ior is not None:
+        out = float(ior)
+    else:
+        i = float((IOR_POLYPROPYLENE if coating else IOR_BK7) if int_ior is None else int_ior)
+        e = float(IOR_AIR if ext_ior is None else ext_ior)
+        if not (np.isfinite(i) and np.isfinite(e) and i > 0 and e > 0):
+            fail(f"int_ior and ext_ior must be finite and > 0, got {i}, {e}")
+        out = i / e
+    if not np.isfinite(out) or out <= 0:
+        fail(f"ior must be finite and > 0 (inside / outside), got {out}")
+    if coating and out == 1.0:
+        fail("the interior and exterior indices of refraction must differ")
+    return out
+
+
 def _v3(a) -> V3:
     a = np.asarray(a, np.float32).reshape(-1, 3)
     return V3(jnp.asarray(a[:, 0]), jnp.asarray(a[:, 1]), jnp.asarray(a[:, 2]))
@@ -246,144 +373,73 @@ class SceneBuilder:
         roughconductor and roughdielectric. A roughplastic's ``alpha`` cannot be textured (its
         coating tables are computed from one value).
 
-        Raises :class:`SceneError` naming the material and what is allowed."""
-        if kind not in MATERIAL_KINDS:
+        Raises :class:`SceneError` naming the material and what is allowed; the rules per
+        type are :data:`MATERIAL_RULES`."""
+        if kind not in MATERIAL_RULES:
             raise SceneError(f"material '{name}': unknown type '{kind}'; allowed: "
                              f"{', '.join(MATERIAL_KINDS)}")
         if name in self.material_names:
             raise SceneError(f"material '{name}' is defined twice")
-        k_ = MATERIAL_KINDS[kind]
+        rule = MATERIAL_RULES[kind]
 
         def fail(msg):
             raise SceneError(f"material '{name}' ({kind}): {msg}")
 
-        def refuse(**given):
-            for key, v in given.items():
-                if v is not None and v is not False:
-                    fail(f"'{key}' does not apply to this type")
-
-        rough = k_ in ROUGH_KINDS
-        conductor = kind in ("conductor", "roughconductor")
-        coated = k_ in (ROUGH_PLASTIC, PLASTIC)
-        dielectric_like = k_ in (DIELECTRIC, ROUGH_DIELECTRIC) or coated
-        if not rough:
-            refuse(alpha=alpha, alpha_u=alpha_u, alpha_v=alpha_v)
-        if not conductor:
-            refuse(metal=metal, eta=eta, k=k)
-        if not dielectric_like:
-            refuse(int_ior=int_ior, ext_ior=ext_ior)
-        if not coated:
-            refuse(nonlinear=nonlinear)
-        if k_ not in (DIELECTRIC, ROUGH_DIELECTRIC):
-            refuse(transmittance=transmittance)
-        elif transmittance is not None:
-            if isinstance(transmittance, str):
-                fail("'transmittance' cannot be textured; a texture given as 'specular' tints "
-                     "reflection and transmission alike")
-            if isinstance(specular, str):
-                fail("'specular' is a texture, which tints transmission too: give no "
-                     "'transmittance'")
-            try:
-                t = np.broadcast_to(np.asarray(transmittance, float), (3,))
-            except (TypeError, ValueError):
-                t = np.array([np.nan])
-            if not (np.all(np.isfinite(t)) and np.all(t >= 0)):
-                fail(f"'transmittance' must be one number or three (RGB), finite and >= 0, got "
-                     f"{transmittance!r}")
-        # textured parameters: a texture name where a colour (or alpha) is allowed
-        textured = {}
-        microfacet = k_ in (ROUGH_CONDUCTOR, ROUGH_DIELECTRIC)
-        allowed = {"diffuse": k_ in (DIFFUSE, PHONG) or coated,
-                   "specular": k_ != DIFFUSE,
-                   "alpha": microfacet, "alpha_u": microfacet, "alpha_v": microfacet}
-        columns = {**TEXTURED_PARAMS, "alpha_u": TEX_ALPHA}
-        for key, v in (("diffuse", diffuse), ("specular", specular), ("alpha", alpha),
-                       ("alpha_u", alpha_u), ("alpha_v", alpha_v)):
-            if not isinstance(v, str):
-                continue
-            if v not in self.texture_names:
-                fail(f"'{key}' names texture '{v}', which is not defined; defined: "
-                     f"{', '.join(self.texture_names) or '(none)'}")
-            if not allowed[key]:
-                fail(f"'{key}' cannot be textured for this type" +
-                     (" (its coating tables are precomputed from one alpha)"
-                      if key == "alpha" and k_ == ROUGH_PLASTIC else ""))
-            textured[columns[key]] = self.texture_names[v]
-        if isinstance(alpha, str):   # isotropic: alpha_v follows alpha_u
-            textured[TEX_ALPHA_V] = textured[TEX_ALPHA]
+        given = dict(alpha=alpha, alpha_u=alpha_u, alpha_v=alpha_v, metal=metal, eta=eta, k=k,
+                     int_ior=int_ior, ext_ior=ext_ior, nonlinear=nonlinear,
+                     transmittance=transmittance)
+        for key in OPTIONAL_KEYS:
+            if given[key] is not None and given[key] is not False and key not in rule.keys:
+                fail(f"'{key}' does not apply to this type")
+        if transmittance is not None:
+            _check_transmittance(transmittance, specular, fail)
+        textured = self._texture_columns(rule, fail, diffuse=diffuse, specular=specular,
+                                         alpha=alpha, alpha_u=alpha_u, alpha_v=alpha_v)
         if isinstance(diffuse, str):
             diffuse = (0.0, 0.0, 0.0)
         if isinstance(specular, str):
             specular = (1.0, 1.0, 1.0)
         alpha, alpha_u, alpha_v = (DEFAULT_ALPHA if isinstance(a, str) else a
                                    for a in (alpha, alpha_u, alpha_v))
-        m = _Material(k_, _rgb(diffuse), _rgb(specular), float(exponent), textures=textured,
+        m = _Material(rule.kind, _rgb(diffuse), _rgb(specular), float(exponent),
+                      textures=textured,
                       transmission=None if transmittance is None else _rgb(transmittance))
-        # roughness
         if distribution not in MICROFACET_DISTRIBUTIONS:
             fail(f"unknown distribution '{distribution}'; allowed: "
                  f"{', '.join(MICROFACET_DISTRIBUTIONS)}")
         m.distribution = MICROFACET_DISTRIBUTIONS[distribution]
-        if alpha is not None and (alpha_u is not None or alpha_v is not None):
-            fail("give either alpha or alpha_u and alpha_v, not both")
-        if (alpha_u is None) != (alpha_v is None):
-            fail("give both alpha_u and alpha_v (or alpha)")
-        au = av = DEFAULT_ALPHA if alpha is None else alpha
-        if alpha_u is not None:
-            au, av = alpha_u, alpha_v
-        names = ("alpha", "alpha") if alpha_u is None else ("alpha_u", "alpha_v")
-        for key, v in zip(names, (au, av)):
-            if not np.isfinite(float(v)) or float(v) <= 0:
-                fail(f"{key} must be a finite number > 0, got {v}")
-        m.alpha_u, m.alpha_v = float(au), float(av)
-        if k_ == ROUGH_PLASTIC and m.alpha_u != m.alpha_v:
-            fail("roughplastic is isotropic (as in Mitsuba): give alpha, not alpha_u / alpha_v")
-        # conductor optics
-        if metal is not None:
-            if eta is not None or k is not None:
-                fail("give either metal or eta / k, not both")
-            if metal not in NAMED_METALS:
-                fail(f"unknown metal '{metal}'; allowed: {', '.join(NAMED_METALS)}")
-            m.eta, m.k = NAMED_METALS[metal]
-        elif conductor:
-            if eta is None and k is None:   # Mitsuba's "none": a perfect mirror
-                m.eta, m.k = NAMED_METALS["none"]
-            else:
-                m.eta = _rgb(0.0 if eta is None else eta)
-                m.k = _rgb(1.0 if k is None else k)
-            for key, v in (("eta", m.eta), ("k", m.k)):
-                if min(v) < 0:
-                    fail(f"{key} must be >= 0 in every channel, got {list(v)}")
-        # index of refraction
-        if dielectric_like:
-            if ior is not None and (int_ior is not None or ext_ior is not None):
-                fail("give either ior or int_ior / ext_ior, not both")
-            plastic = coated
-            if ior is None and int_ior is None and ext_ior is None:
-                m.ior = IOR_POLYPROPYLENE / IOR_AIR if plastic else 1.5
-            elif ior is not None:
-                m.ior = float(ior)
-            else:
-                i = float((IOR_POLYPROPYLENE if plastic else IOR_BK7)
-                          if int_ior is None else int_ior)
-                e = float(IOR_AIR if ext_ior is None else ext_ior)
-                if not (np.isfinite(i) and np.isfinite(e) and i > 0 and e > 0):
-                    fail(f"int_ior and ext_ior must be finite and > 0, got {i}, {e}")
-                m.ior = i / e
-            if not np.isfinite(m.ior) or m.ior <= 0:
-                fail(f"ior must be finite and > 0 (inside / outside), got {m.ior}")
-            if plastic and m.ior == 1.0:
-                fail("the interior and exterior indices of refraction must differ")
+        m.alpha_u, m.alpha_v = _roughness(rule, alpha, alpha_u, alpha_v, fail)
+        if "metal" in rule.keys:
+            m.eta, m.k = _conductor_index(metal, eta, k, fail)
+        if rule.interface is not None:
+            m.ior = _relative_ior(rule.interface, ior, int_ior, ext_ior, fail)
         elif ior is not None:   # stored and unused, as before
             m.ior = float(ior)
         m.nonlinear = bool(nonlinear)
-        if k_ == DIFFUSE:
-            m.specular = (0.0, 0.0, 0.0)
-        if k_ in (MIRROR, DIELECTRIC, ROUGH_CONDUCTOR, ROUGH_DIELECTRIC):
+        if "diffuse" not in rule.colours:
             m.diffuse = (0.0, 0.0, 0.0)
+        if "specular" not in rule.colours:
+            m.specular = (0.0, 0.0, 0.0)
         self.material_names[name] = len(self.materials)
         self.materials.append(m)
         return self.material_names[name]
+
+    def _texture_columns(self, rule: MaterialRule, fail, **params) -> dict:
+        """TEX_* column -> texture row of the parameters that name a texture (by name)."""
+        columns = {**TEXTURED_PARAMS, "alpha_u": TEX_ALPHA}
+        textured = {}
+        for key, v in params.items():
+            if not isinstance(v, str):
+                continue
+            if v not in self.texture_names:
+                fail(f"'{key}' names texture '{v}', which is not defined; defined: "
+                     f"{', '.join(self.texture_names) or '(none)'}")
+            if key not in rule.textured:
+                fail(f"'{key}' cannot be textured for this type" + rule.untextured_why.get(key, ""))
+            textured[columns[key]] = self.texture_names[v]
+        if isinstance(params["alpha"], str):   # isotropic: alpha_v follows alpha_u
+            textured[TEX_ALPHA_V] = textured[TEX_ALPHA]
+        return textured
 
     def _mat(self, material) -> int:
         if isinstance(material, (int, np.integer)):
