@@ -43,6 +43,7 @@ determinant is tiny relative to |d| |e1| |e2| (zero-area triangles, rays in the 
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import NamedTuple
 
 import equinox as eqx
@@ -417,33 +418,57 @@ def slab(lo: V3, hi: V3, o: V3, inv_d: V3, t_min, t_max) -> Array:
 
 
 def det_threshold(e1: V3, e2: V3) -> Array:
-    """Per-triangle factor of Moller-Trumbore's parallel/degenerate test: DET_EPS |e1| |e2|
-    (multiplied by |d| per ray, see :func:`moller_trumbore`)."""
+    """Per-triangle factor of the BVH's parallel/degenerate test: DET_EPS |e1| |e2|
+    (multiplied by |d| per ray, see :func:`solve_above`)."""
     return DET_EPS * jnp.sqrt(dot(e1, e1) * dot(e2, e2))
 
 
-def moller_trumbore(v0: V3, e1: V3, e2: V3, o: V3, d: V3, det_min) -> tuple[Array, Array, Array]:
-    """Moller & Trumbore 1997: solve o + t d = v0 + b1 e1 + b2 e2 by Cramer's rule,
+def moller_trumbore(v0: V3, e1: V3, e2: V3, o: V3, d: V3,
+                    solve: Callable[[Array], tuple[Array, Array]]
+                    ) -> tuple[Array, Array, Array, Array]:
+    """Moller & Trumbore 1997, the one ray-triangle test: solve o + t d = v0 + b1 e1 + b2 e2 by
+    Cramer's rule,
 
         det = e1 . (d x e2),  b1 = (o - v0) . (d x e2) / det,
         b2 = d . ((o - v0) x e1) / det,  t = e2 . ((o - v0) x e1) / det.
 
-    Returns (t, b1, b2), with t = inf where the hit is outside the triangle (barycentric test
-    widened by BARY_EPS) or |det| <= det_min. Since |det| = |d| |e1| |e2| sin(e1, e2)
-    |cos(d, normal)|, ``det_min = det_threshold(e1, e2) * |d|`` rejects zero-area triangles and
-    rays within about DET_EPS radians of the triangle's plane, where t and the barycentrics are
-    rounding noise. There b1 = b2 = 0 (no division by a tiny det). The t range (t_min, t_max)
-    is the caller's test."""
+    ``solve(det) -> (1 / det, solved)`` is the caller's degeneracy test and reciprocal, the
+    one thing the two callers do differently (each keeps its own, so that its hits stay what
+    they were bit for bit):
+
+    * the BVH traversal, :func:`solve_above` ``(det_threshold(e1, e2) * |d|)``: a threshold
+      scaled by the triangle and the ray, an exact reciprocal, and b1 = b2 = 0 where rejected;
+    * the brute-force scans of :mod:`jgi.physics.geometry` (and the barycentrics of the hit a
+      BVH found): a fixed |det| > 1e-14 plus the plane test that quads use (a ray within
+      ``EDGE_ON_COS`` of the plane misses), with the fast reciprocal ``jgi._xla.recip``.
+
+    Returns (t, b1, b2, inside): ``inside`` where the system is solved and the point lies in
+    the triangle (barycentric test widened by BARY_EPS, so a ray through an edge shared by two
+    triangles hits one of them whatever the rounding). The caller masks t with it and its own
+    t range, in one select (a second one changed XLA's fusion, and the brute-force scan's
+    images by float rounding)."""
     pvec = cross(d, e2)
     det = dot(e1, pvec)
-    inv = 1.0 / jnp.where(jnp.abs(det) > det_min, det, jnp.inf)   # 0 when rejected
+    inv, solved = solve(det)
     tvec = o - v0
     b1 = dot(tvec, pvec) * inv
     qvec = cross(tvec, e1)
     b2 = dot(d, qvec) * inv
     t = dot(e2, qvec) * inv
-    inside = (inv != 0) & (b1 >= -BARY_EPS) & (b2 >= -BARY_EPS) & (b1 + b2 <= 1.0 + BARY_EPS)
-    return jnp.where(inside, t, jnp.inf), b1, b2
+    inside = solved & (b1 >= -BARY_EPS) & (b2 >= -BARY_EPS) & (b1 + b2 <= 1.0 + BARY_EPS)
+    return t, b1, b2, inside
+
+
+def solve_above(det_min) -> Callable[[Array], tuple[Array, Array]]:
+    """The BVH's ``solve`` for :func:`moller_trumbore`: rejects |det| <= det_min. Since
+    |det| = |d| |e1| |e2| sin(e1, e2) |cos(d, normal)|, ``det_min = det_threshold(e1, e2) * |d|``
+    rejects zero-area triangles and rays within about DET_EPS radians of the triangle's plane,
+    where t and the barycentrics are rounding noise. There 1 / det is 0 (no division by a tiny
+    det), so b1 = b2 = 0."""
+    def solve(det: Array) -> tuple[Array, Array]:
+        inv = 1.0 / jnp.where(jnp.abs(det) > det_min, det, jnp.inf)   # 0 when rejected
+        return inv, inv != 0
+    return solve
 
 
 # --- traversal (JAX) -------------------------------------------------------------------------
@@ -524,8 +549,10 @@ def _step(bvh: BVH, ray: _Ray, s: _Lane, any_hit: bool) -> _Lane:
     tri, b1, b2 = s.tri, s.b1, s.b2
     for k in range(bvh.max_leaf):
         c = lambda j, k=k: rows[:, _SLOT * k + j]  # noqa: E731
-        tk, b1k, b2k = moller_trumbore(V3(c(0), c(1), c(2)), V3(c(3), c(4), c(5)),
-                                       V3(c(6), c(7), c(8)), o, d, c(9) * d_len)
+        tk, b1k, b2k, inside = moller_trumbore(V3(c(0), c(1), c(2)), V3(c(3), c(4), c(5)),
+                                               V3(c(6), c(7), c(8)), o, d,
+                                               solve_above(c(9) * d_len))
+        tk = jnp.where(inside, tk, jnp.inf)
         tk, b1k, b2k = materialize((jnp.where((tk > t_min) & (tk < t_hi), tk, jnp.inf),
                                     b1k, b2k))
         tri = jnp.where(tk < jnp.inf, slots[:, k], tri)

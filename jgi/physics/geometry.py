@@ -79,21 +79,16 @@ def quad_t(origin: V3, normal: V3, dual_u: V3, dual_v: V3, o: V3, d: V3) -> Arra
 
 
 def triangle_t(v0: V3, e1: V3, e2: V3, normal: V3, o: V3, d: V3) -> tuple[Array, Array, Array]:
-    """Moller-Trumbore; returns (t, b1, b2). Rays in the triangle's plane miss it (as for
-    quads), and the barycentric test is widened by ``bvh.BARY_EPS`` as the BVH's is, so a ray
-    through an edge shared by two triangles hits one of them whatever the rounding."""
-    pvec = cross(d, e2)
-    det = dot(e1, pvec)
-    ok = (jnp.abs(det) > 1e-14) & _crosses_plane(normal, d)[1]
-    inv = X.recip(jnp.where(ok, det, 1.0))
-    tvec = o - v0
-    b1 = dot(tvec, pvec) * inv
-    qvec = cross(tvec, e1)
-    b2 = dot(d, qvec) * inv
-    t = dot(e2, qvec) * inv
-    hit = (ok & (b1 >= -bvh.BARY_EPS) & (b2 >= -bvh.BARY_EPS) & (b1 + b2 <= 1.0 + bvh.BARY_EPS)
-           & (t > T_MIN))
-    return jnp.where(hit, t, INF), b1, b2
+    """Moller-Trumbore (:func:`jgi.core.bvh.moller_trumbore`); returns (t, b1, b2). Rays in the
+    triangle's plane miss it (as for quads), and the barycentric test is widened by
+    ``bvh.BARY_EPS`` as the BVH's is, so a ray through an edge shared by two triangles hits one
+    of them whatever the rounding."""
+    def solve(det: Array) -> tuple[Array, Array]:
+        ok = (jnp.abs(det) > 1e-14) & _crosses_plane(normal, d)[1]
+        return X.recip(jnp.where(ok, det, 1.0)), ok
+
+    t, b1, b2, inside = bvh.moller_trumbore(v0, e1, e2, o, d, solve)
+    return jnp.where(inside & (t > T_MIN), t, INF), b1, b2
 
 
 SLAB_MIN, SLAB_MAX = 1e-12, 1e12   # |direction component| range for safe_reciprocal
