@@ -43,9 +43,9 @@ mean's standard error over seeds fell from 1.9e-3 to 2.9e-4 with it, in less tim
 from the mean of C* over ``bootstrap_samples`` independent large-step paths, from which the
 chains also start (resampled in proportion to C*, so there is no start-up bias). Each step
 applies one mutation kind to all chains, chosen at random with probabilities
-(p_large, p_lens, p_caustic): a random mixture of kernels that each preserve f*, so the mixture
+(p_large, p_lens, p_caustic): a random mixture of mutations that each preserve f*, so the mixture
 does too, and only the chosen kind's code runs. That step (kind choice, acceptance, splatting,
-acceptance counts per kind) is the Metropolis kernel :func:`jgi.transport.mcmc.metropolis`; this
+acceptance counts per kind) is the Metropolis transition :func:`jgi.transport.mcmc.metropolis`; this
 module supplies the path state, the mutations and the targets in their coordinates.
 
 On meshes with vertex normals the BSDF values, Dirac coefficients and specular chains are about
@@ -87,19 +87,20 @@ from ..physics import geometry as G
 from ..physics import lights as LT
 from ..physics.lights import AREA_KINDS
 from ..scene.tables import DIELECTRIC, MIRROR, PLASTIC, Scene
-from ..transport import mcmc
+from ..transport import mcmc, subpath
 from . import path_tracer
 from .registry import Estimator, Render, param, register
 
 _SALT = rng.SALTS["mlt"]
 LARGE, LENS, CAUSTIC = 0, 1, 2
-KERNELS = ("large", "lens", "caustic")
+MUTATION_KINDS = ("large", "lens", "caustic")
 
 
 @dataclass(frozen=True)
 class MLTConfig:
-    """Veach's MLT's parameters. Only ``max_depth`` is static (one compilation each): the kernels
-    see :meth:`kernel`; the mutation mixture and sizes are traced (:meth:`mutations`)."""
+    """Veach's MLT's parameters. Only ``max_depth`` is static (one compilation each): the
+    compiled kernels see :meth:`compile_key`; the mutation mixture and sizes are traced
+    (:meth:`mutations`)."""
 
     max_depth: int = param(5, "maximum path segments", minimum=1, maximum=32)   # K
     chains: int = param(4096, "Markov chains run in parallel", minimum=1)
@@ -122,12 +123,12 @@ class MLTConfig:
                                   maximum=1.0)
     steps_per_call: int = 16      # mutations per chain and kernel call
 
-    def kernel(self) -> "MLTConfig":
-        """The static part, the compile key of the kernels: the path length alone."""
+    def compile_key(self) -> "MLTConfig":
+        """The static part, the compile key of the compiled kernels: the path length alone."""
         return MLTConfig(max_depth=self.max_depth)
 
     def mutations(self) -> "Mutations":
-        """The mutation mixture and sizes, as the kernels take them (traced)."""
+        """The mutation mixture and sizes, as the compiled kernels take them (traced)."""
         return Mutations(self.p_large, self.p_lens, self.p_caustic, self.lens_r1, self.lens_r2,
                          self.caustic_theta1, self.caustic_theta2)
 
@@ -171,59 +172,39 @@ class PathValue(NamedTuple):
     inv_pdf: Array    # the large step's |cos| / pdf product: C(x) = P(x) * inv_pdf = f(x) / p(x)
 
 
-# --- helpers on vertex rows -------------------------------------------------------------------
+# --- per-chain rows ----------------------------------------------------------------------------
+# Path arrays are [R, C]: row r of chain c. Rows the same for every chain are
+# ``subpath.rows(v, slice(lo, hi))``; these take or replace a different row per chain.
 
-def _row(a: Array, i: Array) -> Array:
-    """a[i[c], c] for an index per chain."""
-    return jnp.take_along_axis(a, i[None, :].astype(jnp.int32), axis=0)[0]
-
-
-def _row3(v: V3, i: Array) -> V3:
-    return V3(*(_row(c, i) for c in v))
-
-
-def _set(a: Array, i: Array, value: Array, where_: Array) -> Array:
-    """a with a[i[c], c] = value[c] where where_[c]."""
-    rows = jnp.arange(a.shape[0])[:, None]
-    i = jnp.broadcast_to(i, a.shape[1:])
-    return jnp.where((rows == i[None, :]) & where_[None, :], value[None, :].astype(a.dtype), a)
+def _chain_row(v, i: Array):
+    """Row i[c] of chain c of every leaf of v (an [R, C] array, a V3 or a tuple of them)."""
+    i = i[None, :].astype(jnp.int32)
+    return jax.tree_util.tree_map(lambda a: jnp.take_along_axis(a, i, axis=0)[0], v)
 
 
-def _set3(v: V3, i, value: V3, where_) -> V3:
-    return V3(*(_set(c, i, x, where_) for c, x in zip(v, value)))
+def _set_chain_row(v, i, value, where_: Array):
+    """v with row i[c] of chain c replaced by value[c] where where_[c], in every leaf; None (a
+    scene without uv, shading normals or coatings) stays None."""
+    if v is None:
+        return None
+
+    def put(a, x):
+        rows = jnp.arange(a.shape[0])[:, None]
+        at = jnp.broadcast_to(i, a.shape[1:])
+        return jnp.where((rows == at[None, :]) & where_[None, :], x[None, :].astype(a.dtype), a)
+
+    return jax.tree_util.tree_map(put, v, value)
 
 
-def _rows(v: V3, lo, hi) -> V3:
-    return V3(*(c[lo:hi] for c in v))
-
-
-def _set_uv(uv, i, value, where_):
-    """:func:`_set` on surface coordinates (None in scenes without textures)."""
-    return None if uv is None else tuple(_set(c, i, x, where_) for c, x in zip(uv, value))
-
-
-def _uv_rows(uv, lo, hi):
-    return None if uv is None else tuple(c[lo:hi] for c in uv)
-
-
-def _set_coat(coat, i, value, where_):
-    """:func:`_set` on the coating flags (None in scenes without smooth plastic)."""
-    return None if coat is None else _set(coat, i, value, where_)
-
-
-def _set_ns(ns, i, hit, where_):
-    """:func:`_set3` on shading normals (None in scenes without vertex normals)."""
-    return None if ns is None else _set3(ns, i, hit.ns, where_)
-
-
-def _shading_rows(path: "Path", lo, hi) -> V3:
-    """Rows lo..hi-1 of the normals the BSDFs are evaluated about: the shading normals in a
-    scene with vertex normals, else the geometric ones."""
-    return _rows(path.n if path.ns is None else path.ns, lo, hi)
-
-
-def _hit_shading(hit) -> V3:
-    return hit.n if hit.ns is None else hit.ns
+def _store_hit(path, i, hit, where_: Array):
+    """``path`` (a :class:`Path`) with vertex i[c] of chain c set to the ray hit ``hit`` where
+    where_[c]."""
+    return path._replace(p=_set_chain_row(path.p, i, hit.p, where_),
+                         n=_set_chain_row(path.n, i, hit.n, where_),
+                         material=_set_chain_row(path.material, i, hit.material, where_),
+                         emitter=_set_chain_row(path.emitter, i, hit.emitter, where_),
+                         uv=_set_chain_row(path.uv, i, hit.uv, where_),
+                         ns=_set_chain_row(path.ns, i, hit.ns, where_))
 
 
 def _first(mask: Array, fallback: Array) -> Array:
@@ -284,8 +265,10 @@ def specular_continue(mp: B.MaterialParams, n: V3, w_from: V3, transmit: Array,
 
 def transmits(path: Path) -> Array:
     """[K + 1, C]: the path refracts through vertex i (its neighbours on opposite sides)."""
-    prev, cur, nxt = _rows(path.p, 0, -2), _rows(path.p, 1, -1), _rows(path.p, 2, None)
-    n = _shading_rows(path, 1, -1)     # sides of the shading normal, as the BSDF decides
+    prev, cur, nxt = (subpath.rows(path.p, slice(0, -2)), subpath.rows(path.p, slice(1, -1)),
+                      subpath.rows(path.p, slice(2, None)))
+    # sides of the shading normal, as the BSDF decides
+    n = subpath.rows(subpath.shading(path), slice(1, -1))
     t = dot(prev - cur, n) * dot(nxt - cur, n) < 0
     f = jnp.zeros_like(t[:1])
     return jnp.concatenate([f, t, f], 0)
@@ -329,17 +312,18 @@ def evaluate(scene: Scene, cfg: MLTConfig, path: Path) -> PathValue:
     k = path.length
     mats, lights = scene.materials, scene.lights
     kk = jnp.maximum(k, 1)
-    x_k, n_k, e_k = _row3(path.p, kk), _row3(path.n, kk), _row(path.emitter, kk)
-    x_km1 = _row3(path.p, kk - 1)
+    x_k, n_k, e_k = _chain_row(path.p, kk), _chain_row(path.n, kk), _chain_row(path.emitter, kk)
+    x_km1 = _chain_row(path.p, kk - 1)
     Le = LT.emitted(lights, e_k, n_k, normalize(x_km1 - x_k))
     one = jnp.ones_like(path.fx)
     color, inv_pdf = V3(Le.x, Le.y, Le.z), one * K
     if K > 1:
-        prev, cur, nxt = _rows(path.p, 0, K - 1), _rows(path.p, 1, K), _rows(path.p, 2, K + 1)
-        n = _rows(path.n, 1, K)
-        ns = _shading_rows(path, 1, K)
+        prev, cur, nxt = (subpath.rows(path.p, slice(0, K - 1)),
+                          subpath.rows(path.p, slice(1, K)), subpath.rows(path.p, slice(2, K + 1)))
+        n = subpath.rows(path.n, slice(1, K))
+        ns = subpath.rows(subpath.shading(path), slice(1, K))
         wo, wi = normalize(prev - cur), normalize(nxt - cur)
-        mp = B.lookup(mats, path.material[1:K], _uv_rows(path.uv, 1, K))
+        mp = B.lookup(mats, path.material[1:K], subpath.rows(path.uv, slice(1, K)))
         coat = None if path.coat is None else path.coat[1:K]
         delta = dirac(mp, coat)
         f, pdf_bsdf = B.evaluate(mats.kinds, mp, ns, wo, wi)
@@ -406,24 +390,21 @@ def sample_path(scene: Scene, cfg: MLTConfig, key: Array) -> Path:
         hit = G.intersect(scene, o, d)
         here = alive & (i <= k)
         alive = alive & (~here | hit.valid)
-        path = path._replace(p=_set3(path.p, i, hit.p, here), n=_set3(path.n, i, hit.n, here),
-                             material=_set(path.material, i, hit.material, here),
-                             emitter=_set(path.emitter, i, hit.emitter, here),
-                             uv=_set_uv(path.uv, i, hit.uv, here),
-                             ns=_set_ns(path.ns, i, hit, here))
+        path = _store_hit(path, i, hit, here)
         mp = B.lookup(scene.materials, hit.material, hit.uv)
         base = 3 + 7 * i
-        bs = B.sample(kinds, mp, _hit_shading(hit), -d, u(base), u(base + 1), u(base + 2))
+        bs = B.sample(kinds, mp, subpath.shading(hit), -d, u(base), u(base + 1), u(base + 2))
         ls = LT.sample_li(lights, hit.p, u(base + 3), u(base + 4), u(base + 5))
         nee = (i == k - 1) & ~B.is_delta(mp) & (u(base + 6) < 0.5)
         wi = where(nee, ls.wi, bs.wi)
         if path.coat is not None:   # the lobe the path leaves a plastic vertex by
-            path = path._replace(coat=_set(path.coat, i, bs.delta & ~nee & (i < k), here))
+            path = path._replace(coat=_set_chain_row(path.coat, i, bs.delta & ~nee & (i < k),
+                                                     here))
         alive = alive & (~(i < k) | jnp.where(nee, ls.valid, bs.valid))
         return path, G.offset_origin(hit.p, hit.n, wi), wi, alive
 
     path, _, _, alive = jax.lax.fori_loop(1, K + 1, body, (path, o, d, jnp.ones(n_chains, bool)))
-    ok = alive & (_row(path.emitter, k) >= 0)
+    ok = alive & (_chain_row(path.emitter, k) >= 0)
     return path._replace(length=jnp.where(ok, k, 0))
 
 
@@ -464,7 +445,7 @@ def lens_vertex(scene: Scene, x: Path) -> tuple[Array, Array]:
     rows = jnp.arange(K + 1)[:, None]
     m = jnp.minimum(_first(~spec & (rows >= 1), k), jnp.maximum(k, 1))
     after = jnp.minimum(m + 1, K)
-    return m, (k >= 1) & ((m == k) | ~_row(spec, after))
+    return m, (k >= 1) & ((m == k) | ~_chain_row(spec, after))
 
 
 def retrace_lens(scene: Scene, cfg: MLTConfig, x: Path, fx: Array, fy: Array):
@@ -491,21 +472,18 @@ def retrace_lens(scene: Scene, cfg: MLTConfig, x: Path, fx: Array, fy: Array):
         good = hit.valid & can_take(B.is_delta(mp), mp, i < m, plastic)
         good = good & ((i < k) | (hit.emitter >= 0))  # a light vertex must stay on a light
         ok = ok & (~here | good)
-        y = y._replace(p=_set3(y.p, i, hit.p, here), n=_set3(y.n, i, hit.n, here),
-                       material=_set(y.material, i, hit.material, here),
-                       emitter=_set(y.emitter, i, hit.emitter, here),
-                       uv=_set_uv(y.uv, i, hit.uv, here), ns=_set_ns(y.ns, i, hit, here),
-                       coat=_set_coat(y.coat, i, i < m, here))
-        w, valid = specular_continue(mp, _hit_shading(hit), -d,
-                                     _row(modes, jnp.full((n_chains,), i)), plastic)
+        y = _store_hit(y, i, hit, here)
+        y = y._replace(coat=_set_chain_row(y.coat, i, i < m, here))
+        w, valid = specular_continue(mp, subpath.shading(hit), -d,
+                                     _chain_row(modes, jnp.full((n_chains,), i)), plastic)
         ok = ok & (~(i < m) | valid)
         return y, G.offset_origin(hit.p, hit.n, w), w, ok
 
     y, _, _, ok = jax.lax.fori_loop(1, K + 1, body, (x._replace(fx=fx, fy=fy), o, d,
                                                       applicable & inside))
     # reconnect x'_m to the unchanged x_{m+1}
-    ym, nm = _row3(y.p, m), _row3(y.n, m)
-    nxt = _row3(x.p, jnp.minimum(m + 1, K))
+    ym, nm = _chain_row(y.p, m), _chain_row(y.n, m)
+    nxt = _chain_row(x.p, jnp.minimum(m + 1, K))
     o_s, d_s, t_s = G.shadow_ray(ym, nm, normalize(nxt - ym), jnp.sqrt(dot(nxt - ym, nxt - ym)))
     ok = ok & ~((m < k) & G.occluded(scene, o_s, d_s, t_s))
     return y._replace(length=jnp.where(ok, k, 0)), ok
@@ -517,7 +495,8 @@ def lens_target(scene: Scene, x: Path, xv: PathValue) -> Array:
     K = x.material.shape[0] - 1
     m, _ = lens_vertex(scene, x)
     nxt = jnp.minimum(m + 1, K)
-    g = _geometry(_row3(x.p, m), _row3(x.n, m), _row3(x.p, nxt), _row3(x.n, nxt))
+    g = _geometry(_chain_row(x.p, m), _chain_row(x.n, m), _chain_row(x.p, nxt),
+                  _chain_row(x.n, nxt))
     return xv.lum * jnp.where(m < x.length, g, 1.0)
 
 
@@ -559,9 +538,9 @@ def caustic_log_density(scene: Scene, mu: Mutations, x: Path, y: Path) -> Array:
     """log T(x -> y) of the caustic perturbation in solid angle at x_j: the angle's density over
     the circle of directions at that angle, 1 / (2 pi theta sin(theta) log(theta2/theta1))."""
     j, _ = caustic_vertex(scene, x)
-    xj = _row3(x.p, j)
-    a = normalize(_row3(x.p, j - 1) - xj)
-    b = normalize(_row3(y.p, j - 1) - xj)
+    xj = _chain_row(x.p, j)
+    a = normalize(_chain_row(x.p, j - 1) - xj)
+    b = normalize(_chain_row(y.p, j - 1) - xj)
     c = jnp.clip(dot(a, b), -1.0, 1.0)
     theta = jnp.arctan2(jnp.sqrt(jnp.maximum(dot(a - b * c, a - b * c), 0.0)), c)
     t1, t2 = mu.caustic_theta1, mu.caustic_theta2
@@ -587,7 +566,7 @@ def retrace_caustic(scene: Scene, cfg: MLTConfig, x: Path, w_new: V3):
     j, applicable = caustic_vertex(scene, x)
     modes = transmits(x)
     plastic = x.coat is not None
-    xj, nj = _row3(x.p, j), _row3(x.n, j)
+    xj, nj = _chain_row(x.p, j), _chain_row(x.n, j)
 
     def body(s, carry):
         y, o, d, ok = carry
@@ -597,20 +576,17 @@ def retrace_caustic(scene: Scene, cfg: MLTConfig, x: Path, w_new: V3):
         mp = B.lookup(scene.materials, hit.material, hit.uv)
         good = hit.valid & can_take(B.is_delta(mp), mp, i >= 2, plastic)
         ok = ok & (~here | good)
-        y = y._replace(p=_set3(y.p, i, hit.p, here), n=_set3(y.n, i, hit.n, here),
-                       material=_set(y.material, i, hit.material, here),
-                       emitter=_set(y.emitter, i, hit.emitter, here),
-                       uv=_set_uv(y.uv, i, hit.uv, here), ns=_set_ns(y.ns, i, hit, here),
-                       coat=_set_coat(y.coat, i, i >= 2, here))
-        dn, valid = specular_continue(mp, _hit_shading(hit), -d, _row(modes, jnp.maximum(i, 0)),
-                                      plastic)
+        y = _store_hit(y, i, hit, here)
+        y = y._replace(coat=_set_chain_row(y.coat, i, i >= 2, here))
+        dn, valid = specular_continue(mp, subpath.shading(hit), -d,
+                                      _chain_row(modes, jnp.maximum(i, 0)), plastic)
         ok = ok & (~(i >= 2) | valid)
         return y, G.offset_origin(hit.p, hit.n, dn), dn, ok
 
     o = G.offset_origin(xj, nj, w_new)
     y, _, _, ok = jax.lax.fori_loop(0, K - 1, body, (x, o, w_new, applicable))
     one = jnp.ones_like(k)
-    y1, n1 = _row3(y.p, one), _row3(y.n, one)
+    y1, n1 = _chain_row(y.p, one), _chain_row(y.n, one)
     pr = C.project(cam, y1)
     o_s, d_s, t_s = G.shadow_ray(y1, n1, pr.wi, pr.dist)
     ok = ok & pr.visible & ~G.occluded(scene, o_s, d_s, t_s)
@@ -623,9 +599,9 @@ def caustic_target(scene: Scene, x: Path, xv: PathValue) -> Array:
     area measure), up to shared factors: lum P(x) W(x_1) |cos theta_j|."""
     j, _ = caustic_vertex(scene, x)
     one = jnp.ones_like(x.length)
-    w1, _ = _camera_weight(scene.camera, _row3(x.p, one), _row3(x.n, one))
-    xj = _row3(x.p, j)
-    cos_j = jnp.abs(dot(_row3(x.n, j), normalize(_row3(x.p, j - 1) - xj)))
+    w1, _ = _camera_weight(scene.camera, _chain_row(x.p, one), _chain_row(x.n, one))
+    xj = _chain_row(x.p, j)
+    cos_j = jnp.abs(dot(_chain_row(x.n, j), normalize(_chain_row(x.p, j - 1) - xj)))
     return xv.lum * w1 * cos_j
 
 
@@ -635,7 +611,7 @@ def caustic_perturbation(scene: Scene, cfg: MLTConfig, mu: Mutations, x: Path, x
     leaving x_j by theta2 exp(-log(theta2/theta1) xi) about the old one (symmetric in solid
     angle) and retrace towards the eye."""
     j, applicable = caustic_vertex(scene, x)
-    w = normalize(_row3(x.p, j - 1) - _row3(x.p, j))
+    w = normalize(_chain_row(x.p, j - 1) - _chain_row(x.p, j))
     theta = log_uniform(rng.uniform(key, 0), mu.caustic_theta1, mu.caustic_theta2)
     y, _ = retrace_caustic(scene, cfg, x, rotate_about(w, theta, 2 * np.pi * rng.uniform(key, 1)))
     yv = evaluate(scene, cfg, y)
@@ -719,15 +695,15 @@ def render(scene: Scene, cfg: MLTConfig = MLTConfig(), *, spp: int, seed: int,
 
     Stats: ``b`` (the normalisation used), ``b_bootstrap`` and its standard error
     ``b_bootstrap_se``, ``mutations``, ``acceptance`` (accepted / proposed, all kinds), and per
-    mutation kind K in ``KERNELS``: ``K_proposed``, ``K_applicable`` (proposals the kind could
-    make from the current path) and ``K_acceptance`` (accepted / applicable)."""
+    mutation kind K in ``MUTATION_KINDS``: ``K_proposed``, ``K_applicable`` (proposals the kind
+    could make from the current path) and ``K_acceptance`` (accepted / applicable)."""
     check_scene(scene)
     W, H = scene.camera.width, scene.camera.height
     chains, bootstrap_samples, steps_per_call = (cfg.chains, cfg.bootstrap_samples,
                                                  cfg.steps_per_call)
     mu = cfg.mutations().arrays()
     b_paths = cfg.b_paths
-    cfg = cfg.kernel()
+    cfg = cfg.compile_key()
     paths, c_star, _ = bootstrap(scene, cfg, jnp.uint32(seed), bootstrap_samples)
     c_np = np.asarray(c_star, np.float64)
     b_bootstrap = c_np.mean()
@@ -751,7 +727,7 @@ def render(scene: Scene, cfg: MLTConfig = MLTConfig(), *, spp: int, seed: int,
     stats = dict(b=b, b_bootstrap=b_bootstrap, mutations=n_steps_total * chains,
                  b_bootstrap_se=c_np.std() / np.sqrt(c_np.size),
                  acceptance=counts[:, 2].sum() / max(counts[:, 0].sum(), 1))
-    for i, name in enumerate(KERNELS):
+    for i, name in enumerate(MUTATION_KINDS):
         stats[f"{name}_proposed"] = int(counts[i, 0])
         stats[f"{name}_applicable"] = int(counts[i, 1])
         stats[f"{name}_acceptance"] = counts[i, 2] / max(counts[i, 1], 1)

@@ -47,7 +47,8 @@ _SALT = rng.SALTS["pssmlt"]
 @dataclass(frozen=True)
 class PSSMLTConfig:
     """PSSMLT's parameters, all static: the path tracer's (``pt``) and the mutation's. The
-    kernels see a copy with the chain and bootstrap counts at fixed values (:func:`render`)."""
+    compiled kernels see a copy with the chain and bootstrap counts at fixed values
+    (:func:`render`)."""
 
     p_large: float = param(0.3, "probability of a large step (fresh sample)", minimum=0.0,
                            maximum=1.0)
@@ -158,7 +159,7 @@ def render(scene: Scene, cfg: PSSMLTConfig = PSSMLTConfig(), *, spp: int, seed: 
     W, H = scene.camera.width, scene.camera.height
     chains, bootstrap_samples, steps_per_call = (cfg.chains, cfg.bootstrap_samples,
                                                  cfg.steps_per_call)
-    cfg = replace(cfg, chains=0, bootstrap_samples=0, steps_per_call=0)  # the kernels' key
+    cfg = replace(cfg, chains=0, bootstrap_samples=0, steps_per_call=0)  # the compile key
     u_b, f_b = bootstrap(scene, cfg, jnp.uint32(seed), bootstrap_samples)
     f_np = np.asarray(f_b, np.float64)
     b = f_np.mean()

@@ -1,4 +1,5 @@
-"""The Metropolis-Hastings kernel of every Markov-chain estimator in jgi, and a generic sampler.
+"""The Metropolis-Hastings transition of every Markov-chain estimator in jgi, and a generic
+sampler.
 
 One transition of a chain (Veach 1997, ch. 11; Kelemen et al. 2002; Hachisuka et al. 2014):
 
@@ -52,7 +53,7 @@ _SALT = rng.SALTS["mcmc"]
 _KIND_CHAIN = -1   # the chain index of the stream that picks each step's mutation kind
 
 
-# --- the kernel ---------------------------------------------------------------------------------
+# --- the transition -----------------------------------------------------------------------------
 
 def acceptance_probability(f_x, f_y, log_t_xy, log_t_yx) -> Array:
     """a(x -> y) = min(1, f(y) T(y->x) / (f(x) T(x->y))); a = 1 when f(x) = 0 (a chain leaves a
