@@ -2,13 +2,14 @@
 
     python -m paper.chi2_table [--samples 262144] [--alpha 0.01] [--out runs/chi2]
 
-The cases are the test suite's: this script reuses the tests' samplers, reference densities
-(float64 ray casts for the lights) and grids, and :mod:`jgi.analysis.chi2` for the statistic, but
-reports the statistic and p-value of each routine instead of asserting. Each routine is one
-hypothesis; the family is judged at ``--alpha`` with Bonferroni's correction (each p-value
-against alpha / m for m routines). Discrete choices (the dielectric's Fresnel split, light
-selection in proportion to power) are chi-square tests over their categories; the mirror,
-whose sample is a single direction, is checked exactly (largest angle from the reflection).
+The cases are the test suite's: this script reuses the samplers, reference densities (float64 ray
+casts for the lights) and grids that the tests share through :mod:`tests.support`, and
+:mod:`jgi.analysis.chi2` for the statistic, but reports the statistic and p-value of each routine
+instead of asserting. Each routine is one hypothesis; the family is judged at ``--alpha`` with
+Bonferroni's correction (each p-value against alpha / m for m routines). Discrete choices (the
+dielectric's Fresnel split, light selection in proportion to power) are chi-square tests over
+their categories; the mirror, whose sample is a single direction, is checked exactly (largest
+angle from the reflection).
 
 Writes chi2.json; returns the same dictionary.
 """
@@ -21,7 +22,49 @@ import sys
 import time
 from pathlib import Path
 
+import jax
+import jax.numpy as jnp
 import numpy as np
+
+from jgi.analysis.chi2 import PlaneDomain, SphereDomain, chi2_test, pearson
+from jgi.core import warps
+from jgi.physics import bsdf as B
+from jgi.physics import lights as LT
+from jgi.scene import DIELECTRIC, DIFFUSE, MIRROR, PHONG
+from tests.support import bsdf_samplers, camera_samplers
+from tests.support.directions import NORMAL, direction, reflect_np
+from tests.support.light_samplers import (
+    L_RGB,
+    QUAD,
+    TRI,
+    X_REF,
+    build,
+    cast_parallelogram,
+    cast_sphere,
+    direction_pdf,
+    local_frames,
+    normalize,
+    pdf_li,
+    quad_lights,
+    sample_emission,
+    sample_li,
+    tri_lights,
+    zoom_domain,
+)
+from tests.support.light_samplers import uniforms as light_uniforms
+from tests.support.warp_samplers import (
+    f32,
+    phong_domain,
+    sample_cone,
+    sample_cosine,
+    sample_disc,
+    sample_phong,
+    sample_sphere,
+    sample_triangle,
+    stack,
+    uniforms,
+    z_of,
+)
 
 
 def _cells(domain) -> int:
@@ -31,17 +74,13 @@ def _cells(domain) -> int:
 # --- cases: each returns (jgi.analysis.chi2.Result, number of grid cells or categories) -----------
 
 def warp_cases(n):
-    from jgi.analysis.chi2 import PlaneDomain, SphereDomain, chi2_test
-    from jgi.core import warps
-    from tests import test_warps as T
-
     def cosine():
-        d = T.stack(T._cosine(*T.uniforms(1, n)))
+        d = stack(sample_cosine(*uniforms(1, n)))
         dom = SphereDomain()
-        return chi2_test(d, lambda p: warps.pdf_cosine_hemisphere(T.z_of(p)), dom), _cells(dom)
+        return chi2_test(d, lambda p: warps.pdf_cosine_hemisphere(z_of(p)), dom), _cells(dom)
 
     def sphere():
-        d = T.stack(T._sphere(*T.uniforms(2, n)))
+        d = stack(sample_sphere(*uniforms(2, n)))
         dom = SphereDomain()
         return (chi2_test(d, lambda p: np.full(len(p), float(warps.pdf_uniform_sphere())), dom),
                 _cells(dom))
@@ -49,22 +88,22 @@ def warp_cases(n):
     def cone(cos_max):
         def run():
             c = np.float32(cos_max)
-            d = T.stack(T._cone(*T.uniforms(int(1000 * cos_max) + 3000, n), T.f32(c)))
+            d = stack(sample_cone(*uniforms(int(1000 * cos_max) + 3000, n), f32(c)))
             dom = SphereDomain(a_edges=np.linspace(0.0, 1.0 - float(c), 33))
-            pdf = float(warps.pdf_uniform_cone(T.f32(c)))
+            pdf = float(warps.pdf_uniform_cone(f32(c)))
             return chi2_test(d, lambda p: np.full(len(p), pdf), dom, total=1.0), _cells(dom)
         return run
 
     def phong(e):
         def run():
-            d = T.stack(T._phong(*T.uniforms(5, n), T.f32(e)))
-            dom = T.phong_domain(e)
-            return chi2_test(d, lambda p: warps.pdf_phong_lobe(T.z_of(p), T.f32(e)), dom,
+            d = stack(sample_phong(*uniforms(5, n), f32(e)))
+            dom = phong_domain(e)
+            return chi2_test(d, lambda p: warps.pdf_phong_lobe(z_of(p), f32(e)), dom,
                              total=1.0), _cells(dom)
         return run
 
     def disc():
-        x, y = T._disc(*T.uniforms(8, n))
+        x, y = sample_disc(*uniforms(8, n))
         p = np.stack([np.asarray(x), np.asarray(y)], axis=-1)
         dom = PlaneDomain(np.linspace(-1, 1, 41), np.linspace(-1, 1, 41))
         pdf = float(warps.pdf_disc())
@@ -72,7 +111,7 @@ def warp_cases(n):
                          nodes=24), _cells(dom)
 
     def triangle():
-        b1, b2 = T._triangle(*T.uniforms(9, n))
+        b1, b2 = sample_triangle(*uniforms(9, n))
         b = np.stack([np.asarray(b1), np.asarray(b2)], axis=-1)
         dom = PlaneDomain(np.linspace(0, 1, 32), np.linspace(0, 1, 32))
         return (chi2_test(b, lambda q: np.where(q.sum(1) <= 1.0, 2.0, 0.0), dom, nodes=24),
@@ -89,52 +128,49 @@ def warp_cases(n):
 
 
 def bsdf_cases(n):
-    from jgi.analysis.chi2 import SphereDomain, chi2_test, pearson
-    from jgi.physics import bsdf as B
-    from jgi.scene import DIELECTRIC, DIFFUSE, PHONG
-    from tests import test_bsdf as T
-
-    nrm = T.NORMAL
+    nrm = NORMAL
 
     def lobe(mat, theta, seed):
         def run():
-            wo = T.direction(theta)
-            s = T.sample(mat, nrm, wo, seed=seed, count=n)
+            wo = direction(theta)
+            s = bsdf_samplers.sample(mat, nrm, wo, seed=seed, count=n)
             v = s["valid"]
             if mat[0] == DIFFUSE:
                 dom = SphereDomain(axis=nrm)
             else:
                 a_min = 0.02 / (float(mat[3]) + 1.0)
-                dom = SphereDomain(axis=T.reflect_np(wo, nrm),
+                dom = SphereDomain(axis=reflect_np(wo, nrm),
                                    a_edges=np.concatenate([[0.0], np.geomspace(a_min, 2.0, 40)]))
-            pdf = lambda w: T._evaluate(mat, np.float32(nrm), np.float32(wo), np.float32(w))[1]  # noqa: E731
+            pdf = lambda w: bsdf_samplers.evaluate(  # noqa: E731
+                mat, np.float32(nrm), np.float32(wo), np.float32(w))[1]
             return chi2_test(s["wi"][v], pdf, dom, n_total=n), _cells(dom) + 1  # + "no sample"
         return run
 
     def fresnel(theta, outside, ior):
         def run():
-            mat = T.material(DIELECTRIC, ks=1.0, ior=ior)
-            wo = T.direction(theta, n=nrm if outside else -nrm)
+            mat = bsdf_samplers.material(DIELECTRIC, ks=1.0, ior=ior)
+            wo = direction(theta, n=nrm if outside else -nrm)
             eta = ior if outside else 1.0 / ior
             side = nrm if outside else -nrm
-            F = float(T.fresnel_reference(float(np.dot(wo, side)), np.float32(eta)))
-            s = T.sample(mat, nrm, wo, seed=int(theta) + 11, count=n, mode=B.IMPORTANCE)
+            F = float(bsdf_samplers.fresnel_reference(float(np.dot(wo, side)), np.float32(eta)))
+            s = bsdf_samplers.sample(mat, nrm, wo, seed=int(theta) + 11, count=n, mode=B.IMPORTANCE)
             refl = int(((s["wi"] @ side) > 0).sum())
             return pearson([refl, n - refl], [n * F, n * (1.0 - F)]), 2
         return run
 
     cases = [
         ("BSDF", "diffuse, $\\theta_o=50^\\circ$",
-         lobe(T.material(DIFFUSE, kd=(0.2, 0.5, 0.8)), 50.0, 1)),
-        ("BSDF", "diffuse, $\\theta_o=89^\\circ$", lobe(T.material(DIFFUSE, kd=0.7), 89.0, 2)),
+         lobe(bsdf_samplers.material(DIFFUSE, kd=(0.2, 0.5, 0.8)), 50.0, 1)),
+        ("BSDF", "diffuse, $\\theta_o=89^\\circ$",
+         lobe(bsdf_samplers.material(DIFFUSE, kd=0.7), 89.0, 2)),
         ("BSDF", "Phong $n=1$, $\\theta_o=30^\\circ$",
-         lobe(T.material(PHONG, kd=(0.5, 0.4, 0.3), ks=0.3, n=1.0), 30.0, 3)),
+         lobe(bsdf_samplers.material(PHONG, kd=(0.5, 0.4, 0.3), ks=0.3, n=1.0), 30.0, 3)),
         ("BSDF", "Phong $n=10$, $\\theta_o=70^\\circ$",
-         lobe(T.material(PHONG, kd=0.2, ks=(0.7, 0.6, 0.5), n=10.0), 70.0, 4)),
+         lobe(bsdf_samplers.material(PHONG, kd=0.2, ks=(0.7, 0.6, 0.5), n=10.0), 70.0, 4)),
         ("BSDF", "Phong $n=100$, $\\theta_o=89^\\circ$",
-         lobe(T.material(PHONG, kd=0.4, ks=0.4, n=100.0), 89.0, 5)),
+         lobe(bsdf_samplers.material(PHONG, kd=0.4, ks=0.4, n=100.0), 89.0, 5)),
         ("BSDF", "Phong $n=1000$, $\\theta_o=45^\\circ$",
-         lobe(T.material(PHONG, kd=(0.05, 0.1, 0.0), ks=0.9, n=1000.0), 45.0, 6)),
+         lobe(bsdf_samplers.material(PHONG, kd=(0.05, 0.1, 0.0), ks=0.9, n=1000.0), 45.0, 6)),
         ("BSDF", "dielectric (Fresnel split), outside, $30^\\circ$", fresnel(30.0, True, 1.5)),
         ("BSDF", "dielectric (Fresnel split), outside, $75^\\circ$", fresnel(75.0, True, 1.5)),
         ("BSDF", "dielectric (Fresnel split), inside, $40^\\circ$", fresnel(40.0, False, 1.5)),
@@ -144,15 +180,13 @@ def bsdf_cases(n):
 
 def mirror_check(n):
     """Largest angle (radians) between a mirror's sampled direction and the exact reflection."""
-    from jgi.scene import MIRROR
-    from tests import test_bsdf as T
-
     worst = 0.0
     for theta in (0.0, 37.0, 89.0):
-        wo = T.direction(theta)
-        s = T.sample(T.material(MIRROR, ks=0.9), T.NORMAL, wo, seed=3, count=n)
+        wo = direction(theta)
+        s = bsdf_samplers.sample(bsdf_samplers.material(MIRROR, ks=0.9), NORMAL, wo, seed=3,
+                                 count=n)
         w = s["wi"].astype(np.float64)
-        r = T.reflect_np(wo, T.NORMAL)
+        r = reflect_np(wo, NORMAL)
         angle = np.arctan2(np.linalg.norm(np.cross(w, r), axis=1), w @ r)  # accurate near 0
         ok = s["valid"].all() and s["delta"].all()
         worst = max(worst, float(angle.max()) if ok else np.inf)
@@ -160,100 +194,93 @@ def mirror_check(n):
 
 
 def light_cases(n):
-    import jax
-    import jax.numpy as jnp
-
-    from jgi.analysis.chi2 import PlaneDomain, SphereDomain, chi2_test, pearson
-    from jgi.physics import lights as LT
-    from tests import test_lights as T
-
-    x = T.X_REF
+    x = X_REF
 
     def area(kind):
         def run():
             if kind == "quad":
-                lights = T.quad_lights()
-                p0, e1, e2 = T.QUAD
+                lights = quad_lights()
+                p0, e1, e2 = QUAD
                 pts = [p0, p0 + e1, p0 + e1 + e2, p0 + e2]
-                cast = lambda o, w: T.cast_parallelogram(o, w, p0, e1, e2)  # noqa: E731
+                cast = lambda o, w: cast_parallelogram(o, w, p0, e1, e2)  # noqa: E731
             else:
-                lights = T.tri_lights()
-                a, b, c = T.TRI
+                lights = tri_lights()
+                a, b, c = TRI
                 pts = [a, b, c]
-                cast = lambda o, w: T.cast_parallelogram(o, w, a, c - a, b - a, True)  # noqa: E731
-            s = T.sample_li(lights, x, 1 if kind == "quad" else 2, n)
-            dom = T.zoom_domain(x, pts)
-            return chi2_test(s["wi"], T.direction_pdf(lights, 0, x, cast), dom, total=1.0,
+                cast = lambda o, w: cast_parallelogram(o, w, a, c - a, b - a, True)  # noqa: E731
+            s = sample_li(lights, x, 1 if kind == "quad" else 2, n)
+            dom = zoom_domain(x, pts)
+            return chi2_test(s["wi"], direction_pdf(lights, 0, x, cast), dom, total=1.0,
                              nodes=16), _cells(dom)
         return run
 
     def sphere():
         radius, distance, alpha = 0.5, 1.5, np.radians(25.0)
         c = x + distance * np.array([np.sin(alpha), 0.0, np.cos(alpha)])
-        lights = T.build(lambda b: b.sphere(c, radius, "m", emission=T.L_RGB))
-        s = T.sample_li(lights, x, 530, n)
+        lights = build(lambda b: b.sphere(c, radius, "m", emission=L_RGB))
+        s = sample_li(lights, x, 530, n)
         sin2 = (radius / distance) ** 2
-        dom = SphereDomain(axis=T.normalize(c - x),
+        dom = SphereDomain(axis=normalize(c - x),
                            a_edges=np.linspace(0.0, sin2 / (1 + np.sqrt(1 - sin2)), 25))
-        cast = lambda o, w: T.cast_sphere(o, w, c, radius)  # noqa: E731
-        return chi2_test(s["wi"], T.direction_pdf(lights, 0, x, cast), dom, total=1.0), _cells(dom)
+        cast = lambda o, w: cast_sphere(o, w, c, radius)  # noqa: E731
+        return chi2_test(s["wi"], direction_pdf(lights, 0, x, cast), dom, total=1.0), _cells(dom)
 
     def environment():
-        lights = T.build(lambda b: b.environment_light(T.L_RGB))
-        s = T.sample_li(lights, x, 6, n)
+        lights = build(lambda b: b.environment_light(L_RGB))
+        s = sample_li(lights, x, 6, n)
         k = lights.environment
-        pdf = lambda w: np.asarray(T._pdf_li(lights, np.int32(k), np.float32(x),  # noqa: E731
-                                             np.float32(x + w), np.float32(-w)))
+        pdf = lambda w: np.asarray(pdf_li(lights, np.int32(k), np.float32(x),  # noqa: E731
+                                          np.float32(x + w), np.float32(-w)))
         dom = SphereDomain()
         return chi2_test(s["wi"], pdf, dom), _cells(dom)
 
     def quad_emission(part):
         def run():
-            p0, e1, e2 = T.QUAD
-            e = T.sample_emission(T.quad_lights(), 12, n)
+            p0, e1, e2 = QUAD
+            e = sample_emission(quad_lights(), 12, n)
             if part == "positions":
                 G = np.array([[e1 @ e1, e1 @ e2], [e1 @ e2, e2 @ e2]])
                 ab = np.linalg.solve(G, np.stack([(e["p"] - p0) @ e1, (e["p"] - p0) @ e2])).T
                 edges = np.linspace(-1e-6, 1 + 1e-6, 25)
                 dom = PlaneDomain(edges, edges)
                 return chi2_test(ab, lambda q: np.ones(len(q)), dom), _cells(dom)
-            return _cosine_about_normals(e["d"], e["n"])
+            return cosine_about_normals(e["d"], e["n"])
         return run
 
-    def _cosine_about_normals(d, nrm):
-        s_, t_, z = T.local_frames(nrm)
+    def cosine_about_normals(d, nrm):
+        s_, t_, z = local_frames(nrm)
         loc = np.stack([(d * s_).sum(1), (d * t_).sum(1), (d * z).sum(1)], axis=1)
         dom = SphereDomain()
         return chi2_test(loc, lambda w: np.maximum(w[:, 2], 0) / np.pi, dom), _cells(dom)
 
     def sphere_emission():
-        e = T.sample_emission(T.build(lambda b: b.sphere((0.1, 0.2, 0.3), 0.7, "m",
-                                                         emission=T.L_RGB)), 14, n)
+        e = sample_emission(build(lambda b: b.sphere((0.1, 0.2, 0.3), 0.7, "m",
+                                                     emission=L_RGB)), 14, n)
         dom = SphereDomain()
         return chi2_test(e["n"], lambda w: np.full(len(w), 1 / (4 * np.pi)), dom), _cells(dom)
 
     def point_emission():
-        e = T.sample_emission(T.build(lambda b: b.point_light((0.0, 1.0, 0.0), (5.0, 4.0, 3.0))),
-                              15, n)
+        e = sample_emission(build(lambda b: b.point_light((0.0, 1.0, 0.0), (5.0, 4.0, 3.0))),
+                            15, n)
         dom = SphereDomain()
         return chi2_test(e["d"], lambda w: np.full(len(w), 1 / (4 * np.pi)), dom), _cells(dom)
 
     def spot_emission():
         pos, target = np.array([0.0, 1.0, 0.0]), np.array([1.0, -1.0, 0.5])
         ct = np.float32(np.cos(np.radians(40.0)))
-        lights = T.build(lambda b: b.spot_light(pos, target, (5.0, 4.0, 3.0), 40.0, 15.0))
-        e = T.sample_emission(lights, 16, n)
-        dom = SphereDomain(axis=T.normalize(target - pos), a_edges=np.linspace(0.0, 1 - ct, 25))
+        lights = build(lambda b: b.spot_light(pos, target, (5.0, 4.0, 3.0), 40.0, 15.0))
+        e = sample_emission(lights, 16, n)
+        dom = SphereDomain(axis=normalize(target - pos), a_edges=np.linspace(0.0, 1 - ct, 25))
         pdf = 1 / (2 * np.pi * (1 - ct))
         return chi2_test(e["d"], lambda w: np.full(len(w), pdf), dom, total=1.0), _cells(dom)
 
     def environment_emission():
-        lights = T.build(lambda b: b.environment_light((2.0, 1.0, 0.5)))
+        lights = build(lambda b: b.environment_light((2.0, 1.0, 0.5)))
         R = float(lights.bound_radius)
         center = np.array([float(c) for c in lights.bound_center])
-        e = T.sample_emission(lights, 25, n)
+        e = sample_emission(lights, 25, n)
         d = e["d"].astype(np.float64)
-        s_, t_, _ = T.local_frames(d)
+        s_, t_, _ = local_frames(d)
         off = e["p"] - (center - R * d)
         xy = np.stack([(off * s_).sum(1), (off * t_).sum(1)], axis=1) / R
         dom = PlaneDomain(np.linspace(-1, 1, 25), np.linspace(-1, 1, 25))
@@ -262,11 +289,11 @@ def light_cases(n):
 
     def selection():
         c, rad = np.array([-1.5, 0.0, 1.5]), 0.4
-        lights = T.build(lambda b: (b.quad(*T.QUAD, "m", emission=T.L_RGB),
-                                    b.sphere(c, rad, "m", emission=2 * T.L_RGB),
-                                    b.point_light((0.0, 1.5, 0.0), (3.0, 3.0, 3.0))))
+        lights = build(lambda b: (b.quad(*QUAD, "m", emission=L_RGB),
+                                  b.sphere(c, rad, "m", emission=2 * L_RGB),
+                                  b.point_light((0.0, 1.5, 0.0), (3.0, 3.0, 3.0))))
         pmf = np.asarray(lights.pmf, np.float64)
-        sel = np.asarray(jax.jit(LT.select)(lights, jnp.asarray(T.uniforms(19, 1, n)[0])))
+        sel = np.asarray(jax.jit(LT.select)(lights, jnp.asarray(light_uniforms(19, 1, n)[0])))
         return pearson(np.bincount(sel, minlength=len(pmf)), n * pmf / pmf.sum()), len(pmf)
 
     return [("light", "quad: sample\\_li", area("quad")),
@@ -283,18 +310,15 @@ def light_cases(n):
 
 
 def camera_cases(n):
-    from jgi.analysis.chi2 import SphereDomain, chi2_test
-    from tests import test_camera as T
-
     def primary(name):
         def run():
-            cam = T.camera(name)
-            _, _, _, _, d = T.primary_rays(cam, n, seed=3)
-            axis, a_max = T.frame_cone(cam)
+            cam = camera_samplers.camera(name)
+            _, _, _, _, d = camera_samplers.primary_rays(cam, n, seed=3)
+            axis, a_max = camera_samplers.frame_cone(cam)
             dom = SphereDomain(axis=axis, a_edges=np.linspace(0.0, 1.02 * a_max, 25), n_phi=32)
-            pos = T.vec(cam.position)
-            return (chi2_test(d, lambda w: T.project(cam, pos + w)["pdf_dir"], dom, total=1.0),
-                    _cells(dom))
+            pos = camera_samplers.vec(cam.position)
+            pdf = lambda w: camera_samplers.project(cam, pos + w)["pdf_dir"]  # noqa: E731
+            return chi2_test(d, pdf, dom, total=1.0), _cells(dom)
         return run
 
     return [("camera", "sample\\_ray (square film)", primary("square")),

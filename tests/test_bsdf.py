@@ -13,13 +13,13 @@ physical properties every BSDF must have.
   normal incidence), by hypothesis over directions, albedos and exponents.
 * Degenerate inputs give no NaN or Inf.
 
-All material kinds go through one compiled function (``KINDS`` static, the kind a traced array).
+All material kinds go through one compiled function (``tests.support.bsdf_samplers``: ``KINDS``
+static, the kind a traced array).
 """
 
 from __future__ import annotations
 
 import math
-from functools import partial
 
 import jax
 import jax.numpy as jnp
@@ -29,57 +29,19 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 
-from jgi.analysis.chi2 import SphereDomain, assert_chi2, bucket
-from jgi.core.vec import EDGE_ON_COS, V3
+from jgi.analysis.chi2 import SphereDomain, assert_chi2
+from jgi.core.vec import EDGE_ON_COS
 from jgi.physics import bsdf as B
 from jgi.scene import DIELECTRIC, DIFFUSE, MIRROR, PHONG
+from tests.support.bsdf_samplers import (
+    N,
+    evaluate,
+    fresnel_reference,
+    material,
+    sample,
+    sample_from_uniforms,
+)
 from tests.support.directions import NORMAL, direction, reflect_np
-
-KINDS = (DIFFUSE, MIRROR, DIELECTRIC, PHONG)
-N = 1 << 18
-
-
-def material(kind, kd=0.0, ks=0.0, n=1.0, ior=1.5):
-    return (np.int32(kind), np.broadcast_to(np.asarray(kd, np.float32), (3,)).copy(),
-            np.broadcast_to(np.asarray(ks, np.float32), (3,)).copy(), np.float32(n),
-            np.float32(ior))
-
-
-def _params(mat, shape) -> B.MaterialParams:
-    kind, kd, ks, n, ior = mat
-    b = lambda x: jnp.broadcast_to(x, shape)
-    return B.MaterialParams(b(kind), V3(b(kd[0]), b(kd[1]), b(kd[2])),
-                            V3(b(ks[0]), b(ks[1]), b(ks[2])), b(n), b(ior))
-
-
-def _v3(a, shape) -> V3:
-    a = jnp.broadcast_to(jnp.asarray(a, jnp.float32), shape + (3,))
-    return V3(a[..., 0], a[..., 1], a[..., 2])
-
-
-@partial(jax.jit, static_argnames="mode")
-def _sample(mat, n, wo, u, mode=B.RADIANCE):
-    shape = u.shape[1:]
-    mp, n, wo = _params(mat, shape), _v3(n, shape), _v3(wo, shape)
-    s = B.sample(KINDS, mp, n, wo, u[0], u[1], u[2], mode)
-    f, pdf = B.evaluate(KINDS, mp, n, wo, s.wi)
-    return dict(wi=s.wi.stack(), weight=s.weight.stack(), pdf=s.pdf, delta=s.delta,
-                valid=s.valid, f=f.stack(), eval_pdf=pdf)
-
-
-@jax.jit
-def _evaluate(mat, n, wo, wi):
-    shape = wi.shape[:-1]
-    f, pdf = B.evaluate(KINDS, _params(mat, shape), _v3(n, shape), _v3(wo, shape),
-                        _v3(wi, shape))
-    return f.stack(), pdf
-
-
-def sample(mat, n, wo, seed, count=N, mode=B.RADIANCE):
-    """``count`` samples (computed in a padded batch: few sizes, few compilations)."""
-    u = np.random.default_rng(seed).random((3, bucket(count)), dtype=np.float32)
-    out = _sample(mat, np.float32(n), np.float32(wo), u, mode)
-    return {k: np.asarray(v)[:count] for k, v in out.items()}
 
 
 def luminance(c):
@@ -118,8 +80,8 @@ def test_glossy_sampling_matches_evaluate(case, backside):
         a_min = 0.02 / (float(mat[3]) + 1.0)
         dom = SphereDomain(axis=reflect_np(wo, nf),
                            a_edges=np.concatenate([[0.0], np.geomspace(a_min, 2.0, 40)]))
-    r = assert_chi2(s["wi"][v], lambda w: _evaluate(mat, np.float32(n), np.float32(wo),
-                                                    np.float32(w))[1],
+    r = assert_chi2(s["wi"][v], lambda w: evaluate(mat, np.float32(n), np.float32(wo),
+                                                   np.float32(w))[1],
                     dom, f"{label} theta_o={theta}", n_total=N)
     # the pdf integrates to the probability that sampling succeeds (binomial error)
     frac = v.mean()
@@ -169,18 +131,6 @@ def test_mirror_gives_the_exact_reflection(backside):
         np.testing.assert_allclose(s["weight"], np.broadcast_to(ks, (64, 3)), rtol=1e-6)
         assert s["delta"].all() and s["valid"].all() and np.all(s["pdf"] == 0)
         assert np.all(s["f"] == 0) and np.all(s["eval_pdf"] == 0)  # no non-Dirac part
-
-
-def fresnel_reference(cos_i, eta):
-    """Unpolarised Fresnel reflectance in float64 (Born & Wolf), eta = eta_t / eta_i."""
-    cos_i = np.asarray(cos_i, np.float64)
-    sin2_t = (1.0 - cos_i ** 2) / eta ** 2
-    tir = sin2_t >= 1.0
-    cos_t = np.sqrt(np.where(tir, 0.0, 1.0 - sin2_t))
-    with np.errstate(invalid="ignore", divide="ignore"):
-        rs = (cos_i - eta * cos_t) / (cos_i + eta * cos_t)
-        rp = (eta * cos_i - cos_t) / (eta * cos_i + cos_t)
-    return np.where(tir, 1.0, 0.5 * (rs ** 2 + rp ** 2))
 
 
 def test_fresnel_against_reference():
@@ -276,8 +226,8 @@ def test_reciprocity(dirs, kd, split, n_exp, kind):
     ks = float(np.float32((1.0 - kd) * split))
     mat = material(kind, kd=kd, ks=ks if kind == PHONG else 0.0, n=n_exp)
     wo, wi = _unit(dirs[:, :2]), _unit(dirs[:, 2:])
-    f_oi, _ = _evaluate(mat, np.float32(NORMAL), np.float32(wo), np.float32(wi))
-    f_io, _ = _evaluate(mat, np.float32(NORMAL), np.float32(wi), np.float32(wo))
+    f_oi, _ = evaluate(mat, np.float32(NORMAL), np.float32(wo), np.float32(wi))
+    f_io, _ = evaluate(mat, np.float32(NORMAL), np.float32(wi), np.float32(wo))
     f_oi, f_io = np.asarray(f_oi), np.asarray(f_io)
     # float32 rounding of cos(alpha) ~ 1e-7 is amplified n times by cos^n
     rtol = 2e-6 * (1.0 + n_exp)
@@ -293,7 +243,7 @@ ALBEDO_SAMPLES = 16_384
 @jax.jit
 def _albedo(mat, n, wo, u):
     """Monte Carlo albedo E[f |cos| / pdf] under BSDF sampling, with its standard error."""
-    s = _sample(mat, n, wo, u)
+    s = sample_from_uniforms(mat, n, wo, u)
     w = s["weight"]
     m = w.mean(0)
     se = w.std(0) / jnp.sqrt(w.shape[0])
@@ -377,7 +327,7 @@ def test_degenerate_directions_are_finite(mi):
             assert np.all(s["weight"][~v] == 0)
             if edge_on:
                 assert not v.any(), "nothing is scattered by a surface seen exactly edge-on"
-        f, pdf = _evaluate(mat, np.float32(n), np.float32(wo), np.float32(s["wi"]))
+        f, pdf = evaluate(mat, np.float32(n), np.float32(wo), np.float32(s["wi"]))
         assert np.all(np.isfinite(np.asarray(f))) and np.all(np.isfinite(np.asarray(pdf)))
 
 

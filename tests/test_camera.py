@@ -12,62 +12,21 @@
 
 from __future__ import annotations
 
-import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
 
 from jgi.analysis.chi2 import SphereDomain, assert_chi2
-from jgi.core.vec import V3
 from jgi.physics import camera as C
-from jgi.scene import SceneBuilder
-
-CAMERAS = {
-    "square": dict(position=(0.0, 1.0, 5.0), look_at=(0.0, 1.0, 0.0), up=(0, 1, 0), fov=40.0,
-                   width=32, height=32),
-    "wide-x": dict(position=(1.0, 2.0, -3.0), look_at=(0.2, 0.5, 1.0), up=(0, 1, 0), fov=75.0,
-                   width=48, height=27, fov_axis="x"),
-    "tall-mirrored": dict(position=(-2.0, 0.5, 1.0), look_at=(1.0, 0.0, 0.0), up=(0.1, 0, 1),
-                          fov=30.0, width=20, height=36, mirror=True),
-}
-
-
-def camera(name):
-    b = SceneBuilder(name="cam")
-    b.material("m", "diffuse", diffuse=0.5)
-    b.sphere((0.0, 0.0, 0.0), 1.0, "m")
-    b.camera(**CAMERAS[name])
-    return b.build().camera
-
-
-@jax.jit
-def _rays(cam, px, py, u1, u2):
-    o, d = C.sample_ray(cam, px, py, u1, u2)
-    return o.stack(), d.stack()
-
-
-@jax.jit
-def _project(cam, p):
-    pr = C.project(cam, V3(p[:, 0], p[:, 1], p[:, 2]))
-    return dict(px=pr.px, py=pr.py, visible=pr.visible, importance=pr.importance,
-                pdf_dir=pr.pdf_dir, dist=pr.dist, wi=pr.wi.stack())
-
-
-def project(cam, p):
-    return {k: np.asarray(v) for k, v in _project(cam, np.asarray(p, np.float32)).items()}
-
-
-def vec(c) -> np.ndarray:
-    return np.array([float(c.x), float(c.y), float(c.z)])
-
-
-def primary_rays(cam, n, seed):
-    rng = np.random.default_rng(seed)
-    px = rng.integers(0, cam.width, n).astype(np.int32)
-    py = rng.integers(0, cam.height, n).astype(np.int32)
-    u = rng.random((2, n), dtype=np.float32)
-    o, d = _rays(cam, px, py, u[0], u[1])
-    return px, py, u, np.asarray(o, np.float64), np.asarray(d, np.float64)
+from tests.support.camera_samplers import (
+    CAMERAS,
+    camera,
+    frame_cone,
+    primary_rays,
+    project,
+    sample_rays,
+    vec,
+)
 
 
 @pytest.mark.parametrize("name", CAMERAS)
@@ -97,10 +56,10 @@ def test_raster_orientation():
         cam = camera(name)
         fwd, up = vec(cam.forward), vec(cam.up)
         right = np.cross(fwd, up / np.linalg.norm(up)) * sign  # geometric right of the view
-        _, d_top = _rays(cam, jnp.int32([cam.width // 2]), jnp.int32([0]), jnp.float32([0.5]),
-                         jnp.float32([0.5]))
-        _, d_left = _rays(cam, jnp.int32([0]), jnp.int32([cam.height // 2]), jnp.float32([0.5]),
-                          jnp.float32([0.5]))
+        _, d_top = sample_rays(cam, jnp.int32([cam.width // 2]), jnp.int32([0]),
+                               jnp.float32([0.5]), jnp.float32([0.5]))
+        _, d_left = sample_rays(cam, jnp.int32([0]), jnp.int32([cam.height // 2]),
+                                jnp.float32([0.5]), jnp.float32([0.5]))
         assert float(np.asarray(d_top)[0] @ up) > 0
         assert float(np.asarray(d_left)[0] @ right) < 0
 
@@ -112,14 +71,6 @@ def test_film_area_closed_form():
         w, h = cfg["width"], cfg["height"]
         tx, ty = (t, t * h / w) if cfg.get("fov_axis", "y") == "x" else (t * w / h, t)
         np.testing.assert_allclose(float(C.film_area(cam)), 4 * tx * ty, rtol=1e-6)
-
-
-def frame_cone(cam):
-    """(axis, 1 - cos) of the smallest cone about the forward axis that contains the frame."""
-    fwd, r, u = vec(cam.forward), vec(cam.right), vec(cam.up)
-    corner = fwd + r + u
-    cos = (corner @ fwd) / np.linalg.norm(corner)
-    return fwd, 1.0 - cos
 
 
 @pytest.mark.parametrize("name", CAMERAS)
@@ -176,6 +127,6 @@ def test_outside_the_frame_and_degenerate_points():
     assert (np.all(pr["importance"][~pr["visible"]] == 0)
             and np.all(pr["pdf_dir"][~pr["visible"]] == 0))
     # rays through the film's edges stay finite
-    o, d = _rays(cam, jnp.int32([0, cam.width - 1]), jnp.int32([0, cam.height - 1]),
-                 jnp.float32([0.0, 0.99999994]), jnp.float32([0.0, 0.99999994]))
+    o, d = sample_rays(cam, jnp.int32([0, cam.width - 1]), jnp.int32([0, cam.height - 1]),
+                       jnp.float32([0.0, 0.99999994]), jnp.float32([0.0, 0.99999994]))
     assert np.all(np.isfinite(np.asarray(d)))

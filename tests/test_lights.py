@@ -21,82 +21,33 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from jgi.analysis.chi2 import PlaneDomain, SphereDomain, assert_chi2, bucket, pearson
-from jgi.core.vec import V3
+from jgi.analysis.chi2 import PlaneDomain, SphereDomain, assert_chi2, pearson
 from jgi.physics import lights as LT
 from jgi.scene import AREA_QUAD, AREA_SPHERE, SceneBuilder
+from tests.support.light_samplers import (
+    L_RGB,
+    N_REF,
+    QUAD,
+    TRI,
+    X_REF,
+    build,
+    cast_parallelogram,
+    cast_sphere,
+    direction_pdf,
+    emitted,
+    local_frames,
+    normalize,
+    pdf_li,
+    quad_lights,
+    sample_emission,
+    sample_li,
+    sample_li_from_uniforms,
+    tri_lights,
+    uniforms,
+    zoom_domain,
+)
 
-N = 1 << 18
-L_RGB = np.array([4.0, 2.0, 1.0])
-
-
-def build(add) -> LT.Lights:
-    b = SceneBuilder(name="lights")
-    b.material("m", "diffuse", diffuse=0.5)
-    b.sphere((0.0, 0.0, 0.0), 2.0, "m")  # sets the bounding sphere of directional/env lights
-    add(b)
-    b.camera(position=(0, 0, 8), look_at=(0, 0, 0), width=4, height=4)
-    return b.build().lights
-
-
-def _v3(a, shape):
-    a = jnp.broadcast_to(jnp.asarray(a, jnp.float32), shape + (3,))
-    return V3(a[..., 0], a[..., 1], a[..., 2])
-
-
-@jax.jit
-def _sample_li(lights, x, u):
-    s = LT.sample_li(lights, _v3(x, u.shape[1:]), u[0], u[1], u[2])
-    return dict(wi=s.wi.stack(), dist=s.dist, Li=s.Li.stack(), pdf=s.pdf, delta=s.delta,
-                valid=s.valid)
-
-
-@jax.jit
-def _pdf_li(lights, k, x, y, n_y):
-    shape = y.shape[:-1]
-    return LT.pdf_li(lights, jnp.broadcast_to(k, shape), _v3(x, shape), _v3(y, shape),
-                     _v3(n_y, shape))
-
-
-@jax.jit
-def _emitted(lights, k, n_y, wo):
-    shape = wo.shape[:-1]
-    return LT.emitted(lights, jnp.broadcast_to(k, shape), _v3(n_y, shape), _v3(wo, shape)).stack()
-
-
-@jax.jit
-def _sample_emission(lights, u):
-    e = LT.sample_emission(lights, u[0], u[1], u[2], u[3], u[4])
-    return dict(p=e.p.stack(), n=e.n.stack(), d=e.d.stack(), weight=e.weight.stack(),
-                pdf_pos=e.pdf_pos, pdf_dir=e.pdf_dir, delta_pos=e.delta_pos,
-                delta_dir=e.delta_dir, element=e.element)
-
-
-def uniforms(seed, k, n=N):
-    return np.random.default_rng(seed).random((k, n), dtype=np.float32)
-
-
-def _numpy(out):
-    # float64 copies: numpy sums float32 columns naively (0.2% off over 2e5 rows)
-    return {k: np.asarray(v, np.float64) if np.asarray(v).dtype == np.float32 else np.asarray(v)
-            for k, v in out.items()}
-
-
-def sample_li(lights, x, seed, n=N):
-    u = uniforms(seed, 3, bucket(n))  # padded: few sizes, few compilations
-    return {k: v[:n] for k, v in _numpy(_sample_li(lights, np.float32(x), u)).items()}
-
-
-def sample_emission(lights, seed, n=N):
-    return {k: v[:n]
-            for k, v in _numpy(_sample_emission(lights, uniforms(seed, 5, bucket(n)))).items()}
-
-
-def normalize(v):
-    return v / np.linalg.norm(v, axis=-1, keepdims=True)
-
-
-# --- closed forms and float64 ray casts (independent of jgi) -----------------------------------
+# --- closed forms (independent of jgi) ------------------------------------------------------------
 
 def polygon_irradiance(L, x, n_x, verts):
     """Lambert's formula: E = L / 2 sum_i Theta_i (n_x . Gamma_i) for a uniformly emitting
@@ -121,65 +72,7 @@ def test_polygon_irradiance_reference_is_right():
     assert abs(E - np.pi * F) < 1e-12
 
 
-def cast_parallelogram(x, w, p0, e1, e2, triangle=False):
-    """(hit, y, n) of rays x + t w, t > 0, with p0 + a e1 + b e2 (a, b in [0,1], or a + b <= 1)."""
-    n = normalize(np.cross(e1, e2))
-    denom = w @ n
-    with np.errstate(divide="ignore", invalid="ignore"):
-        t = ((p0 - x) @ n) / denom
-    y = x + t[:, None] * w
-    G = np.array([[e1 @ e1, e1 @ e2], [e1 @ e2, e2 @ e2]])
-    ab = np.linalg.solve(G, np.stack([(y - p0) @ e1, (y - p0) @ e2]))
-    a, b = ab
-    inside = (a >= 0) & (b >= 0) & ((a + b <= 1) if triangle else ((a <= 1) & (b <= 1)))
-    hit = np.isfinite(t) & (t > 0) & inside
-    return hit, y, np.broadcast_to(n, y.shape)
-
-
-def cast_sphere(x, w, c, r):
-    oc = x - c
-    b = w @ oc
-    disc = b * b - (oc @ oc - r * r)
-    t = -b - np.sqrt(np.maximum(disc, 0))
-    hit = (disc >= 0) & (t > 0)
-    y = x + t[:, None] * w
-    return hit, y, normalize(y - c)
-
-
-def direction_pdf(lights, k, x, cast):
-    """pdf_li as a density over directions from x: cast each direction, evaluate at the hit."""
-    def pdf(w):
-        w = normalize(np.asarray(w, np.float64))
-        hit, y, n = cast(np.asarray(x, float), w)
-        p = np.asarray(_pdf_li(lights, np.int32(k), np.float32(x),
-                               np.float32(np.where(hit[:, None], y, 0)), np.float32(n)))
-        return np.where(hit, p, 0.0)
-    return pdf
-
-
 # --- area lights: sample_li -----------------------------------------------------------------------
-
-X_REF = np.array([0.2, -0.1, 0.0])
-N_REF = np.array([0.0, 0.0, 1.0])
-QUAD = (np.array([-0.5, -0.3, 1.0]), np.array([0.0, 0.8, -0.1]), np.array([1.0, 0.0, 0.3]))
-TRI = (np.array([-0.4, -0.2, 0.8]), np.array([0.9, 0.5, 1.1]), np.array([0.1, 0.7, 1.3]))
-
-
-def quad_lights():
-    return build(lambda b: b.quad(*QUAD, "m", emission=L_RGB))
-
-
-def tri_lights():
-    return build(lambda b: b.mesh(np.array(TRI)[[0, 2, 1]], [[0, 1, 2]], "m", emission=L_RGB))
-
-
-def zoom_domain(x, points, n_a=24, n_phi=32):
-    """Rings about the direction to the centroid, out to just past the farthest point."""
-    d = normalize(np.asarray(points, float) - x)
-    axis = normalize(d.mean(0))
-    a_max = min(2.0, 1.05 * (1.0 - (d @ axis).min()))
-    return SphereDomain(axis=axis, a_edges=np.linspace(0.0, a_max, n_a + 1), n_phi=n_phi)
-
 
 def check_area_light(lights, cast, corners_or_none, seed, label, x=X_REF):
     s = sample_li(lights, x, seed)
@@ -194,7 +87,7 @@ def check_area_light(lights, cast, corners_or_none, seed, label, x=X_REF):
     y = x + s["wi"] * s["dist"][:, None]
     hit, _, n_y = cast(np.asarray(x, float), normalize(s["wi"].astype(np.float64)))
     assert hit.mean() > 0.999
-    p = np.asarray(_pdf_li(lights, np.int32(0), np.float32(x), np.float32(y), np.float32(n_y)))
+    p = np.asarray(pdf_li(lights, np.int32(0), np.float32(x), np.float32(y), np.float32(n_y)))
     np.testing.assert_allclose(p[hit], s["pdf"][hit], rtol=2e-4)
     return s, r
 
@@ -250,8 +143,8 @@ def test_sphere_light_from_outside(radius, distance):
     # the returned point lies on the sphere, and pdf_li there is the returned pdf
     y = X_REF + s["wi"] * s["dist"][:, None]
     np.testing.assert_allclose(np.linalg.norm(y - c, axis=1), radius, rtol=1e-3, atol=1e-5)
-    p = np.asarray(_pdf_li(lights, np.int32(0), np.float32(X_REF), np.float32(y),
-                           np.float32(normalize(y - c))))
+    p = np.asarray(pdf_li(lights, np.int32(0), np.float32(X_REF), np.float32(y),
+                          np.float32(normalize(y - c))))
     np.testing.assert_allclose(p, s["pdf"], rtol=1e-5)
     m, se = irradiance_estimate(s, N_REF)
     E = np.pi * L_RGB * sin2 * np.cos(alpha)
@@ -270,12 +163,12 @@ def test_sphere_light_from_inside_and_on_it_gives_nothing():
         assert not s["valid"].any() and np.all(s["Li"] == 0)
     # emitted radiance seen from inside is zero, from outside L
     n_y = np.array([0.0, 0.0, 1.0])
-    inner = _emitted(lights, np.int32(0), np.float32(n_y), np.float32([[0.0, 0.0, -1.0]]))
-    outer = _emitted(lights, np.int32(0), np.float32(n_y), np.float32([[0.0, 0.0, 1.0]]))
+    inner = emitted(lights, np.int32(0), np.float32(n_y), np.float32([[0.0, 0.0, -1.0]]))
+    outer = emitted(lights, np.int32(0), np.float32(n_y), np.float32([[0.0, 0.0, 1.0]]))
     assert np.all(np.asarray(inner) == 0) and np.allclose(np.asarray(outer), L_RGB)
     y = c + np.array([[0.0, 0.0, r]])
-    assert float(_pdf_li(lights, np.int32(0), np.float32(c), np.float32(y),
-                         np.float32(n_y))[0]) == 0
+    assert float(pdf_li(lights, np.int32(0), np.float32(c), np.float32(y),
+                        np.float32(n_y))[0]) == 0
 
 
 def test_one_sided_area_light_seen_from_behind():
@@ -286,8 +179,8 @@ def test_one_sided_area_light_seen_from_behind():
     p0, e1, e2 = QUAD
     y = (p0 + 0.5 * e1 + 0.5 * e2)[None]
     n_q = normalize(np.cross(e1, e2))
-    assert float(_pdf_li(lights, np.int32(0), np.float32(x_behind), np.float32(y),
-                         np.float32(n_q))[0]) == 0
+    assert float(pdf_li(lights, np.int32(0), np.float32(x_behind), np.float32(y),
+                        np.float32(n_q))[0]) == 0
 
 
 def test_environment_sample_li():
@@ -295,8 +188,8 @@ def test_environment_sample_li():
     s = sample_li(lights, X_REF, seed=6)
     assert s["valid"].all() and np.all(np.isinf(s["dist"]))
     k = lights.environment
-    env_pdf = lambda w: np.asarray(_pdf_li(lights, np.int32(k), np.float32(X_REF),
-                                           np.float32(X_REF + w), np.float32(-w)))
+    env_pdf = lambda w: np.asarray(pdf_li(lights, np.int32(k), np.float32(X_REF),
+                                          np.float32(X_REF + w), np.float32(-w)))
     r = assert_chi2(s["wi"], env_pdf, SphereDomain(), "environment")
     assert abs(r.pdf_integral - 1.0) < 1e-4
     np.testing.assert_allclose(s["pdf"], 1 / (4 * np.pi), rtol=1e-6)
@@ -322,7 +215,7 @@ def test_pdf_li_includes_selection_pmf():
     k_of = np.where(hit_s, ks_, kq)
     y = np.where(hit_s[:, None], ys, yq)
     n = np.where(hit_s[:, None], ns, nq)
-    p = np.asarray(_pdf_li(lights, np.int32(k_of), np.float32(X_REF), np.float32(y), np.float32(n)))
+    p = np.asarray(pdf_li(lights, np.int32(k_of), np.float32(X_REF), np.float32(y), np.float32(n)))
     np.testing.assert_allclose(p, s["pdf"], rtol=2e-4)
     frac_sphere = hit_s.mean()
     se = np.sqrt(pmf[ks_] * (1 - pmf[ks_]) / len(w))
@@ -342,7 +235,8 @@ def test_point_light_is_inverse_square_exactly():
     I = np.array([10.0, 5.0, 2.0])
     lights = build(lambda b: b.point_light(pos, I))
     xs = np.random.default_rng(8).normal(size=(256, 3)).astype(np.float32)
-    out = {k: np.asarray(v) for k, v in _sample_li(lights, xs, uniforms(9, 3, 256)).items()}
+    out = {k: np.asarray(v)
+           for k, v in sample_li_from_uniforms(lights, xs, uniforms(9, 3, 256)).items()}
     d = pos - xs.astype(np.float64)
     d2 = (d ** 2).sum(1)
     np.testing.assert_allclose(out["Li"], I / d2[:, None], rtol=2e-6)
@@ -364,7 +258,8 @@ def test_spot_light_falloff():
     th = np.radians(angles)
     xs = pos + dist * np.stack([np.sin(th), np.zeros_like(th), -np.cos(th)], axis=1)
     out = {k: np.asarray(v)
-           for k, v in _sample_li(lights, np.float32(xs), uniforms(10, 3, len(xs))).items()}
+           for k, v in sample_li_from_uniforms(lights, np.float32(xs),
+                                               uniforms(10, 3, len(xs))).items()}
     fall = smoothstep_falloff(np.cos(th), np.cos(np.radians(30.0)), np.cos(np.radians(20.0)))
     np.testing.assert_allclose(out["Li"], I * fall[:, None] / dist ** 2, rtol=2e-5, atol=1e-5)
     np.testing.assert_array_equal(out["valid"], fall > 0)
@@ -381,14 +276,6 @@ def test_directional_light():
 
 
 # --- emission sampling ----------------------------------------------------------------------------
-
-def local_frames(n):
-    """Per-row orthonormal frames (s, t, z) about the unit vectors n [N, 3] (numpy, float64)."""
-    z = normalize(np.asarray(n, np.float64))
-    helper = np.where(np.abs(z[:, :1]) < 0.9, [[1.0, 0.0, 0.0]], [[0.0, 1.0, 0.0]])
-    s_ = normalize(np.cross(helper, z))
-    return s_, np.cross(z, s_), z
-
 
 def local_direction_test(d, n, label):
     """Directions d [N,3] are cosine-distributed about their own normals n [N,3]."""
@@ -561,8 +448,8 @@ def test_zero_area_quad_and_zero_radius_sphere_lights():
             s = sample_li(lights, x, seed=20, n=1000)
             all_finite(s)
             assert not s["valid"].any() and np.all(s["Li"] == 0)
-            p = _pdf_li(lights, np.int32(0), np.float32(x), np.float32([[0.0, 0.0, 1.0]]),
-                        np.float32([[0.0, 0.0, -1.0]]))
+            p = pdf_li(lights, np.int32(0), np.float32(x), np.float32([[0.0, 0.0, 1.0]]),
+                       np.float32([[0.0, 0.0, -1.0]]))
             assert np.all(np.isfinite(np.asarray(p)))
         e = sample_emission(lights, seed=21, n=1000)
         all_finite(e)

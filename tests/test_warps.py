@@ -8,67 +8,29 @@ tested against a slightly wrong pdf) show that the tests have the power to rejec
 
 from __future__ import annotations
 
-import jax
-import jax.numpy as jnp
 import numpy as np
 import pytest
 
 from jgi.analysis.chi2 import PlaneDomain, SphereDomain, assert_chi2, chi2_test
 from jgi.core import warps
-
-N = 200_000
-
-
-def uniforms(seed: int, n: int = N, k: int = 2) -> np.ndarray:
-    return np.random.default_rng(seed).random((k, n), dtype=np.float32)
-
-
-def stack(v) -> np.ndarray:
-    return np.stack([np.asarray(c) for c in v], axis=-1)
-
-
-@jax.jit
-def _cosine(u1, u2):
-    return warps.sample_cosine_hemisphere(u1, u2)
-
-
-@jax.jit
-def _sphere(u1, u2):
-    return warps.sample_uniform_sphere(u1, u2)
-
-
-@jax.jit
-def _cone(u1, u2, cos_max):
-    return warps.sample_uniform_cone(u1, u2, cos_max)
-
-
-@jax.jit
-def _phong(u1, u2, n):
-    return warps.sample_phong_lobe(u1, u2, n)
-
-
-@jax.jit
-def _disc(u1, u2):
-    return warps.sample_concentric_disc(u1, u2)
-
-
-@jax.jit
-def _triangle(u1, u2):
-    return warps.sample_uniform_triangle(u1, u2)
-
-
-def f32(x):
-    return jnp.asarray(x, jnp.float32)
-
-
-def z_of(d):
-    return jnp.asarray(d[:, 2], jnp.float32)
-
+from tests.support.warp_samplers import (
+    f32,
+    phong_domain,
+    sample_cone,
+    sample_cosine,
+    sample_disc,
+    sample_phong,
+    sample_sphere,
+    sample_triangle,
+    stack,
+    uniforms,
+    z_of,
+)
 
 # --- directions -----------------------------------------------------------------------------------
 
 def test_cosine_hemisphere():
-    d = stack(_cosine(*uniforms(1)))
+    d = stack(sample_cosine(*uniforms(1)))
     np.testing.assert_allclose(np.linalg.norm(d, axis=1), 1.0, atol=1e-6)
     r = assert_chi2(d, lambda p: warps.pdf_cosine_hemisphere(z_of(p)), SphereDomain(),
                     "cosine hemisphere")
@@ -76,7 +38,7 @@ def test_cosine_hemisphere():
 
 
 def test_uniform_sphere():
-    d = stack(_sphere(*uniforms(2)))
+    d = stack(sample_sphere(*uniforms(2)))
     np.testing.assert_allclose(np.linalg.norm(d, axis=1), 1.0, atol=1e-6)
     r = assert_chi2(d, lambda p: np.full(len(p), float(warps.pdf_uniform_sphere())),
                     SphereDomain(), "uniform sphere")
@@ -88,7 +50,7 @@ def test_uniform_cone(cos_max):
     """Zoomed on the cone: a in [0, 1 - cos_max]; any sample outside the cone rejects."""
     c = np.float32(cos_max)
     a_max = 1.0 - float(c)
-    d = stack(_cone(*uniforms(int(1000 * cos_max) + 3000), f32(c)))
+    d = stack(sample_cone(*uniforms(int(1000 * cos_max) + 3000), f32(c)))
     np.testing.assert_allclose(np.linalg.norm(d, axis=1), 1.0, atol=1e-6)
     dom = SphereDomain(a_edges=np.linspace(0.0, a_max, 33))
     pdf = float(warps.pdf_uniform_cone(f32(c)))
@@ -99,19 +61,14 @@ def test_uniform_cone(cos_max):
 
 def test_uniform_cone_degenerate_has_no_nan():
     for c in [1.0, -1.0]:
-        d = stack(_cone(*uniforms(4, 1000), f32(c)))
+        d = stack(sample_cone(*uniforms(4, 1000), f32(c)))
         assert np.all(np.isfinite(d))
     assert float(warps.pdf_uniform_cone(f32(1.0))) == 0.0
 
 
-def phong_domain(n: float) -> SphereDomain:
-    # geometric rings in a = 1 - cos(alpha) resolve the lobe (width ~ 1/n) for every exponent
-    return SphereDomain(a_edges=np.concatenate([[0.0], np.geomspace(0.02 / (n + 1), 1.0, 40)]))
-
-
 @pytest.mark.parametrize("n", [0.0, 1.0, 10.0, 1000.0, 100000.0])
 def test_phong_lobe(n):
-    d = stack(_phong(*uniforms(5), f32(n)))
+    d = stack(sample_phong(*uniforms(5), f32(n)))
     np.testing.assert_allclose(np.linalg.norm(d, axis=1), 1.0, atol=1e-6)
     r = assert_chi2(d, lambda p: warps.pdf_phong_lobe(z_of(p), f32(n)), phong_domain(n),
                     f"Phong lobe n={n}", total=1.0)
@@ -120,7 +77,7 @@ def test_phong_lobe(n):
 
 def test_phong_lobe_negative_control():
     """Samples of exponent 10 are told apart from the exponent-11 density."""
-    d = stack(_phong(*uniforms(6), f32(10.0)))
+    d = stack(sample_phong(*uniforms(6), f32(10.0)))
     r = chi2_test(d, lambda p: warps.pdf_phong_lobe(z_of(p), f32(11.0)), phong_domain(10.0),
                   total=1.0)
     assert not r.ok(), r.message
@@ -128,7 +85,7 @@ def test_phong_lobe_negative_control():
 
 def test_cosine_negative_control():
     """Cosine samples are told apart from a uniform hemisphere."""
-    d = stack(_cosine(*uniforms(7)))
+    d = stack(sample_cosine(*uniforms(7)))
     r = chi2_test(d, lambda p: np.where(p[:, 2] > 0, 0.5 / np.pi, 0.0), SphereDomain())
     assert not r.ok(), r.message
 
@@ -136,7 +93,7 @@ def test_cosine_negative_control():
 # --- planar ---------------------------------------------------------------------------------------
 
 def test_concentric_disc():
-    x, y = _disc(*uniforms(8))
+    x, y = sample_disc(*uniforms(8))
     p = np.stack([np.asarray(x), np.asarray(y)], axis=-1)
     assert np.all(p[:, 0] ** 2 + p[:, 1] ** 2 <= 1.0 + 1e-6)
     dom = PlaneDomain(np.linspace(-1, 1, 41), np.linspace(-1, 1, 41))
@@ -148,12 +105,12 @@ def test_concentric_disc():
 
 
 def test_concentric_disc_is_continuous_at_the_centre():
-    x, y = _disc(f32([0.5, 0.5, 0.5 + 1e-6]), f32([0.5, 0.5 - 1e-6, 0.5]))
+    x, y = sample_disc(f32([0.5, 0.5, 0.5 + 1e-6]), f32([0.5, 0.5 - 1e-6, 0.5]))
     assert np.all(np.abs(np.asarray(x)) < 1e-5) and np.all(np.abs(np.asarray(y)) < 1e-5)
 
 
 def test_uniform_triangle():
-    b1, b2 = _triangle(*uniforms(9))
+    b1, b2 = sample_triangle(*uniforms(9))
     b = np.stack([np.asarray(b1), np.asarray(b2)], axis=-1)
     assert np.all(b >= 0) and np.all(b.sum(1) <= 1.0 + 1e-6)
     dom = PlaneDomain(np.linspace(0, 1, 32), np.linspace(0, 1, 32))  # hypotenuse off the nodes
@@ -164,7 +121,7 @@ def test_uniform_triangle():
 
 def test_samples_where_the_pdf_is_zero_reject():
     """Negative control: cosine samples mirrored below the horizon, where the pdf is 0."""
-    d = stack(_cosine(*uniforms(10, 20_000)))
+    d = stack(sample_cosine(*uniforms(10, 20_000)))
     d[:100, 2] *= -1.0
     r = chi2_test(d, lambda p: warps.pdf_cosine_hemisphere(z_of(p)), SphereDomain())
     assert not r.ok() and "pdf is 0" in r.message, r.message
