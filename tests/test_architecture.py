@@ -218,6 +218,13 @@ def test_no_sys_path_edits():
     assert not bad, "sys.path used:\n" + "\n".join(bad)
 
 
+def _is_test_module(module: str) -> bool:
+    """``tests.test_*`` or ``tests.conftest`` (or a name inside one)."""
+    parts = module.split(".")
+    return (parts[0] == "tests" and len(parts) > 1
+            and (parts[1].startswith("test_") or parts[1] == "conftest"))
+
+
 def test_tests_import_no_test_module_nor_experiment_script():
     """A test reads shared helpers from ``tests.support`` (and experiments' library modules),
     never from another test module, ``conftest`` or an experiment script."""
@@ -225,12 +232,21 @@ def test_tests_import_no_test_module_nor_experiment_script():
     for path, tree in _sources("tests"):
         for module, node in _absolute_imports(tree):
             parts = module.split(".")
-            to_test = (parts[0] == "tests" and len(parts) > 1
-                       and (parts[1].startswith("test_") or parts[1] == "conftest"))
             to_script = (parts[0] == "experiments" and len(parts) > 1
                          and not any(module == lib or module.startswith(lib + ".")
                                      or lib.startswith(module + ".")
                                      for lib in EXPERIMENT_LIBRARIES))
-            if to_test or to_script:
+            if _is_test_module(module) or to_script:
                 bad.append(f"{path.relative_to(ROOT)}:{node.lineno}: {module}")
     assert not bad, "tests importing test modules or experiment scripts:\n" + "\n".join(bad)
+
+
+def test_experiments_and_paper_import_no_test_module():
+    """Experiments and the paper's scripts share the tests' samplers and references through
+    ``tests.support``, never through a test module or ``conftest``."""
+    bad = []
+    for path, tree in _sources("experiments", "paper"):
+        for module, node in _absolute_imports(tree):
+            if _is_test_module(module):
+                bad.append(f"{path.relative_to(ROOT)}:{node.lineno}: {module}")
+    assert not bad, "experiments or paper importing test modules:\n" + "\n".join(bad)
