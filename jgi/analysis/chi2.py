@@ -28,7 +28,7 @@ those samples (impossible points); otherwise the cell is a sliver of support bet
 is pooled. Usage: ``assert_chi2(samples, pdf, SphereDomain(axis=n), "label", n_total=N)``.
 
 The tests (tests/test_warps.py, test_bsdf.py, test_lights.py, test_camera.py) assert with it;
-the paper's pipeline (step ``chi2``, experiments/chi2_table.py) tabulates the same statistics.
+the paper's pipeline (step ``chi2``, paper/chi2_table.py) tabulates the same statistics.
 """
 
 from __future__ import annotations

@@ -11,8 +11,9 @@ radius_alpha) can be estimated by the *sample-average approximation*: fix R rand
 a deterministic, differentiable function of theta whose minimiser converges to the true
 MSE-optimal theta as R grows. ``jax.grad`` differentiates it; optimistix minimises it.
 
-Functions here are generic: the photon-radius and filter study (``experiments/fit_density.py``)
-plug estimators into them; :mod:`jgi.analysis.density_fit` is the photon-density test bed.
+Functions here are generic: the photon-radius and filter study
+(``experiments/studies/fit_density.py``) plugs estimators into them;
+:mod:`jgi.analysis.density_fit` is the photon-density test bed.
 """
 
 from __future__ import annotations
