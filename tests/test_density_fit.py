@@ -76,7 +76,7 @@ def test_fitted_gaussian_is_no_worse_than_jensens(problem):
     assert float(fit.value) < float(gauss(start))
     # Jensen's filter divided by pi r^2 integrates to 0.53 of the disc: it underestimates by half
     # unless normalised; the fitted scale brings the estimate back towards unbiased.
-    from jgi.transport.photon_map import gaussian_normaliser
+    from jgi.transport.density import gaussian_normaliser
     assert float(gaussian_normaliser(0.918, 1.953)) == pytest.approx(0.531, abs=1e-3)
     assert 0.75 < float(gaussian_normaliser(fit.theta[0], jnp.exp(fit.theta[1]))) < 1.1
 

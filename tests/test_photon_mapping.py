@@ -10,7 +10,7 @@ from scipy.spatial import cKDTree
 
 import jgi
 from jgi.core.vec import V3
-from jgi.transport import photon_map as PMap
+from jgi.transport import density, hash_grid
 from jgi.transport.photons import PhotonMap
 from tests.support.stats import critical_t
 
@@ -39,14 +39,14 @@ def queries(xy):
 def test_knn_and_ball_queries_agree_with_ckdtree(rng_np, clustered):
     pm, xy = plane_photons(rng_np, 20000, clustered=clustered)
     q = rng_np.random((500, 2))
-    grid = PMap.build_grid(pm, 0.05, cap=128)
+    grid = hash_grid.build_grid(pm, 0.05, cap=128)
     x, n = queries(q)
-    g = PMap.gather(grid, x, n, cap=128)
+    g = density.gather(grid, x, n, cap=128)
     assert not np.any(np.asarray(g.truncated))
     tree = cKDTree(xy)
     k = 20
     d_ref, _ = tree.query(q, k=k)
-    r2 = np.asarray(PMap.knn_radius2(g, k, float(grid.cell)))
+    r2 = np.asarray(density.knn_radius2(g, k, float(grid.cell)))
     have = d_ref[:, -1] < float(grid.cell)  # the k-th neighbour lies within the search radius
     np.testing.assert_allclose(np.sqrt(r2[have] / (1 + 1e-6)), d_ref[have, -1], rtol=1e-4,
                                atol=1e-6)
@@ -58,14 +58,14 @@ def test_knn_and_ball_queries_agree_with_ckdtree(rng_np, clustered):
 
 
 def test_neighbour_hash_gives_a_cells_27_neighbours_distinct_entries():
-    """The device grid's linear hash (:func:`photon_map.neighbour_hash`): for every table size
+    """The device grid's linear hash (:func:`hash_grid.neighbour_hash`): for every table size
     VCM uses, the 27 cells around a cell land on 27 distinct entries (so a query reads no entry
     twice), checked on random cells including negative and large coordinates."""
     rng = np.random.default_rng(5)
     ijk = rng.integers(-2**20, 2**20, (2000, 3)).astype(np.int32)
-    off = PMap._NEIGHBOURS
+    off = hash_grid.NEIGHBOURS
     for T in (128, 1024, 1 << 16, 1 << 23):
-        h = np.asarray(PMap.neighbour_hash(*(jnp.asarray(ijk[:, None, i] + off[:, i])
+        h = np.asarray(hash_grid.neighbour_hash(*(jnp.asarray(ijk[:, None, i] + off[:, i])
                                               for i in range(3)), T))
         assert h.min() >= 0 and h.max() < T
         assert all(len(set(row)) == 27 for row in h), T
@@ -80,14 +80,14 @@ def test_device_grid_pairs_list_every_point_within_the_cell_once(rng_np, capacit
     valid = rng_np.random(3000) < 0.7
     cell = 0.03
     T = 1 << 13
-    cells = PMap.index_cells(pm.position, jnp.asarray(valid), jnp.float32(cell), T, capacity)
+    cells = hash_grid.index_cells(pm.position, jnp.asarray(valid), jnp.float32(cell), T, capacity)
     q = rng_np.random((300, 2))
     x, _ = queries(q)
-    start, count = PMap.cell_ranges(cells, T, x)
-    pairs = PMap.candidate_pairs(start, count)
+    start, count = hash_grid.cell_ranges(cells, T, x)
+    pairs = hash_grid.candidate_pairs(start, count)
     got = []
     for b in range(-(-int(pairs.total) // 1024)):
-        qi, slot, ok = (np.asarray(a) for a in PMap.pair_block(pairs, 1024, b))
+        qi, slot, ok = (np.asarray(a) for a in hash_grid.pair_block(pairs, 1024, b))
         got += list(zip(qi[ok], np.asarray(cells.order)[slot[ok]]))
     assert len(got) == len(set(got)) == int(pairs.total)       # no pair twice
     assert all(valid[i] for _, i in got)
@@ -104,33 +104,33 @@ def test_device_grid_pairs_list_every_point_within_the_cell_once(rng_np, capacit
 def test_constant_density_is_estimated_without_bias(rng_np, kind, params):
     n, size, r = 40000, 1.0, 0.04
     pm, _ = plane_photons(rng_np, n, size)
-    grid = PMap.build_grid(pm, r)
+    grid = hash_grid.build_grid(pm, r)
     # independent estimates: query points on a grid spaced > 2r apart, away from the border
     g1 = np.arange(0.1, 0.9, 0.09)
     q = np.stack(np.meshgrid(g1, g1), -1).reshape(-1, 2)
     x, nrm = queries(q)
-    est, _ = PMap.estimate(PMap.gather(grid, x, nrm, cap=256), jnp.float32(r * r),
-                           jnp.float32(1.0), kind, **params)
+    est, _ = density.estimate(density.gather(grid, x, nrm, cap=256), jnp.float32(r * r),
+                              jnp.float32(1.0), kind, **params)
     e = np.asarray(est.x)
-    density = n / size**2
+    per_area = n / size**2
     se = e.std(ddof=1) / np.sqrt(len(e))
-    assert abs(e.mean() - density) < critical_t(len(e) - 1, 1) * se, (kind, e.mean(), density, se)
+    assert abs(e.mean() - per_area) < critical_t(len(e) - 1, 1) * se, (kind, e.mean(), per_area, se)
 
 
 @pytest.mark.parametrize("kind, name", [("gaussian", "gauss_alpha"), ("gaussian", "gauss_beta"),
                                         ("cone", "k"), ("epanechnikov", "r"), ("gaussian", "r")])
 def test_gradients_match_central_differences(rng_np, kind, name):
     pm, _ = plane_photons(rng_np, 5000)
-    grid = PMap.build_grid(pm, 0.1)
+    grid = hash_grid.build_grid(pm, 0.1)
     x, n = queries(np.array([[0.5, 0.5], [0.3, 0.6]]))
-    g = PMap.gather(grid, x, n, cap=256)
+    g = density.gather(grid, x, n, cap=256)
     base = dict(r=0.08, gauss_alpha=0.918, gauss_beta=1.953, k=1.5)
 
     def f(v):
         p = dict(base, **{name: v})
         fp = {kk: p[kk] for kk in (("gauss_alpha", "gauss_beta") if kind == "gaussian"
                                    else ("k",) if kind == "cone" else ())}
-        L, _ = PMap.estimate(g, p["r"] ** 2, jnp.float32(1.0), kind, **fp)
+        L, _ = density.estimate(g, p["r"] ** 2, jnp.float32(1.0), kind, **fp)
         return jnp.sum(L.x)
 
     # evaluate in float64 so that the finite difference measures the derivative, not rounding
@@ -144,7 +144,7 @@ def test_gradients_match_central_differences(rng_np, kind, name):
             p = dict(base, **{name: v})
             fp = {kk: p[kk] for kk in (("gauss_alpha", "gauss_beta") if kind == "gaussian"
                                        else ("k",) if kind == "cone" else ())}
-            L, _ = PMap.estimate(g64, p["r"] ** 2, jnp.float64(1.0), kind, **fp)
+            L, _ = density.estimate(g64, p["r"] ** 2, jnp.float64(1.0), kind, **fp)
             return jnp.sum(L.x)
 
         v0 = jnp.float64(base[name])
@@ -162,9 +162,9 @@ def test_gradients_match_central_differences(rng_np, kind, name):
 
 def test_truncation_is_reported(rng_np):
     pm, _ = plane_photons(rng_np, 20000)
-    grid = PMap.build_grid(pm, 0.2)
+    grid = hash_grid.build_grid(pm, 0.2)
     x, n = queries(np.array([[0.5, 0.5]]))
-    assert bool(PMap.gather(grid, x, n, cap=8).truncated[0])
+    assert bool(density.gather(grid, x, n, cap=8).truncated[0])
 
 
 def test_photon_mapping_point_light_converges_to_closed_form():
@@ -211,3 +211,13 @@ def test_sppm_is_consistent():
                          radius=0.15, radius_alpha=0.7)
         rel.append(float(np.mean((img - ref) ** 2 / (ref**2 + 1e-2))))
     assert rel[0] > rel[1] > rel[2], rel
+
+
+@pytest.mark.parametrize("estimator", ["pm", "ppm", "sppm"])
+def test_max_depth_was_renamed_max_bounces(estimator):
+    """The photon estimators bound each subpath's surface hits (``max_bounces``); pt's
+    ``max_depth`` bounds a whole path's segments, so the old name is refused with the new one."""
+    with pytest.raises(jgi.ParameterError,
+                       match=f"estimator '{estimator}': parameter 'max_depth' was renamed "
+                             "'max_bounces'"):
+        jgi.render(jgi.scenes.furnace(resolution=4), estimator, max_depth=4)

@@ -95,7 +95,7 @@ def test_sppm_converges_to_path_tracer(scene, pt):
     err = []
     for passes in (1, 4, 16):
         img = jgi.render(scene, "sppm", spp=1, seed=3, passes=passes, photons=4000,
-                         radius=0.15, radius_alpha=0.7, max_depth=DEPTH)
+                         radius=0.15, radius_alpha=0.7, max_bounces=DEPTH)
         err.append(float(np.mean((img - ref) ** 2 / (ref ** 2 + 1e-2))))
     assert err[0] > err[1] > err[2], err
 

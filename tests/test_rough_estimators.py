@@ -99,7 +99,7 @@ def test_photon_mapping_converges_to_path_tracing(scene, pt):
     for photons in (10_000, 40_000):
         r = 0.15 * (photons / 10_000) ** (-1 / 6)
         img = jgi.render(scene, "pm", spp=4, seed=2, photons=photons, radius=r,
-                         max_depth=DEPTH)
+                         max_bounces=DEPTH)
         _check(img[None], "pm")
         rel.append(_rel_error(img, ref))
     assert rel[0] > rel[1], rel
@@ -109,7 +109,7 @@ def test_photon_mapping_matches_the_path_tracer_per_region(scene, pt):
     """Every 4 x 4 pixel region of photon mapping (8 seeds, 40 000 photons: the settings of the
     convergence test above, so the compilation is shared) within 15% of the path tracer plus
     five standard errors of the difference. 15% is the bias budget: the kernel's blur at
-    r = 0.119 and the photons' extra bounce (a visible point plus ``max_depth`` photon
+    r = 0.119 and the photons' extra bounce (a visible point plus ``max_bounces`` photon
     segments) give 0.94..1.08 where the regions are precise (the amber rough glass sphere: 1.08
     at t = 4.8, and 1.12 at t = 6.5 when it was clear; the light's region 1.31 at t = 2.0, 1.0
     standard errors beyond the budget; measured 2026-12-03). The standard errors
@@ -119,7 +119,7 @@ def test_photon_mapping_matches_the_path_tracer_per_region(scene, pt):
     +- 0.004)."""
     regions = lambda x: x.reshape(RES // 4, 4, RES // 4, 4, 3).mean(axis=(1, 3, 4))  # noqa: E731
     pm = np.stack([regions(jgi.render(scene, "pm", spp=4, seed=s, photons=40_000,
-                                      radius=0.15 * 4 ** (-1 / 6), max_depth=DEPTH))
+                                      radius=0.15 * 4 ** (-1 / 6), max_bounces=DEPTH))
                    for s in SEEDS])
     ref = np.stack([regions(im) for im in pt])
     excess = np.abs(pm.mean(0) - ref.mean(0)) - 0.15 * ref.mean(0)
@@ -217,6 +217,6 @@ def test_photon_mapping_approaches_mitsuba(mitsuba_renders):
     ours = _jgi_isotropic()
     ref = mitsuba_renders.mean(0)
     rel = [_rel_error(jgi.render(ours, "sppm", spp=1, seed=4, passes=p, photons=10_000,
-                                 radius=0.15, radius_alpha=0.7, max_depth=DEPTH), ref)
+                                 radius=0.15, radius_alpha=0.7, max_bounces=DEPTH), ref)
            for p in (1, 4, 16)]
     assert rel[0] > rel[1] > rel[2], rel

@@ -28,8 +28,8 @@ CASES = [
     ("pt", dict(max_depth=DEPTH), SPP),
     ("lt", dict(max_depth=DEPTH), SPP),
     ("bdpt", dict(max_depth=DEPTH), 32),
-    # photons bounce max_depth times: paths of max_depth + 1 segments, the path tracer's DEPTH
-    ("sppm", dict(max_depth=DEPTH - 1, photons=20_000, passes=8, radius=0.05), 4),
+    # photons hit max_bounces surfaces: paths of max_bounces + 1 segments, the path tracer's DEPTH
+    ("sppm", dict(max_bounces=DEPTH - 1, photons=20_000, passes=8, radius=0.05), 4),
     ("vcm", dict(max_depth=DEPTH, radius=0.03), 16),
 ]
 

@@ -269,7 +269,7 @@ def test_photon_mapping_of_the_checkerboard_converges(checker_plane, estimator, 
     scene, ref = checker_plane
     regions = lambda x: x.reshape(8, 2, 8, 2, 3).mean(axis=(1, 3))  # noqa: E731
     errs = [float(np.sqrt(np.mean((regions(np.asarray(jgi.render(scene, estimator, spp=16, seed=1,
-                                                                  max_depth=2, **kw)))
+                                                                  max_bounces=2, **kw)))
                                     - regions(ref)) ** 2)) / ref.mean()) for kw in sizes]
     print(f"{estimator}: relative RMS error over 2 x 2 pixel regions {errs[0]:.3f} -> "
           f"{errs[1]:.3f}")

@@ -34,7 +34,7 @@ def bench_jgi(p: np.ndarray, q: np.ndarray, radius: float) -> dict:
     import jax.numpy as jnp
 
     from jgi.core.vec import V3
-    from jgi.transport import photon_map as PMap
+    from jgi.transport import density, hash_grid
     from jgi.transport.photons import PhotonMap
 
     n = len(p)
@@ -45,17 +45,17 @@ def bench_jgi(p: np.ndarray, q: np.ndarray, radius: float) -> dict:
     pm = PhotonMap(col(p), V3(ones, ones, ones), col(up), col(up), np.zeros(n, bool),
                    np.zeros(n, np.int32))
     t0 = time.perf_counter()
-    grid = PMap.build_grid(pm, radius)
+    grid = hash_grid.build_grid(pm, radius)
     jax.block_until_ready(grid.start)
     build = time.perf_counter() - t0
-    cap = PMap.auto_cap(grid, limit=4096)
-    chunk = PMap.query_chunk(cap)
+    cap = hash_grid.auto_cap(grid, limit=4096)
+    chunk = hash_grid.query_chunk(cap)
 
     @jax.jit
     def query(grid, x, y):
         z = jnp.zeros_like(x)
-        g = PMap.gather(grid, V3(x, y, z), V3(z, z, z + 1.0), cap)
-        E, count = PMap.estimate(g, jnp.float32(radius * radius), jnp.float32(1.0))
+        g = density.gather(grid, V3(x, y, z), V3(z, z, z + 1.0), cap)
+        E, count = density.estimate(g, jnp.float32(radius * radius), jnp.float32(1.0))
         return E.x, count
 
     def run_all():

@@ -53,7 +53,7 @@ def main(argv=None) -> dict:
 
     from jgi.analysis import density_fit as D
     from jgi.analysis import fitting as F
-    from jgi.transport.photon_map import gaussian_normaliser
+    from jgi.transport.density import gaussian_normaliser
 
     out = Path(a.out)
     out.mkdir(parents=True, exist_ok=True)

@@ -30,7 +30,7 @@ from jax import Array
 
 from ..core.vec import V3
 from ..scene.builtin import point_light_plane
-from ..transport import photon_map as PMap
+from ..transport import density, hash_grid
 from ..transport.photons import trace_photons
 
 
@@ -66,8 +66,8 @@ def point_light_problem(photons: int, repetitions: int, *, intensity: float = 10
     d2s, pows = [], []
     for r in range(repetitions):
         pm = trace_photons(scene, photons, seed=seed + 7919 * r, max_depth=1)
-        grid = PMap.build_grid(pm, r_max)
-        g = PMap.gather(grid, x, n, PMap.auto_cap(grid, limit=1 << 14))
+        grid = hash_grid.build_grid(pm, r_max)
+        g = density.gather(grid, x, n, hash_grid.auto_cap(grid, limit=1 << 14))
         if bool(jnp.any(g.truncated)):
             raise ValueError(f"a grid cell holds more photons than the gather cap: "
                              f"lower r_max ({r_max})")
@@ -86,12 +86,13 @@ def estimate(problem: DensityProblem, r, kind: str = "epanechnikov", normalised:
              **filter_params):
     """[R, J] irradiance estimates sum_p W(d_p) Phi_p / K; with ``normalised=False`` the Gaussian
     is used as Jensen wrote it, divided by pi r^2 only (``gauss_alpha`` then sets its scale)."""
-    gathered = PMap.Gathered(problem.d2, V3(problem.power, problem.power, problem.power), None,
-                           jnp.isfinite(problem.d2), None)
-    E, _ = PMap.estimate(gathered, r * r, jnp.float32(1.0), kind, **filter_params)
+    gathered = density.Gathered(problem.d2, V3(problem.power, problem.power, problem.power),
+                                None, jnp.isfinite(problem.d2), None)
+    E, _ = density.estimate(gathered, r * r, jnp.float32(1.0), kind, **filter_params)
     if kind == "gaussian" and not normalised:
-        return E.x * PMap.gaussian_normaliser(filter_params.get("gauss_alpha", PMap.JENSEN_ALPHA),
-                                              filter_params.get("gauss_beta", PMap.JENSEN_BETA))
+        alpha = filter_params.get("gauss_alpha", density.JENSEN_ALPHA)
+        return E.x * density.gaussian_normaliser(alpha, filter_params.get("gauss_beta",
+                                                                          density.JENSEN_BETA))
     return E.x
 
 

@@ -51,9 +51,9 @@ from ..core.vec import V3, coordinate_system, cross, dot, length
 from ..physics import geometry as G
 from ..physics import lights as LT
 from ..scene.tables import Scene
-from ..transport import photon_map as PMap
+from ..transport import density, hash_grid
 from ..transport.photons import trace_photons
-from ..transport.subpath import face_viewer, trace_to_diffuse, visible_points
+from ..transport.visible_points import face_viewer, trace_to_diffuse, visible_points
 from .path_tracer import PathTracerConfig, radiance
 from .registry import Estimator, Render, param, register
 
@@ -182,7 +182,7 @@ def gather_photons(scene: Scene, cfg: CacheConfig, seed, ids, p: V3, n: V3, grid
     is the photon estimate of the light reflected at the diffuse surface it reaches."""
     K = p.x.shape[0]
     v, r, angles, frame = _gather_hits(scene, cfg, seed, ids, p, n, ng)
-    Lp, _ = PMap.estimate_at_points(scene, grid, v.p, v.n, v.wo, v.material, radius, cap=cap,
+    Lp, _ = density.estimate_at_points(scene, grid, v.p, v.n, v.wo, v.material, radius, cap=cap,
                                     k=k, kind="box", thickness=None, filter_params={}, uv=v.uv,
                                     ns=v.ns)
     found = np.asarray(v.found)
@@ -306,7 +306,7 @@ class ShadingPoints(NamedTuple):
 
 
 def shading_points(v) -> ShadingPoints:
-    """The shading points of visible points (:class:`jgi.transport.subpath.DiffuseVertex`,
+    """The shading points of visible points (:class:`jgi.transport.visible_points.DiffuseVertex`,
     normals facing the viewer): gathering and records use the shading normal, ray offsets the
     geometric one."""
     stack = lambda a: np.stack([np.asarray(c) for c in a])  # noqa: E731
@@ -317,7 +317,7 @@ def shading_points(v) -> ShadingPoints:
 
 class PhotonSource(NamedTuple):
     """Gather rays read radiance from this global photon map instead of the path tracer."""
-    grid: object        # jgi.transport.photon_map.HashGrid
+    grid: object        # jgi.transport.hash_grid.HashGrid
     k: int = 50         # photons in the estimate
     radius: float = 0.08  # maximum search radius
 
@@ -325,8 +325,8 @@ class PhotonSource(NamedTuple):
 def photon_source(scene: Scene, photons: int, seed: int, *, k: int = 50, radius: float = 0.08,
                   max_depth: int = 8) -> PhotonSource:
 
-    grid = PMap.build_grid(trace_photons(scene, photons, seed=seed, max_depth=max_depth), radius,
-                           cap=128)
+    grid = hash_grid.build_grid(trace_photons(scene, photons, seed=seed, max_depth=max_depth),
+                                radius, cap=128)
     return PhotonSource(grid, k, float(grid.cell))
 
 
@@ -441,7 +441,7 @@ def render(scene: Scene, cfg: CacheConfig = CacheConfig(), *, spp: int = 1, seed
                              source=source)
     if scene.materials.has_textures:
         albedo = np.stack([np.asarray(c) for c in
-                           PMap.diffuse_reflectance(scene, v.material, v.uv)])
+                           density.diffuse_reflectance(scene, v.material, v.uv)])
     else:
         kd = scene.materials.diffuse
         m = np.asarray(v.material)

@@ -1,8 +1,8 @@
 """Photon mapping (Jensen 1996, 2001) and its progressive forms (Hachisuka et al. 2008, 2009).
 
 All three start from the photon maps of :mod:`jgi.transport.photons` and the density estimate of
-:mod:`jgi.transport.photon_map`, and see the scene from the camera through specular chains
-(:func:`jgi.transport.subpath.visible_points`) to the first non-specular point x:
+:mod:`jgi.transport.density`, and see the scene from the camera through specular chains
+(:func:`jgi.transport.visible_points.visible_points`) to the first non-specular point x:
 
 * ``pm`` - direct visualisation: L(x) = L_r estimated from the global map at x (every
   bounce of light, direct included, from photons). Fixed radius, or k nearest photons.
@@ -23,7 +23,7 @@ All three start from the photon maps of :mod:`jgi.transport.photons` and the den
 Only the diffuse part (k_d / pi) of a diffuse or Phong surface reflects photons in the
 estimates; on microfacet surfaces the whole BSDF does. Glossy microfacet vertices (and rough
 dielectrics) are sampled through like specular ones, not looked up
-(:func:`jgi.transport.subpath.samples_through`); ``pm_jensen`` samples through every
+(:func:`jgi.transport.visible_points.samples_through`); ``pm_jensen`` samples through every
 microfacet vertex (specular and glossy light by Monte Carlo, Jensen's split).
 
 Parameters: :class:`PMConfig`, :class:`JensenConfig`, :class:`ProgressiveConfig`; each
@@ -44,15 +44,16 @@ from ..core.vec import V3, coordinate_system
 from ..core.warps import sample_cosine_hemisphere
 from ..physics import geometry as G
 from ..scene.tables import Scene
-from ..transport import photon_map as PMap
+from ..transport import density, hash_grid
 from ..transport.photons import trace_photons
-from ..transport.subpath import face_viewer, shading, trace_to_diffuse, visible_points
+from ..transport.subpath import shading
+from ..transport.visible_points import face_viewer, trace_to_diffuse, visible_points
 from . import irradiance_cache as IC
 from .registry import Estimator, Render, param, register
 
 _SALT = rng.SALTS["final_gather"]
-FILTERS = ("box", "cone", "gaussian", "epanechnikov")
-_MAX_DEPTH_DOC = "maximum bounces of photons and of specular chains"
+# each subpath at most this many segments (pt's max_depth bounds a whole path's segments)
+_MAX_BOUNCES_DOC = "maximum surface hits per photon and per camera specular chain"
 
 
 @dataclass(frozen=True)
@@ -63,11 +64,13 @@ class PMConfig:
     photons: int = param(200_000, "photons emitted", minimum=1)
     radius: float = param(0.05, "estimate radius (k > 0: the maximum search radius)", minimum=1e-6)
     k: int = param(0, "k nearest photons (0: fixed radius)", minimum=0, maximum=1024)
-    filter: str = param("box", "density filter", choices=FILTERS)
+    filter: str = param("box", "density filter", choices=density.FILTERS)
     cone_k: float = param(1.1, "cone filter k >= 1", minimum=1.0)
-    gauss_alpha: float = param(PMap.JENSEN_ALPHA, "Gaussian filter alpha (Jensen's)", minimum=1e-3)
-    gauss_beta: float = param(PMap.JENSEN_BETA, "Gaussian filter beta (Jensen's)", minimum=1e-3)
-    max_depth: int = param(8, _MAX_DEPTH_DOC, minimum=1)
+    gauss_alpha: float = param(density.JENSEN_ALPHA, "Gaussian filter alpha (Jensen's)",
+                               minimum=1e-3)
+    gauss_beta: float = param(density.JENSEN_BETA, "Gaussian filter beta (Jensen's)",
+                              minimum=1e-3)
+    max_bounces: int = param(8, _MAX_BOUNCES_DOC, minimum=1)
     cap: int | None = None          # photons read per grid cell (None: 128 with k, else automatic)
     thickness: float | None = None  # flattened-disc selection: reject photons this far off
                                     # the plane
@@ -85,12 +88,12 @@ class JensenConfig:
     caustic_radius: float = param(0.05, "maximum caustic search radius", minimum=1e-6)
     final_gather: int = param(32, "final-gather rays per shading point", minimum=1)
     caustics: bool = param(True, "use the caustic map")
-    filter: str = param("box", "density filter", choices=FILTERS)
+    filter: str = param("box", "density filter", choices=density.FILTERS)
     irradiance_cache: bool = param(False, "indirect diffuse term from an irradiance cache of "
                                    "final gathers (Ward), not a gather per shading point")
     cache_a: float = param(0.2, "the cache's error threshold a", minimum=1e-4, maximum=10.0)
     cap: int | None = None          # photons read per grid cell (None: 128)
-    max_depth: int = 8              # maximum bounces of photons and of specular chains
+    max_bounces: int = 8            # surface hits per photon and per camera specular chain
 
 
 @dataclass(frozen=True)
@@ -102,7 +105,7 @@ class ProgressiveConfig:
     radius: float = param(0.1, "initial radius", minimum=1e-6)
     radius_alpha: float = param(0.7, "radius reduction alpha in (0, 1)", minimum=1e-3,
                                 maximum=0.999)
-    max_depth: int = param(8, _MAX_DEPTH_DOC, minimum=1)
+    max_bounces: int = param(8, _MAX_BOUNCES_DOC, minimum=1)
     stochastic: bool = True         # a new visible point per pixel each pass (SPPM), or one (PPM)
     cap: int | None = None          # photons read per grid cell (None: automatic)
 
@@ -125,17 +128,17 @@ def render_pm(scene: Scene, cfg: PMConfig = PMConfig(), *, spp: int = 4, seed: i
 
     Stats: ``stored`` (photons in the map), ``truncated`` (a grid cell held more than ``cap``)."""
     photons, radius, k, filter, max_depth = (cfg.photons, cfg.radius, cfg.k, cfg.filter,
-                                             cfg.max_depth)
+                                             cfg.max_bounces)
     cap, thickness = cfg.cap, cfg.thickness
     pm = trace_photons(scene, photons, seed=seed, max_depth=max_depth)
-    grid = PMap.build_grid(pm, radius, cap=(cap or 128) if k > 0 else None)
+    grid = hash_grid.build_grid(pm, radius, cap=(cap or 128) if k > 0 else None)
     radius = float(grid.cell)
     pix, smp = _pixels(scene, spp)
     v = visible_points(scene, jnp.uint32(seed), pix, smp, max_depth=max_depth, light_samples=0)
     fp = (dict(k=cfg.cone_k) if filter == "cone" else
           dict(gauss_alpha=cfg.gauss_alpha, gauss_beta=cfg.gauss_beta) if filter == "gaussian"
           else {})
-    L, trunc = PMap.estimate_at_points(scene, grid, v.p, v.n, v.wo, v.material, radius, cap=cap,
+    L, trunc = density.estimate_at_points(scene, grid, v.p, v.n, v.wo, v.material, radius, cap=cap,
                                        k=k, kind=filter, thickness=thickness, filter_params=fp,
                                        uv=v.uv, ns=v.ns)
     found = np.asarray(v.found)
@@ -171,9 +174,9 @@ def render_jensen(scene: Scene, cfg: JensenConfig = JensenConfig(), *, spp: int 
 
     Stats: ``stored`` (photons in the global map)."""
     photons, k, radius, final_gather = cfg.photons, cfg.k, cfg.radius, cfg.final_gather
-    cap, max_depth, filter = cfg.cap, cfg.max_depth, cfg.filter
+    cap, max_depth, filter = cfg.cap, cfg.max_bounces, cfg.filter
     pm = trace_photons(scene, photons, seed=seed, max_depth=max_depth)
-    grid = PMap.build_grid(pm, radius, cap=cap or 128)
+    grid = hash_grid.build_grid(pm, radius, cap=cap or 128)
     radius = float(grid.cell)
     pix, smp = _pixels(scene, spp)
     v = visible_points(scene, jnp.uint32(seed), pix, smp, max_depth=max_depth, light_samples=1,
@@ -181,13 +184,13 @@ def render_jensen(scene: Scene, cfg: JensenConfig = JensenConfig(), *, spp: int 
     found = np.asarray(v.found)
     beta_ = np.stack([np.asarray(c) for c in v.beta])
     total = np.stack([np.asarray(c) for c in v.L])  # emission along the chain + direct light
-    kdx = np.stack([np.asarray(c) for c in PMap.diffuse_reflectance(scene, v.material, v.uv)])
+    kdx = np.stack([np.asarray(c) for c in density.diffuse_reflectance(scene, v.material, v.uv)])
     if cfg.caustics:
         cpm = trace_photons(scene, cfg.caustic_photons, seed=seed + 7919, max_depth=max_depth)
         cpm = cpm.select(cpm.caustic)
         if cpm.count:
-            cgrid = PMap.build_grid(cpm, cfg.caustic_radius, cap=cap or 128)
-            Lc, _ = PMap.estimate_at_points(scene, cgrid, v.p, v.n, v.wo, v.material,
+            cgrid = hash_grid.build_grid(cpm, cfg.caustic_radius, cap=cap or 128)
+            Lc, _ = density.estimate_at_points(scene, cgrid, v.p, v.n, v.wo, v.material,
                                             float(cgrid.cell),
                                             cap=cap, k=cfg.k_caustic, kind=filter, thickness=None,
                                             filter_params={}, uv=v.uv, ns=v.ns)
@@ -214,7 +217,7 @@ def render_jensen(scene: Scene, cfg: JensenConfig = JensenConfig(), *, spp: int 
             g = _gather_points(scene, jnp.uint32(seed), jnp.asarray(pad, jnp.int32), take(v.p),
                                take(shading(v)), final_gather, max_depth,
                                None if v.ns is None else take(v.n))
-            Lg, _ = PMap.estimate_at_points(scene, grid, g.p, g.n, g.wo, g.material, radius,
+            Lg, _ = density.estimate_at_points(scene, grid, g.p, g.n, g.wo, g.material, radius,
                                             cap=cap, k=k, kind=filter, thickness=None,
                                             filter_params={}, uv=g.uv, ns=g.ns)
             gb = np.stack([np.asarray(c) for c in g.beta])
@@ -229,10 +232,10 @@ def render_jensen(scene: Scene, cfg: JensenConfig = JensenConfig(), *, spp: int 
 def _ppm_gather(scene: Scene, grid, x: V3, n: V3, wo: V3, material, r2, cap: int, uv=None,
                 ns=None):
     """M_i (photons within R_i) and Phi_i = sum f_r DeltaPhi_p at each visible point."""
-    g = PMap.gather(grid, x, n, cap, None)
+    g = density.gather(grid, x, n, cap, None)
     inside = g.d2 < r2[:, None]
     M = jnp.sum(inside, axis=-1).astype(jnp.float32)
-    f = PMap.photon_reflectance(scene, material, n, wo, g.wi, uv, ns, g.normal)
+    f = density.photon_reflectance(scene, material, n, wo, g.wi, uv, ns, g.normal)
     if f.x.shape[-1] == 1:   # k_d / pi per point: summed once (the scene has no microfacets)
         phi = V3(*(jnp.sum(jnp.where(inside, p, 0.0), axis=-1) * c[:, 0]
                    for p, c in zip(g.power, f)))
@@ -247,7 +250,7 @@ def render_progressive(scene: Scene, cfg: ProgressiveConfig = ProgressiveConfig(
 
     Stats: ``radius_final`` (root mean square of the final radii), ``truncated``."""
     passes, photons, radius, radius_alpha = cfg.passes, cfg.photons, cfg.radius, cfg.radius_alpha
-    stochastic, cap, max_depth = cfg.stochastic, cfg.cap, cfg.max_depth
+    stochastic, cap, max_depth = cfg.stochastic, cfg.cap, cfg.max_bounces
     if not 0.0 < radius_alpha < 1.0:
         raise ValueError(f"radius_alpha must be in (0, 1), got {radius_alpha}")
     pix, smp = _pixels(scene, spp)
@@ -269,9 +272,9 @@ def render_progressive(scene: Scene, cfg: ProgressiveConfig = ProgressiveConfig(
         direct += Lv
         pm = trace_photons(scene, photons, seed=int(rng.lowbias32(jnp.uint32(seed * 7919 + t + 1))),
                            max_depth=max_depth)
-        grid = PMap.build_grid(pm, float(np.sqrt(R2.max())))
-        cap_t = cap or PMap.auto_cap(grid)
-        chunk = PMap.query_chunk(cap_t)
+        grid = hash_grid.build_grid(pm, float(np.sqrt(R2.max())))
+        cap_t = cap or hash_grid.auto_cap(grid)
+        chunk = hash_grid.query_chunk(cap_t)
         M = np.zeros(n_pts)
         phi = np.zeros((3, n_pts))
         for s0 in range(0, n_pts, chunk):
@@ -292,7 +295,7 @@ def render_progressive(scene: Scene, cfg: ProgressiveConfig = ProgressiveConfig(
         R2 = R2 * ratio
         N = grow
     L = direct / passes + tau / (np.pi * R2 * passes)
-    PMap.warn_truncated(truncated, cap_t, radius)
+    density.warn_truncated(truncated, cap_t, radius)
     return Render(_to_image(scene, L, spp), dict(radius_final=float(np.sqrt(R2.mean())),
                                                  truncated=truncated))
 
@@ -317,10 +320,12 @@ def _sppm(scene: Scene, cfg: ProgressiveConfig, *, spp: int, seed: int,
 
 
 register(Estimator("pm", "photon mapping, direct visualisation of the global map", _pm, PMConfig,
-                   renamed={"alpha": "gauss_alpha", "beta": "gauss_beta"}))
+                   renamed={"alpha": "gauss_alpha", "beta": "gauss_beta",
+                            "max_depth": "max_bounces"}))
 register(Estimator("pm_jensen", "photon mapping with Jensen's split (direct, specular, "
                    "caustic map, final gathering)", _jensen, JensenConfig))
 register(Estimator("ppm", "progressive photon mapping (Hachisuka 2008)", _ppm, ProgressiveConfig,
-                   renamed={"alpha": "radius_alpha"}))
+                   renamed={"alpha": "radius_alpha", "max_depth": "max_bounces"}))
 register(Estimator("sppm", "stochastic progressive photon mapping (Hachisuka & Jensen 2009)", _sppm,
-                   ProgressiveConfig, renamed={"alpha": "radius_alpha"}))
+                   ProgressiveConfig, renamed={"alpha": "radius_alpha",
+                                               "max_depth": "max_bounces"}))

@@ -53,7 +53,7 @@ Light subpaths start on lights with a position (area, point, spot); scenes with 
 environment lights are refused.
 
 Merging reads light vertices from a hash grid rebuilt on the device every iteration
-(:func:`jgi.transport.photon_map.index_cells`, the photon maps' hash and 27-cell query, cell =
+(:func:`jgi.transport.hash_grid.index_cells`, the photon maps' hash and 27-cell query, cell =
 r). Every (camera vertex, light vertex) pair of a vertex's 27 cells is listed and evaluated,
 in blocks of fixed size, as many as there are pairs (:func:`merge_at_camera_vertices`): no
 vertex has a cap, so no light vertex is ever dropped. The kernel K_r is any of photon
@@ -91,7 +91,7 @@ from ..physics import camera as C
 from ..physics import geometry as G
 from ..physics import lights as LT
 from ..scene.tables import DIELECTRIC, DIRECTIONAL, ENVIRONMENT, ROUGH_DIELECTRIC, Scene
-from ..transport import photon_map as PMap
+from ..transport import density, hash_grid
 from ..transport.subpath import (
     LIGHT_DIMS0,
     LIGHT_DIMS_PER_STEP,
@@ -134,8 +134,8 @@ class VCMConfig:
     power: float = param(2.0, "power-heuristic exponent", minimum=0.1, maximum=16)
     kernel: str = param("box", "merge kernel", choices=KERNELS)
     cone_k: float = param(1.1, "cone kernel k >= 1", minimum=1.0)
-    gauss_alpha: float = param(PMap.JENSEN_ALPHA, "Gaussian kernel alpha", minimum=1e-3)
-    gauss_beta: float = param(PMap.JENSEN_BETA, "Gaussian kernel beta", minimum=1e-3)
+    gauss_alpha: float = param(density.JENSEN_ALPHA, "Gaussian kernel alpha", minimum=1e-3)
+    gauss_beta: float = param(density.JENSEN_BETA, "Gaussian kernel beta", minimum=1e-3)
     roulette: bool = param(True, "Russian roulette at every vertex (SmallVCM's): survive with "
                            "the material's albedo q, densities times q (false: BDPT's streams)")
     technique_images: str = param("", "folder: also write each technique's weighted and "
@@ -599,14 +599,15 @@ class MergeGrid(NamedTuple):
     dVCM, dVC, dVM, row k - 1 of y_k), so a query reads each candidate in one contiguous
     gather, not sixteen scattered ones (measured: docs/performance.md#vcm-merging); the
     positions and rows again as [M, 4] for the distance test, which every candidate takes."""
-    cells: PMap.CellIndex
+    cells: hash_grid.CellIndex
     rows: Array           # [M, 16] float32
     where: Array          # [M, 4] float32: position, row
 
 
 def merge_grid(y_all: LightVertices, radius, table_size: int, n_light: int) -> MergeGrid:
     # most slots are empty (absorbed, Dirac, ended by roulette): sort only the stored ones
-    cells = PMap.index_cells(y_all.p, y_all.stored, radius, table_size, capacity=2 * n_light)
+    cells = hash_grid.index_cells(y_all.p, y_all.stored, radius, table_size,
+                                  capacity=2 * n_light)
     o = cells.order
     row = (o // n_light).astype(jnp.float32)
     cols = [*y_all.p, *y_all.n, *y_all.wo, *y_all.beta, *y_all.mis]
@@ -620,7 +621,7 @@ MERGE_NEAR = 1 << 12    # pairs within r evaluated per batch
 CONNECT_BATCH = 4096    # light-camera vertex pairs connected per batch
 
 
-def _merge_pairs(scene: Scene, cfg: VCMConfig, z: "Shading", y: Array, ok: Array,
+def _merge_pairs(scene: Scene, cfg: VCMConfig, z: "CameraVertexRows", y: Array, ok: Array,
                  f: MisFactors, r2, scale, kernel_params: dict):
     """Merges of camera vertices z (one per pair, [P]) with the light vertices of grid rows y
     ([P, 16]; :class:`MergeGrid`): (weighted, unweighted) [P] V3, zero where ``ok`` is false or
@@ -642,7 +643,7 @@ def _merge_pairs(scene: Scene, cfg: VCMConfig, z: "Shading", y: Array, ok: Array
     if z.ns is not None:   # photon flux through the stored surface -> the shading cosine
         f_z = f_z * B.shading_ratio(nz, v3(3), wi)
     q = continuation(mp, cfg.roulette)
-    kern = PMap.filter_weight(cfg.kernel, jnp.where(ok, d2, 0.0), r2, **kernel_params)[0]
+    kern = density.filter_weight(cfg.kernel, jnp.where(ok, d2, 0.0), r2, **kernel_params)[0]
     c = jnp.where(ok, kern * scale, 0.0)
     value = where(ok, z.beta * f_z * v3(9) * c, V3.full(0.0, c))
     if cfg.mode == "ppm":
@@ -651,7 +652,7 @@ def _merge_pairs(scene: Scene, cfg: VCMConfig, z: "Shading", y: Array, ok: Array
     return where(ok, value * wt, V3.full(0.0, c)), value, row
 
 
-class Shading(NamedTuple):
+class CameraVertexRows(NamedTuple):
     """What a technique needs of a camera vertex: rows of :class:`CameraVertices`, flattened,
     with the vertex's index j (z_{j+1})."""
     p: V3
@@ -665,13 +666,57 @@ class Shading(NamedTuple):
     j: Array
 
 
-def _shading(z: CameraVertices) -> Shading:
+def _camera_vertex_rows(z: CameraVertices) -> CameraVertexRows:
     D, N = z.material.shape
     flat = lambda t: jax.tree_util.tree_map(lambda a: a.reshape(-1), t)  # noqa: E731
-    return Shading(flat(z.p), flat(z.n), flat(z.wo), flat(z.beta), flat(z.mis),
-                   z.material.reshape(-1), flat(z.uv) if z.uv is not None else None,
-                   flat(z.ns) if z.ns is not None else None,
-                   jnp.repeat(jnp.arange(D, dtype=jnp.int32), N))
+    return CameraVertexRows(flat(z.p), flat(z.n), flat(z.wo), flat(z.beta), flat(z.mis),
+                            z.material.reshape(-1), flat(z.uv) if z.uv is not None else None,
+                            flat(z.ns) if z.ns is not None else None,
+                            jnp.repeat(jnp.arange(D, dtype=jnp.int32), N))
+
+
+def _within_max_depth(q: Array, y: Array, *, j: Array, max_depth: int) -> Array:
+    """The merge of grid row y (light vertex y_{row+1}, row in column 3 of
+    :attr:`MergeGrid.where`) at camera vertex z_{j+1} of query q makes a path of row + j + 2
+    segments: the cheap test's bound, before the BSDF is evaluated."""
+    return y[:, 3] + j[q] + 2 <= max_depth
+
+
+def _add_merges(acc: Array, q: Array, slot: Array, ok: Array, *, scene: Scene, cfg: VCMConfig,
+                zs: CameraVertexRows, rows: Array, f: MisFactors, r2, scale, kernel_params: dict,
+                by_length: bool) -> Array:
+    """The pair visitor of :func:`jgi.transport.hash_grid.accumulate_near_pairs`: the merges of
+    camera vertices zs[q] with grid rows ``slot`` added to acc [Q, (D - 1,) 6] (weighted and
+    unweighted, by the light vertex's row if ``by_length``), in one scatter."""
+    wtd, unw, row = _merge_pairs(scene, cfg, jax.tree_util.tree_map(lambda a: a[q], zs),
+                                 rows[slot], ok, f, r2, scale, kernel_params)
+    at = (q, row) if by_length else q
+    return acc.at[at].add(jnp.stack([*wtd, *unw], -1))
+
+
+def _merge_batch(zs: CameraVertexRows, live: Array, *, scene: Scene, cfg: VCMConfig,
+                 grid: MergeGrid, f: MisFactors, r2, scale, kernel_params: dict, table_size: int,
+                 by_length: bool, dense_pairs: int | None):
+    """The merges at a batch of camera vertices (where ``live``): (weighted, unweighted)
+    [Q, (D - 1,) 3]. The grid query is :func:`jgi.transport.hash_grid.accumulate_near_pairs`;
+    its cheap test also drops the pairs whose path would exceed ``max_depth``."""
+    D = cfg.max_depth
+    visit = partial(_add_merges, scene=scene, cfg=cfg, zs=zs, rows=grid.rows, f=f, r2=r2,
+                    scale=scale, kernel_params=kernel_params, by_length=by_length)
+    zero = jnp.zeros((live.shape[0],) + ((D - 1,) if by_length else ()) + (6,))
+    acc = hash_grid.accumulate_near_pairs(
+        grid.cells, table_size, grid.where, zs.p, live, r2, visit, zero, block=MERGE_PAIRS,
+        near_block=MERGE_NEAR, keep=partial(_within_max_depth, j=zs.j, max_depth=D),
+        dense=dense_pairs)
+    return acc[..., :3], acc[..., 3:]
+
+
+def _per_camera_vertex(a: Array, D: int, N: int, by_length: bool) -> V3:
+    """[D N, (D - 1,) 3] -> V3 of [D, (D - 1,) N]."""
+    a = a.reshape((D, N) + a.shape[1:])
+    if by_length:
+        a = jnp.moveaxis(a, 2, 1)
+    return V3(*(a[..., c] for c in range(3)))
 
 
 def merge_at_camera_vertices(scene: Scene, cfg: VCMConfig, grid: MergeGrid, z: CameraVertices,
@@ -679,77 +724,32 @@ def merge_at_camera_vertices(scene: Scene, cfg: VCMConfig, grid: MergeGrid, z: C
                              table_size: int, by_length: bool, dense_pairs: int | None = None):
     """Vertex merging at every camera vertex (``ppm``: the first non-specular one), the live
     ones gathered into batches (:func:`jgi.core.compaction.compact_map`; ``cfg.compact``).
-    A batch lists every (camera vertex, light vertex) pair of its vertices' 27 grid cells
-    (:func:`jgi.transport.photon_map.candidate_pairs`), tests their distance ``MERGE_PAIRS`` at
-    a time, as many blocks as there are pairs, and evaluates the pairs within r ``MERGE_NEAR``
-    at a time: no vertex has a cap, so no light vertex is ever dropped, and a dense caustic
-    costs its own pairs only. Returns (weighted, unweighted) [D, N]
-    V3 per camera vertex (``by_length``: [D, D - 1, N], by the light vertex's row).
+    A batch reads every (camera vertex, light vertex) pair of its vertices' 27 grid cells
+    (:func:`jgi.transport.hash_grid.accumulate_near_pairs`), ``MERGE_PAIRS`` at a time, and
+    evaluates the pairs within r ``MERGE_NEAR`` at a time: no vertex has a cap, so no light
+    vertex is ever dropped, and a dense caustic costs its own pairs only. Returns (weighted,
+    unweighted) [D, N] V3 per camera vertex (``by_length``: [D, D - 1, N], by the light
+    vertex's row).
 
     ``dense_pairs`` (the differentiable form, ``cfg.compact`` false): one block of that many
     pairs for all vertices (a loop of traced length has no reverse-mode derivative); if the
     vertices have more pairs the result is NaN, never a silently truncated sum."""
     D, N = z.material.shape
     r2 = radius * radius
-    norm = PMap.filter_weight(cfg.kernel, jnp.float32(0.0), r2, **kernel_params)[1]
+    norm = density.filter_weight(cfg.kernel, jnp.float32(0.0), r2, **kernel_params)[1]
     scale = 1.0 / (norm * jnp.pi * r2 * n_light)
     active = (z.first_diffuse if cfg.mode == "ppm" else z.connectable).reshape(-1)
+    batch = partial(_merge_batch, scene=scene, cfg=cfg, grid=grid, f=f, r2=r2, scale=scale,
+                    kernel_params=kernel_params, table_size=table_size, by_length=by_length,
+                    dense_pairs=dense_pairs)
+    inputs = _camera_vertex_rows(z)
     tail = (D - 1, 3) if by_length else (3,)
-
-    def batch(zs: Shading, live):
-        Q = live.shape[0]
-        start, count = PMap.cell_ranges(grid.cells, table_size, zs.p)
-        pairs = PMap.candidate_pairs(start, jnp.where(live[:, None], count, 0))
-
-        def add(acc, q, slot, ok):
-            wtd, unw, row = _merge_pairs(scene, cfg, jax.tree_util.tree_map(lambda a: a[q], zs),
-                                         grid.rows[slot], ok, f, r2, scale, kernel_params)
-            at = (q, row) if by_length else q
-            return acc.at[at].add(jnp.stack([*wtd, *unw], -1))   # one scatter: 6 channels
-
-        def block(i, acc):
-            # the cheap test first (within r, not too long), then the BSDF and MIS on the
-            # pairs that passed (about a third: a disc of r in 3 x 3 cells of r), packed
-            q, slot, ok = PMap.pair_block(pairs, MERGE_PAIRS, i)
-            y = grid.where[slot]
-            diff = V3(y[:, 0], y[:, 1], y[:, 2]) - V3(*(c[q] for c in zs.p))
-            near = ok & (dot(diff, diff) < r2) & (y[:, 3] + zs.j[q] + 2 <= D)
-            (sel,) = jnp.nonzero(near, size=MERGE_PAIRS, fill_value=MERGE_PAIRS)
-            sel = jnp.concatenate([sel, jnp.full((MERGE_NEAR,), MERGE_PAIRS, sel.dtype)])
-
-            def evaluate(k, acc):
-                e = jax.lax.dynamic_slice(sel, (k * MERGE_NEAR,), (MERGE_NEAR,))
-                live = e < MERGE_PAIRS
-                e = jnp.minimum(e, MERGE_PAIRS - 1)
-                return add(acc, q[e], slot[e], live)
-
-            n_near = (jnp.sum(near) + MERGE_NEAR - 1) // MERGE_NEAR
-            return jax.lax.fori_loop(0, n_near, evaluate, acc)
-
-        zero = jnp.zeros((Q,) + tail[:-1] + (6,))
-        if dense_pairs is None:
-            n_blocks = (pairs.total + MERGE_PAIRS - 1) // MERGE_PAIRS
-            acc = jax.lax.fori_loop(0, n_blocks, block, zero)
-        else:
-            q, slot, ok = PMap.pair_block(pairs, dense_pairs, 0)
-            acc = add(zero, q, slot, ok) + jnp.where(pairs.total > dense_pairs, jnp.nan, 0.0)
-        return acc[..., :3], acc[..., 3:]
-
-    inputs = _shading(z)
-    M = D * N
-    like = (jnp.zeros((M,) + tail), jnp.zeros((M,) + tail))
+    like = (jnp.zeros((D * N,) + tail), jnp.zeros((D * N,) + tail))
     if cfg.compact:
         wtd, unw = compact_map(batch, active, inputs, like, MERGE_BATCH)
     else:
         wtd, unw = batch(inputs, active)
-
-    def back(a):   # [M, (D - 1,) 3] -> V3 of [D, (D - 1,) N]
-        a = a.reshape((D, N) + tail)
-        if by_length:
-            a = jnp.moveaxis(a, 2, 1)
-        return V3(*(a[..., c] for c in range(3)))
-
-    return back(wtd), back(unw)
+    return (_per_camera_vertex(wtd, D, N, by_length), _per_camera_vertex(unw, D, N, by_length))
 
 
 # --- one iteration --------------------------------------------------------------------------------

@@ -22,7 +22,8 @@ from ..core.configured import Configured
 from ..core.vec import V3
 from ..drivers.chunked import render_paths
 from ..scene.tables import Scene
-from ..transport.subpath import camera_ray, trace_to_diffuse
+from ..transport.subpath import camera_ray
+from ..transport.visible_points import trace_to_diffuse
 from .registry import Estimator, Render, param, register
 
 
@@ -37,7 +38,7 @@ class WhittedConfig:
 
 def radiance(scene: Scene, cfg: WhittedConfig, uniform, o: V3, d: V3) -> V3:
     """Emission seen through the specular chain from rays (o, d), plus direct light at its
-    first non-specular vertex (:func:`jgi.transport.subpath.trace_to_diffuse`)."""
+    first non-specular vertex (:func:`jgi.transport.visible_points.trace_to_diffuse`)."""
     return trace_to_diffuse(scene, uniform, o, d, max_depth=cfg.max_depth,
                             light_samples=cfg.light_samples).L
 

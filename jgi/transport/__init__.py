@@ -1,4 +1,5 @@
 """Machinery shared by the estimators: MIS heuristics (:mod:`.mis`), subpaths (:mod:`.subpath`:
-random walks, vertices, next-event estimation, camera connections, visible points), photon
-tracing (:mod:`.photons`), the photon hash grid and density kernels (:mod:`.photon_map`), and
-the Metropolis kernel (:mod:`.mcmc`)."""
+random walks, vertices, next-event estimation, camera connections), visible points and where
+photons are stored (:mod:`.visible_points`), photon tracing (:mod:`.photons`), the spatial hash
+grid (:mod:`.hash_grid`), density filters and estimates (:mod:`.density`), and the Metropolis
+kernel (:mod:`.mcmc`)."""

@@ -8,7 +8,7 @@ P_photon = P_light / n_e, i.e. ``EmissionSample.weight / n_emitted``.
 
 At every hit on a surface where density estimates are taken (diffuse, Phong with k_d > 0, smooth
 plastic, and microfacet surfaces too rough to sample through:
-:func:`jgi.transport.subpath.is_lookup_surface`)
+:func:`jgi.transport.visible_points.is_lookup_surface`)
 the photon is *stored*:
 position, power (RGB), incident direction (towards where it came from) and geometric surface
 normal. On meshes with vertex normals the BSDF is sampled about the shading normal, and the
@@ -44,7 +44,7 @@ from ..physics import bsdf as B
 from ..physics import geometry as G
 from ..physics import lights as LT
 from ..scene.tables import Scene
-from .subpath import is_lookup_surface, samples_through
+from .visible_points import is_lookup_surface, samples_through
 
 DIMS_PER_BOUNCE = 4
 _SALT = rng.SALTS["photons"]  # photon streams are independent of camera streams for the same seed
