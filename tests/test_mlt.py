@@ -67,7 +67,7 @@ def _lens_round_trip(scene, cfg, x, dx, dy):
 @partial(jax.jit, static_argnames=("cfg",))
 def _caustic_round_trip(scene, cfg, x, theta, phi):
     j, _ = mlt.caustic_vertex(scene, x)
-    w = normalize(mlt._row3(x.p, j - 1) - mlt._row3(x.p, j))
+    w = normalize(mlt._chain_row(x.p, j - 1) - mlt._chain_row(x.p, j))
     y, ok = mlt.retrace_caustic(scene, cfg, x, mlt.rotate_about(w, theta, phi))
     back, ok_back = mlt.retrace_caustic(scene, cfg, y, w)
     mu = mlt.Mutations(caustic_theta2=0.5).arrays()
