@@ -29,6 +29,58 @@ def renders(scene, estimator, seeds=SEEDS, spp=16, **params):
 
 # --- MIS weights: a partition of unity over the strategies of every path -------------------------
 
+def mis_weight_reference(camera: list[tuple], light: list[tuple], delta_light, exponent: float):
+    """w_{s,t} for the strategy with s = len(light), t = len(camera), one strategy at a time and
+    written straight from the formula: the reference the rendered form
+    (:func:`jgi.estimators.bdpt.ratio_chain`, :func:`~jgi.estimators.bdpt.mis_weights`) is
+    checked against.
+
+    ``camera[i] = (p_fwd, p_rev, delta)`` for z_i, i < t, and ``light[i]`` likewise for y_i,
+    i < s: area densities with *this strategy's* values already put into the last two
+    vertices of each subpath (their reverse densities, and delta = False at the connection).
+
+    Moving the connection one vertex towards the camera turns z_{i} into a light-subpath vertex:
+    the density ratio of the two strategies is p_rev(z_i) / p_fwd(z_i). Walking outwards from
+    the connection, r_i is the running product of these ratios (raised to the heuristic's
+    exponent), and a strategy counts only if both vertices it would connect are not Dirac
+    (and, at y_0, the light is not a delta light). Then w = 1 / (1 + sum_i r_i)."""
+    s, t = len(light), len(camera)
+    if s + t == 2:
+        return jnp.ones_like(camera[0][0])
+    sum_r = jnp.zeros_like(camera[0][0])
+    # hypothetical strategies (s + k, t - k): the camera subpath gives up vertices
+    log_r = jnp.zeros_like(sum_r)
+    for i in range(t - 1, 0, -1):
+        p_fwd, p_rev, delta = camera[i]
+        log_r = log_r + exponent * (BD.log_remap0(p_rev) - BD.log_remap0(p_fwd))
+        r_i = jnp.exp(jnp.minimum(log_r, BD.LOG_RATIO_MAX))
+        sum_r = sum_r + jnp.where(~delta & ~camera[i - 1][2], r_i, 0.0)
+    # hypothetical strategies (s - k, t + k): the light subpath gives up vertices
+    log_r = jnp.zeros_like(sum_r)
+    for i in range(s - 1, -1, -1):
+        p_fwd, p_rev, delta = light[i]
+        log_r = log_r + exponent * (BD.log_remap0(p_rev) - BD.log_remap0(p_fwd))
+        r_i = jnp.exp(jnp.minimum(log_r, BD.LOG_RATIO_MAX))
+        prev_delta = light[i - 1][2] if i > 0 else delta_light
+        sum_r = sum_r + jnp.where(~delta & ~prev_delta, r_i, 0.0)
+    return 1.0 / (1.0 + sum_r)
+
+
+def mis_weight_rendered(camera: list[tuple], light: list[tuple], delta_light, exponent: float):
+    """:func:`mis_weight_reference`'s arguments as rows, weighted by the form renders run."""
+    log_pdf, flags = [], []
+
+    def vertex(p_fwd, p_rev, delta):
+        log_pdf.extend([BD.log_remap0(p_fwd), BD.log_remap0(p_rev)])
+        flags.append(delta)
+        return BD.ChainVertex(len(log_pdf) - 2, len(log_pdf) - 1, len(flags) - 1)
+
+    cam, lig = [vertex(*v) for v in camera], [vertex(*v) for v in light]
+    flags.append(jnp.broadcast_to(delta_light, camera[0][0].shape))
+    chain = BD.ratio_chain(cam, lig, len(flags) - 1)
+    return BD.mis_weights(log_pdf, flags, [chain], exponent)[0]
+
+
 def _full_path(rng, n, N):
     """Random full paths x_0 (light) .. x_{n-1} (camera): p_L[k] (density of x_k sampled from
     the light side), p_E[k] (from the camera side), Dirac flags, delta lights."""
@@ -60,11 +112,13 @@ def _weights_reference(p_L, p_E, delta, delta_light, power):
                for i in range(t)]
         light = [(jnp.asarray(p_L[i]), jnp.asarray(p_E[i]), jnp.asarray(delta[i]))
                  for i in range(s)]
-        out[s] = np.asarray(BD.mis_weight(cam, light, jnp.asarray(delta_light), power))
+        out[s] = np.asarray(mis_weight_reference(cam, light, jnp.asarray(delta_light), power))
     return out
 
 
-def _weights_batched(p_L, p_E, delta, delta_light, power):
+def _weights_rendered(p_L, p_E, delta, delta_light, power):
+    """Every strategy's weight at once, as a render computes them: the path's densities as rows,
+    each strategy's view of its subpaths (connected vertices non-Dirac), its ratio chain."""
     n = p_L.shape[0]
     log_pdf = np.concatenate([p_L, p_E, np.zeros_like(p_L[:1])])   # rows L_k, E_k, zero
     flags = np.concatenate([delta, delta_light[None], np.zeros_like(delta[:1]),
@@ -73,13 +127,13 @@ def _weights_batched(p_L, p_E, delta, delta_light, power):
     chains = []
     for s in range(n):
         t = n - s
-        cam_steps = [(L + n - 1 - i, E + n - 1 - i, F if i == t - 1 else n - 1 - i, n - i)
-                     for i in range(t - 1, 0, -1)] if n > 2 else []
-        light_steps = [(E + i, L + i, F if i == s - 1 else i, i - 1 if i > 0 else DL)
-                       for i in range(s - 1, -1, -1)] if n > 2 else []
-        chains.append((cam_steps, light_steps))
-    w = BD.mis_weights_batched(BD._log_remap0(jnp.asarray(log_pdf)), jnp.asarray(flags), chains,
-                               power)
+        camera = [BD.ChainVertex(E + n - 1 - i, L + n - 1 - i, F if i == t - 1 else n - 1 - i)
+                  for i in range(t)]
+        light = [BD.ChainVertex(L + i, E + i, F if i == s - 1 else i) for i in range(s)]
+        chains.append(BD.ratio_chain(camera, light, DL))
+    log_rows = BD.log_remap0(jnp.asarray(log_pdf))
+    w = BD.mis_weights([log_rows[r] for r in range(log_rows.shape[0])],
+                       [jnp.asarray(f) for f in flags], chains, power)
     return {s: np.asarray(w[s]) for s in range(n)}
 
 
@@ -89,7 +143,7 @@ def test_mis_weights_sum_to_one_over_strategies(rng_np, n, power):
     N = 2000
     p_L, p_E, delta, delta_light = _full_path(rng_np, n, N)
     ref = _weights_reference(p_L, p_E, delta, delta_light, power)
-    bat = _weights_batched(p_L, p_E, delta, delta_light, power)
+    bat = _weights_rendered(p_L, p_E, delta, delta_light, power)
     total = np.zeros(N)
     any_valid = np.zeros(N, bool)
     for s in range(n):
@@ -101,24 +155,26 @@ def test_mis_weights_sum_to_one_over_strategies(rng_np, n, power):
     np.testing.assert_allclose(total[any_valid], 1.0, rtol=1e-4)
 
 
-def test_mis_weights_are_finite_for_extreme_and_zero_densities():
+@pytest.mark.parametrize("weight", [mis_weight_reference, mis_weight_rendered])
+def test_mis_weights_are_finite_for_extreme_and_zero_densities(weight):
     z = jnp.zeros(4)
     dens = jnp.asarray([0.0, 1e-38, 1e30, 3e38])
     cam = [(dens, dens[::-1], z > 0), (dens[::-1], dens, z > 0), (dens, z, z > 0)]
     light = [(z, dens, z > 0), (dens, dens * 0 + 1e-30, z > 0)]
     for power in (1.0, 2.0, 4.0):
-        w = np.asarray(BD.mis_weight(cam, light, z > 0, power))
+        w = np.asarray(weight(cam, light, z > 0, power))
         assert np.all(np.isfinite(w)) and np.all((w >= 0) & (w <= 1)), w
 
 
-def test_mis_weight_gradients_are_finite():
+@pytest.mark.parametrize("weight", [mis_weight_reference, mis_weight_rendered])
+def test_mis_weight_gradients_are_finite(weight):
     import jax
 
     def f(x):
         one = jnp.ones(3)
         cam = [(one, one, one < 0), (x, x * 1e-30, one < 0), (x * 0, x, one < 0)]
         light = [(x * 1e30, x * 0, one < 0)]
-        return jnp.sum(BD.mis_weight(cam, light, one < 0, 2.0))
+        return jnp.sum(weight(cam, light, one < 0, 2.0))
 
     g = jax.grad(f)(jnp.asarray([0.0, 1e-20, 1.0]))
     assert np.all(np.isfinite(np.asarray(g)))

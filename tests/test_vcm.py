@@ -173,7 +173,7 @@ def test_vcm_agrees_with_path_tracer_on_the_cornell_box():
 
 def _assert_matches_closed_form(images, expected, label, bias):
     """One-sample t-test per region and channel against a closed form (Bonferroni), with an
-    allowance ``bias`` (relative) for a consistent estimator's kernel bias."""
+    allowance ``bias`` (relative) for a consistent estimator's filter bias."""
     m, s = region_stats(images)
     e, _ = region_stats(np.stack([expected, expected]))   # two copies: region means, se 0
     t = np.abs(m - e) / np.sqrt(s ** 2 + (bias * e) ** 2 + 1e-20)
@@ -189,7 +189,7 @@ def sds():
 
 @pytest.mark.parametrize("mode", ["vcm", "ppm"])   # bpm: its weights in the MIS test above
 def test_merging_finds_specular_diffuse_specular_light(sds, mode):
-    """A box kernel of radius r averages the floor irradiance E = I h / d^3 over a disc; its
+    """A box filter of radius r averages the floor irradiance E = I h / d^3 over a disc; its
     relative bias is largest under the light, -(3/4) (r / h)^2 (second order), so at most
     0.75% for r_0 = 0.1, h = 1 (and it shrinks with r_i): 1% is allowed. The SDS part is ~23%
     of the image: found at > 5 standard errors."""
@@ -227,10 +227,10 @@ def test_technique_images_sum_to_the_image():
 
 def test_image_is_differentiable_in_the_radius():
     """d(mean image)/d(r_0) by jax.grad against a central difference, with the Epanechnikov
-    kernel: the image is continuous in r, its slope jumps where a light vertex crosses the
+    filter: the image is continuous in r, its slope jumps where a light vertex crosses the
     disc's edge, so the difference step is small (no crossing within it at this seed)."""
     scene = builtin.cornell_box(resolution=8)
-    cfg = vcm.VCMConfig(max_depth=3, kernel="epanechnikov")
+    cfg = vcm.VCMConfig(max_depth=3, filter="epanechnikov")
 
     @jax.jit
     @jax.value_and_grad
@@ -253,3 +253,11 @@ def test_scenes_without_positioned_lights_are_refused():
     b.camera(position=(0, 1, 3), look_at=(0, 0, 0), width=4, height=4)
     with pytest.raises(ParameterError, match="vcm.*directional or environment"):
         jgi.render(b.build(), "vcm", spp=1, seed=0)
+
+
+def test_kernel_was_renamed_filter():
+    """The merge filter is called ``filter``, as in photon mapping; the former name says so."""
+    scene = builtin.cornell_box(resolution=4)
+    with pytest.raises(ParameterError,
+                       match="estimator 'vcm': parameter 'kernel' was renamed 'filter'"):
+        jgi.render(scene, "vcm", spp=1, seed=0, kernel="box")

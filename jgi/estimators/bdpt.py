@@ -14,18 +14,20 @@ strategy (s, t) with s + t - 1 <= max_depth path segments then forms a full path
 * s = 1: light sampling at z_{t-1} (:func:`~jgi.transport.subpath.sample_next_event`, the
   path tracer's NEE);
 * t = 1: light tracing, y_{s-1} connected to the pinhole and *splatted* into the pixel it
-  projects to (W_e of jgi.physics.camera);
+  projects to (W_e of jgi.physics.camera; :func:`~jgi.transport.connection.connect_camera`);
 * s, t >= 2: c = f(y_{s-2} -> y_{s-1} -> z_{t-1}) G(y_{s-1} <-> z_{t-1}) f(y_{s-1} -> z_{t-1}
-  -> z_{t-2}), G = |cos| |cos| V / d^2.
+  -> z_{t-2}), G = |cos| |cos| V / d^2 (:func:`~jgi.transport.connection.connect_vertices`).
 
 (s, t) = (1, 1) is not used (a light seen directly is the s = 0 strategy), as in pbrt.
 
-MIS (:func:`mis_weight`, one place): w_{s,t} = p_s^b / sum_i p_i^b (balance b = 1, power b =
-``power``), computed as in pbrt-v4's MISWeight by ratios r_i = p_i / p_s built stepwise from the
-vertices' reverse and forward densities, r_{i-1} = r_i (p_rev / p_fwd)^b, so that no full path
-density (which under/overflows float32) is ever formed; here in log space with the ratio
-clamped, so that weights and their gradients stay finite. The last two vertices of each
-subpath get this strategy's reverse densities first (pbrt's ScopedAssignment).
+MIS: w_{s,t} = p_s^b / sum_i p_i^b (balance b = 1, power b = ``power``), computed as in
+pbrt-v4's MISWeight by ratios r_i = p_i / p_s built stepwise from the vertices' reverse and
+forward densities, r_{i-1} = r_i (p_rev / p_fwd)^b, so that no full path density (which
+under/overflows float32) is ever formed; here in log space with the ratio clamped, so that
+weights and their gradients stay finite. The last two vertices of each subpath get this
+strategy's reverse densities first (pbrt's ScopedAssignment; :func:`with_connection`).
+:func:`ratio_chain` lists one strategy's steps (its docstring walks Veach's ratios) and
+:func:`mis_weights` evaluates the chains of all strategies of a sample at once.
 
 Dirac vertices (mirror, dielectric) are not connectable; their densities are 0 and count as 1
 in the ratios (remap0), and strategies that would connect at them are left out of the sum.
@@ -49,6 +51,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, replace
 from pathlib import Path
+from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -67,13 +70,15 @@ from ..physics import geometry as G
 from ..physics import lights as LT
 from ..scene.tables import Scene
 from ..transport import mis
+from ..transport.connection import connect_camera, connect_vertices, occluded_many
 from ..transport.subpath import (
+    CAMERA_DIMS0,
+    CAMERA_DIMS_PER_STEP,
     Vertices,
     Visit,
     WalkState,
     camera_ray,
     concat_rows,
-    connect_camera,
     convert_density,
     is_infinite,
     light_key,
@@ -82,7 +87,6 @@ from ..transport.subpath import (
     mis_delta,
     next_event_value,
     no_uv,
-    occluded_many,
     pdf_emission_dir,
     pdf_light_origin,
     random_walk,
@@ -94,8 +98,6 @@ from ..transport.subpath import (
 )
 from .registry import Estimator, Render, param, register
 
-CAMERA_DIMS0 = 2              # dims 0, 1: pixel jitter
-CAMERA_DIMS_PER_STEP = 6      # per vertex: BSDF (3), light sample (3)
 LOG_RATIO_MAX = 80.0          # r_i <= e^80: sums of a few stay below float32's maximum
 
 
@@ -134,45 +136,129 @@ class BDPTConfig:
 
 # --- MIS: Veach's ratios of strategy densities ----------------------------------------------------
 
-def _log_remap0(pdf: Array) -> Array:
+def log_remap0(pdf: Array) -> Array:
     """log of pbrt's remap0 (a zero density, from a Dirac lobe, counts as 1), floored."""
     safe = jnp.maximum(jnp.where(pdf > 0, pdf, 1.0), 1e-30)
     return jnp.log(safe)
 
 
-def mis_weight(camera: list[tuple], light: list[tuple], delta_light: Array,
-               exponent: float) -> Array:
-    """w_{s,t} for the strategy with s = len(light), t = len(camera).
+class MisRows:
+    """Named [N] rows (a Python list, indexed by static ints): every density, or every Dirac
+    flag, that some strategy's ratio chain reads. Kept as separate arrays, not one stacked
+    table, which XLA re-derived inside every consumer (perf: docs/performance.md#bdpt-mis-rows)."""
 
-    ``camera[i] = (p_fwd, p_rev, delta)`` for z_i, i < t, and ``light[i]`` likewise for y_i,
-    i < s: area densities with *this strategy's* values already put into the last two
-    vertices of each subpath (their reverse densities, and delta = False at the connection).
+    def __init__(self):
+        self.rows: list = []
 
-    Moving the connection one vertex towards the camera turns z_{i} into a light-subpath vertex:
-    the density ratio of the two strategies is p_rev(z_i) / p_fwd(z_i). Walking outwards from
-    the connection, r_i is the running product of these ratios (raised to the heuristic's
-    exponent), and a strategy counts only if both vertices it would connect are not Dirac
-    (and, at y_0, the light is not a delta light). Then w = 1 / (1 + sum_i r_i)."""
+    def add(self, x: Array) -> int:
+        """Append [N] or [K, N] rows; return the index of the first."""
+        first = len(self.rows)
+        self.rows.extend([x] if x.ndim == 1 else [x[i] for i in range(x.shape[0])])
+        return first
+
+
+class ChainVertex(NamedTuple):
+    """A subpath vertex as one strategy sees it: the rows of its forward and reverse area
+    densities (of the density :class:`MisRows`) and of its Dirac flag (of the flag rows)."""
+    fwd: int
+    rev: int
+    delta: int
+
+
+class SubpathRows(NamedTuple):
+    """Where a subpath's vertices sit among the rows: vertex i's p_fwd in row fwd + i, its p_rev
+    in row rev + i, its Dirac flag in row delta + i."""
+    fwd: int
+    rev: int
+    delta: int
+
+    def vertices(self, n: int) -> list[ChainVertex]:
+        """Vertices 0 .. n - 1, as their own subpath sampled them."""
+        return [ChainVertex(self.fwd + i, self.rev + i, self.delta + i) for i in range(n)]
+
+
+def with_connection(vertices: list[ChainVertex], rev_last: int, rev_before: int,
+                    no_delta: int) -> list[ChainVertex]:
+    """A subpath's vertices as a strategy that connects at its last vertex sees them (pbrt's
+    ScopedAssignment): the last vertex's reverse density is the one of sampling it from the
+    other subpath's end (row ``rev_last``), the vertex before gets its reverse density given the
+    connection (row ``rev_before``), and the connected vertex counts as non-Dirac (``no_delta``:
+    a row of False)."""
+    out = list(vertices)
+    out[-1] = out[-1]._replace(rev=rev_last, delta=no_delta)
+    if len(out) >= 2:
+        out[-2] = out[-2]._replace(rev=rev_before)
+    return out
+
+
+class RatioStep(NamedTuple):
+    """One step of a ratio chain: the rows of the density ratio p_rev / p_fwd it multiplies in,
+    and of the Dirac flags of the two vertices the strategy it reaches would connect."""
+    rev: int
+    fwd: int
+    delta: int
+    delta_prev: int
+
+
+def ratio_chain(camera: list[ChainVertex], light: list[ChainVertex],
+                delta_light: int) -> tuple[list[RatioStep], list[RatioStep]]:
+    """The ratio steps of strategy (s, t) = (len(light), len(camera)), as
+    :func:`mis_weights` walks them (Veach 1997, sec. 10.2; pbrt-v4's MISWeight).
+
+    ``camera[i]`` is z_i and ``light[i]`` y_i as this strategy sees them (:func:`with_connection`:
+    its reverse densities at the last two vertices of each subpath, its connected vertices
+    non-Dirac); ``delta_light`` is the row flagging delta lights (a point light cannot be hit).
+
+    Strategy (s, t) samples y_0 .. y_{s-1} from the light and z_0 .. z_{t-1} from the camera,
+    each vertex with its own subpath's density p_fwd. Every other strategy that can make the
+    same path differs only in where the connection lies, and its density differs only there:
+
+    * moving the connection one vertex towards the camera, to (s + 1, t - 1), turns z_{t-1}
+      into a light vertex, sampled from y_{s-1}'s side with its reverse density: the ratio of
+      the two strategies' densities is r = p_rev(z_{t-1}) / p_fwd(z_{t-1}). Moving it on, each
+      further z_i (i = t - 2 .. 1; the pinhole z_0 is never hit) multiplies in
+      p_rev(z_i) / p_fwd(z_i);
+    * moving it towards the light, to (s - 1, t + 1), turns y_{s-1} into a camera vertex:
+      r = p_rev(y_{s-1}) / p_fwd(y_{s-1}), then y_{s-2} .. y_0 likewise (y_0 last: the s = 0
+      strategy, the camera subpath hitting the light).
+
+    The strategy reached by turning vertex i over connects it to its neighbour i - 1 on the same
+    side, so it counts only if neither of the two is Dirac (for y_0, the neighbour is the light:
+    a delta light). Each step reads (rows of p_rev, p_fwd, flags of vertex i and i - 1); with the
+    heuristic's exponent b, w_{s,t} = 1 / (1 + sum of the counted r^b). (s, t) = (0, 2), the
+    camera subpath that hits a light at once, has no other strategy: no steps, w = 1."""
     s, t = len(light), len(camera)
     if s + t == 2:
-        return jnp.ones_like(camera[0][0])
-    sum_r = jnp.zeros_like(camera[0][0])
-    # hypothetical strategies (s + k, t - k): the camera subpath gives up vertices
-    log_r = jnp.zeros_like(sum_r)
-    for i in range(t - 1, 0, -1):
-        p_fwd, p_rev, delta = camera[i]
-        log_r = log_r + exponent * (_log_remap0(p_rev) - _log_remap0(p_fwd))
-        r_i = jnp.exp(jnp.minimum(log_r, LOG_RATIO_MAX))
-        sum_r = sum_r + jnp.where(~delta & ~camera[i - 1][2], r_i, 0.0)
-    # hypothetical strategies (s - k, t + k): the light subpath gives up vertices
-    log_r = jnp.zeros_like(sum_r)
-    for i in range(s - 1, -1, -1):
-        p_fwd, p_rev, delta = light[i]
-        log_r = log_r + exponent * (_log_remap0(p_rev) - _log_remap0(p_fwd))
-        r_i = jnp.exp(jnp.minimum(log_r, LOG_RATIO_MAX))
-        prev_delta = light[i - 1][2] if i > 0 else delta_light
-        sum_r = sum_r + jnp.where(~delta & ~prev_delta, r_i, 0.0)
-    return 1.0 / (1.0 + sum_r)
+        return [], []
+    towards_camera = [RatioStep(camera[i].rev, camera[i].fwd, camera[i].delta,
+                                camera[i - 1].delta) for i in range(t - 1, 0, -1)]
+    towards_light = [RatioStep(light[i].rev, light[i].fwd, light[i].delta,
+                               light[i - 1].delta if i > 0 else delta_light)
+                     for i in range(s - 1, -1, -1)]
+    return towards_camera, towards_light
+
+
+def mis_weights(log_pdf: list[Array], delta: list[Array],
+                chains: list[tuple[list[RatioStep], list[RatioStep]]], exponent: float) -> Array:
+    """w_{s,t} of many strategies at once, [J, N], one per :func:`ratio_chain` in ``chains``.
+
+    ``log_pdf`` (rows of [N]) holds log remap0 of every density the chains read
+    (:func:`log_remap0`), ``delta`` every Dirac flag. Along each half of a chain, in walking
+    order (outwards from the connection), r_i = exp(b * running sum of (log p_rev - log p_fwd)),
+    clamped at e^LOG_RATIO_MAX so that weights and their gradients stay finite; the sum of the
+    counted r_i never forms a full path density (which under/overflows float32). Rows are read
+    by static index, not by one gather of all steps (perf: docs/performance.md#bdpt-mis-rows)."""
+    weights = []
+    for chain in chains:
+        sum_r = jnp.zeros_like(log_pdf[0])
+        for steps in chain:
+            log_r = jnp.zeros_like(sum_r)
+            for rev, fwd, da, db in steps:
+                log_r = log_r + exponent * (log_pdf[rev] - log_pdf[fwd])
+                r_i = jnp.exp(jnp.minimum(log_r, LOG_RATIO_MAX))
+                sum_r = sum_r + jnp.where(~delta[da] & ~delta[db], r_i, 0.0)
+        weights.append(1.0 / (1.0 + sum_r))
+    return jnp.stack(weights)
 
 
 # --- the camera subpath, with s = 0 and s = 1 evaluated at each vertex ----------------------------
@@ -254,78 +340,22 @@ def camera_subpath(scene: Scene, cfg: BDPTConfig, key: Array, pixel: Array, unif
 
 # --- all strategies of one sample -----------------------------------------------------------------
 
-def _interior(scene: Scene, q: Vertices, qm: Vertices, p: Vertices, pm: Vertices):
-    """Connection y_{s-1} = q <-> z_{t-1} = p (s, t >= 2) for stacked rows of pairs."""
-    kinds = scene.materials.kinds
-    v = p.p - q.p
-    d2 = dot(v, v)
-    dist = jnp.sqrt(d2)
-    w = v / jnp.where(dist > 0, dist, 1.0)            # from y_{s-1} towards z_{t-1}
-    mq = B.lookup_specialised(scene.materials, q.material, q.uv)
-    mp = B.lookup_specialised(scene.materials, p.material, p.uv)
-    nq, np_ = shading(q), shading(p)    # BSDFs about the shading normals
-    f_q, pdf_q_fwd = B.evaluate(kinds, mq, nq, q.wo, w,     # y_{s-2} -> y_{s-1} -> z_{t-1}
-                                mode=B.IMPORTANCE)
-    _, pdf_q_rev = B.evaluate(kinds, mq, nq, w, q.wo)
-    f_p, pdf_p_fwd = B.evaluate(kinds, mp, np_, p.wo, -w)    # z_{t-2} -> z_{t-1} -> y_{s-1}
-    _, pdf_p_rev = B.evaluate(kinds, mp, np_, -w, p.wo)
-    cos_q, cos_p = dot(q.n, w), dot(p.n, w)   # geometric: G and the area densities
-    ok = q.valid & p.valid & ~q.delta & ~p.delta & (d2 > 0)
-    g = jnp.abs(cos_q * cos_p) / jnp.where(ok, d2, 1.0)    # G without visibility
-    g_value = g
-    if q.ns is not None:
-        # the value's cosines are the shading normals' (pbrt-v4's G), and y_{s-1}, a light
-        # vertex, takes Veach's adjoint correction
-        f_q = f_q * B.adjoint_correction(q.ns, q.n, q.wo, w)
-        g_value = jnp.abs(dot(q.ns, w) * dot(p.ns, w)) / jnp.where(ok, d2, 1.0)
-    value = where(ok, q.beta * f_q * f_p * p.beta * g_value, V3.full(0.0, g))
-    vm_p = pm.p - p.p
-    vm_q = qm.p - q.p
+def _interior(scene: Scene, y: Vertices, ym: Vertices, z: Vertices, zm: Vertices):
+    """Connection y = y_{s-1} <-> z = z_{t-1} (s, t >= 2) for stacked rows of pairs (ym, zm: the
+    vertices before them): the value, the shadow ray, and this strategy's reverse area densities
+    at the last two vertices of each subpath (pt, ptm: z_{t-1}, z_{t-2}; qs, qsm: y_{s-1},
+    y_{s-2})."""
+    ok = y.valid & z.valid & ~y.delta & ~z.delta
+    conn = connect_vertices(scene, y, z, ok)
+    vm_z = zm.p - z.p
+    vm_y = ym.p - y.p
     rev = dict(
-        pt=convert_density(pdf_q_fwd, d2, cos_p, True),
-        ptm=convert_density(pdf_p_rev, dot(vm_p, vm_p), dot(pm.n, p.wo), pm.on_surface),
-        qs=convert_density(pdf_p_fwd, d2, cos_q, True),
-        qsm=convert_density(pdf_q_rev, dot(vm_q, vm_q), dot(qm.n, q.wo), qm.on_surface),
+        pt=conn.pdf_z_from_y,
+        ptm=convert_density(conn.pdf_z_rev, dot(vm_z, vm_z), dot(zm.n, z.wo), zm.on_surface),
+        qs=conn.pdf_y_from_z,
+        qsm=convert_density(conn.pdf_y_rev, dot(vm_y, vm_y), dot(ym.n, y.wo), ym.on_surface),
     )
-    return value, G.shadow_ray(q.p, q.n, w, dist), rev
-
-
-class _Rows:
-    """Named [N] rows (a Python list, indexed by static ints): every density and Dirac flag
-    that some strategy's MIS chain reads. Kept as separate arrays, not one stacked table,
-    which XLA re-derived inside every consumer (perf: docs/performance.md#bdpt-mis-rows)."""
-
-    def __init__(self):
-        self.rows: list = []
-
-    def add(self, x: Array) -> int:
-        """Append [N] or [K, N] rows; return the index of the first."""
-        first = len(self.rows)
-        self.rows.extend([x] if x.ndim == 1 else [x[i] for i in range(x.shape[0])])
-        return first
-
-
-def mis_weights_batched(log_pdf: list[Array], delta: list[Array],
-                        chains: list[tuple[list, list]], exponent: float) -> Array:
-    """:func:`mis_weight` for many strategies at once: [J, N].
-
-    ``log_pdf`` (R rows of [N]) holds log remap0 of every density involved, ``delta`` every
-    Dirac flag (rows of [N]). ``chains[j] = (camera_steps, light_steps)``, each step a tuple of rows
-    (p_rev, p_fwd, delta_a, delta_b) in walking order (outwards from the connection):
-    r_i = exp(b * running sum of (log p_rev - log p_fwd)), counted where neither delta_a nor
-    delta_b is set. Rows are read by static index, not by one gather of all steps
-    (perf: docs/performance.md#bdpt-mis-rows)."""
-    weights = []
-    for chain in chains:
-        sum_r = jnp.zeros_like(log_pdf[0])
-        for steps in chain:
-            log_r = jnp.zeros_like(sum_r)
-            for rev, fwd, da, db in steps:
-                log_r = log_r + exponent * (log_pdf[rev] - log_pdf[fwd])
-                r_i = jnp.exp(jnp.minimum(log_r, LOG_RATIO_MAX))
-                sum_r = sum_r + jnp.where(~delta[da] & ~delta[db], r_i, 0.0)
-        weights.append(1.0 / (1.0 + sum_r))
-    return jnp.stack(weights)
+    return conn.value, conn.shadow, rev
 
 
 def contributions(scene: Scene, cfg: BDPTConfig, seed, pixel: Array, sample: Array,
@@ -348,11 +378,11 @@ def contributions(scene: Scene, cfg: BDPTConfig, seed, pixel: Array, sample: Arr
     inner = [(s, t) for (s, t) in strategies if s >= 2 and t >= 2]
     rays = []
     if t1:
-        q_rows = np.array([s - 1 for s, _ in t1])
-        q, qm = rows(light, q_rows), rows(light, q_rows - 1)
-        conn = materialize(connect_camera(scene, q))
-        vm = qm.p - q.p
-        rev_qsm = convert_density(conn.pdf_q_rev, dot(vm, vm), dot(qm.n, q.wo), qm.on_surface)
+        y_rows = np.array([s - 1 for s, _ in t1])
+        y, ym = rows(light, y_rows), rows(light, y_rows - 1)
+        conn = materialize(connect_camera(scene, y))
+        vm = ym.p - y.p
+        rev_qsm = convert_density(conn.pdf_y_rev, dot(vm, vm), dot(ym.n, y.wo), ym.on_surface)
         rays.append(conn.shadow)
     if inner:
         ls = np.array([s - 1 for s, _ in inner])
@@ -364,8 +394,8 @@ def contributions(scene: Scene, cfg: BDPTConfig, seed, pixel: Array, sample: Arr
     occ_t1 = occ.pop(0) if t1 else None
     occ_in = occ.pop(0) if inner else None
 
-    # ---- the densities every strategy's MIS chain reads, as numbered rows ----
-    P, F = _Rows(), _Rows()                     # log densities, Dirac flags
+    # ---- the densities every strategy's ratio chain reads, as numbered rows ----
+    P, F = MisRows(), MisRows()                 # densities, Dirac flags
     cam_fwd, cam_rev = P.add(cam.pdf_fwd), P.add(cam.pdf_rev)
     light_fwd, light_rev = P.add(light.pdf_fwd), P.add(light.pdf_rev)
     s0_pt, s0_ptm = P.add(rec["s0_rev_pt"]), P.add(rec["s0_rev_ptm"])
@@ -377,43 +407,34 @@ def contributions(scene: Scene, cfg: BDPTConfig, seed, pixel: Array, sample: Arr
         in_rows = {k: P.add(rev_in[k]) for k in ("pt", "ptm", "qs", "qsm")}
     P.add(z)                                    # last row: density 0 (log remap0 = 0)
     # Dirac flags of the sampled bounces (a plastic vertex left by its coating's reflection is
-    # one, though connectable); the connection's own vertices count as non-Dirac (false_row)
+    # one, though connectable); the connection's own vertices count as non-Dirac (no_delta)
     cam_delta, light_delta = F.add(mis_delta(cam)), F.add(mis_delta(light))
     s1_delta_light = F.add(rec["s1_delta_light"])
     delta_light = F.add(lp.delta_light)
-    false_row = F.add(z > 0)
+    no_delta = F.add(z > 0)
     F.add(z == 0)                               # last row: True (padding)
+    camera_rows = SubpathRows(cam_fwd, cam_rev, cam_delta)
+    light_rows = SubpathRows(light_fwd, light_rev, light_delta)
 
+    # ---- each strategy's view of the subpaths (rows t - 2, j: its own records), its chain ----
     chains = []
     for (s, t) in strategies:
-        # this strategy's reverse densities at the last two vertices of each subpath
-        if s == 0:
-            cam_over = {t - 1: s0_pt + t - 2, t - 2: s0_ptm + t - 2}
-            light_over = {}
-        elif s == 1:
-            cam_over = {t - 1: s1_pt + t - 2, t - 2: s1_ptm + t - 2}
-            light_over = {0: s1_rev_y + t - 2}
-        elif t == 1:
+        camera_v, light_v, at_light = camera_rows.vertices(t), light_rows.vertices(s), delta_light
+        if s == 0:        # z_{t-1} on a light, as y_0 of a light subpath would be
+            camera_v = with_connection(camera_v, s0_pt + t - 2, s0_ptm + t - 2, no_delta)
+        elif s == 1:      # y_0: the light sample of next-event estimation at z_{t-1}
+            camera_v = with_connection(camera_v, s1_pt + t - 2, s1_ptm + t - 2, no_delta)
+            light_v = [ChainVertex(s1_fwd_y + t - 2, s1_rev_y + t - 2, no_delta)]
+            at_light = s1_delta_light + t - 2
+        elif t == 1:      # y_{s-1} seen from the pinhole
             j = t1.index((s, t))
-            cam_over = {}
-            light_over = {s - 1: t1_qs + j, s - 2: t1_qsm + j}
+            light_v = with_connection(light_v, t1_qs + j, t1_qsm + j, no_delta)
         else:
             j = inner.index((s, t))
-            cam_over = {t - 1: in_rows["pt"] + j, t - 2: in_rows["ptm"] + j}
-            light_over = {s - 1: in_rows["qs"] + j, s - 2: in_rows["qsm"] + j}
-        cam_steps, light_steps = [], []
-        if s + t > 2:
-            for i in range(t - 1, 0, -1):   # z_i becomes a light vertex: (s + t - i, i)
-                a = false_row if i == t - 1 else cam_delta + i
-                cam_steps.append((cam_over.get(i, cam_rev + i), cam_fwd + i, a, cam_delta + i - 1))
-            for i in range(s - 1, -1, -1):  # y_i becomes a camera vertex: (i, s + t - i)
-                fwd = s1_fwd_y + t - 2 if s == 1 else light_fwd + i
-                a = false_row if i == s - 1 else light_delta + i
-                b = (light_delta + i - 1 if i > 0
-                     else (s1_delta_light + t - 2 if s == 1 else delta_light))
-                light_steps.append((light_over.get(i, light_rev + i), fwd, a, b))
-        chains.append((cam_steps, light_steps))
-    weights = mis_weights_batched([_log_remap0(r) for r in P.rows], F.rows, chains, cfg.exponent)
+            camera_v = with_connection(camera_v, in_rows["pt"] + j, in_rows["ptm"] + j, no_delta)
+            light_v = with_connection(light_v, in_rows["qs"] + j, in_rows["qsm"] + j, no_delta)
+        chains.append(ratio_chain(camera_v, light_v, at_light))
+    weights = mis_weights([log_remap0(r) for r in P.rows], F.rows, chains, cfg.exponent)
 
     # ---- contributions C* and C = w C* per strategy ----
     out = {}

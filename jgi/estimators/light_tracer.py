@@ -30,9 +30,9 @@ What each direction cannot do (the lecture's "all one-bounce cases"):
 
 Parameters: ``max_depth`` (path segments, as the path tracer's: 1 = emitters seen directly,
 2 = direct lighting). No Russian roulette: light subpaths end at ``max_depth`` or absorption.
-The light subpath and the camera connection are :mod:`jgi.transport.subpath`'s
-(:func:`~jgi.transport.subpath.light_subpath`, :func:`~jgi.transport.subpath.connect_camera`),
-shared with BDPT; the splats are summed by :func:`jgi.drivers.splat.render_splats`.
+The light subpath is BDPT's (:func:`jgi.transport.subpath.light_subpath`), the camera
+connection BDPT's and VCM's (:func:`jgi.transport.connection.connect_camera`); the splats are
+summed by :func:`jgi.drivers.splat.render_splats`.
 """
 
 from __future__ import annotations
@@ -50,7 +50,8 @@ from ..physics import camera as C
 from ..physics import geometry as G
 from ..physics import lights as LT
 from ..scene.tables import Scene
-from ..transport.subpath import connect_camera, light_key, light_subpath, occluded_many, rows
+from ..transport.connection import connect_camera, occluded_many
+from ..transport.subpath import light_key, light_subpath, rows
 from .registry import Estimator, Render, param, register
 
 

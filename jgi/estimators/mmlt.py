@@ -54,8 +54,13 @@ from ..core import rng
 from ..core.vec import V3, luminance, where
 from ..scene.tables import Scene
 from ..transport import mcmc
-from ..transport.subpath import LIGHT_DIMS0, LIGHT_DIMS_PER_STEP
-from .bdpt import CAMERA_DIMS0, CAMERA_DIMS_PER_STEP, BDPTConfig, contributions
+from ..transport.subpath import (
+    CAMERA_DIMS0,
+    CAMERA_DIMS_PER_STEP,
+    LIGHT_DIMS0,
+    LIGHT_DIMS_PER_STEP,
+)
+from .bdpt import BDPTConfig, contributions
 from .pssmlt import PrimarySample, kelemen_mutation, splat_at
 from .registry import Estimator, Render, param, register
 

@@ -94,7 +94,7 @@ class PathTracerConfig:
 class PathState(NamedTuple):
     o: V3                # ray origin
     d: V3                # ray direction (unit)
-    throughput: V3       # beta: product of f |cos| / pdf so far
+    beta: V3             # path throughput: product of f |cos| / pdf so far
     L: V3                # radiance accumulated along the path
     active: Array        # lanes still being traced
     prev_pdf: Array      # solid-angle pdf of the BSDF sample that produced d
@@ -157,13 +157,13 @@ def _shade(scene: Scene, cfg: PathTracerConfig, s: PathState, hit: G.Hit, depth,
         Le = LT.emitted(lights, hit.emitter, hit.n, wo)
         pdf_light = LT.pdf_li(lights, hit.emitter, s.prev_p, hit.p, hit.n)
         take_e = s.active & hit.valid & counts(length)
-        L = s.L + where(take_e, s.throughput * Le * bsdf_hit_weight(pdf_light), Z)
+        L = s.L + where(take_e, s.beta * Le * bsdf_hit_weight(pdf_light), Z)
         if lights.environment >= 0:
             Lenv = LT.environment_radiance(lights, z)
             pdf_env = lights.pmf[lights.environment] * jnp.float32(0.25 / jnp.pi)
             w_env = bsdf_hit_weight(jnp.broadcast_to(pdf_env, z.shape))
             take_env = s.active & ~hit.valid & counts(length)
-            L = L + where(take_env, s.throughput * Lenv * w_env, Z)
+            L = L + where(take_env, s.beta * Lenv * w_env, Z)
     else:
         L = s.L
     active = s.active & hit.valid & (length < max_depth)
@@ -184,7 +184,7 @@ def _shade(scene: Scene, cfg: PathTracerConfig, s: PathState, hit: G.Hit, depth,
                     w_g = jax.lax.stop_gradient(w_g)
             else:
                 w_g = jnp.ones_like(z)
-            shadow.append((*ne.shadow, next_event_value(ne, s.throughput, w_g, n_g)))
+            shadow.append((*ne.shadow, next_event_value(ne, s.beta, w_g, n_g)))
 
     # ---- BSDF sampling: extend the path ----
     # the BSDF about the shading normal (meshes with vertex normals); the geometric normal
@@ -192,18 +192,18 @@ def _shade(scene: Scene, cfg: PathTracerConfig, s: PathState, hit: G.Hit, depth,
     bs = B.sample(kinds, mp, shading(hit), wo, u(0), u(1), u(2))
     if detached:
         bs = detach_sample(kinds, mp, shading(hit), wo, bs)
-    throughput = s.throughput * bs.weight
+    beta = s.beta * bs.weight
     active = active & bs.valid
 
     # ---- Russian roulette ----
     if cfg.rr_depth >= 0:
-        q = jnp.clip(max_component(throughput), 0.0, 0.95)
+        q = jnp.clip(max_component(beta), 0.0, 0.95)
         if detached:
             q = jax.lax.stop_gradient(q)
         roulette = length >= cfg.rr_depth
         survive = u(3) < q
         active = active & (~roulette | survive)
-        throughput = where(roulette, throughput * X.recip(jnp.where(q > 0, q, 1.0)), throughput)
+        beta = where(roulette, beta * X.recip(jnp.where(q > 0, q, 1.0)), beta)
     o_next = G.offset_origin(hit.p, hit.n, bs.wi)
 
     # ---- Shadow rays: add the light samples that are unoccluded ----
@@ -214,9 +214,9 @@ def _shade(scene: Scene, cfg: PathTracerConfig, s: PathState, hit: G.Hit, depth,
         L = L + where(~G.occluded(scene, o_s, d_s, t_max), value, Z)
 
     # computed once; downstream reads the path's fate (perf: docs/performance.md#vertex-results)
-    wi, pdf, delta, throughput, active, o_next, L = materialize(
-        (bs.wi, bs.pdf, bs.delta, throughput, active, o_next, L))
-    return PathState(o_next, wi, throughput, L, active, pdf, delta, hit.p)
+    wi, pdf, delta, beta, active, o_next, L = materialize(
+        (bs.wi, bs.pdf, bs.delta, beta, active, o_next, L))
+    return PathState(o_next, wi, beta, L, active, pdf, delta, hit.p)
 
 
 def _camera_state(o: V3, d: V3) -> PathState:

@@ -20,8 +20,8 @@ estimate averages over i.
 MIS (:func:`mis_arrive`, :func:`mis_scatter` and the ``weight_*`` functions: every formula in
 one place). A merge of light vertex y_{s-1} with camera vertex z is, to first order, the
 connection technique with one more vertex sampled from *both* sides: its density is the
-connection's times eta_VCM p(z) with eta_VCM = pi r^2 N_L (the kernel's acceptance area
-times the number of light subpaths, Georgiev et al. eq. 12). Over all techniques of a path,
+connection's times eta_VCM p(z) with eta_VCM = pi r^2 N_L (the merge disc's area times
+the number of light subpaths, Georgiev et al. eq. 12). Over all techniques of a path,
 w_tech = p_tech^b / sum_j p_j^b (balance b = 1, power b = ``power``). These sums are carried
 along each subpath by three quantities (SmallVCM's dVCM, dVC, dVM; Georgiev's technical
 report "Implementing vertex connection and merging", 2012), updated at every vertex:
@@ -56,12 +56,12 @@ Merging reads light vertices from a hash grid rebuilt on the device every iterat
 (:func:`jgi.transport.hash_grid.index_cells`, the photon maps' hash and 27-cell query, cell =
 r). Every (camera vertex, light vertex) pair of a vertex's 27 cells is listed and evaluated,
 in blocks of fixed size, as many as there are pairs (:func:`merge_at_camera_vertices`): no
-vertex has a cap, so no light vertex is ever dropped. The kernel K_r is any of photon
-mapping's filters (box, cone, Gaussian, Epanechnikov), normalised to integrate to one over
-the disc; the MIS uses the box's acceptance area pi r^2 for every kernel (as unified path
-sampling does). The image is differentiable in r_0 and the kernel's parameters
-(:func:`iteration_image`); with a kernel that vanishes at r (cone with k = 1, Epanechnikov)
-the image is continuous in r too.
+vertex has a cap, so no light vertex is ever dropped. The merge filter K_r (``filter``) is any
+of photon mapping's density filters (:data:`jgi.transport.density.FILTERS`: box, cone,
+Gaussian, Epanechnikov), normalised to integrate to one over the disc; the MIS uses the box's
+acceptance area pi r^2 for every filter (as unified path sampling does). The image is
+differentiable in r_0 and the filter's parameters (:func:`iteration_image`); with a filter that
+vanishes at r (cone with k = 1, Epanechnikov) the image is continuous in r too.
 
 Random numbers: iteration i of pixel p draws the camera subpath from the stream (seed, p, i)
 and the light subpath from :func:`jgi.transport.subpath.light_key` (seed, p, i), with BDPT's
@@ -92,17 +92,18 @@ from ..physics import geometry as G
 from ..physics import lights as LT
 from ..scene.tables import DIELECTRIC, DIRECTIONAL, ENVIRONMENT, ROUGH_DIELECTRIC, Scene
 from ..transport import density, hash_grid
+from ..transport.connection import connect_camera, connect_vertices, occluded_many
 from ..transport.subpath import (
+    CAMERA_DIMS0,
+    CAMERA_DIMS_PER_STEP,
     LIGHT_DIMS0,
     LIGHT_DIMS_PER_STEP,
     Vertices,
     camera_ray,
-    connect_camera,
     light_key,
     light_normal,
     next_event_value,
     no_uv,
-    occluded_many,
     pdf_emission_dir,
     pdf_light_origin,
     sample_next_event,
@@ -111,9 +112,6 @@ from ..transport.subpath import (
 from .registry import Estimator, Render, param, register
 
 MODES = ("vcm", "bpm", "bpt", "ppm")
-KERNELS = ("box", "cone", "gaussian", "epanechnikov")
-CAMERA_DIMS0 = 2              # dims 0, 1: pixel jitter (BDPT's layout)
-CAMERA_DIMS_PER_STEP = 6      # per vertex: BSDF (3), light sample (3)
 MIS_MAX = 1e30                # the recursive quantities are clamped here: no inf * 0 in weights
 
 
@@ -132,10 +130,13 @@ class VCMConfig:
     heuristic: str = param("power", "MIS heuristic over all techniques",
                            choices=("balance", "power"))
     power: float = param(2.0, "power-heuristic exponent", minimum=0.1, maximum=16)
-    kernel: str = param("box", "merge kernel", choices=KERNELS)
-    cone_k: float = param(1.1, "cone kernel k >= 1", minimum=1.0)
-    gauss_alpha: float = param(density.JENSEN_ALPHA, "Gaussian kernel alpha", minimum=1e-3)
-    gauss_beta: float = param(density.JENSEN_BETA, "Gaussian kernel beta", minimum=1e-3)
+    filter: str = param("box", "merge filter (photon mapping's density filters)",
+                        choices=density.FILTERS)
+    cone_k: float = param(1.1, "cone filter k >= 1", minimum=1.0)
+    gauss_alpha: float = param(density.JENSEN_ALPHA, "Gaussian filter alpha (Jensen's)",
+                               minimum=1e-3)
+    gauss_beta: float = param(density.JENSEN_BETA, "Gaussian filter beta (Jensen's)",
+                              minimum=1e-3)
     roulette: bool = param(True, "Russian roulette at every vertex (SmallVCM's): survive with "
                            "the material's albedo q, densities times q (false: BDPT's streams)")
     technique_images: str = param("", "folder: also write each technique's weighted and "
@@ -155,17 +156,17 @@ class VCMConfig:
     def merges(self) -> bool:
         return self.mode in ("vcm", "bpm", "ppm")
 
-    def kernel_params(self) -> dict:
-        """The kernel's parameters (traced: an image is differentiable in them)."""
-        if self.kernel == "cone":
+    def filter_params(self) -> dict:
+        """The merge filter's parameters (traced: an image is differentiable in them)."""
+        if self.filter == "cone":
             return dict(k=jnp.float32(self.cone_k))
-        if self.kernel == "gaussian":
+        if self.filter == "gaussian":
             return dict(gauss_alpha=jnp.float32(self.gauss_alpha),
                         gauss_beta=jnp.float32(self.gauss_beta))
         return {}
 
-    def kernel_key(self) -> "VCMConfig":
-        """The settings a compiled kernel depends on (the rest are traced or host-side)."""
+    def compile_key(self) -> "VCMConfig":
+        """The settings a compiled function depends on (the rest are traced or host-side)."""
         return replace(self, radius=0.0, radius_alpha=1.0, cone_k=1.0, gauss_alpha=1.0,
                        gauss_beta=1.0, technique_images="")
 
@@ -401,7 +402,7 @@ def light_pass(scene: Scene, cfg: VCMConfig, seed, iteration, f: MisFactors, pat
         conn = materialize(connect_camera(scene, _as_vertices(scene, yb)))
         occ = occluded_many(scene, [conn.shadow])[0]
         q = continuation(B.lookup(scene.materials, yb.material, yb.uv), cfg.roulette)
-        w = weight_camera_connection(yb.mis, conn.pdf_cam, conn.pdf_q_rev * q, f, b)
+        w = weight_camera_connection(yb.mis, conn.pdf_cam, conn.pdf_y_rev * q, f, b)
         keep = conn.ok & ~occ
         value = where(keep, conn.value, V3.full(0.0, w))
         # pixel + 1: entries never written stay 0, i.e. pixel -1
@@ -529,36 +530,16 @@ def connection_pairs(cfg: VCMConfig) -> list[tuple[int, int]]:
     return [(k, j) for j in range(D) for k in range(1, D) if k + j + 2 <= D]
 
 
-def _connect(scene: Scene, cfg: VCMConfig, q: LightVertices, p: CameraVertices, f: MisFactors):
-    """y = q joined to z = p (rows of pairs): (weighted, unweighted) V3."""
-    b = cfg.exponent
-    kinds = scene.materials.kinds
-    v = p.p - q.p
-    d2 = dot(v, v)
-    dist = jnp.sqrt(d2)
-    w = v / jnp.where(dist > 0, dist, 1.0)          # from y towards z
-    mq = B.lookup_specialised(scene.materials, q.material, q.uv)
-    mp = B.lookup_specialised(scene.materials, p.material, p.uv)
-    nq, np_ = shading(q), shading(p)    # BSDFs about the shading normals
-    f_q, pdf_q_fwd = B.evaluate(kinds, mq, nq, q.wo, w, mode=B.IMPORTANCE)
-    _, pdf_q_rev = B.evaluate(kinds, mq, nq, w, q.wo)
-    f_p, pdf_p_fwd = B.evaluate(kinds, mp, np_, p.wo, -w)
-    _, pdf_p_rev = B.evaluate(kinds, mp, np_, -w, p.wo)
-    cq, cp = continuation(mq, cfg.roulette), continuation(mp, cfg.roulette)
-    pdf_q_fwd, pdf_q_rev, pdf_p_fwd, pdf_p_rev = (pdf_q_fwd * cq, pdf_q_rev * cq, pdf_p_fwd * cp,
-                                                  pdf_p_rev * cp)
-    cos_q, cos_p = jnp.abs(dot(q.n, w)), jnp.abs(dot(p.n, w))   # geometric: area densities
-    ok = q.stored & p.connectable & (d2 > 0)
-    inv_d2 = _inv(jnp.where(ok, d2, 1.0))
-    g_value = cos_q * cos_p * inv_d2
-    if q.ns is not None:   # the value's cosines are the shading normals', y takes the correction
-        f_q = f_q * B.adjoint_correction(q.ns, q.n, q.wo, w)
-        g_value = jnp.abs(dot(q.ns, w) * dot(p.ns, w)) * inv_d2
-    value = where(ok, q.beta * f_q * f_p * p.beta * g_value, V3.full(0.0, d2))
-    occ = occluded_many(scene, [G.shadow_ray(q.p, q.n, w, dist)])[0]
-    value = where(occ, V3.full(0.0, d2), value)
-    wt = weight_connection(q.mis, p.mis, pdf_p_fwd * cos_q * inv_d2, pdf_q_fwd * cos_p * inv_d2,
-                           pdf_q_rev, pdf_p_rev, f, b)
+def _connect(scene: Scene, cfg: VCMConfig, y: LightVertices, z: CameraVertices, f: MisFactors):
+    """Light vertices y joined to camera vertices z (rows of pairs): (weighted, unweighted) V3.
+    The direction densities at both ends carry Russian roulette's continuation q."""
+    conn = connect_vertices(scene, y, z, y.stored & z.connectable,
+                            continuation=partial(continuation, roulette=cfg.roulette),
+                            reciprocal=True)
+    occ = occluded_many(scene, [conn.shadow])[0]
+    value = where(occ, V3.full(0.0, conn.pdf_y_rev), conn.value)
+    wt = weight_connection(y.mis, z.mis, conn.pdf_y_from_z, conn.pdf_z_from_y, conn.pdf_y_rev,
+                           conn.pdf_z_rev, f, cfg.exponent)
     return value * wt, value
 
 
@@ -579,9 +560,9 @@ def connections(scene: Scene, cfg: VCMConfig, y: LightVertices, z: CameraVertice
 
     def batch(idx, live):
         kb, jb, nb = idx
-        q = jax.tree_util.tree_map(lambda a: a[kb - 1, nb], y)
-        p = jax.tree_util.tree_map(lambda a: a[jb, nb], z)
-        wtd, unw = _connect(scene, cfg, q._replace(stored=q.stored & live), p, f)
+        yb = jax.tree_util.tree_map(lambda a: a[kb - 1, nb], y)
+        zb = jax.tree_util.tree_map(lambda a: a[jb, nb], z)
+        wtd, unw = _connect(scene, cfg, yb._replace(stored=yb.stored & live), zb, f)
         return jnp.stack(list(wtd), -1), jnp.stack(list(unw), -1)
 
     like = (jnp.zeros((J * N, 3)), jnp.zeros((J * N, 3)))
@@ -622,7 +603,7 @@ CONNECT_BATCH = 4096    # light-camera vertex pairs connected per batch
 
 
 def _merge_pairs(scene: Scene, cfg: VCMConfig, z: "CameraVertexRows", y: Array, ok: Array,
-                 f: MisFactors, r2, scale, kernel_params: dict):
+                 f: MisFactors, r2, scale, filter_params: dict):
     """Merges of camera vertices z (one per pair, [P]) with the light vertices of grid rows y
     ([P, 16]; :class:`MergeGrid`): (weighted, unweighted) [P] V3, zero where ``ok`` is false or
     y lies beyond r, and the light vertex's row (it is y_{row + 1})."""
@@ -643,7 +624,7 @@ def _merge_pairs(scene: Scene, cfg: VCMConfig, z: "CameraVertexRows", y: Array, 
     if z.ns is not None:   # photon flux through the stored surface -> the shading cosine
         f_z = f_z * B.shading_ratio(nz, v3(3), wi)
     q = continuation(mp, cfg.roulette)
-    kern = density.filter_weight(cfg.kernel, jnp.where(ok, d2, 0.0), r2, **kernel_params)[0]
+    kern = density.filter_weight(cfg.filter, jnp.where(ok, d2, 0.0), r2, **filter_params)[0]
     c = jnp.where(ok, kern * scale, 0.0)
     value = where(ok, z.beta * f_z * v3(9) * c, V3.full(0.0, c))
     if cfg.mode == "ppm":
@@ -683,26 +664,26 @@ def _within_max_depth(q: Array, y: Array, *, j: Array, max_depth: int) -> Array:
 
 
 def _add_merges(acc: Array, q: Array, slot: Array, ok: Array, *, scene: Scene, cfg: VCMConfig,
-                zs: CameraVertexRows, rows: Array, f: MisFactors, r2, scale, kernel_params: dict,
+                zs: CameraVertexRows, rows: Array, f: MisFactors, r2, scale, filter_params: dict,
                 by_length: bool) -> Array:
     """The pair visitor of :func:`jgi.transport.hash_grid.accumulate_near_pairs`: the merges of
     camera vertices zs[q] with grid rows ``slot`` added to acc [Q, (D - 1,) 6] (weighted and
     unweighted, by the light vertex's row if ``by_length``), in one scatter."""
     wtd, unw, row = _merge_pairs(scene, cfg, jax.tree_util.tree_map(lambda a: a[q], zs),
-                                 rows[slot], ok, f, r2, scale, kernel_params)
+                                 rows[slot], ok, f, r2, scale, filter_params)
     at = (q, row) if by_length else q
     return acc.at[at].add(jnp.stack([*wtd, *unw], -1))
 
 
 def _merge_batch(zs: CameraVertexRows, live: Array, *, scene: Scene, cfg: VCMConfig,
-                 grid: MergeGrid, f: MisFactors, r2, scale, kernel_params: dict, table_size: int,
+                 grid: MergeGrid, f: MisFactors, r2, scale, filter_params: dict, table_size: int,
                  by_length: bool, dense_pairs: int | None):
     """The merges at a batch of camera vertices (where ``live``): (weighted, unweighted)
     [Q, (D - 1,) 3]. The grid query is :func:`jgi.transport.hash_grid.accumulate_near_pairs`;
     its cheap test also drops the pairs whose path would exceed ``max_depth``."""
     D = cfg.max_depth
     visit = partial(_add_merges, scene=scene, cfg=cfg, zs=zs, rows=grid.rows, f=f, r2=r2,
-                    scale=scale, kernel_params=kernel_params, by_length=by_length)
+                    scale=scale, filter_params=filter_params, by_length=by_length)
     zero = jnp.zeros((live.shape[0],) + ((D - 1,) if by_length else ()) + (6,))
     acc = hash_grid.accumulate_near_pairs(
         grid.cells, table_size, grid.where, zs.p, live, r2, visit, zero, block=MERGE_PAIRS,
@@ -720,7 +701,7 @@ def _per_camera_vertex(a: Array, D: int, N: int, by_length: bool) -> V3:
 
 
 def merge_at_camera_vertices(scene: Scene, cfg: VCMConfig, grid: MergeGrid, z: CameraVertices,
-                             f: MisFactors, radius, kernel_params: dict, n_light: int,
+                             f: MisFactors, radius, filter_params: dict, n_light: int,
                              table_size: int, by_length: bool, dense_pairs: int | None = None):
     """Vertex merging at every camera vertex (``ppm``: the first non-specular one), the live
     ones gathered into batches (:func:`jgi.core.compaction.compact_map`; ``cfg.compact``).
@@ -736,11 +717,11 @@ def merge_at_camera_vertices(scene: Scene, cfg: VCMConfig, grid: MergeGrid, z: C
     vertices have more pairs the result is NaN, never a silently truncated sum."""
     D, N = z.material.shape
     r2 = radius * radius
-    norm = density.filter_weight(cfg.kernel, jnp.float32(0.0), r2, **kernel_params)[1]
+    norm = density.filter_weight(cfg.filter, jnp.float32(0.0), r2, **filter_params)[1]
     scale = 1.0 / (norm * jnp.pi * r2 * n_light)
     active = (z.first_diffuse if cfg.mode == "ppm" else z.connectable).reshape(-1)
     batch = partial(_merge_batch, scene=scene, cfg=cfg, grid=grid, f=f, r2=r2, scale=scale,
-                    kernel_params=kernel_params, table_size=table_size, by_length=by_length,
+                    filter_params=filter_params, table_size=table_size, by_length=by_length,
                     dense_pairs=dense_pairs)
     inputs = _camera_vertex_rows(z)
     tail = (D - 1, 3) if by_length else (3,)
@@ -763,7 +744,7 @@ class Techniques(NamedTuple):
 
 
 def camera_pass(scene: Scene, cfg: VCMConfig, seed, iteration, f: MisFactors, radius,
-                kernel_params: dict, y_all: LightVertices, cells, pixels: Array,
+                filter_params: dict, y_all: LightVertices, cells, pixels: Array,
                 table_size: int, by_technique: bool, dense_pairs: int | None = None
                 ) -> Techniques:
     """Camera subpaths of ``pixels`` in one iteration, with every technique at their vertices."""
@@ -779,7 +760,7 @@ def camera_pass(scene: Scene, cfg: VCMConfig, seed, iteration, f: MisFactors, ra
         conn = connections(scene, cfg, y_own, z, f)
     mrg = (None, None)
     if cfg.merges and D >= 2:
-        mrg = merge_at_camera_vertices(scene, cfg, cells, z, f, radius, kernel_params, n_light,
+        mrg = merge_at_camera_vertices(scene, cfg, cells, z, f, radius, filter_params, n_light,
                                        table_size, by_technique, dense_pairs)
     return Techniques(em, ne, conn, mrg)
 
@@ -829,14 +810,14 @@ def _own_sum(t: Techniques) -> V3:
 
 
 @partial(jax.jit, static_argnames=("cfg", "table_size", "by_technique"))
-def _camera_stage(scene: Scene, cfg: VCMConfig, seed, iteration, radius, kernel_params,
+def _camera_stage(scene: Scene, cfg: VCMConfig, seed, iteration, radius, filter_params,
                   y_all, cells, pixel0, table_size: int, by_technique: bool):
     """Camera subpaths of pixels pixel0 .. pixel0 + chunk - 1 (clamped to the image) with every
     technique; ``by_technique``: the :class:`Techniques`, else their weighted sum ([chunk] V3)."""
     P = scene.camera.width * scene.camera.height
     f = mis_factors(radius, P, cfg)
     pixels = jnp.minimum(pixel0 + jnp.arange(cfg.chunk, dtype=jnp.int32), P - 1)
-    t = camera_pass(scene, cfg, seed, iteration, f, radius, kernel_params, y_all, cells, pixels,
+    t = camera_pass(scene, cfg, seed, iteration, f, radius, filter_params, y_all, cells, pixels,
                     table_size, by_technique)
     return t if by_technique else _own_sum(t)
 
@@ -859,9 +840,9 @@ class _Iterations:
         P = scene.camera.width * scene.camera.height
         self.scene, self.cfg, self.P = scene, cfg, P
         self.chunk = min(cfg.chunk, chunk_limit, 1 << max(8, int(np.ceil(np.log2(P)))))
-        self.key_cfg = replace(cfg.kernel_key(), chunk=self.chunk)
+        self.key_cfg = replace(cfg.compile_key(), chunk=self.chunk)
         self.table_size = table_size_for(scene, cfg)
-        self.kernel_params = cfg.kernel_params()
+        self.filter_params = cfg.filter_params()
 
     def run(self, spp: int, seed: int, on_light, on_chunk, by_technique: bool, progress=False):
         scene, cfg, kc, ts = self.scene, self.cfg, self.key_cfg, self.table_size
@@ -871,7 +852,7 @@ class _Iterations:
             y_all, cells, img = _light_stage(scene, kc, s_, it, r, ts)
             on_light(i, img)
             for p0 in range(0, self.P, self.chunk):
-                out = _camera_stage(scene, kc, s_, it, r, self.kernel_params, y_all, cells,
+                out = _camera_stage(scene, kc, s_, it, r, self.filter_params, y_all, cells,
                                     jnp.int32(p0), ts, by_technique)
                 on_chunk(i, p0, out)
             if progress:
@@ -1012,11 +993,12 @@ def write_technique_images(folder, images: dict, exposure: float = 0.0) -> list[
 
 # --- a differentiable iteration -------------------------------------------------------------------
 
-def iteration_image(scene: Scene, cfg: VCMConfig, seed, iteration, radius, kernel_params: dict,
+def iteration_image(scene: Scene, cfg: VCMConfig, seed, iteration, radius, filter_params: dict,
                     pairs_per_vertex: int = 64) -> Array:
     """One iteration's image [H, W, 3] as a traced function of the merge ``radius`` and the
-    kernel's parameters (jit it, or differentiate it: ``jax.grad`` of a loss of it with respect
-    to r fits r_0, as :mod:`jgi.analysis.density_fit` fits photon radii). The merges read
+    merge filter's parameters (``cfg.filter_params()``; jit it, or differentiate it:
+    ``jax.grad`` of a loss of it with respect to r fits r_0, as :mod:`jgi.analysis.density_fit`
+    fits photon radii). The merges read
     ``pairs_per_vertex`` times (max_depth x pixels) grid candidates in all (static; the image
     is NaN if the iteration's camera vertices have more: choose it large enough)."""
     _check_scene(scene)
@@ -1032,10 +1014,10 @@ def iteration_image(scene: Scene, cfg: VCMConfig, seed, iteration, radius, kerne
     if t1 is not None:
         img = _splat(img, t1[0], t1[1])
     pixels = jnp.arange(P, dtype=jnp.int32)
-    t = camera_pass(scene, cfg, seed, iteration, f, radius, kernel_params, y_all, cells, pixels,
+    t = camera_pass(scene, cfg, seed, iteration, f, radius, filter_params, y_all, cells, pixels,
                     ts, False, pairs_per_vertex * cfg.max_depth * P)
     return _splat(img, pixels, _own_sum(t)).reshape(H, W, 3)
 
 
 register(Estimator("vcm", "vertex connection and merging (modes vcm, bpm, bpt, ppm), progressive",
-                   render, VCMConfig))
+                   render, VCMConfig, renamed={"kernel": "filter"}))

@@ -1,4 +1,4 @@
-"""Subpaths and their connections: the path machinery every estimator is assembled from.
+"""Subpaths: the path machinery every estimator is assembled from.
 
 Notation (Veach 1997, ch. 8 and 10; pbrt-v4's BDPT): a light subpath y_0 y_1 ... starts on a
 light, a camera subpath z_0 z_1 ... at the pinhole. Each vertex x_i of a subpath carries
@@ -18,19 +18,22 @@ Contents: the camera ray (:func:`camera_ray`); vertices (:class:`Vertices`, :fun
 :func:`concat_rows`); BSDF-sampled random walks (:func:`random_walk`); lights as path vertices
 (:func:`pdf_light_origin`, :func:`pdf_emission_dir`, :func:`light_normal`,
 :func:`is_infinite`) and light subpaths (:func:`light_subpath`); next-event estimation
-(:func:`sample_next_event`, :func:`next_event_value`); the t = 1 connection to the pinhole
-(:func:`connect_camera`) and batched shadow rays (:func:`occluded_many`). Where photon mapping's
-camera chains end and its photons are stored: :mod:`jgi.transport.visible_points`.
+(:func:`sample_next_event`, :func:`next_event_value`). Connections of one subpath's vertex to
+the other's (and to the pinhole) and batched shadow rays: :mod:`jgi.transport.connection`.
+Where photon mapping's camera chains end and its photons are stored:
+:mod:`jgi.transport.visible_points`.
 
 Shading normals (scenes with vertex normals; :func:`shading`): every BSDF evaluation and sample
 is about a vertex's shading normal ``ns`` and the value's cosines are ns's; ray offsets, shadow
 rays and :func:`convert_density` use the geometric ``n``; light subpaths (importance mode) and
-the t = 1 connection multiply by Veach's adjoint correction
+the connections multiply by Veach's adjoint correction
 (:func:`jgi.physics.bsdf.adjoint_correction`), so both directions value a path alike.
 
 Random numbers: a camera path uses dimensions 0 and 1 of its stream for the pixel jitter; a
-light subpath draws from the stream :func:`light_key` (independent of the camera path's),
-``LIGHT_DIMS0`` numbers for its emission sample, then ``LIGHT_DIMS_PER_STEP`` per bounce.
+bidirectional camera subpath (BDPT, VCM) then draws ``CAMERA_DIMS_PER_STEP`` per vertex from
+``CAMERA_DIMS0`` on (its BSDF sample, then its light sample). A light subpath draws from the
+stream :func:`light_key` (independent of the camera path's), ``LIGHT_DIMS0`` numbers for its
+emission sample, then ``LIGHT_DIMS_PER_STEP`` per bounce.
 """
 
 from __future__ import annotations
@@ -64,6 +67,8 @@ from ..scene.tables import (
 )
 
 LIGHT_SALT = rng.SALTS["light_subpath"]  # light subpaths: independent of the camera path's
+CAMERA_DIMS0 = 2               # dims 0, 1: pixel jitter
+CAMERA_DIMS_PER_STEP = 6       # per vertex: BSDF (3), light sample (3)
 LIGHT_DIMS0 = 5                # dims 0..4: sample_emission (selection, position, direction)
 LIGHT_DIMS_PER_STEP = 3        # per bounce: lobe, u1, u2
 
@@ -368,63 +373,3 @@ def next_event_value(ne: NextEvent, beta: V3, weight: Array | None = None,
     num = ne.cos if weight is None else weight * ne.cos
     scale = X.div(num, n_samples * jnp.where(ne.ok, ne.light.pdf, 1.0))
     return where(ne.ok, beta * ne.f * ne.light.Li * scale, V3.full(0.0, scale))
-
-
-# --- t = 1: connecting a light vertex to the pinhole ----------------------------------------------
-
-class CameraConnection(NamedTuple):
-    pixel: Array       # flat pixel index (-1 outside the frame)
-    value: V3          # unweighted contribution if unoccluded
-    shadow: tuple      # (origin, direction, t_max) of the shadow ray towards the pinhole
-    pdf_cam: Array     # camera's area density for q_{s-1} (its pdf_rev under this strategy)
-    pdf_q_rev: Array   # BSDF solid-angle density at q_{s-1} from the camera towards q_{s-2}
-    ok: Array
-
-
-def connect_camera(scene: Scene, q: Vertices) -> CameraConnection:
-    """Connect surface vertices q (any array shape) to the pinhole (strategy t = 1)."""
-    cam = scene.camera
-    kinds = scene.materials.kinds
-    proj = C.project(cam, q.p)
-    w = proj.wi                                  # from q towards the pinhole
-    mp = B.lookup_specialised(scene.materials, q.material, q.uv)
-    nq = shading(q)
-    f, _ = B.evaluate(kinds, mp, nq, q.wo, w, mode=B.IMPORTANCE)   # a light vertex
-    _, pdf_q_rev = B.evaluate(kinds, mp, nq, w, q.wo)
-    cos_q = jnp.abs(dot(q.n, w))     # geometric: the camera's area density of q
-    cos_f = cos_q                    # the cosine of the value: the shading normal's
-    if q.ns is not None:             # (pbrt-v4's BDPT), with Veach's adjoint correction
-        f = f * B.adjoint_correction(q.ns, q.n, q.wo, w)
-        cos_f = jnp.abs(dot(q.ns, w))
-    d2 = proj.dist * proj.dist
-    inv_d2 = jnp.where(d2 > 0, 1.0 / jnp.where(d2 > 0, d2, 1.0), 0.0)
-    cos_cam = -dot(w, cam.forward)
-    # W_e / p(pinhole as seen from q) with p = d^2 / cos_cam (pbrt's Camera::SampleWi)
-    we_term = proj.importance * cos_cam * inv_d2
-    ok = q.valid & ~q.delta & proj.visible
-    value = where(ok, q.beta * f * (cos_f * we_term), V3.full(0.0, cos_q))
-    W, H = cam.width, cam.height
-    ix = jnp.clip(jnp.floor(proj.px).astype(jnp.int32), 0, W - 1)
-    iy = jnp.clip(jnp.floor(proj.py).astype(jnp.int32), 0, H - 1)
-    pixel = jnp.where(ok, iy * W + ix, -1)
-    shadow = G.shadow_ray(q.p, q.n, w, proj.dist)
-    pdf_cam = jnp.where(ok, proj.pdf_dir * cos_q * inv_d2, 0.0)
-    return CameraConnection(pixel, value, shadow, pdf_cam, pdf_q_rev, ok)
-
-
-def occluded_many(scene: Scene, rays: list[tuple]) -> list[Array]:
-    """One any-hit query for several batches of shadow rays (one kernel, not one per batch)."""
-    shapes = [o.x.shape for o, _, _ in rays]
-    flat = lambda a: a.reshape(-1)  # noqa: E731
-    o = V3(*(jnp.concatenate([flat(r[0][c]) for r in rays]) for c in range(3)))
-    d = V3(*(jnp.concatenate([flat(r[1][c]) for r in rays]) for c in range(3)))
-    t = jnp.concatenate([flat(jnp.broadcast_to(r[2], s)) for r, s in zip(rays, shapes)])
-    o, d, t = materialize((o, d, t))   # one buffer, read by every primitive test
-    occ = G.occluded(scene, o, d, t)
-    out, i = [], 0
-    for s in shapes:
-        n = int(np.prod(s))
-        out.append(occ[i:i + n].reshape(s))
-        i += n
-    return out
-

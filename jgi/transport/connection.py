@@ -1,0 +1,161 @@
+"""Connections: a light-subpath vertex joined to a camera-subpath vertex by a shadow ray.
+
+Two kinds (Veach 1997, sec. 10.2; pbrt-v4's BDPT ``ConnectBDPT``), each returning what every
+estimator that makes it needs, the value before visibility, the shadow ray and the densities its
+MIS reads:
+
+* :func:`connect_vertices`, s, t >= 2: light vertex y = y_{s-1} and camera vertex z = z_{t-1},
+  c = f(y_{s-2} -> y -> z) G(y <-> z) f(y -> z -> z_{t-2}), G = |cos| |cos| / d^2 (BDPT's
+  interior strategies, VCM's connections, and so MMLT's);
+* :func:`connect_camera`, t = 1: light vertex y joined to the pinhole and splatted into the
+  pixel it projects to (light tracing, BDPT, VCM).
+
+Both evaluate BSDFs about the vertices' shading normals (:func:`~jgi.transport.subpath.shading`)
+with the shading normals' cosines in the value, and the geometric normals' in the area densities
+and the shadow ray; the light vertex y, whose BSDF is evaluated in importance mode, takes Veach's
+adjoint correction (:func:`jgi.physics.bsdf.adjoint_correction`), so that a path is valued alike
+from both ends. :func:`occluded_many` tests several batches of shadow rays in one query.
+"""
+
+from __future__ import annotations
+
+from typing import Callable, NamedTuple
+
+import jax.numpy as jnp
+import numpy as np
+from jax import Array
+
+from .._xla import materialize
+from ..core.vec import V3, dot, where
+from ..physics import bsdf as B
+from ..physics import camera as C
+from ..physics import geometry as G
+from ..scene.tables import Scene
+from .subpath import Vertices, convert_density, shading
+
+# --- s, t >= 2: a light vertex joined to a camera vertex -----------------------------------------
+
+
+class VertexConnection(NamedTuple):
+    """Light vertex y joined to camera vertex z (any array shape, all alike)."""
+    value: V3          # beta_y f_y G f_z beta_z, unweighted, before the visibility test
+    shadow: tuple      # (origin, direction, t_max) of the shadow ray y -> z
+    pdf_z_from_y: Array  # area density of z sampled by y's BSDF (z's reverse density)
+    pdf_y_from_z: Array  # area density of y sampled by z's BSDF (y's reverse density)
+    pdf_y_rev: Array   # solid-angle density at y of the direction back to y's predecessor,
+                       # given the direction to z (y_{s-2}'s reverse density, before conversion)
+    pdf_z_rev: Array   # the same at z, of the direction back to z_{t-2}
+
+
+def connect_vertices(scene: Scene, y, z, ok: Array,
+                     continuation: Callable[[B.MaterialParams], Array] | None = None,
+                     reciprocal: bool = False) -> VertexConnection:
+    """Light vertices y joined to camera vertices z (strategy (s, t), s, t >= 2).
+
+    ``y`` and ``z`` are any records with fields p, n, wo (towards the previous vertex of the
+    vertex's own subpath), beta, material, uv and ns (:class:`~jgi.transport.subpath.Vertices`,
+    or VCM's). ``ok``: the caller's test that both may be connected (valid, not Dirac; BDPT and
+    VCM keep different flags); pairs at distance 0 are refused here. The value is zero where not
+    ok.
+
+    ``continuation(material)``, if given, multiplies every direction density at a vertex (VCM's
+    Russian roulette: the probability q that a subpath continues there). ``reciprocal``: divide
+    by d^2 through one reciprocal multiplied in (VCM's form, SmallVCM's) rather than by
+    division (BDPT's, pbrt's ConvertDensity): the same quantities, rounded differently, each
+    estimator keeping its own so that its images stay bit for bit."""
+    kinds = scene.materials.kinds
+    v = z.p - y.p
+    d2 = dot(v, v)
+    dist = jnp.sqrt(d2)
+    w = v / jnp.where(dist > 0, dist, 1.0)             # from y towards z
+    my = B.lookup_specialised(scene.materials, y.material, y.uv)
+    mz = B.lookup_specialised(scene.materials, z.material, z.uv)
+    ny, nz = shading(y), shading(z)                     # BSDFs about the shading normals
+    f_y, pdf_y_fwd = B.evaluate(kinds, my, ny, y.wo, w,  # y_{s-2} -> y -> z
+                                mode=B.IMPORTANCE)
+    _, pdf_y_rev = B.evaluate(kinds, my, ny, w, y.wo)
+    f_z, pdf_z_fwd = B.evaluate(kinds, mz, nz, z.wo, -w)  # z_{t-2} -> z -> y
+    _, pdf_z_rev = B.evaluate(kinds, mz, nz, -w, z.wo)
+    if continuation is not None:
+        q_y, q_z = continuation(my), continuation(mz)
+        pdf_y_fwd, pdf_y_rev, pdf_z_fwd, pdf_z_rev = (pdf_y_fwd * q_y, pdf_y_rev * q_y,
+                                                      pdf_z_fwd * q_z, pdf_z_rev * q_z)
+    cos_y, cos_z = jnp.abs(dot(y.n, w)), jnp.abs(dot(z.n, w))   # geometric: G, area densities
+    ok = ok & (d2 > 0)
+    if reciprocal:
+        inv_d2 = 1.0 / jnp.where(ok, d2, 1.0)
+        over_d2 = lambda x: x * inv_d2                              # noqa: E731
+        to_area = lambda pdf, cos: pdf * cos * inv_d2               # noqa: E731
+    else:
+        over_d2 = lambda x: x / jnp.where(ok, d2, 1.0)              # noqa: E731
+        to_area = lambda pdf, cos: convert_density(pdf, d2, cos, True)  # noqa: E731
+    g_value = over_d2(cos_y * cos_z)                   # G without visibility
+    if y.ns is not None:
+        # the value's cosines are the shading normals' (pbrt-v4's G), and y, a light vertex,
+        # takes Veach's adjoint correction
+        f_y = f_y * B.adjoint_correction(y.ns, y.n, y.wo, w)
+        g_value = over_d2(jnp.abs(dot(y.ns, w) * dot(z.ns, w)))
+    value = where(ok, y.beta * f_y * f_z * z.beta * g_value, V3.full(0.0, d2))
+    return VertexConnection(value, G.shadow_ray(y.p, y.n, w, dist), to_area(pdf_y_fwd, cos_z),
+                            to_area(pdf_z_fwd, cos_y), pdf_y_rev, pdf_z_rev)
+
+
+# --- t = 1: a light vertex joined to the pinhole -------------------------------------------------
+
+class CameraConnection(NamedTuple):
+    pixel: Array       # flat pixel index (-1 outside the frame)
+    value: V3          # unweighted contribution if unoccluded
+    shadow: tuple      # (origin, direction, t_max) of the shadow ray towards the pinhole
+    pdf_cam: Array     # camera's area density for y_{s-1} (its pdf_rev under this strategy)
+    pdf_y_rev: Array   # BSDF solid-angle density at y_{s-1} from the camera towards y_{s-2}
+    ok: Array
+
+
+def connect_camera(scene: Scene, y: Vertices) -> CameraConnection:
+    """Connect surface vertices y (any array shape) to the pinhole (strategy t = 1)."""
+    cam = scene.camera
+    kinds = scene.materials.kinds
+    proj = C.project(cam, y.p)
+    w = proj.wi                                  # from y towards the pinhole
+    mp = B.lookup_specialised(scene.materials, y.material, y.uv)
+    ny = shading(y)
+    f, _ = B.evaluate(kinds, mp, ny, y.wo, w, mode=B.IMPORTANCE)   # a light vertex
+    _, pdf_y_rev = B.evaluate(kinds, mp, ny, w, y.wo)
+    cos_y = jnp.abs(dot(y.n, w))     # geometric: the camera's area density of y
+    cos_f = cos_y                    # the cosine of the value: the shading normal's
+    if y.ns is not None:             # (pbrt-v4's BDPT), with Veach's adjoint correction
+        f = f * B.adjoint_correction(y.ns, y.n, y.wo, w)
+        cos_f = jnp.abs(dot(y.ns, w))
+    d2 = proj.dist * proj.dist
+    inv_d2 = jnp.where(d2 > 0, 1.0 / jnp.where(d2 > 0, d2, 1.0), 0.0)
+    cos_cam = -dot(w, cam.forward)
+    # W_e / p(pinhole as seen from y) with p = d^2 / cos_cam (pbrt's Camera::SampleWi)
+    we_term = proj.importance * cos_cam * inv_d2
+    ok = y.valid & ~y.delta & proj.visible
+    value = where(ok, y.beta * f * (cos_f * we_term), V3.full(0.0, cos_y))
+    W, H = cam.width, cam.height
+    ix = jnp.clip(jnp.floor(proj.px).astype(jnp.int32), 0, W - 1)
+    iy = jnp.clip(jnp.floor(proj.py).astype(jnp.int32), 0, H - 1)
+    pixel = jnp.where(ok, iy * W + ix, -1)
+    shadow = G.shadow_ray(y.p, y.n, w, proj.dist)
+    pdf_cam = jnp.where(ok, proj.pdf_dir * cos_y * inv_d2, 0.0)
+    return CameraConnection(pixel, value, shadow, pdf_cam, pdf_y_rev, ok)
+
+
+# --- shadow rays ----------------------------------------------------------------------------------
+
+def occluded_many(scene: Scene, rays: list[tuple]) -> list[Array]:
+    """One any-hit query for several batches of shadow rays (one kernel, not one per batch)."""
+    shapes = [o.x.shape for o, _, _ in rays]
+    flat = lambda a: a.reshape(-1)  # noqa: E731
+    o = V3(*(jnp.concatenate([flat(r[0][c]) for r in rays]) for c in range(3)))
+    d = V3(*(jnp.concatenate([flat(r[1][c]) for r in rays]) for c in range(3)))
+    t = jnp.concatenate([flat(jnp.broadcast_to(r[2], s)) for r, s in zip(rays, shapes)])
+    o, d, t = materialize((o, d, t))   # one buffer, read by every primitive test
+    occ = G.occluded(scene, o, d, t)
+    out, i = [], 0
+    for s in shapes:
+        n = int(np.prod(s))
+        out.append(occ[i:i + n].reshape(s))
+        i += n
+    return out
