@@ -226,7 +226,8 @@ def ratio_chain(camera: list[ChainVertex], light: list[ChainVertex],
     side, so it counts only if neither of the two is Dirac (for y_0, the neighbour is the light:
     a delta light). Each step reads (rows of p_rev, p_fwd, flags of vertex i and i - 1); with the
     heuristic's exponent b, w_{s,t} = 1 / (1 + sum of the counted r^b). (s, t) = (0, 2), the
-    camera subpath that hits a light at once, has no other strategy: no steps, w = 1."""
+    camera subpath that hits a light at once, has no other strategy ((1, 1) is not used): no
+    steps, w = 1."""
     s, t = len(light), len(camera)
     if s + t == 2:
         return [], []
