@@ -13,7 +13,7 @@ meets a convex box inside it with probability A_child / A. Centroids are sorted 
 prefix and suffix sweeps. The build goes level by level: every node of a level is binned,
 costed and partitioned by whole-array numpy operations, so the Python loop runs once per tree
 level, not once per node or triangle (measured on 2 shared CPU cores: 10^5 triangles in 1.4 s,
-10^6 in 13 s; see ``experiments/bench_bvh.py``).
+10^6 in 13 s; see ``experiments/bench/bvh.py``).
 
 Layout (as pbrt-v4's ``LinearBVHNode``): nodes in depth-first order, so the first child of an
 internal node is the next node; ``offset`` holds the second child of an internal node, or the

@@ -35,7 +35,7 @@ from ..core.bvh import BVH, build_bvh
 from ..core.vec import V3
 from .metals import METALS
 
-# Triangle tables at least this large get a BVH. Measured (experiments/bench_bvh.py, CPU, one
+# Triangle tables at least this large get a BVH. Measured (experiments/bench/bvh.py, CPU, one
 # closest-hit and one shadow ray per ray, 2^16 rays, interleaved best-of-3 timings) since the
 # brute-force scan takes blocks of rows per loop iteration (jgi.physics.geometry._scan): brute force
 # falls as 1/T (4.2 Mrays/s at 196 triangles, 2.2 at 400, 0.92 at 1024, 0.22 at 4096) while
