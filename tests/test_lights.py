@@ -492,7 +492,7 @@ def test_light_selection_inverts_the_power_cdf(count):
     assert lights.count == count
     cdf = np.asarray(lights.cdf)
     u = np.concatenate([rng.uniform(0, 1, 4096), cdf[:-1], [0.0, 0.99999994]]).astype(np.float32)
-    got = np.asarray(jax.jit(lambda uu: LT.select(lights, uu))(u))
+    got = np.asarray(jax.jit(lambda uu: LT.select_light(lights, uu))(u))
     want = np.clip(np.searchsorted(cdf, u, side="right"), 0, count - 1)
     np.testing.assert_array_equal(got, want)
     if count > 2:

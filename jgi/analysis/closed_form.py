@@ -10,7 +10,7 @@ from __future__ import annotations
 import jax.numpy as jnp
 import numpy as np
 
-from ..physics import camera as C
+from ..physics import camera
 from ..scene.builtin import MIRROR_SDS
 from ..scene.tables import Scene
 
@@ -26,8 +26,8 @@ def _film_rays(scene: Scene, per_axis: int):
     py = np.broadcast_to(py[..., None], (H, W, per_axis * per_axis))
     u1 = np.broadcast_to(u1.reshape(-1), px.shape)
     u2 = np.broadcast_to(u2.reshape(-1), px.shape)
-    o, d = C.sample_ray(cam, jnp.asarray(px), jnp.asarray(py), jnp.asarray(u1, jnp.float32),
-                        jnp.asarray(u2, jnp.float32))
+    o, d = camera.sample_ray(cam, jnp.asarray(px), jnp.asarray(py), jnp.asarray(u1, jnp.float32),
+                             jnp.asarray(u2, jnp.float32))
     return (np.stack([np.asarray(c, np.float64) for c in o], -1),
             np.stack([np.asarray(c, np.float64) for c in d], -1))
 

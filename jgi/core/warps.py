@@ -11,7 +11,7 @@ from __future__ import annotations
 import jax.numpy as jnp
 from jax import Array
 
-from .. import _xla as X
+from .. import _xla
 from .._xla import pow_positive, sincos, sincos_quarter
 from .vec import V3
 
@@ -21,7 +21,7 @@ INV_4PI = jnp.float32(0.25 / jnp.pi)
 
 
 def _safe_sqrt(x: Array) -> Array:
-    return X.sqrt(jnp.maximum(x, 0.0))
+    return _xla.sqrt(jnp.maximum(x, 0.0))
 
 
 # --- disc -------------------------------------------------------------------------------------
@@ -44,7 +44,7 @@ def concentric_disc_polar(u1: Array, u2: Array) -> tuple[Array, Array, Array]:
     first = jnp.abs(a) > jnp.abs(b)
     r = jnp.where(first, a, b)
     # for float32 u in [0, 1), 2u - 1 is 0 or at least 2^-24 in magnitude (recip_normal's range)
-    t = jnp.where(first, b, a) * X.recip_normal(jnp.where(r == 0, 1.0, r))
+    t = jnp.where(first, b, a) * _xla.recip_normal(jnp.where(r == 0, 1.0, r))
     s, c = sincos_quarter((PI / 4) * t)
     return r * jnp.where(first, c, s), r * jnp.where(first, s, c), jnp.abs(r)
 

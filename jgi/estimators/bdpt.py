@@ -64,10 +64,8 @@ from ..core.configured import Configured
 from ..core.imageio import write_exr, write_png
 from ..core.vec import V3, dot, where
 from ..drivers.splat import render_splats
-from ..physics import bsdf as B
-from ..physics import camera as C
-from ..physics import geometry as G
-from ..physics import lights as LT
+from ..physics import bsdf, camera, geometry
+from ..physics.lights import emitted, environment_radiance, select_light
 from ..scene.tables import Scene
 from ..transport import mis
 from ..transport.connection import connect_camera, connect_vertices, occluded_many
@@ -275,14 +273,14 @@ def _camera_visit(scene: Scene, exponent: float):
         out = {}
         # ---- s = 0: the camera subpath found an emitter: L_e(z_{t-1} -> z_{t-2}) ----
         e = jnp.where(v.valid, hit.emitter, -1)
-        out["s0_value"] = s.beta * LT.emitted(lights, e, hit.n, wo)
+        out["s0_value"] = s.beta * emitted(lights, e, hit.n, wo)
         out["s0_rev_pt"] = pdf_light_origin(lights, e)               # as y_0 of a light path
         out["s0_rev_ptm"] = convert_density(pdf_emission_dir(lights, e, hit.n, wo), v.d2_prev,
                                             dot(s.prev_n, s.d), s.prev_surface)
         # ---- s = 0 on the environment: the ray escaped (two-strategy MIS with s = 1) ----
         if lights.environment >= 0:
             escaped = s.alive & ~hit.valid
-            L_env = s.beta * LT.environment_radiance(lights, z)
+            L_env = s.beta * environment_radiance(lights, z)
             p_light = lights.pmf[lights.environment] * jnp.float32(0.25 / np.pi)
             w = mis.heuristic_weight(1.0, s.pdf_dir, [(1.0, p_light + z)], exponent)
             w = jnp.where((v.step == 0) | s.prev_delta, 1.0, w)
@@ -293,9 +291,10 @@ def _camera_visit(scene: Scene, exponent: float):
         ls, pdf_p_fwd = ne.light, ne.pdf_bsdf
         # the light's density at z_{t-1} converts with the geometric cosine
         cos_p = ne.cos if hit.ns is None else jnp.abs(dot(ls.wi, hit.n))
-        k = LT.select(lights, u(3))
-        _, pdf_p_rev = B.evaluate(kinds, mp, shading(hit), ls.wi, wo)
-        out["s1_value"] = where(~G.occluded(scene, *ne.shadow), next_event_value(ne, s.beta), Z)
+        k = select_light(lights, u(3))
+        _, pdf_p_rev = bsdf.evaluate(kinds, mp, shading(hit), ls.wi, wo)
+        visible = ~geometry.occluded(scene, *ne.shadow)
+        out["s1_value"] = where(visible, next_event_value(ne, s.beta), Z)
         infinite = is_infinite(lights, k)
         dist = jnp.where(infinite, 0.0, ls.dist)
         d2 = dist * dist
@@ -327,13 +326,13 @@ def camera_subpath(scene: Scene, cfg: BDPTConfig, key: Array, pixel: Array, unif
     z = jnp.zeros_like(o.x)
     Z = V3(z, z, z)
     one = V3(z + 1, z + 1, z + 1)
-    pdf_dir = C.project(cam, o + d).pdf_dir            # 1 / (A cos^3): the film's density
+    pdf_dir = camera.project(cam, o + d).pdf_dir            # 1 / (A cos^3): the film's density
     z0 = Vertices(o, Z, Z, one, z + 1, z, z > 0, z > 0, z == 0, z.astype(jnp.int32),
                   z.astype(jnp.int32) - 1, no_uv(scene, z), vertex_ns(scene, Z),
                   vertex_lobe_delta(scene, z))
     start = WalkState(o, d, one, pdf_dir, o, Z, z > 0, z > 0, z == 0)
     verts, pdf_rev0, rec = random_walk(scene, key, CAMERA_DIMS0, CAMERA_DIMS_PER_STEP,
-                                       cfg.max_depth, start, B.RADIANCE,
+                                       cfg.max_depth, start, bsdf.RADIANCE,
                                        _camera_visit(scene, cfg.exponent), uniform=uniform)
     z0 = jax.tree_util.tree_map(lambda x: x[None], z0._replace(pdf_rev=pdf_rev0))
     return concat_rows(z0, verts), rec

@@ -48,8 +48,8 @@ from jax import Array
 
 from ..core import rng
 from ..core.vec import V3, coordinate_system, cross, dot, length
-from ..physics import geometry as G
-from ..physics import lights as LT
+from ..physics import geometry
+from ..physics.lights import emitted
 from ..scene.tables import Scene
 from ..transport import density, hash_grid
 from ..transport.photons import trace_photons
@@ -140,7 +140,7 @@ def _gather_rays(scene: Scene, cfg: CacheConfig, seed, ids, p: V3, n: V3, ng: V3
     ex = lambda v: V3(*(c[:, None, None] for c in v))
     s3, t3, n3 = ex(s), ex(t), ex(n)
     d = s3 * (sin_t * jnp.cos(phi)) + t3 * (sin_t * jnp.sin(phi)) + n3 * cos_t
-    o = G.offset_origin(ex(p), n3 if ng is None else ex(ng), d)
+    o = geometry.offset_origin(ex(p), n3 if ng is None else ex(ng), d)
     flat = lambda v: V3(*(c.reshape(-1) for c in jnp.broadcast_arrays(*v)))
     return flat(o), flat(d), key.reshape(-1), (sin_t, cos_t, phi), (s, t)
 
@@ -152,8 +152,8 @@ def gather(scene: Scene, cfg: CacheConfig, seed, ids, p: V3, n: V3, ng: V3 | Non
     radiance of each gather ray estimated by the path tracer."""
     K = p.x.shape[0]
     of, df, kf, angles, frame = _gather_rays(scene, cfg, seed, ids, p, n, ng)
-    hit = G.intersect(scene, of, df)
-    Le = (LT.emitted(scene.lights, hit.emitter, hit.n, -df) if scene.lights.count
+    hit = geometry.intersect(scene, of, df)
+    Le = (emitted(scene.lights, hit.emitter, hit.n, -df) if scene.lights.count
           else V3(*(0 * of.x,) * 3))
     L = radiance(scene, cfg.pt, lambda dim: rng.uniform(kf, dim + 2), of, df)
     L = V3(*(jnp.maximum(jnp.where(jnp.isfinite(a), a - b, 0.0), 0.0) for a, b in zip(L, Le)))
@@ -165,7 +165,7 @@ def gather(scene: Scene, cfg: CacheConfig, seed, ids, p: V3, n: V3, ng: V3 | Non
 def _gather_hits(scene: Scene, cfg: CacheConfig, seed, ids, p: V3, n: V3, ng: V3 | None = None):
     """Gather rays followed through specular chains to the diffuse surfaces they reach."""
     of, df, kf, angles, frame = _gather_rays(scene, cfg, seed, ids, p, n, ng)
-    hit = G.intersect(scene, of, df)
+    hit = geometry.intersect(scene, of, df)
     v = trace_to_diffuse(scene, lambda k: rng.uniform(kf, k + 2), of, df, max_depth=cfg.max_depth,
                          light_samples=0, lookup_rough=False)
     return face_viewer(v), jnp.where(hit.valid, hit.t, jnp.inf), angles, frame

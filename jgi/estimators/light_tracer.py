@@ -46,9 +46,8 @@ from jax import Array
 from ..core.configured import Configured
 from ..core.vec import V3, dot, where
 from ..drivers.splat import render_splats
-from ..physics import camera as C
-from ..physics import geometry as G
-from ..physics import lights as LT
+from ..physics import camera, geometry
+from ..physics.lights import emitted
 from ..scene.tables import Scene
 from ..transport.connection import connect_camera, occluded_many
 from ..transport.subpath import light_key, light_subpath, rows
@@ -71,8 +70,8 @@ def trace_light_paths(scene: Scene, cfg: LightTracerConfig, seed, pixel: Array, 
     out = []
     # ---- s = 1: an area light seen directly (y_0 splatted with L_e / p(y_0)) ----
     y0 = rows(v, 0)
-    proj = C.project(scene.camera, y0.p)
-    le = LT.emitted(lights, jnp.where(y0.on_surface, path.element, -1), y0.n, proj.wi)
+    proj = camera.project(scene.camera, y0.p)
+    le = emitted(lights, jnp.where(y0.on_surface, path.element, -1), y0.n, proj.wi)
     d2 = proj.dist * proj.dist
     cos_cam = -dot(proj.wi, scene.camera.forward)
     g = jnp.abs(dot(y0.n, proj.wi)) * cos_cam / jnp.where(d2 > 0, d2, 1.0)
@@ -83,7 +82,7 @@ def trace_light_paths(scene: Scene, cfg: LightTracerConfig, seed, pixel: Array, 
     pix0 = jnp.where(ok0, jnp.clip(jnp.floor(proj.py).astype(jnp.int32), 0,
                                    scene.camera.height - 1) * W
                      + jnp.clip(jnp.floor(proj.px).astype(jnp.int32), 0, W - 1), -1)
-    rays = [G.shadow_ray(y0.p, y0.n, proj.wi, proj.dist)]
+    rays = [geometry.shadow_ray(y0.p, y0.n, proj.wi, proj.dist)]
     # ---- s >= 2: every surface vertex of the light subpath, all at once ([max_depth - 1, N]) ----
     if cfg.max_depth > 1:
         conn = connect_camera(scene, rows(v, slice(1, None)))

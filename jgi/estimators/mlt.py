@@ -81,11 +81,8 @@ from jax import Array
 from ..core import rng
 from ..core.errors import ParameterError
 from ..core.vec import EDGE_ON_COS, V3, coordinate_system, dot, luminance, normalize, reflect, where
-from ..physics import bsdf as B
-from ..physics import camera as C
-from ..physics import geometry as G
-from ..physics import lights as LT
-from ..physics.lights import AREA_KINDS
+from ..physics import bsdf, camera, geometry
+from ..physics.lights import AREA_KINDS, emitted, pdf_li, sample_li
 from ..scene.tables import DIELECTRIC, MIRROR, PLASTIC, Scene
 from ..transport import mcmc, subpath
 from . import path_tracer
@@ -214,7 +211,7 @@ def _first(mask: Array, fallback: Array) -> Array:
     return jnp.where(idx < mask.shape[0], idx, fallback)
 
 
-def specular_coefficient(mp: B.MaterialParams, n: V3, wo: V3, wi: V3, plastic: bool = False):
+def specular_coefficient(mp: bsdf.MaterialParams, n: V3, wo: V3, wi: V3, plastic: bool = False):
     """The Dirac coefficient of a specular vertex (f |cos| without the delta) for the pair
     (wo, wi), and the probability with which ``bsdf.sample`` picks that lobe. Mirror (smooth
     conductor): k_s F_conductor(cos_o) (k_s for the perfect mirror), 1. Dielectric: F k_s with
@@ -226,23 +223,23 @@ def specular_coefficient(mp: B.MaterialParams, n: V3, wo: V3, wi: V3, plastic: b
     cos_o = dot(wo, n)
     transmit = cos_o * dot(wi, n) < 0
     eta = jnp.where(cos_o > 0, mp.ior, 1.0 / mp.ior)
-    F = B.fresnel_dielectric(jnp.abs(cos_o), eta)
+    F = bsdf.fresnel_dielectric(jnp.abs(cos_o), eta)
     diel = jnp.where(transmit, (1.0 - F) / (eta * eta), F)
     prob = jnp.where(mp.kind == DIELECTRIC, jnp.where(transmit, 1.0 - F, F), 1.0)
-    mirror = B.mirror_reflectance(mp, jnp.abs(cos_o))
+    mirror = bsdf.mirror_reflectance(mp, jnp.abs(cos_o))
     zero = jnp.zeros_like(cos_o)
-    coeff = where(mp.kind == DIELECTRIC, where(transmit, B.transmission_tint(mp), mp.ks) * diel,
+    coeff = where(mp.kind == DIELECTRIC, where(transmit, bsdf.transmission_tint(mp), mp.ks) * diel,
                   where(transmit, V3(zero, zero, zero), mirror))
     if plastic:
         sel = mp.kind == PLASTIC
         cos_c = jnp.abs(cos_o)
-        coat = mp.ks * B.plastic.reflectance(mp, cos_c)
+        coat = mp.ks * bsdf.plastic.reflectance(mp, cos_c)
         coeff = where(sel, where(transmit, V3(zero, zero, zero), coat), coeff)
-        prob = jnp.where(sel, B.plastic.coating_probability(mp, cos_c), prob)
+        prob = jnp.where(sel, bsdf.plastic.coating_probability(mp, cos_c), prob)
     return coeff, prob
 
 
-def specular_continue(mp: B.MaterialParams, n: V3, w_from: V3, transmit: Array,
+def specular_continue(mp: bsdf.MaterialParams, n: V3, w_from: V3, transmit: Array,
                       plastic: bool = False):
     """The direction leaving a specular vertex when the path arrives from ``w_from`` (pointing
     back along the path), reflecting or refracting as ``transmit`` says; (direction, valid).
@@ -252,7 +249,7 @@ def specular_continue(mp: B.MaterialParams, n: V3, w_from: V3, transmit: Array,
     cos_f = dot(w_from, n)
     nside = n * jnp.where(cos_f > 0, 1.0, -1.0)
     eta = jnp.where(cos_f > 0, mp.ior, 1.0 / mp.ior)
-    wt, can_refract = B.refract(w_from, nside, eta)
+    wt, can_refract = bsdf.refract(w_from, nside, eta)
     d = where(transmit, wt, reflect(w_from, nside))
     refracts = (mp.kind == DIELECTRIC) & can_refract
     reflects = (mp.kind == MIRROR) | (mp.kind == DIELECTRIC)
@@ -274,16 +271,16 @@ def transmits(path: Path) -> Array:
     return jnp.concatenate([f, t, f], 0)
 
 
-def dirac(mp: B.MaterialParams, coat: Array | None) -> Array:
+def dirac(mp: bsdf.MaterialParams, coat: Array | None) -> Array:
     """Whether the path leaves vertices of material ``mp`` by a Dirac lobe: a mirror or
     dielectric always, a smooth plastic where its ``coat`` flag says the coating reflected it
     (``coat`` None in scenes without plastic: the material's flag alone, as before plastic)."""
     if coat is None:
-        return B.is_delta(mp)
-    return B.is_delta(mp) | ((mp.kind == PLASTIC) & coat)
+        return bsdf.is_delta(mp)
+    return bsdf.is_delta(mp) | ((mp.kind == PLASTIC) & coat)
 
 
-def can_take(delta: Array, mp: B.MaterialParams, specular, plastic: bool) -> Array:
+def can_take(delta: Array, mp: bsdf.MaterialParams, specular, plastic: bool) -> Array:
     """Whether a vertex of material ``mp`` (``delta`` its :func:`jgi.physics.bsdf.is_delta`)
     that a retraced chain finds can take the place of a specular vertex (``specular``) or of a
     non-specular one: a plastic vertex can be either, by its coating or its base; mirrors and
@@ -297,7 +294,7 @@ def can_take(delta: Array, mp: B.MaterialParams, specular, plastic: bool) -> Arr
 def is_specular(scene: Scene, path: Path) -> Array:
     """[K + 1, C]: the path leaves vertex i by a Dirac lobe (a mirror or dielectric vertex,
     a plastic one reflected by its coating); rows 0 and k are never."""
-    mp = B.lookup(scene.materials, path.material, path.uv)
+    mp = bsdf.lookup(scene.materials, path.material, path.uv)
     rows = jnp.arange(path.material.shape[0])[:, None]
     return dirac(mp, path.coat) & (rows >= 1) & (rows < path.length[None, :])
 
@@ -314,7 +311,7 @@ def evaluate(scene: Scene, cfg: MLTConfig, path: Path) -> PathValue:
     kk = jnp.maximum(k, 1)
     x_k, n_k, e_k = _chain_row(path.p, kk), _chain_row(path.n, kk), _chain_row(path.emitter, kk)
     x_km1 = _chain_row(path.p, kk - 1)
-    Le = LT.emitted(lights, e_k, n_k, normalize(x_km1 - x_k))
+    Le = emitted(lights, e_k, n_k, normalize(x_km1 - x_k))
     one = jnp.ones_like(path.fx)
     color, inv_pdf = V3(Le.x, Le.y, Le.z), one * K
     if K > 1:
@@ -323,24 +320,24 @@ def evaluate(scene: Scene, cfg: MLTConfig, path: Path) -> PathValue:
         n = subpath.rows(path.n, slice(1, K))
         ns = subpath.rows(subpath.shading(path), slice(1, K))
         wo, wi = normalize(prev - cur), normalize(nxt - cur)
-        mp = B.lookup(mats, path.material[1:K], subpath.rows(path.uv, slice(1, K)))
+        mp = bsdf.lookup(mats, path.material[1:K], subpath.rows(path.uv, slice(1, K)))
         coat = None if path.coat is None else path.coat[1:K]
         delta = dirac(mp, coat)
-        f, pdf_bsdf = B.evaluate(mats.kinds, mp, ns, wo, wi)
+        f, pdf_bsdf = bsdf.evaluate(mats.kinds, mp, ns, wo, wi)
         if path.ns is not None:
             # in the area measure (geometric G) the path tracer's shading cosine |wi . ns|
             # is the factor |wi . ns| / |wi . ng| of the BSDF
-            f = f * B.shading_ratio(ns, n, wi)
+            f = f * bsdf.shading_ratio(ns, n, wi)
         coeff, prob = specular_coefficient(mp, ns, wo, wi, plastic=coat is not None)
         rows = jnp.arange(1, K)[:, None]
         last = rows == (k - 1)[None, :]
         if coat is not None:
             # a coating-reflected last bounce was the BSDF's half of the mixture (a plastic
             # vertex is not Dirac, so the large step light-samples there half the time)
-            prob = jnp.where(last & ~B.is_delta(mp), 0.5 * prob, prob)
+            prob = jnp.where(last & ~bsdf.is_delta(mp), 0.5 * prob, prob)
         # the last direction came from the mixture (1/2) p_bsdf + (1/2) p_light
-        pdf_light = LT.pdf_li(lights, e_k[None, :], cur, V3(*(c[None, :] for c in x_k)),
-                              V3(*(c[None, :] for c in n_k)))
+        pdf_light = pdf_li(lights, e_k[None, :], cur, V3(*(c[None, :] for c in x_k)),
+                           V3(*(c[None, :] for c in n_k)))
         pdf = jnp.where(last, 0.5 * pdf_bsdf + 0.5 * pdf_light, pdf_bsdf)
         cos_i = jnp.abs(dot(wi, n))
         s = jnp.where(delta, 1.0 / jnp.maximum(prob, 1e-30),
@@ -382,26 +379,26 @@ def sample_path(scene: Scene, cfg: MLTConfig, key: Array) -> Path:
     fx, fy = u(1) * cam.width, u(2) * cam.height
     px = jnp.clip(jnp.floor(fx), 0, cam.width - 1).astype(jnp.int32)
     py = jnp.clip(jnp.floor(fy), 0, cam.height - 1).astype(jnp.int32)
-    o, d = C.sample_ray(cam, px, py, fx - px, fy - py)
+    o, d = camera.sample_ray(cam, px, py, fx - px, fy - py)
     path = _empty(scene, cfg, n_chains)._replace(length=k, fx=fx, fy=fy)
 
     def body(i, carry):
         path, o, d, alive = carry
-        hit = G.intersect(scene, o, d)
+        hit = geometry.intersect(scene, o, d)
         here = alive & (i <= k)
         alive = alive & (~here | hit.valid)
         path = _store_hit(path, i, hit, here)
-        mp = B.lookup(scene.materials, hit.material, hit.uv)
+        mp = bsdf.lookup(scene.materials, hit.material, hit.uv)
         base = 3 + 7 * i
-        bs = B.sample(kinds, mp, subpath.shading(hit), -d, u(base), u(base + 1), u(base + 2))
-        ls = LT.sample_li(lights, hit.p, u(base + 3), u(base + 4), u(base + 5))
-        nee = (i == k - 1) & ~B.is_delta(mp) & (u(base + 6) < 0.5)
+        bs = bsdf.sample(kinds, mp, subpath.shading(hit), -d, u(base), u(base + 1), u(base + 2))
+        ls = sample_li(lights, hit.p, u(base + 3), u(base + 4), u(base + 5))
+        nee = (i == k - 1) & ~bsdf.is_delta(mp) & (u(base + 6) < 0.5)
         wi = where(nee, ls.wi, bs.wi)
         if path.coat is not None:   # the lobe the path leaves a plastic vertex by
             path = path._replace(coat=_set_chain_row(path.coat, i, bs.delta & ~nee & (i < k),
                                                      here))
         alive = alive & (~(i < k) | jnp.where(nee, ls.valid, bs.valid))
-        return path, G.offset_origin(hit.p, hit.n, wi), wi, alive
+        return path, geometry.offset_origin(hit.p, hit.n, wi), wi, alive
 
     path, _, _, alive = jax.lax.fori_loop(1, K + 1, body, (path, o, d, jnp.ones(n_chains, bool)))
     ok = alive & (_chain_row(path.emitter, k) >= 0)
@@ -462,14 +459,14 @@ def retrace_lens(scene: Scene, cfg: MLTConfig, x: Path, fx: Array, fy: Array):
     inside = (fx >= 0) & (fx < cam.width) & (fy >= 0) & (fy < cam.height)
     px = jnp.clip(jnp.floor(fx), 0, cam.width - 1).astype(jnp.int32)
     py = jnp.clip(jnp.floor(fy), 0, cam.height - 1).astype(jnp.int32)
-    o, d = C.sample_ray(cam, px, py, fx - px, fy - py)
+    o, d = camera.sample_ray(cam, px, py, fx - px, fy - py)
 
     def body(i, carry):
         y, o, d, ok = carry
-        hit = G.intersect(scene, o, d)
+        hit = geometry.intersect(scene, o, d)
         here = i <= m
-        mp = B.lookup(scene.materials, hit.material, hit.uv)
-        good = hit.valid & can_take(B.is_delta(mp), mp, i < m, plastic)
+        mp = bsdf.lookup(scene.materials, hit.material, hit.uv)
+        good = hit.valid & can_take(bsdf.is_delta(mp), mp, i < m, plastic)
         good = good & ((i < k) | (hit.emitter >= 0))  # a light vertex must stay on a light
         ok = ok & (~here | good)
         y = _store_hit(y, i, hit, here)
@@ -477,15 +474,16 @@ def retrace_lens(scene: Scene, cfg: MLTConfig, x: Path, fx: Array, fy: Array):
         w, valid = specular_continue(mp, subpath.shading(hit), -d,
                                      _chain_row(modes, jnp.full((n_chains,), i)), plastic)
         ok = ok & (~(i < m) | valid)
-        return y, G.offset_origin(hit.p, hit.n, w), w, ok
+        return y, geometry.offset_origin(hit.p, hit.n, w), w, ok
 
     y, _, _, ok = jax.lax.fori_loop(1, K + 1, body, (x._replace(fx=fx, fy=fy), o, d,
                                                       applicable & inside))
     # reconnect x'_m to the unchanged x_{m+1}
     ym, nm = _chain_row(y.p, m), _chain_row(y.n, m)
     nxt = _chain_row(x.p, jnp.minimum(m + 1, K))
-    o_s, d_s, t_s = G.shadow_ray(ym, nm, normalize(nxt - ym), jnp.sqrt(dot(nxt - ym, nxt - ym)))
-    ok = ok & ~((m < k) & G.occluded(scene, o_s, d_s, t_s))
+    o_s, d_s, t_s = geometry.shadow_ray(ym, nm, normalize(nxt - ym),
+                                        jnp.sqrt(dot(nxt - ym, nxt - ym)))
+    ok = ok & ~((m < k) & geometry.occluded(scene, o_s, d_s, t_s))
     return y._replace(length=jnp.where(ok, k, 0)), ok
 
 
@@ -550,7 +548,7 @@ def caustic_log_density(scene: Scene, mu: Mutations, x: Path, y: Path) -> Array:
 
 def _camera_weight(cam, p: V3, n: V3):
     """W(x_1) = W_e G(x_0, x_1) up to the film-area constant, the film position, visibility."""
-    pr = C.project(cam, p)
+    pr = camera.project(cam, p)
     cos_c = -dot(pr.wi, cam.forward)
     w = pr.importance * cos_c * jnp.abs(dot(pr.wi, n)) / jnp.maximum(pr.dist * pr.dist, 1e-30)
     return jnp.where(pr.visible, w, 0.0), pr
@@ -572,24 +570,24 @@ def retrace_caustic(scene: Scene, cfg: MLTConfig, x: Path, w_new: V3):
         y, o, d, ok = carry
         i = j - 1 - s  # the vertex this step finds, walking from x_j towards the eye
         here = i >= 1
-        hit = G.intersect(scene, o, d)
-        mp = B.lookup(scene.materials, hit.material, hit.uv)
-        good = hit.valid & can_take(B.is_delta(mp), mp, i >= 2, plastic)
+        hit = geometry.intersect(scene, o, d)
+        mp = bsdf.lookup(scene.materials, hit.material, hit.uv)
+        good = hit.valid & can_take(bsdf.is_delta(mp), mp, i >= 2, plastic)
         ok = ok & (~here | good)
         y = _store_hit(y, i, hit, here)
         y = y._replace(coat=_set_chain_row(y.coat, i, i >= 2, here))
         dn, valid = specular_continue(mp, subpath.shading(hit), -d,
                                       _chain_row(modes, jnp.maximum(i, 0)), plastic)
         ok = ok & (~(i >= 2) | valid)
-        return y, G.offset_origin(hit.p, hit.n, dn), dn, ok
+        return y, geometry.offset_origin(hit.p, hit.n, dn), dn, ok
 
-    o = G.offset_origin(xj, nj, w_new)
+    o = geometry.offset_origin(xj, nj, w_new)
     y, _, _, ok = jax.lax.fori_loop(0, K - 1, body, (x, o, w_new, applicable))
     one = jnp.ones_like(k)
     y1, n1 = _chain_row(y.p, one), _chain_row(y.n, one)
-    pr = C.project(cam, y1)
-    o_s, d_s, t_s = G.shadow_ray(y1, n1, pr.wi, pr.dist)
-    ok = ok & pr.visible & ~G.occluded(scene, o_s, d_s, t_s)
+    pr = camera.project(cam, y1)
+    o_s, d_s, t_s = geometry.shadow_ray(y1, n1, pr.wi, pr.dist)
+    ok = ok & pr.visible & ~geometry.occluded(scene, o_s, d_s, t_s)
     return y._replace(length=jnp.where(ok, k, 0), fx=jnp.where(ok, pr.px, x.fx),
                       fy=jnp.where(ok, pr.py, x.fy)), ok
 

@@ -48,15 +48,14 @@ import jax
 import jax.numpy as jnp
 from jax import Array
 
-from .. import _xla as X
+from .. import _xla
 from .._xla import materialize
 from ..core import rng
 from ..core.configured import Configured
 from ..core.vec import V3, max_component, where
 from ..drivers.wavefront import render_wavefront
-from ..physics import bsdf as B
-from ..physics import geometry as G
-from ..physics import lights as LT
+from ..physics import bsdf, geometry
+from ..physics.lights import emitted, environment_radiance, pdf_li
 from ..scene.tables import Scene
 from ..transport import mis
 from ..transport.subpath import camera_ray, next_event_value, sample_next_event, shading
@@ -102,7 +101,8 @@ class PathState(NamedTuple):
     prev_p: V3           # the vertex d left from (reference point for pdf_li)
 
 
-def detach_sample(kinds, mp: B.MaterialParams, n: V3, wo: V3, bs: B.BSDFSample) -> B.BSDFSample:
+def detach_sample(kinds, mp: bsdf.MaterialParams, n: V3, wo: V3,
+                  bs: bsdf.BSDFSample) -> bsdf.BSDFSample:
     """The BSDF sample ``bs`` for detached derivatives: every field a constant except the
     weight's dependence on f. With f = ``B.evaluate`` at the sampled direction the weight
     w = f(wi) |cos| / p becomes w + w (f - stop_gradient(f)) / stop_gradient(f): the same value,
@@ -110,7 +110,7 @@ def detach_sample(kinds, mp: B.MaterialParams, n: V3, wo: V3, bs: B.BSDFSample) 
     directions where f vanishes, keep their weights as constants."""
     sg = jax.lax.stop_gradient
     bs = jax.tree_util.tree_map(sg, bs)
-    f, _ = B.evaluate(kinds, mp, n, wo, bs.wi)
+    f, _ = bsdf.evaluate(kinds, mp, n, wo, bs.wi)
 
     def relative_change(c):
         live = (c > 0) & ~bs.delta
@@ -121,7 +121,7 @@ def detach_sample(kinds, mp: B.MaterialParams, n: V3, wo: V3, bs: B.BSDFSample) 
     return bs._replace(weight=w + w * V3(*(relative_change(c) for c in f)))
 
 
-def _shade(scene: Scene, cfg: PathTracerConfig, s: PathState, hit: G.Hit, depth,
+def _shade(scene: Scene, cfg: PathTracerConfig, s: PathState, hit: geometry.Hit, depth,
            u: Callable[[int], Array]) -> PathState:
     """One path vertex: emission found by the ray, next-event estimation, BSDF sampling and
     Russian roulette. ``depth`` (segments before this one) may be a scalar or per-lane;
@@ -154,12 +154,12 @@ def _shade(scene: Scene, cfg: PathTracerConfig, s: PathState, hit: G.Hit, depth,
 
     # ---- Emission found by the sampled ray (BSDF sampling strategy) ----
     if has_lights:
-        Le = LT.emitted(lights, hit.emitter, hit.n, wo)
-        pdf_light = LT.pdf_li(lights, hit.emitter, s.prev_p, hit.p, hit.n)
+        Le = emitted(lights, hit.emitter, hit.n, wo)
+        pdf_light = pdf_li(lights, hit.emitter, s.prev_p, hit.p, hit.n)
         take_e = s.active & hit.valid & counts(length)
         L = s.L + where(take_e, s.beta * Le * bsdf_hit_weight(pdf_light), Z)
         if lights.environment >= 0:
-            Lenv = LT.environment_radiance(lights, z)
+            Lenv = environment_radiance(lights, z)
             pdf_env = lights.pmf[lights.environment] * jnp.float32(0.25 / jnp.pi)
             w_env = bsdf_hit_weight(jnp.broadcast_to(pdf_env, z.shape))
             take_env = s.active & ~hit.valid & counts(length)
@@ -167,7 +167,7 @@ def _shade(scene: Scene, cfg: PathTracerConfig, s: PathState, hit: G.Hit, depth,
     else:
         L = s.L
     active = s.active & hit.valid & (length < max_depth)
-    mp = B.lookup_specialised(mats, hit.material, hit.uv)
+    mp = bsdf.lookup_specialised(mats, hit.material, hit.uv)
 
     # ---- Light sampling (next-event estimation): shadow rays and their unoccluded values ----
     shadow = []  # (origin, direction, t_max, contribution if visible)
@@ -189,7 +189,7 @@ def _shade(scene: Scene, cfg: PathTracerConfig, s: PathState, hit: G.Hit, depth,
     # ---- BSDF sampling: extend the path ----
     # the BSDF about the shading normal (meshes with vertex normals); the geometric normal
     # offsets the next ray (Mitsuba 3's path integrator: no further light-leak test)
-    bs = B.sample(kinds, mp, shading(hit), wo, u(0), u(1), u(2))
+    bs = bsdf.sample(kinds, mp, shading(hit), wo, u(0), u(1), u(2))
     if detached:
         bs = detach_sample(kinds, mp, shading(hit), wo, bs)
     beta = s.beta * bs.weight
@@ -203,15 +203,15 @@ def _shade(scene: Scene, cfg: PathTracerConfig, s: PathState, hit: G.Hit, depth,
         roulette = length >= cfg.rr_depth
         survive = u(3) < q
         active = active & (~roulette | survive)
-        beta = where(roulette, beta * X.recip(jnp.where(q > 0, q, 1.0)), beta)
-    o_next = G.offset_origin(hit.p, hit.n, bs.wi)
+        beta = where(roulette, beta * _xla.recip(jnp.where(q > 0, q, 1.0)), beta)
+    o_next = geometry.offset_origin(hit.p, hit.n, bs.wi)
 
     # ---- Shadow rays: add the light samples that are unoccluded ----
     # kept out of the light-sampling kernel (vectorisation; perf: docs/performance.md#shadow-rays)
     if shadow:
         shadow = materialize(shadow)
     for o_s, d_s, t_max, value in shadow:
-        L = L + where(~G.occluded(scene, o_s, d_s, t_max), value, Z)
+        L = L + where(~geometry.occluded(scene, o_s, d_s, t_max), value, Z)
 
     # computed once; downstream reads the path's fate (perf: docs/performance.md#vertex-results)
     wi, pdf, delta, beta, active, o_next, L = materialize(
@@ -236,7 +236,7 @@ def radiance(scene: Scene, cfg: PathTracerConfig, uniform: Callable[[Array], Arr
 
     def bounce(depth, s: PathState) -> PathState:
         base = 2 + depth * cfg.dims_per_bounce
-        hit = G.intersect(scene, s.o, s.d)
+        hit = geometry.intersect(scene, s.o, s.d)
         return _shade(scene, cfg, s, hit, depth, lambda k: uniform(base + k))
 
     return jax.lax.fori_loop(0, max_depth, bounce, _camera_state(o, d)).L
@@ -272,11 +272,12 @@ def _step(scene: Scene, cfg: PathTracerConfig, lane: _Lane):
     max_depth = cfg.path_length if cfg.path_length > 0 else cfg.max_depth
     s = lane.path
     # stored: not recomputed per reading kernel (perf: docs/performance.md#ray-and-stream-key)
-    if G.traversal_loops(scene):
+    if geometry.traversal_loops(scene):
         o, d, key = materialize((s.o, s.d, lane.key))
-        hit = G.intersect(scene, o, d)
+        hit = geometry.intersect(scene, o, d)
     else:
-        hit, d, key = materialize((G.intersect(scene, s.o, s.d, stored=False), s.d, lane.key))
+        hit = geometry.intersect(scene, s.o, s.d, stored=False)
+        hit, d, key = materialize((hit, s.d, lane.key))
     s, lane = s._replace(d=d), lane._replace(key=key)
     c = rng.counter(lane.key, 2 + lane.depth * cfg.dims_per_bounce)
     s = _shade(scene, cfg, s, hit, lane.depth, lambda k: rng.uniform_at(c, k))

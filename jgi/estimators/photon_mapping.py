@@ -42,13 +42,13 @@ import numpy as np
 from ..core import rng
 from ..core.vec import V3, coordinate_system
 from ..core.warps import sample_cosine_hemisphere
-from ..physics import geometry as G
+from ..physics import geometry
 from ..scene.tables import Scene
 from ..transport import density, hash_grid
 from ..transport.photons import trace_photons
 from ..transport.subpath import shading
 from ..transport.visible_points import face_viewer, trace_to_diffuse, visible_points
-from . import irradiance_cache as IC
+from . import irradiance_cache
 from .registry import Estimator, Render, param, register
 
 _SALT = rng.SALTS["final_gather"]
@@ -160,7 +160,7 @@ def _gather_points(scene: Scene, seed, ids, x: V3, n: V3, n_gather: int, max_dep
     s, t = coordinate_system(n)
     ex = lambda v: V3(*(c[:, None] for c in v))
     d = ex(s) * local.x + ex(t) * local.y + ex(n) * local.z
-    o = G.offset_origin(ex(x), ex(n if ng is None else ng), d)
+    o = geometry.offset_origin(ex(x), ex(n if ng is None else ng), d)
     flat = lambda v: V3(*(c.reshape(-1) for c in v))
     kf = key.reshape(-1)
     v = trace_to_diffuse(scene, lambda k: rng.uniform(kf, k + 2), flat(o), flat(d),
@@ -198,13 +198,15 @@ def render_jensen(scene: Scene, cfg: JensenConfig = JensenConfig(), *, spp: int 
     # indirect diffuse by final gathering on the global map (at every point, or cached)
     if cfg.irradiance_cache:
         m = max(1, int(round(np.sqrt(final_gather / 3))))  # Ward's strata: N ~ 3 M (phi vs theta)
-        cache = IC.CacheConfig(a=cfg.cache_a, gather_m=m, gather_n=max(1, final_gather // m),
-                               max_depth=max_depth)
-        pts = IC.shading_points(v)
+        cache = irradiance_cache.CacheConfig(a=cfg.cache_a, gather_m=m,
+                                             gather_n=max(1, final_gather // m),
+                                             max_depth=max_depth)
+        pts = irradiance_cache.shading_points(v)
         W = scene.camera.width
         pix = np.arange(len(found)) % (W * scene.camera.height)
-        E = IC.irradiance(scene, pts, cfg=cache, seed=seed, raster=(pix % W, pix // W),
-                          source=IC.PhotonSource(grid, k, radius)).E
+        E = irradiance_cache.irradiance(scene, pts, cfg=cache, seed=seed,
+                                        raster=(pix % W, pix // W),
+                                        source=irradiance_cache.PhotonSource(grid, k, radius)).E
         ind = E / np.pi  # cosine-weighted gathering: the mean gathered radiance is E / pi
     else:
         idx = np.nonzero(found)[0]

@@ -35,7 +35,7 @@ from jax import Array
 
 from ..core import rng
 from ..core.vec import V3, luminance
-from ..physics import camera as C
+from ..physics import camera
 from ..scene.tables import Scene
 from ..transport import mcmc
 from .path_tracer import PathTracerConfig, radiance
@@ -79,7 +79,7 @@ def contribution(scene: Scene, cfg: PSSMLTConfig, u):
     fx, fy = u[0] * W, u[1] * H
     px = jnp.clip(jnp.floor(fx).astype(jnp.int32), 0, W - 1)
     py = jnp.clip(jnp.floor(fy).astype(jnp.int32), 0, H - 1)
-    o, d = C.sample_ray(scene.camera, px, py, fx - px, fy - py)
+    o, d = camera.sample_ray(scene.camera, px, py, fx - px, fy - py)
     L = radiance(scene, cfg.pt, lambda k: jnp.take(u, k, axis=0), o, d)
     L = V3(*(jnp.where(jnp.isfinite(c), c, 0.0) for c in L))
     return L, jnp.maximum(luminance(L), 0.0), py * W + px

@@ -86,10 +86,8 @@ from ..core.compaction import compact_map
 from ..core.errors import ParameterError
 from ..core.imageio import write_exr, write_png
 from ..core.vec import V3, dot, max_component, where
-from ..physics import bsdf as B
-from ..physics import camera as C
-from ..physics import geometry as G
-from ..physics import lights as LT
+from ..physics import bsdf, camera, geometry
+from ..physics.lights import emitted, sample_emission, select_light
 from ..scene.tables import DIELECTRIC, DIRECTIONAL, ENVIRONMENT, ROUGH_DIELECTRIC, Scene
 from ..transport import density, hash_grid
 from ..transport.connection import connect_camera, connect_vertices, occluded_many
@@ -220,7 +218,7 @@ def _inv(x: Array) -> Array:
     return jnp.where(x > 0, 1.0 / jnp.where(x > 0, x, 1.0), MIS_MAX)
 
 
-def continuation(mp: B.MaterialParams, roulette: bool) -> Array:
+def continuation(mp: bsdf.MaterialParams, roulette: bool) -> Array:
     """Russian roulette's survival probability q at a vertex: the material's albedo bound
     max(k_d + k_s) in [0.05, 1] (1 for dielectrics and without roulette). It depends on the
     material alone, so every technique multiplies the same q into a direction density sampled
@@ -344,37 +342,37 @@ def light_walk(scene: Scene, cfg: VCMConfig, key: Array, f: MisFactors):
     kinds = mats.kinds
     b = cfg.exponent
     u = lambda k: rng.uniform(key, k)  # noqa: E731
-    em = LT.sample_emission(lights, u(0), u(1), u(2), u(3), u(4))
+    em = sample_emission(lights, u(0), u(1), u(2), u(3), u(4))
     ok = (em.pdf_pos > 0) & (max_component(em.weight) > 0)
     delta_light = em.delta_pos | em.delta_dir
     mis = mis_light_start(em.pdf_dir, em.pdf_pos, jnp.abs(dot(em.n, em.d)), delta_light, f, b)
-    start = (G.offset_origin(em.p, em.n, em.d), em.d, em.weight, em.p, mis, ok)
+    start = (geometry.offset_origin(em.p, em.n, em.d), em.d, em.weight, em.p, mis, ok)
     rr_dim0 = LIGHT_DIMS0 + (cfg.max_depth - 1) * LIGHT_DIMS_PER_STEP   # past BDPT's dimensions
 
     def step(s, j):
         o, d, beta, prev_p, m, alive = s
         base = LIGHT_DIMS0 + j * LIGHT_DIMS_PER_STEP
-        hit = G.intersect(scene, o, d)
+        hit = geometry.intersect(scene, o, d)
         valid = alive & hit.valid
         v = hit.p - prev_p
         m = mis_arrive(m, dot(v, v), dot(hit.n, d), b)
-        mp = B.lookup_specialised(mats, hit.material, hit.uv)
+        mp = bsdf.lookup_specialised(mats, hit.material, hit.uv)
         wo = -d
-        vert = LightVertices(hit.p, hit.n, wo, beta, m, valid & ~B.is_delta(mp), hit.material,
+        vert = LightVertices(hit.p, hit.n, wo, beta, m, valid & ~bsdf.is_delta(mp), hit.material,
                              hit.uv, hit.ns)
         ns = shading(hit)       # BSDFs about the shading normal; densities convert with hit.n
-        bs = materialize(B.sample(kinds, mp, ns, wo, u(base), u(base + 1), u(base + 2),
-                                  mode=B.IMPORTANCE))
-        _, pdf_rev = B.evaluate(kinds, mp, ns, bs.wi, wo)
+        bs = materialize(bsdf.sample(kinds, mp, ns, wo, u(base), u(base + 1), u(base + 2),
+                                     mode=bsdf.IMPORTANCE))
+        _, pdf_rev = bsdf.evaluate(kinds, mp, ns, bs.wi, wo)
         q = continuation(mp, cfg.roulette)
         m = mis_scatter(m, dot(hit.n, bs.wi), bs.pdf * q, pdf_rev * q, bs.delta, f, b)
         beta = beta * bs.weight / q
         if hit.ns is not None:   # Veach's adjoint correction (a light subpath)
-            beta = beta * B.adjoint_correction(hit.ns, hit.n, wo, bs.wi)
+            beta = beta * bsdf.adjoint_correction(hit.ns, hit.n, wo, bs.wi)
         alive = valid & bs.valid & (max_component(beta) > 0)
         if cfg.roulette:
             alive = alive & (rng.uniform(key, rr_dim0 + j) < q)
-        return (G.offset_origin(hit.p, hit.n, bs.wi), bs.wi, beta, hit.p, m, alive), vert
+        return (geometry.offset_origin(hit.p, hit.n, bs.wi), bs.wi, beta, hit.p, m, alive), vert
 
     _, verts = jax.lax.scan(step, start, jnp.arange(cfg.max_depth - 1))
     return verts, ok
@@ -401,7 +399,7 @@ def light_pass(scene: Scene, cfg: VCMConfig, seed, iteration, f: MisFactors, pat
         yb = yb._replace(stored=yb.stored & live)
         conn = materialize(connect_camera(scene, _as_vertices(scene, yb)))
         occ = occluded_many(scene, [conn.shadow])[0]
-        q = continuation(B.lookup(scene.materials, yb.material, yb.uv), cfg.roulette)
+        q = continuation(bsdf.lookup(scene.materials, yb.material, yb.uv), cfg.roulette)
         w = weight_camera_connection(yb.mis, conn.pdf_cam, conn.pdf_y_rev * q, f, b)
         keep = conn.ok & ~occ
         value = where(keep, conn.value, V3.full(0.0, w))
@@ -450,7 +448,7 @@ def camera_walk(scene: Scene, cfg: VCMConfig, key: Array, pixel: Array,
     o, d = camera_ray(cam, pixel, u0)
     z = jnp.zeros_like(o.x)
     one = V3(z + 1, z + 1, z + 1)
-    mis = mis_camera_start(C.project(cam, o + d).pdf_dir, b)
+    mis = mis_camera_start(camera.project(cam, o + d).pdf_dir, b)
     start = (o, d, one, o, mis, z == 0, z == 0)
     rr_dim0 = CAMERA_DIMS0 + D * CAMERA_DIMS_PER_STEP   # past BDPT's dimensions
 
@@ -458,20 +456,20 @@ def camera_walk(scene: Scene, cfg: VCMConfig, key: Array, pixel: Array,
         o, d, beta, prev_p, m, alive, specular_path = s
         base = CAMERA_DIMS0 + j * CAMERA_DIMS_PER_STEP
         u = lambda k: rng.uniform(key, base + k)  # noqa: E731
-        hit = G.intersect(scene, o, d)
+        hit = geometry.intersect(scene, o, d)
         valid = alive & hit.valid
         v = hit.p - prev_p
         d2 = dot(v, v)
         m = mis_arrive(m, d2, dot(hit.n, d), b)
-        mp = B.lookup_specialised(mats, hit.material, hit.uv)
+        mp = bsdf.lookup_specialised(mats, hit.material, hit.uv)
         wo = -d
-        delta = B.is_delta(mp)
+        delta = bsdf.is_delta(mp)
         connectable = valid & ~delta
         q = continuation(mp, cfg.roulette)
         # ---- s = 0: an emitter ----
         e = jnp.where(valid, hit.emitter, -1)
         pdf_pos = pdf_light_origin(lights, e)
-        emission = beta * LT.emitted(lights, e, hit.n, wo)
+        emission = beta * emitted(lights, e, hit.n, wo)
         if cfg.connects:
             w_e = weight_emission(m, pdf_pos, pdf_pos * pdf_emission_dir(lights, e, hit.n, wo), b)
             w_e = jnp.where(j == 0, 1.0, w_e)
@@ -483,8 +481,8 @@ def camera_walk(scene: Scene, cfg: VCMConfig, key: Array, pixel: Array,
             ne = sample_next_event(scene, mp, hit.p, hit.n, wo, u(3), u(4), u(5),
                                    valid & (j + 2 <= D), ns=hit.ns)
             ls = ne.light
-            k = LT.select(lights, u(3))
-            _, pdf_bsdf_rev = B.evaluate(kinds, mp, ns, ls.wi, wo)
+            k = select_light(lights, u(3))
+            _, pdf_bsdf_rev = bsdf.evaluate(kinds, mp, ns, ls.wi, wo)
             y = hit.p + ls.wi * ls.dist
             n_y, y_surface = light_normal(lights, k, y)
             d2_y = ls.dist * ls.dist
@@ -496,15 +494,15 @@ def camera_walk(scene: Scene, cfg: VCMConfig, key: Array, pixel: Array,
                                      ne.pdf_bsdf * q * cos_y * inv_d2, pdf_emit_x,
                                      pdf_bsdf_rev * q, ls.delta, f, b)
             Z = V3.full(0.0, z)
-            ne_value = where(~G.occluded(scene, *ne.shadow), next_event_value(ne, beta), Z)
+            ne_value = where(~geometry.occluded(scene, *ne.shadow), next_event_value(ne, beta), Z)
         else:
             ne_value, w_ne = V3.full(0.0, z), z
         rec = CameraVertices(hit.p, hit.n, wo, beta, m, connectable,
                              connectable & specular_path, hit.material, hit.uv, hit.ns, emission,
                              w_e, ne_value, w_ne)
         # ---- the next direction ----
-        bs = materialize(B.sample(kinds, mp, ns, wo, u(0), u(1), u(2)))
-        _, pdf_rev = B.evaluate(kinds, mp, ns, bs.wi, wo)
+        bs = materialize(bsdf.sample(kinds, mp, ns, wo, u(0), u(1), u(2)))
+        _, pdf_rev = bsdf.evaluate(kinds, mp, ns, bs.wi, wo)
         m = mis_scatter(m, dot(hit.n, bs.wi), bs.pdf * q, pdf_rev * q, bs.delta, f, b)
         beta = beta * bs.weight / q
         alive = valid & bs.valid & (max_component(beta) > 0)
@@ -512,10 +510,10 @@ def camera_walk(scene: Scene, cfg: VCMConfig, key: Array, pixel: Array,
             alive = alive & (rng.uniform(key, rr_dim0 + j) < q)
         # left by a Dirac lobe (per sample on plastic: a merge there estimates its base alone,
         # and the coating's reflection goes on)
-        delta_s = B.sampled_delta(kinds, mp, bs)
+        delta_s = bsdf.sampled_delta(kinds, mp, bs)
         if cfg.mode == "ppm":   # the subpath ends at its first merge
             alive = alive & delta_s
-        nxt = (G.offset_origin(hit.p, hit.n, bs.wi), bs.wi, beta, hit.p, m, alive,
+        nxt = (geometry.offset_origin(hit.p, hit.n, bs.wi), bs.wi, beta, hit.p, m, alive,
                specular_path & delta_s)
         return nxt, rec
 
@@ -617,12 +615,12 @@ def _merge_pairs(scene: Scene, cfg: VCMConfig, z: "CameraVertexRows", y: Array, 
     ok = ok & (d2 < r2) & (dot(v3(3), z.n) > 0) & (row + z.j + 2 <= D)
     # ---- the camera BSDF at the light vertex's incident direction; MIS ----
     wi = v3(6)
-    mp = B.lookup(scene.materials, z.material, z.uv)
+    mp = bsdf.lookup(scene.materials, z.material, z.uv)
     nz = shading(z)
-    f_z, pdf_fwd = B.evaluate(kinds, mp, nz, z.wo, wi)
-    _, pdf_rev = B.evaluate(kinds, mp, nz, wi, z.wo)
+    f_z, pdf_fwd = bsdf.evaluate(kinds, mp, nz, z.wo, wi)
+    _, pdf_rev = bsdf.evaluate(kinds, mp, nz, wi, z.wo)
     if z.ns is not None:   # photon flux through the stored surface -> the shading cosine
-        f_z = f_z * B.shading_ratio(nz, v3(3), wi)
+        f_z = f_z * bsdf.shading_ratio(nz, v3(3), wi)
     q = continuation(mp, cfg.roulette)
     kern = density.filter_weight(cfg.filter, jnp.where(ok, d2, 0.0), r2, **filter_params)[0]
     c = jnp.where(ok, kern * scale, 0.0)

@@ -17,7 +17,7 @@ import jax
 import jax.numpy as jnp
 from jax import Array
 
-from .. import _xla as X
+from .. import _xla
 from .._xla import materialize
 from ..core import bvh
 from ..core.vec import EDGE_ON_COS, V3, cross, dot, normalize, where
@@ -53,7 +53,7 @@ def sphere_t(center: V3, radius, o: V3, d: V3) -> Array:
     closest = oc - d * b
     disc = radius * radius - dot(closest, closest)
     hit = disc >= 0
-    s = X.sqrt(jnp.where(hit, disc, 0.0))
+    s = _xla.sqrt(jnp.where(hit, disc, 0.0))
     t0, t1 = -b - s, -b + s
     t = jnp.where(t0 > T_MIN, t0, t1)
     return jnp.where(hit & (t > T_MIN), t, INF)
@@ -71,7 +71,7 @@ def quad_t(origin: V3, normal: V3, dual_u: V3, dual_v: V3, o: V3, d: V3) -> Arra
     """Plane hit, then parallelogram coordinates a = (p - origin).dual_u, b = (p - origin).dual_v
     in [0, 1]; the duals are precomputed so the test needs no cross product."""
     denom, ok = _crosses_plane(normal, d)
-    t = X.div(dot(normal, origin - o), jnp.where(ok, denom, 1.0))
+    t = _xla.div(dot(normal, origin - o), jnp.where(ok, denom, 1.0))
     rel = o + d * t - origin
     a, b = dot(rel, dual_u), dot(rel, dual_v)
     hit = ok & (t > T_MIN) & (a >= 0) & (a <= 1) & (b >= 0) & (b <= 1)
@@ -85,7 +85,7 @@ def triangle_t(v0: V3, e1: V3, e2: V3, normal: V3, o: V3, d: V3) -> tuple[Array,
     of them whatever the rounding."""
     def solve(det: Array) -> tuple[Array, Array]:
         ok = (jnp.abs(det) > 1e-14) & _crosses_plane(normal, d)[1]
-        return X.recip(jnp.where(ok, det, 1.0)), ok
+        return _xla.recip(jnp.where(ok, det, 1.0)), ok
 
     t, b1, b2, inside = bvh.moller_trumbore(v0, e1, e2, o, d, solve)
     return jnp.where(inside & (t > T_MIN), t, INF), b1, b2
@@ -106,7 +106,7 @@ def safe_reciprocal(d: V3) -> V3:
     c = d.map(lambda x: jnp.where(jnp.abs(x) < SLAB_MIN, jnp.float32(SLAB_MIN),
                                   jnp.clip(x, -SLAB_MAX, SLAB_MAX)))
     yz, xz, xy = c.y * c.z, c.x * c.z, c.x * c.y
-    r = X.recip_normal(xy * c.z)
+    r = _xla.recip_normal(xy * c.z)
     return V3(yz * r, xz * r, xy * r)
 
 
@@ -361,7 +361,7 @@ def shading_normal(ns: V3, n: V3) -> V3:
     appears."""
     n2 = dot(ns, ns)
     ok = (n2 > NS_MIN_LENGTH2) & jnp.isfinite(n2)
-    inv = X.rsqrt(jnp.where(ok, n2, 1.0))
+    inv = _xla.rsqrt(jnp.where(ok, n2, 1.0))
     return where(ok, ns * inv, n)
 
 
@@ -490,8 +490,8 @@ def occluded(scene: Scene, o: V3, d: V3, t_max: Array) -> Array:
     if sp.count:
         # the sphere test needs a unit direction: t scales by the length
         n2 = dot(d, d)
-        inv_length = X.rsqrt(jnp.where(n2 > 0, n2, 1.0))
-        du, t_max_u = d * inv_length, X.div(t_max, inv_length)
+        inv_length = _xla.rsqrt(jnp.where(n2 > 0, n2, 1.0))
+        du, t_max_u = d * inv_length, _xla.div(t_max, inv_length)
         occ = _scan(sp.count, lambda i, a: a | (sphere_t(_take(sp.center, i), sp.radius[i], o,
                                                          du) < t_max_u), occ)
     r: Rects = scene.rects

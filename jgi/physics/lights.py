@@ -29,7 +29,7 @@ from typing import NamedTuple
 import jax.numpy as jnp
 from jax import Array
 
-from .. import _xla as X
+from .. import _xla
 from .._xla import SMALL_TABLE, take
 from ..core import warps
 from ..core.vec import EDGE_ON_COS, V3, coordinate_system, dot, normalize, to_world, where
@@ -74,7 +74,7 @@ def _take(v: V3, i) -> V3:
     return V3(take(v.x, i), take(v.y, i), take(v.z, i))
 
 
-def select(lights: Lights, u: Array) -> Array:
+def select_light(lights: Lights, u: Array) -> Array:
     """Element index by inverting the power CDF: the number of CDF entries <= u. Small tables
     count with compares (they fuse into the caller's kernel; ``searchsorted`` is a loop of
     kernels of its own)."""
@@ -96,7 +96,7 @@ def spot_falloff(cos_theta, cos_total, cos_falloff) -> Array:
 
 def _area_to_solid_angle(pdf_area, dist2, cos_light):
     ok = (cos_light > EDGE_ON_COS) & (pdf_area > 0)
-    return jnp.where(ok, X.div(pdf_area * dist2, jnp.where(ok, cos_light, 1.0)), 0.0)
+    return jnp.where(ok, _xla.div(pdf_area * dist2, jnp.where(ok, cos_light, 1.0)), 0.0)
 
 
 def _sphere_cone(center: V3, radius, x: V3):
@@ -111,7 +111,7 @@ def _sphere_cone(center: V3, radius, x: V3):
 
 def sample_li(lights: Lights, x: V3, u_sel: Array, u1: Array, u2: Array) -> LightSample:
     """Sample a direction from x towards a light (next-event estimation)."""
-    k = select(lights, u_sel)
+    k = select_light(lights, u_sel)
     kind = take(lights.kind, k)
     pmf = take(lights.pmf, k)
     p0, e1, e2 = _take(lights.p0, k), _take(lights.e1, k), _take(lights.e2, k)
@@ -129,7 +129,7 @@ def sample_li(lights: Lights, x: V3, u_sel: Array, u1: Array, u2: Array) -> Ligh
     def towards(y: V3, n_light: V3, pdf_area, one_sided=True):
         v = y - x
         d2 = dot(v, v)
-        inv = jnp.where(d2 > 0, X.rsqrt(jnp.where(d2 > 0, d2, 1.0)), 1.0)
+        inv = jnp.where(d2 > 0, _xla.rsqrt(jnp.where(d2 > 0, d2, 1.0)), 1.0)
         dist = d2 * inv
         wi = v * inv
         cos_l = -dot(wi, n_light)
@@ -139,7 +139,7 @@ def sample_li(lights: Lights, x: V3, u_sel: Array, u1: Array, u2: Array) -> Ligh
 
     if AREA_QUAD in kinds or AREA_TRIANGLE in kinds:
         area = take(lights.area, k)
-        inv_area = jnp.where(area > 0, X.recip(jnp.where(area > 0, area, 1.0)), 0.0)
+        inv_area = jnp.where(area > 0, _xla.recip(jnp.where(area > 0, area, 1.0)), 0.0)
         n_l = _take(lights.normal, k)
         if AREA_QUAD in kinds:
             s = towards(p0 + e1 * u1 + e2 * u2, n_l, inv_area)
@@ -206,9 +206,9 @@ def pdf_li(lights: Lights, k: Array, x: V3, y: V3, n_y: V3) -> Array:
     pmf = take(lights.pmf, kk)
     v = y - x
     d2 = dot(v, v)
-    cos_l = -dot(v, n_y) * jnp.where(d2 > 0, X.rsqrt(jnp.where(d2 > 0, d2, 1.0)), 1.0)
+    cos_l = -dot(v, n_y) * jnp.where(d2 > 0, _xla.rsqrt(jnp.where(d2 > 0, d2, 1.0)), 1.0)
     area = take(lights.area, kk)
-    inv_area = jnp.where(area > 0, X.recip(jnp.where(area > 0, area, 1.0)), 0.0)
+    inv_area = jnp.where(area > 0, _xla.recip(jnp.where(area > 0, area, 1.0)), 0.0)
     pdf = _area_to_solid_angle(inv_area, d2, cos_l)
     kinds = lights.kinds
     if AREA_SPHERE in kinds:
@@ -240,7 +240,7 @@ def environment_radiance(lights: Lights, like: Array) -> V3:
 
 def sample_emission(lights: Lights, u_sel, u1, u2, u3, u4) -> EmissionSample:
     """Sample a light path's first vertex and direction (photon emission, lecture rules)."""
-    k = select(lights, u_sel)
+    k = select_light(lights, u_sel)
     kind = take(lights.kind, k)
     pmf = take(lights.pmf, k)
     p0, e1, e2 = _take(lights.p0, k), _take(lights.e1, k), _take(lights.e2, k)

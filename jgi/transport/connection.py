@@ -27,9 +27,7 @@ from jax import Array
 
 from .._xla import materialize
 from ..core.vec import V3, dot, where
-from ..physics import bsdf as B
-from ..physics import camera as C
-from ..physics import geometry as G
+from ..physics import bsdf, camera, geometry
 from ..scene.tables import Scene
 from .subpath import Vertices, convert_density, shading
 
@@ -48,7 +46,7 @@ class VertexConnection(NamedTuple):
 
 
 def connect_vertices(scene: Scene, y, z, ok: Array,
-                     continuation: Callable[[B.MaterialParams], Array] | None = None,
+                     continuation: Callable[[bsdf.MaterialParams], Array] | None = None,
                      reciprocal: bool = False) -> VertexConnection:
     """Light vertices y joined to camera vertices z (strategy (s, t), s, t >= 2).
 
@@ -68,14 +66,14 @@ def connect_vertices(scene: Scene, y, z, ok: Array,
     d2 = dot(v, v)
     dist = jnp.sqrt(d2)
     w = v / jnp.where(dist > 0, dist, 1.0)             # from y towards z
-    my = B.lookup_specialised(scene.materials, y.material, y.uv)
-    mz = B.lookup_specialised(scene.materials, z.material, z.uv)
+    my = bsdf.lookup_specialised(scene.materials, y.material, y.uv)
+    mz = bsdf.lookup_specialised(scene.materials, z.material, z.uv)
     ny, nz = shading(y), shading(z)                     # BSDFs about the shading normals
-    f_y, pdf_y_fwd = B.evaluate(kinds, my, ny, y.wo, w,  # y_{s-2} -> y -> z
-                                mode=B.IMPORTANCE)
-    _, pdf_y_rev = B.evaluate(kinds, my, ny, w, y.wo)
-    f_z, pdf_z_fwd = B.evaluate(kinds, mz, nz, z.wo, -w)  # z_{t-2} -> z -> y
-    _, pdf_z_rev = B.evaluate(kinds, mz, nz, -w, z.wo)
+    f_y, pdf_y_fwd = bsdf.evaluate(kinds, my, ny, y.wo, w,  # y_{s-2} -> y -> z
+                                   mode=bsdf.IMPORTANCE)
+    _, pdf_y_rev = bsdf.evaluate(kinds, my, ny, w, y.wo)
+    f_z, pdf_z_fwd = bsdf.evaluate(kinds, mz, nz, z.wo, -w)  # z_{t-2} -> z -> y
+    _, pdf_z_rev = bsdf.evaluate(kinds, mz, nz, -w, z.wo)
     if continuation is not None:
         q_y, q_z = continuation(my), continuation(mz)
         pdf_y_fwd, pdf_y_rev, pdf_z_fwd, pdf_z_rev = (pdf_y_fwd * q_y, pdf_y_rev * q_y,
@@ -93,11 +91,12 @@ def connect_vertices(scene: Scene, y, z, ok: Array,
     if y.ns is not None:
         # the value's cosines are the shading normals' (pbrt-v4's G), and y, a light vertex,
         # takes Veach's adjoint correction
-        f_y = f_y * B.adjoint_correction(y.ns, y.n, y.wo, w)
+        f_y = f_y * bsdf.adjoint_correction(y.ns, y.n, y.wo, w)
         g_value = over_d2(jnp.abs(dot(y.ns, w) * dot(z.ns, w)))
     value = where(ok, y.beta * f_y * f_z * z.beta * g_value, V3.full(0.0, d2))
-    return VertexConnection(value, G.shadow_ray(y.p, y.n, w, dist), to_area(pdf_y_fwd, cos_z),
-                            to_area(pdf_z_fwd, cos_y), pdf_y_rev, pdf_z_rev)
+    shadow = geometry.shadow_ray(y.p, y.n, w, dist)
+    return VertexConnection(value, shadow, to_area(pdf_y_fwd, cos_z), to_area(pdf_z_fwd, cos_y),
+                            pdf_y_rev, pdf_z_rev)
 
 
 # --- t = 1: a light vertex joined to the pinhole -------------------------------------------------
@@ -115,16 +114,16 @@ def connect_camera(scene: Scene, y: Vertices) -> CameraConnection:
     """Connect surface vertices y (any array shape) to the pinhole (strategy t = 1)."""
     cam = scene.camera
     kinds = scene.materials.kinds
-    proj = C.project(cam, y.p)
+    proj = camera.project(cam, y.p)
     w = proj.wi                                  # from y towards the pinhole
-    mp = B.lookup_specialised(scene.materials, y.material, y.uv)
+    mp = bsdf.lookup_specialised(scene.materials, y.material, y.uv)
     ny = shading(y)
-    f, _ = B.evaluate(kinds, mp, ny, y.wo, w, mode=B.IMPORTANCE)   # a light vertex
-    _, pdf_y_rev = B.evaluate(kinds, mp, ny, w, y.wo)
+    f, _ = bsdf.evaluate(kinds, mp, ny, y.wo, w, mode=bsdf.IMPORTANCE)   # a light vertex
+    _, pdf_y_rev = bsdf.evaluate(kinds, mp, ny, w, y.wo)
     cos_y = jnp.abs(dot(y.n, w))     # geometric: the camera's area density of y
     cos_f = cos_y                    # the cosine of the value: the shading normal's
     if y.ns is not None:             # (pbrt-v4's BDPT), with Veach's adjoint correction
-        f = f * B.adjoint_correction(y.ns, y.n, y.wo, w)
+        f = f * bsdf.adjoint_correction(y.ns, y.n, y.wo, w)
         cos_f = jnp.abs(dot(y.ns, w))
     d2 = proj.dist * proj.dist
     inv_d2 = jnp.where(d2 > 0, 1.0 / jnp.where(d2 > 0, d2, 1.0), 0.0)
@@ -137,7 +136,7 @@ def connect_camera(scene: Scene, y: Vertices) -> CameraConnection:
     ix = jnp.clip(jnp.floor(proj.px).astype(jnp.int32), 0, W - 1)
     iy = jnp.clip(jnp.floor(proj.py).astype(jnp.int32), 0, H - 1)
     pixel = jnp.where(ok, iy * W + ix, -1)
-    shadow = G.shadow_ray(y.p, y.n, w, proj.dist)
+    shadow = geometry.shadow_ray(y.p, y.n, w, proj.dist)
     pdf_cam = jnp.where(ok, proj.pdf_dir * cos_y * inv_d2, 0.0)
     return CameraConnection(pixel, value, shadow, pdf_cam, pdf_y_rev, ok)
 
@@ -152,7 +151,7 @@ def occluded_many(scene: Scene, rays: list[tuple]) -> list[Array]:
     d = V3(*(jnp.concatenate([flat(r[1][c]) for r in rays]) for c in range(3)))
     t = jnp.concatenate([flat(jnp.broadcast_to(r[2], s)) for r, s in zip(rays, shapes)])
     o, d, t = materialize((o, d, t))   # one buffer, read by every primitive test
-    occ = G.occluded(scene, o, d, t)
+    occ = geometry.occluded(scene, o, d, t)
     out, i = [], 0
     for s in shapes:
         n = int(np.prod(s))

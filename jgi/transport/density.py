@@ -37,7 +37,7 @@ import numpy as np
 from jax import Array
 
 from ..core.vec import V3, dot, where
-from ..physics import bsdf as B
+from ..physics import bsdf
 from ..scene.tables import PLASTIC, Scene
 from .hash_grid import HashGrid, auto_cap, cells_around, query_chunk
 from .visible_points import evaluates_whole
@@ -126,7 +126,7 @@ def diffuse_reflectance(scene: Scene, m, uv=None) -> V3:
     """k_d of material rows m (at surface coordinates uv, in a scene with textures): the
     diffuse part of the BSDF that photon estimates use."""
     if scene.materials.has_textures:
-        return B.lookup(scene.materials, m, uv).kd
+        return bsdf.lookup(scene.materials, m, uv).kd
     kd = scene.materials.diffuse
     return V3(kd.x[m], kd.y[m], kd.z[m])
 
@@ -153,19 +153,20 @@ def photon_reflectance(scene: Scene, material, n: V3, wo: V3, wi: V3, uv=None,
     col = lambda v: V3(*(c[:, None] for c in v))  # noqa: E731
     if ns is not None:
         # the diffuse part about ns: both directions on its side (ns faces wo)
-        above = B.lit(dot(wi, col(ns))) & B.lit(dot(wo, ns))[:, None]
+        above = bsdf.lit(dot(wi, col(ns))) & bsdf.lit(dot(wo, ns))[:, None]
         n_p = col(n) if n_photon is None else n_photon
-        ratio = jnp.where(above, B.shading_ratio(col(ns), n_p, wi), 0.0)
+        ratio = jnp.where(above, bsdf.shading_ratio(col(ns), n_p, wi), 0.0)
         f = V3(*(c * ratio for c in f))
     if not evaluates_whole(mats.kinds):
         return f
-    mp = B.lookup(mats, jnp.broadcast_to(material[:, None], wi.x.shape),
-                  None if uv is None else tuple(c[:, None] for c in uv))
+    mp = bsdf.lookup(mats, jnp.broadcast_to(material[:, None], wi.x.shape),
+                     None if uv is None else tuple(c[:, None] for c in uv))
     nb = n if ns is None else ns
-    f_rough, _ = B.evaluate(mats.kinds, mp, col(nb), col(wo), wi)
+    f_rough, _ = bsdf.evaluate(mats.kinds, mp, col(nb), col(wo), wi)
     if ns is not None:
-        f_rough = f_rough * B.shading_ratio(col(ns), col(n) if n_photon is None else n_photon, wi)
-    whole = B.is_rough(mp)
+        n_p = col(n) if n_photon is None else n_photon
+        f_rough = f_rough * bsdf.shading_ratio(col(ns), n_p, wi)
+    whole = bsdf.is_rough(mp)
     if PLASTIC in mats.kinds:
         whole = whole | (mp.kind == PLASTIC)
     return where(whole, f_rough, V3(*(jnp.broadcast_to(c, wi.x.shape) for c in f)))

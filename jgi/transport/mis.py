@@ -18,7 +18,7 @@ from __future__ import annotations
 import jax.numpy as jnp
 from jax import Array
 
-from .. import _xla as X
+from .. import _xla
 
 
 def heuristic_weight(n_s, p_s: Array, others: list[tuple], power: float = 1.0) -> Array:
@@ -31,9 +31,9 @@ def heuristic_weight(n_s, p_s: Array, others: list[tuple], power: float = 1.0) -
     a_safe = jnp.where(ok, a, 1.0)
     denom = jnp.ones_like(a_safe)
     for n_i, p_i in others:
-        r = X.div(n_i * p_i, a_safe)
+        r = _xla.div(n_i * p_i, a_safe)
         denom = denom + (r if power == 1.0 else (r * r if power == 2.0 else r ** power))
-    return jnp.where(ok, X.recip(denom), 0.0)
+    return jnp.where(ok, _xla.recip(denom), 0.0)
 
 
 def balance(n_s, p_s, n_o, p_o) -> Array:

@@ -40,9 +40,8 @@ from ..core import rng
 from ..core.calls import ordered_calls
 from ..core.sharding import device_mesh, sharded_calls
 from ..core.vec import V3, max_component, where
-from ..physics import bsdf as B
-from ..physics import geometry as G
-from ..physics import lights as LT
+from ..physics import bsdf, geometry
+from ..physics.lights import sample_emission
 from ..scene.tables import Scene
 from .visible_points import is_lookup_surface, samples_through
 
@@ -74,7 +73,7 @@ def trace_photon_paths(scene: Scene, seed, photon_index: Array, n_emitted, max_d
     lights, mats = scene.lights, scene.materials
     key = rng.derive(rng.path_key(seed, photon_index, 0), _SALT)
     u = lambda d: rng.uniform(key, d)
-    em = LT.sample_emission(lights, u(0), u(1), u(2), u(3), u(4))
+    em = sample_emission(lights, u(0), u(1), u(2), u(3), u(4))
     inv_n = 1.0 / jnp.asarray(n_emitted, jnp.float32)
     power = em.weight * inv_n
     z = jnp.zeros_like(power.x)
@@ -83,9 +82,9 @@ def trace_photon_paths(scene: Scene, seed, photon_index: Array, n_emitted, max_d
 
     def bounce(state, depth):
         o, d, pw, alive, spec_seen, only_spec = state
-        hit = G.intersect(scene, o, d)
+        hit = geometry.intersect(scene, o, d)
         alive = alive & hit.valid
-        mp = B.lookup(mats, hit.material, hit.uv)
+        mp = bsdf.lookup(mats, hit.material, hit.uv)
         store = alive & is_lookup_surface(mp, mats.kinds)
         # caustic: L S+ D with S what Jensen's split samples through (Dirac and microfacet
         # lobes) and D a diffuse or Phong surface, where its camera chains end
@@ -93,14 +92,14 @@ def trace_photon_paths(scene: Scene, seed, photon_index: Array, n_emitted, max_d
         record = (hit.p, pw, -d, hit.n, store & ~through & spec_seen & only_spec, store)
         base = 5 + depth * DIMS_PER_BOUNCE
         ns = hit.n if hit.ns is None else hit.ns
-        bs = B.sample(mats.kinds, mp, ns, -d, u(base), u(base + 1), u(base + 2),
-                      mode=B.IMPORTANCE)
+        bs = bsdf.sample(mats.kinds, mp, ns, -d, u(base), u(base + 1), u(base + 2),
+                         mode=bsdf.IMPORTANCE)
         if hit.ns is not None:   # Veach's adjoint correction for shading normals
-            bs = bs._replace(weight=bs.weight * B.adjoint_correction(ns, hit.n, -d, bs.wi))
+            bs = bs._replace(weight=bs.weight * bsdf.adjoint_correction(ns, hit.n, -d, bs.wi))
         q = jnp.clip(max_component(bs.weight), 0.0, 1.0)
         survive = alive & bs.valid & (u(base + 3) < q)
         pw = where(survive, pw * bs.weight / jnp.where(q > 0, q, 1.0), pw)
-        o_next = G.offset_origin(hit.p, hit.n, bs.wi)
+        o_next = geometry.offset_origin(hit.p, hit.n, bs.wi)
         only_spec = only_spec & (bs.delta | through)
         spec_seen = spec_seen | bs.delta | through
         return (o_next, bs.wi, pw, survive, spec_seen, only_spec), record

@@ -45,14 +45,12 @@ import jax.numpy as jnp
 import numpy as np
 from jax import Array
 
-from .. import _xla as X
+from .. import _xla
 from .._xla import materialize
 from ..core import rng, warps
 from ..core.vec import EDGE_ON_COS, V3, dot, max_component, normalize, where
-from ..physics import bsdf as B
-from ..physics import camera as C
-from ..physics import geometry as G
-from ..physics import lights as LT
+from ..physics import bsdf, camera, geometry
+from ..physics.lights import LightSample, emitted, sample_emission, sample_li
 from ..scene.tables import (
     AREA_QUAD,
     AREA_SPHERE,
@@ -80,12 +78,12 @@ def light_key(seed, pixel, sample) -> Array:
     return rng.derive(rng.path_key(seed, pixel, sample), LIGHT_SALT)
 
 
-def camera_ray(camera: Camera, pixel: Array, uniform: Callable[[int], Array]) -> tuple[V3, V3]:
+def camera_ray(cam: Camera, pixel: Array, uniform: Callable[[int], Array]) -> tuple[V3, V3]:
     """The primary ray (origin, direction) through flat pixel index ``pixel`` (row-major, row 0
     at the top), jittered within the pixel by ``uniform(0)``, ``uniform(1)``: dimensions 0 and
     1 of every camera path's stream."""
-    W = camera.width
-    return C.sample_ray(camera, pixel % W, pixel // W, uniform(0), uniform(1))
+    W = cam.width
+    return camera.sample_ray(cam, pixel % W, pixel // W, uniform(0), uniform(1))
 
 
 # --- subpath vertices (struct of arrays, [K, N]) --------------------------------------------------
@@ -181,8 +179,8 @@ class WalkState(NamedTuple):
 class Visit(NamedTuple):
     """What a walk's per-vertex callback sees (all [N])."""
     step: Array
-    hit: G.Hit
-    mp: B.MaterialParams
+    hit: geometry.Hit
+    mp: bsdf.MaterialParams
     wo: V3
     state: WalkState   # the state that produced this hit (beta, pdf_dir, previous vertex)
     valid: Array
@@ -208,23 +206,23 @@ def random_walk(scene: Scene, key: Array, dim0: int, dims_per_step: int, n_steps
         base = dim0 + j * dims_per_step
         u = ((lambda k: rng.uniform(key, base + k)) if uniform is None  # noqa: E731
              else (lambda k: uniform(base + k)))
-        hit = G.intersect(scene, s.o, s.d)
+        hit = geometry.intersect(scene, s.o, s.d)
         valid = s.alive & hit.valid
         v = hit.p - s.prev_p
         d2 = dot(v, v)
         pdf_fwd = jnp.where(valid, convert_density(s.pdf_dir, d2, dot(hit.n, s.d), True), 0.0)
-        mp = B.lookup_specialised(mats, hit.material, hit.uv)
+        mp = bsdf.lookup_specialised(mats, hit.material, hit.uv)
         wo = -s.d
-        delta = B.is_delta(mp)
+        delta = bsdf.is_delta(mp)
         extra = visit(Visit(j, hit, mp, wo, s, valid, d2, u)) if visit is not None else None
         # ---- BSDF sampling: the next direction, and the reverse density of the previous vertex
         # (both about the shading normal; area conversions use geometric normals)
         ns = shading(hit)
-        bs = materialize(B.sample(kinds, mp, ns, wo, u(0), u(1), u(2), mode=mode))
+        bs = materialize(bsdf.sample(kinds, mp, ns, wo, u(0), u(1), u(2), mode=mode))
         # left by a Dirac lobe: no density either way through this vertex (pbrt-v4 zeroes
         # pdfFwd and pdfRev); per sample on plastic, else the material's flag
-        delta_s = B.sampled_delta(kinds, mp, bs)
-        _, pdf_back = B.evaluate(kinds, mp, ns, bs.wi, wo)
+        delta_s = bsdf.sampled_delta(kinds, mp, bs)
+        _, pdf_back = bsdf.evaluate(kinds, mp, ns, bs.wi, wo)
         pdf_rev_prev = jnp.where(valid & ~delta_s,
                                  convert_density(pdf_back, d2, dot(s.prev_n, s.d), s.prev_surface),
                                  0.0)
@@ -232,10 +230,10 @@ def random_walk(scene: Scene, key: Array, dim0: int, dims_per_step: int, n_steps
                         hit.material, jnp.where(valid, hit.emitter, -1), hit.uv, hit.ns,
                         delta_s if PLASTIC in kinds else None)
         beta = s.beta * bs.weight
-        if mode == B.IMPORTANCE and hit.ns is not None:   # Veach's adjoint correction
-            beta = beta * B.adjoint_correction(ns, hit.n, wo, bs.wi)
+        if mode == bsdf.IMPORTANCE and hit.ns is not None:   # Veach's adjoint correction
+            beta = beta * bsdf.adjoint_correction(ns, hit.n, wo, bs.wi)
         alive = valid & bs.valid & (max_component(beta) > 0)
-        nxt = WalkState(G.offset_origin(hit.p, hit.n, bs.wi), bs.wi, beta,
+        nxt = WalkState(geometry.offset_origin(hit.p, hit.n, bs.wi), bs.wi, beta,
                         jnp.where(bs.delta, 0.0, bs.pdf), hit.p, hit.n, valid, delta_s, alive)
         return nxt, (vert, extra)
 
@@ -315,7 +313,7 @@ def light_subpath(scene: Scene, key: Array, max_depth: int, infinite: bool = Fal
     camera subpath only. Light tracing keeps them (``infinite=True``)."""
     lights = scene.lights
     u = (lambda k: rng.uniform(key, k)) if uniform is None else uniform  # noqa: E731
-    em = LT.sample_emission(lights, u(0), u(1), u(2), u(3), u(4))
+    em = sample_emission(lights, u(0), u(1), u(2), u(3), u(4))
     inf = is_infinite(lights, em.element)
     ok = (em.pdf_pos > 0) & (max_component(em.weight) > 0)
     if not infinite:
@@ -323,17 +321,17 @@ def light_subpath(scene: Scene, key: Array, max_depth: int, infinite: bool = Fal
     on_surface = ~em.delta_pos & ~inf
     z = jnp.zeros_like(em.pdf_pos)
     delta_light = em.delta_pos | em.delta_dir
-    le = LT.emitted(lights, jnp.where(on_surface, em.element, -1), em.n, em.d)
+    le = emitted(lights, jnp.where(on_surface, em.element, -1), em.n, em.d)
     v0 = Vertices(em.p, em.n, V3(z, z, z), le, em.pdf_pos, z, z > 0, on_surface, ok,
                   jnp.zeros_like(em.element), em.element, no_uv(scene, z), vertex_ns(scene, em.n),
                   vertex_lobe_delta(scene, z))
     v0 = jax.tree_util.tree_map(lambda x: x[None], v0)
     if max_depth <= 1:
         return LightPath(v0, delta_light, em.element)
-    start = WalkState(G.offset_origin(em.p, em.n, em.d), em.d, em.weight,
+    start = WalkState(geometry.offset_origin(em.p, em.n, em.d), em.d, em.weight,
                       em.pdf_dir, em.p, em.n, on_surface, z > 0, ok)
     verts, pdf_rev0, _ = random_walk(scene, key, LIGHT_DIMS0, LIGHT_DIMS_PER_STEP, max_depth - 1,
-                                     start, B.IMPORTANCE, uniform=uniform)
+                                     start, bsdf.IMPORTANCE, uniform=uniform)
     v0 = v0._replace(pdf_rev=pdf_rev0[None])
     return LightPath(concat_rows(v0, verts), delta_light, em.element)
 
@@ -343,7 +341,7 @@ def light_subpath(scene: Scene, key: Array, max_depth: int, infinite: bool = Fal
 class NextEvent(NamedTuple):
     """A light sample y for the surface point x (the light-sampling strategy p_light of Veach
     1997, sec. 9.2; BDPT's s = 1), with what estimators need of the BSDF at x towards it."""
-    light: LT.LightSample  # wi (x -> y), dist, L_i, pdf (solid angle, selection included), delta
+    light: LightSample  # wi (x -> y), dist, L_i, pdf (solid angle, selection included), delta
     f: V3                  # f(wo -> wi) at x
     pdf_bsdf: Array        # solid-angle density of BSDF sampling wi at x (for MIS against it)
     cos: Array             # |cos theta_i| = |ns . wi| at x (ns: the shading normal)
@@ -351,7 +349,7 @@ class NextEvent(NamedTuple):
     ok: Array              # a usable sample (before the visibility test)
 
 
-def sample_next_event(scene: Scene, mp: B.MaterialParams, p: V3, n: V3, wo: V3, u_select: Array,
+def sample_next_event(scene: Scene, mp: bsdf.MaterialParams, p: V3, n: V3, wo: V3, u_select: Array,
                       u1: Array, u2: Array, active: Array, ns: V3 | None = None) -> NextEvent:
     """Sample a light for the point p (geometric normal n, shading normal ``ns`` if not n,
     ``wo`` towards the previous vertex) with ``lights.sample_li``, and evaluate the BSDF mp
@@ -359,11 +357,11 @@ def sample_next_event(scene: Scene, mp: B.MaterialParams, p: V3, n: V3, wo: V3, 
     lobe, and the sample has a positive density; the caller tests the shadow ray (now, or
     batched with others) and chooses the MIS weight."""
     nb = n if ns is None else ns
-    ls = LT.sample_li(scene.lights, p, u_select, u1, u2)
-    f, pdf_bsdf = B.evaluate(scene.materials.kinds, mp, nb, wo, ls.wi)
-    ok = active & ~B.is_delta(mp) & ls.valid & (ls.pdf > 0)
+    ls = sample_li(scene.lights, p, u_select, u1, u2)
+    f, pdf_bsdf = bsdf.evaluate(scene.materials.kinds, mp, nb, wo, ls.wi)
+    ok = active & ~bsdf.is_delta(mp) & ls.valid & (ls.pdf > 0)
     return NextEvent(ls, f, pdf_bsdf, jnp.abs(dot(ls.wi, nb)),
-                     G.shadow_ray(p, n, ls.wi, ls.dist), ok)
+                     geometry.shadow_ray(p, n, ls.wi, ls.dist), ok)
 
 
 def next_event_value(ne: NextEvent, beta: V3, weight: Array | None = None,
@@ -371,5 +369,5 @@ def next_event_value(ne: NextEvent, beta: V3, weight: Array | None = None,
     """The sample's contribution if y is visible from x: beta f L_i |cos theta_i| w / (n p_light),
     with MIS weight w (None: 1) for one of ``n_samples`` light samples; 0 where not ``ne.ok``."""
     num = ne.cos if weight is None else weight * ne.cos
-    scale = X.div(num, n_samples * jnp.where(ne.ok, ne.light.pdf, 1.0))
+    scale = _xla.div(num, n_samples * jnp.where(ne.ok, ne.light.pdf, 1.0))
     return where(ne.ok, beta * ne.f * ne.light.Li * scale, V3.full(0.0, scale))

@@ -21,9 +21,8 @@ from jax import Array
 
 from ..core import rng
 from ..core.vec import V3, where
-from ..physics import bsdf as B
-from ..physics import geometry as G
-from ..physics import lights as LT
+from ..physics import bsdf, geometry
+from ..physics.lights import emitted, environment_radiance
 from ..scene.tables import DIFFUSE, PHONG, PLASTIC, ROUGH_DIELECTRIC, ROUGH_KINDS, Scene
 from .subpath import (
     camera_ray,
@@ -35,7 +34,7 @@ from .subpath import (
 )
 
 
-def samples_through(mp: B.MaterialParams, lookup_rough: bool = True, kinds=()) -> Array:
+def samples_through(mp: bsdf.MaterialParams, lookup_rough: bool = True, kinds=()) -> Array:
     """Vertices a chain of camera (or photon) scattering continues through by sampling the BSDF
     instead of ending there with a lookup (a photon density estimate, an irradiance record, a
     final gather): Dirac lobes; glossy lobes too narrow for a density estimate
@@ -47,21 +46,21 @@ def samples_through(mp: B.MaterialParams, lookup_rough: bool = True, kinds=()) -
     plastic vertex is a lookup surface for its base and is sampled through by its coating's
     Dirac lobe alone, a choice per sample (:func:`trace_to_diffuse`). ``kinds``: the scene's
     (static), to test for plastic only in scenes that have it."""
-    through = B.is_delta(mp) | B.is_glossy(mp) | (mp.kind == ROUGH_DIELECTRIC)
+    through = bsdf.is_delta(mp) | bsdf.is_glossy(mp) | (mp.kind == ROUGH_DIELECTRIC)
     if lookup_rough:
         return through
-    through = through | B.is_rough(mp)
+    through = through | bsdf.is_rough(mp)
     return (through | (mp.kind == PLASTIC)) if PLASTIC in kinds else through
 
 
-def is_lookup_surface(mp: B.MaterialParams, kinds=()) -> Array:
+def is_lookup_surface(mp: bsdf.MaterialParams, kinds=()) -> Array:
     """Where photons are stored and density estimates taken: diffuse surfaces, Phong with a
     diffuse part (only k_d / pi of it reflects photons in the estimates), microfacet
     surfaces that chains do not sample through (their estimates use the whole BSDF), and the
     smooth plastic (its base: the non-Dirac part of the BSDF). ``kinds``: the scene's."""
     kd_max = jnp.maximum(jnp.maximum(mp.kd.x, mp.kd.y), mp.kd.z)
     out = ((mp.kind == DIFFUSE) | ((mp.kind == PHONG) & (kd_max > 0))
-           | (B.is_rough(mp) & ~samples_through(mp)))
+           | (bsdf.is_rough(mp) & ~samples_through(mp)))
     return (out | (mp.kind == PLASTIC)) if PLASTIC in kinds else out
 
 
@@ -115,24 +114,24 @@ def trace_to_diffuse(scene: Scene, uniform, o: V3, d: V3, *, max_depth: int,
 
     def step(depth, s):
         o, d, beta, L, active, v = s
-        hit = G.intersect(scene, o, d)
+        hit = geometry.intersect(scene, o, d)
         wo = -d
         base = 2 + depth * dims
         if lights.count:
-            L = L + where(active & hit.valid, beta * LT.emitted(lights, hit.emitter, hit.n, wo), Z)
+            L = L + where(active & hit.valid, beta * emitted(lights, hit.emitter, hit.n, wo), Z)
             if lights.environment >= 0:
-                L = L + where(active & ~hit.valid, beta * LT.environment_radiance(lights, z), Z)
+                L = L + where(active & ~hit.valid, beta * environment_radiance(lights, z), Z)
         active = active & hit.valid
-        mp = B.lookup(mats, hit.material, hit.uv)
+        mp = bsdf.lookup(mats, hit.material, hit.uv)
         specular = samples_through(mp, lookup_rough, kinds)
         u1, u2 = ((uniform(glossy_dim0 + 2 * depth), uniform(glossy_dim0 + 2 * depth + 1))
                   if rough else (z, z))
         beta_end = beta
         if plastic:   # the lobe sampled at a plastic vertex decides: continue, or end here
-            bs = B.sample(kinds, mp, shading(hit), wo, uniform(base), u1, u2)
+            bs = bsdf.sample(kinds, mp, shading(hit), wo, uniform(base), u1, u2)
             is_plastic = mp.kind == PLASTIC
             specular = specular | (is_plastic & bs.delta)
-            p_base = 1.0 - B.plastic.coating_probability(mp, B.side(shading(hit), wo)[1])
+            p_base = 1.0 - bsdf.plastic.coating_probability(mp, bsdf.side(shading(hit), wo)[1])
             beta_end = beta * jnp.where(is_plastic & (p_base > 0),
                                         1.0 / jnp.where(p_base > 0, p_base, 1.0), 1.0)
         diffuse_end = active & ~specular
@@ -143,7 +142,7 @@ def trace_to_diffuse(scene: Scene, uniform, o: V3, d: V3, *, max_depth: int,
                 ne = sample_next_event(scene, mp, hit.p, hit.n, wo, uniform(dj), uniform(dj + 1),
                                        uniform(dj + 2), diffuse_end, ns=hit.ns)
                 value = next_event_value(ne, beta_end, n_samples=light_samples)
-                L = L + where(~G.occluded(scene, *ne.shadow), value, Z)
+                L = L + where(~geometry.occluded(scene, *ne.shadow), value, Z)
         v = DiffuseVertex(v.L, where(diffuse_end, beta_end, v.beta), where(diffuse_end, hit.p, v.p),
                           where(diffuse_end, hit.n, v.n), where(diffuse_end, wo, v.wo),
                           jnp.where(diffuse_end, hit.material, v.material), v.found | diffuse_end,
@@ -152,9 +151,9 @@ def trace_to_diffuse(scene: Scene, uniform, o: V3, d: V3, *, max_depth: int,
                           None if v.ns is None else where(diffuse_end, hit.ns, v.ns))
         # ---- follow the specular (or glossy) chain ----
         if not plastic:
-            bs = B.sample(kinds, mp, shading(hit), wo, uniform(base), u1, u2)
+            bs = bsdf.sample(kinds, mp, shading(hit), wo, uniform(base), u1, u2)
         active = active & specular & bs.valid
-        return (G.offset_origin(hit.p, hit.n, bs.wi), bs.wi, beta * bs.weight, L, active, v)
+        return (geometry.offset_origin(hit.p, hit.n, bs.wi), bs.wi, beta * bs.weight, L, active, v)
 
     one = jnp.ones_like(z)
     v0 = DiffuseVertex(Z, Z, o, V3(z, z, one), V3(z, z, one), jnp.zeros_like(z, jnp.int32), z > 0,
@@ -181,5 +180,5 @@ def visible_points(scene: Scene, seed, pixel, sample, *, max_depth: int,
 
 def face_viewer(v: DiffuseVertex) -> DiffuseVertex:
     """The vertex with its normals (geometric, and shading if any) turned towards ``wo``."""
-    v = v._replace(n=B.facing(v.n, v.wo))
-    return v if v.ns is None else v._replace(ns=B.facing(v.ns, v.wo))
+    v = v._replace(n=bsdf.facing(v.n, v.wo))
+    return v if v.ns is None else v._replace(ns=bsdf.facing(v.ns, v.wo))

@@ -29,7 +29,7 @@ from ...scene.tables import (
     TEX_SPECULAR,
     Materials,
 )
-from .. import textures as T
+from .. import textures
 
 # Transport modes: camera paths carry radiance, light paths importance (Veach 1997, 5.2).
 RADIANCE, IMPORTANCE = 0, 1
@@ -109,21 +109,21 @@ def textured(mats: Materials, m: Array, uv, mp: MaterialParams) -> MaterialParam
     u, v = (jnp.broadcast_to(c, m.shape) for c in uv)
     kd, ks, au, av = mp.kd, mp.ks, mp.alpha_u, mp.alpha_v
     if TEX_DIFFUSE in cols:
-        kd = T.textured(tex, index[m, TEX_DIFFUSE], (u, v), V3(*(jnp.broadcast_to(c, m.shape)
-                                                                   for c in kd)))
+        kd = textures.textured(tex, index[m, TEX_DIFFUSE], (u, v), V3(*(jnp.broadcast_to(c, m.shape)
+                                                                        for c in kd)))
     kt = mp.kt
     if TEX_SPECULAR in cols:
         i = index[m, TEX_SPECULAR]
-        ks = T.textured(tex, i, (u, v), V3(*(jnp.broadcast_to(c, m.shape) for c in ks)))
+        ks = textures.textured(tex, i, (u, v), V3(*(jnp.broadcast_to(c, m.shape) for c in ks)))
         if kt is not None:   # a textured dielectric tint tints both lobes (the builder's rule)
             kt = where(i >= 0, ks, V3(*(jnp.broadcast_to(c, m.shape) for c in kt)))
     if TEX_ALPHA in cols:
         i = index[m, TEX_ALPHA]
-        au = T.textured_scalar(tex, i, (u, v), jnp.broadcast_to(au, m.shape))
+        au = textures.textured_scalar(tex, i, (u, v), jnp.broadcast_to(au, m.shape))
         if TEX_ALPHA_V not in cols:   # isotropic textures only: alpha_v follows alpha_u
             av = jnp.where(i >= 0, au, av)
     if TEX_ALPHA_V in cols:           # anisotropic ones: alpha_v's own texture, or constant
-        av = T.textured_scalar(tex, index[m, TEX_ALPHA_V], (u, v), jnp.broadcast_to(av, m.shape))
+        av = textures.textured_scalar(tex, index[m, TEX_ALPHA_V], (u, v), jnp.broadcast_to(av, m.shape))
     return mp._replace(kd=kd, ks=ks, alpha_u=au, alpha_v=av, kt=kt)
 
 

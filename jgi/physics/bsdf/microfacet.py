@@ -35,7 +35,7 @@ import jax
 import jax.numpy as jnp
 from jax import Array
 
-from ... import _xla as X
+from ... import _xla
 from ...core import warps
 from ...core.vec import V3, coordinate_system, cross, dot, normalize
 from ...scene.tables import BECKMANN, GGX
@@ -110,7 +110,7 @@ def smith_lambda(dist, v: Array, au: Array, av: Array) -> Array:
 
     def beckmann():
         pos = t2 > 1e-30   # below it Lambda = 0 (a > 1e15); also keeps rsqrt normal
-        a = X.rsqrt(jnp.where(pos, t2, 1.0))
+        a = _xla.rsqrt(jnp.where(pos, t2, 1.0))
         lam = 0.5 * (jnp.exp(-a * a) * _INV_SQRT_PI / a - jax.lax.erfc(a))
         return jnp.where(pos, jnp.maximum(lam, 0.0), 0.0)
 
@@ -138,7 +138,7 @@ def sample_vndf_ggx(wo: V3, au: Array, av: Array, u1: Array, u2: Array) -> V3:
     vh = normalize(V3(au * wo.x, av * wo.y, wo.z))
     lensq = vh.x * vh.x + vh.y * vh.y
     pos = lensq > 0
-    inv = jnp.where(pos, X.rsqrt(jnp.where(pos, lensq, 1.0)), 0.0)
+    inv = jnp.where(pos, _xla.rsqrt(jnp.where(pos, lensq, 1.0)), 0.0)
     t1 = V3(jnp.where(pos, -vh.y * inv, 1.0), jnp.where(pos, vh.x * inv, 0.0), 0.0 * inv)
     t2 = cross(vh, t1)
     p1, p2, _ = warps.concentric_disc_polar(u1, u2)
