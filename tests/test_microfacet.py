@@ -51,6 +51,7 @@ from jgi.scene import (
     SceneBuilder,
     SceneError,
 )
+from tests.support.bsdf_samplers import fresnel_reference
 from tests.support.directions import NORMAL, direction, reflect_np
 
 KINDS = (MIRROR, ROUGH_CONDUCTOR, ROUGH_DIELECTRIC, ROUGH_PLASTIC, PLASTIC)
@@ -381,7 +382,7 @@ def test_plastic_sampling_matches_evaluate(case):
     # the coating's probability, as evaluate's pdf implies it and as Mitsuba defines it
     eta = (1.49 if int_ior is None else int_ior) / 1.000277
     cos_o = float(wo @ NORMAL)
-    F = float(_fresnel_np(cos_o, eta))
+    F = float(fresnel_reference(cos_o, eta))
     w = np.mean(ks) / (np.mean(kd) + np.mean(ks))
     p = F * w / (F * w + (1 - F) * (1 - w))
     se = np.sqrt(p * (1 - p) / N)
@@ -399,11 +400,6 @@ def test_plastic_sampling_matches_evaluate(case):
     cos = s["wi"][base] @ NORMAL
     np.testing.assert_allclose(s["weight"][base],
                                s["f"][base] * (cos / s["eval_pdf"][base])[:, None], rtol=5e-5)
-
-
-def _fresnel_np(cos_i, eta):
-    from jgi.scene.rough_coating import fresnel
-    return fresnel(np.float64(cos_i), eta)
 
 
 # --- Mitsuba 3's definitions ------------------------------------------------------------------

@@ -8,6 +8,8 @@ the frame axis (the surface normal or a lobe axis); see :func:`jgi.core.vec.to_w
 
 from __future__ import annotations
 
+import math
+
 import jax.numpy as jnp
 from jax import Array
 
@@ -32,21 +34,27 @@ def sample_concentric_disc(u1: Array, u2: Array) -> tuple[Array, Array]:
     return x, y
 
 
-def concentric_disc_polar(u1: Array, u2: Array) -> tuple[Array, Array, Array]:
+def concentric_disc_polar(u1: Array, u2: Array, xp=jnp) -> tuple[Array, Array, Array]:
     """Shirley-Chiu concentric map of the square onto the unit disc (area-preserving).
 
     The square point (a, b) goes to radius r = a at angle phi = (pi/4) b/a where |a| > |b|, else
     to r = b at phi = pi/2 - (pi/4) a/b. Both angles are pi/4 t with |t| <= 1 (in the second
     case cos and sin swap), so one division and the sin/cos polynomials without range reduction
     suffice. At the centre r = 0 and the point is (0, 0) whatever t is. Returns (x, y, r), r = |a|
-    or |b| exactly."""
+    or |b| exactly. ``xp=numpy``: the same map in float64 with exact division and trigonometry
+    (roughplastic's coating quadrature at scene build)."""
     a, b = 2.0 * u1 - 1.0, 2.0 * u2 - 1.0
-    first = jnp.abs(a) > jnp.abs(b)
-    r = jnp.where(first, a, b)
-    # for float32 u in [0, 1), 2u - 1 is 0 or at least 2^-24 in magnitude (recip_normal's range)
-    t = jnp.where(first, b, a) * _xla.recip_normal(jnp.where(r == 0, 1.0, r))
-    s, c = sincos_quarter((PI / 4) * t)
-    return r * jnp.where(first, c, s), r * jnp.where(first, s, c), jnp.abs(r)
+    first = xp.abs(a) > xp.abs(b)
+    r = xp.where(first, a, b)
+    if xp is jnp:
+        # for float32 u in [0, 1), 2u - 1 is 0 or at least 2^-24 in magnitude (recip_normal's
+        # range)
+        t = jnp.where(first, b, a) * _xla.recip_normal(jnp.where(r == 0, 1.0, r))
+        s, c = sincos_quarter((PI / 4) * t)
+    else:
+        t = xp.where(first, b, a) / xp.where(r == 0, 1.0, r)
+        s, c = xp.sin((math.pi / 4) * t), xp.cos((math.pi / 4) * t)
+    return r * xp.where(first, c, s), r * xp.where(first, s, c), xp.abs(r)
 
 
 def pdf_disc() -> Array:

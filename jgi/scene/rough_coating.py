@@ -37,6 +37,7 @@ from __future__ import annotations
 import numpy as np
 from scipy import special
 
+from ..core import optics, warps
 from .tables import BECKMANN, GGX
 
 TABLE_SIZE = 64        # Mitsuba's MI_ROUGH_TRANSMITTANCE_RES
@@ -55,10 +56,9 @@ def smith_lambda(dist: int, v: np.ndarray, alpha: float) -> np.ndarray:
     """Smith's Lambda(v) for an isotropic distribution, v [..., 3] with v_z != 0."""
     t2 = alpha * alpha * (v[..., 0] ** 2 + v[..., 1] ** 2) / (v[..., 2] ** 2)
     if dist == GGX:
-        return 0.5 * (np.sqrt(1.0 + t2) - 1.0)
+        return optics.smith_lambda_ggx(t2, np)
     with np.errstate(divide="ignore", invalid="ignore"):
-        a = 1.0 / np.sqrt(t2)
-        lam = 0.5 * (np.exp(-a * a) / (a * np.sqrt(np.pi)) - special.erfc(a))
+        lam = optics.smith_lambda_beckmann(1.0 / np.sqrt(t2), np, special.erfc)
     return np.where(t2 > 0, lam, 0.0)
 
 
@@ -70,23 +70,9 @@ def smith_g1(dist: int, v: np.ndarray, m: np.ndarray, alpha: float) -> np.ndarra
 
 def fresnel(cos_i: np.ndarray, eta: float) -> np.ndarray:
     """Unpolarised dielectric Fresnel reflectance, cos_i >= 0, eta = eta_t / eta_i."""
-    cos2_t = 1.0 - (1.0 - cos_i * cos_i) / (eta * eta)
+    cos2_t = optics.cos2_transmitted(cos_i, eta)
     cos_t = np.sqrt(np.maximum(cos2_t, 0.0))
-    with np.errstate(divide="ignore", invalid="ignore"):
-        rs = (cos_i - eta * cos_t) / (cos_i + eta * cos_t)
-        rp = (eta * cos_i - cos_t) / (eta * cos_i + cos_t)
-    return np.where(cos2_t <= 0, 1.0, 0.5 * (rs * rs + rp * rp))
-
-
-def _concentric(u1, u2):
-    """Shirley-Chiu's concentric map of the unit square onto the unit disc."""
-    a, b = 2.0 * u1 - 1.0, 2.0 * u2 - 1.0
-    first = np.abs(a) > np.abs(b)
-    r = np.where(first, a, b)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        phi = np.where(first, 0.25 * np.pi * b / a, 0.5 * np.pi - 0.25 * np.pi * a / b)
-    phi = np.where(r == 0, 0.0, phi)
-    return r * np.cos(phi), r * np.sin(phi)
+    return np.where(cos2_t <= 0, 1.0, optics.fresnel_dielectric_reflectance(cos_i, cos_t, eta, np))
 
 
 def _normals(dist: int, wi: np.ndarray, alpha: float, u1, u2):
@@ -100,7 +86,7 @@ def _normals(dist: int, wi: np.ndarray, alpha: float, u1, u2):
         t1 = np.stack([-vh[..., 1] * inv, vh[..., 0] * inv, np.zeros_like(inv)], -1)
         t1 = np.where((lensq > 0)[..., None], t1, np.array([1.0, 0.0, 0.0]))
         t2 = np.cross(vh, t1)
-        p1, p2 = _concentric(u1, u2)
+        p1, p2, _ = warps.concentric_disc_polar(u1, u2, np)
         s = 0.5 * (1.0 + vh[..., 2])
         p2 = (1.0 - s) * np.sqrt(1.0 - p1 * p1) + s * p2
         nh = (p1[..., None] * t1 + p2[..., None] * t2
@@ -134,7 +120,7 @@ def _integrate(dist: int, alpha: float, eta: float, transmit: bool) -> np.ndarra
     cos_im = np.sum(wi * m, axis=-1)
     F = fresnel(np.maximum(cos_im, 0.0), eta)
     if transmit:
-        cos2_t = 1.0 - (1.0 - cos_im ** 2) / (eta * eta)
+        cos2_t = optics.cos2_transmitted(cos_im, eta)
         cos_t = np.sqrt(np.maximum(cos2_t, 0.0))
         wo = -wi / eta + m * (cos_im / eta - cos_t)[..., None]
         ok = (wo[..., 2] < 0) & (cos2_t > 0)

@@ -6,6 +6,7 @@ from __future__ import annotations
 import jax.numpy as jnp
 from jax import Array
 
+from ...core.optics import cos2_transmitted, fresnel_dielectric_reflectance
 from ...core.vec import V3, dot
 
 
@@ -15,22 +16,12 @@ def _sqrt0(x: Array) -> Array:
     return jnp.where(pos, jnp.sqrt(jnp.where(pos, x, 1.0)), 0.0)
 
 
-def cos2_transmitted(cos_i: Array, eta: Array) -> Array:
-    """cos^2(theta_t) = 1 - (1 - cos_i^2) / eta^2 (Snell), <= 0 under total internal reflection.
-
-    Written as (cos_i^2 + eta^2 - 1) / eta^2: the textbook form cancels catastrophically in
-    float32 at grazing incidence (for eta = 1 it gave F = 1e-5 at cos_i = 1e-3 instead of 0)."""
-    return (cos_i * cos_i + (eta * eta - 1.0)) / (eta * eta)
-
-
 def fresnel_dielectric(cos_i: Array, eta: Array) -> Array:
     """Unpolarised Fresnel reflectance for relative index eta = eta_t / eta_i, cos_i >= 0."""
     cos2_t = cos2_transmitted(cos_i, eta)
     tir = cos2_t <= 0.0
     cos_t = _sqrt0(cos2_t)   # finite gradient under total internal reflection
-    r_parl = (eta * cos_i - cos_t) / jnp.maximum(eta * cos_i + cos_t, 1e-12)
-    r_perp = (cos_i - eta * cos_t) / jnp.maximum(cos_i + eta * cos_t, 1e-12)
-    return jnp.where(tir, 1.0, 0.5 * (r_parl * r_parl + r_perp * r_perp))
+    return jnp.where(tir, 1.0, fresnel_dielectric_reflectance(cos_i, cos_t, eta, jnp))
 
 
 def refract(wo: V3, n: V3, eta: Array) -> tuple[V3, Array]:

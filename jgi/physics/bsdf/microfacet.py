@@ -36,13 +36,12 @@ import jax.numpy as jnp
 from jax import Array
 
 from ... import _xla
-from ...core import warps
+from ...core import optics, warps
 from ...core.vec import V3, coordinate_system, cross, dot, normalize
 from ...scene.tables import BECKMANN, GGX
 
 MIN_ALPHA = 1e-4
 _INV_PI = 1.0 / jnp.pi
-_INV_SQRT_PI = 0.5641895835477563
 # float32 below 1: keeps 1 - rho^2 > 0 on the concentric disc's rim (rho = 1 at u = 0)
 _ONE_MINUS = 1.0 - 2.0 ** -24
 
@@ -105,13 +104,13 @@ def smith_lambda(dist, v: Array, au: Array, av: Array) -> Array:
     z2 = v.z * v.z
     t2 = ((au * v.x) ** 2 + (av * v.y) ** 2) / jnp.where(z2 > 0, z2, 1.0)
 
-    def ggx():   # (sqrt(1 + t2) - 1) / 2, written without cancellation
-        return t2 / (2.0 + 2.0 * jnp.sqrt(1.0 + t2))
+    def ggx():
+        return optics.smith_lambda_ggx(t2, jnp)
 
     def beckmann():
         pos = t2 > 1e-30   # below it Lambda = 0 (a > 1e15); also keeps rsqrt normal
         a = _xla.rsqrt(jnp.where(pos, t2, 1.0))
-        lam = 0.5 * (jnp.exp(-a * a) * _INV_SQRT_PI / a - jax.lax.erfc(a))
+        lam = optics.smith_lambda_beckmann(a, jnp, jax.lax.erfc)
         return jnp.where(pos, jnp.maximum(lam, 0.0), 0.0)
 
     return _pick(dist, ggx, beckmann)
