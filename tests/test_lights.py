@@ -427,7 +427,7 @@ def test_selection_is_proportional_to_power_and_total_power():
     total = np.sum(rgb, axis=0)
     assert np.all(np.abs(m - total) < 5 * se), (m, total, se)
     # next-event selection uses the same pmf
-    sel = np.asarray(jax.jit(LT.select)(lights, jnp.asarray(uniforms(19, 1)[0])))
+    sel = np.asarray(jax.jit(LT.select_light)(lights, jnp.asarray(uniforms(19, 1)[0])))
     r_ = pearson(np.bincount(sel, minlength=len(pmf)), len(sel) * pmf)
     assert r_.ok(), r_.message
 
