@@ -22,7 +22,7 @@ from jgi.scene.tables import (
 )
 from tests.support.mitsuba import load_mitsuba
 from tests.support.scenes import leaves_equal, ply_quad
-from tests.support.stats import assert_agree
+from tests.support.stats import assert_agree, critical_t
 
 DATA = Path(__file__).parent / "data"
 CORNELL_XML = DATA / "cornell_box_mitsuba.xml"
@@ -115,7 +115,8 @@ def test_lights_materials_and_transforms(tmp_path):
      "diffuse_reflectance"),
     ('<bsdf type="roughdielectric" id="x"><texture type="checkerboard" '
      'name="specular_transmittance"/></bsdf>', "must be one texture for both"),
-    ('<emitter type="spot"><float name="cutoff_angle" value="30"/></emitter>', "beam_width"),
+    ('<emitter type="spot"><float name="cutoff_angle" value="30"/>'
+     '<float name="beam_width" value="40"/></emitter>', "beam_width"),
     ('<shape type="rectangle"><ref id="nope"/></shape>', "unknown bsdf 'nope'"),
     ('<shape type="obj"><string name="filename" value="missing.obj"/></shape>', "does not exist"),
     ('<shape type="rectangle"><bsdf type="diffuse"><texture type="bitmap" name="reflectance">'
@@ -273,7 +274,8 @@ ANISO = ('<bsdf type="roughconductor" id="brushed"><float name="alpha_u" value="
     ('<shape type="obj"><string name="filename" value="uv.obj"/><ref id="brushed"/>'
      '<boolean name="face_normals" value="true"/></shape>', False),
     ('<shape type="sphere"><ref id="brushed"/></shape>', False),
-    ('<shape type="cube"><bsdf type="twosided"><bsdf type="roughdielectric">'
+    # (twosided nests only BSDFs without transmission, in Mitsuba and here)
+    ('<shape type="cube"><bsdf type="twosided"><bsdf type="roughconductor">'
      '<float name="alpha_u" value="0.05"/><float name="alpha_v" value="0.3"/></bsdf></bsdf>'
      '</shape>', False),
 ])
@@ -487,3 +489,276 @@ def test_smooth_plastic_renders_like_mitsuba(tmp_path):
     the lamp in the floor and the walls in the box and ball."""
     _compare_with_mitsuba(tmp_path, DATA / "cornell_box_plastic_mitsuba.xml",
                           "plastic vs Mitsuba 3")
+
+
+# --- <path>, twosided, integrator wrappers, spot falloff, to_uv (issue 31) ---------------------
+
+def _triangle_obj(path, z):
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(f"v 0 0 {z}\nv 1 0 {z}\nv 0 1 {z}\nf 1 2 3\n")
+
+
+@pytest.mark.parametrize("body, expected_z", [
+    ('<path value="a"/><path value="b"/>' + '<shape type="obj">'
+     '<string name="filename" value="m.obj"/></shape>', [2.0]),          # the latest <path> wins
+    ('<path value="b"/><path value="a"/><shape type="obj">'
+     '<string name="filename" value="m.obj"/></shape>', [1.0]),
+    ('<path value="a"/><path value="x"/><shape type="obj">'             # x is found in a
+     '<string name="filename" value="m.obj"/></shape>', [5.0]),
+    ('<path value="c"/><shape type="obj"><string name="filename" value="only.obj"/></shape>'
+     '<include filename="inc.xml"/>', [7.0, 9.0]),                       # inc.xml found in c
+    ('<include filename="d/inc.xml"/>', [0.0]),      # not in d/: the included file's folder
+])
+def test_path_elements_resolve_files_as_mitsuba(tmp_path, body, expected_z):
+    """Relative file names are looked up in the <path> folders, the latest first, then in the
+    scene file's folder, for <include>d files too (whose own folder is not searched): the same
+    triangle as Mitsuba 3.9.1 loads in each case."""
+    for sub, z in (("", 0), ("a", 1), ("b", 2), ("a/x", 5), ("c", 9), ("d", 11)):
+        _triangle_obj(tmp_path / sub / "m.obj", z)
+    _triangle_obj(tmp_path / "c" / "only.obj", 7)
+    for sub in ("c", "d"):
+        (tmp_path / sub / "inc.xml").write_text(
+            '<scene version="3.0.0"><shape type="obj"><string name="filename" value="m.obj"/>'
+            '</shape></scene>')
+    path = write(tmp_path, SENSOR + body)
+    ours = load_mitsuba_xml(path)
+    assert sorted(np.unique(np.asarray(ours.triangles.v0.z)).tolist()) == expected_z
+    mi = load_mitsuba()
+    if mi is not None:
+        theirs = sorted(float(s.bbox().min.z) for s in mi.load_file(str(path)).shapes())
+        assert theirs == expected_z
+
+
+def test_path_refusals_name_the_file_and_line(tmp_path):
+    path = write(tmp_path, SENSOR + '\n<path value="nowhere"/>')
+    with pytest.raises(SceneError, match=rf"{re.escape(str(path))}:3: <path> folder 'nowhere' "
+                                         "does not exist"):
+        load_mitsuba_xml(path)
+    path = write(tmp_path, SENSOR + '\n<include filename="missing.xml"/>')
+    with pytest.raises(SceneError, match=r":3: included file 'missing.xml' does not exist"):
+        load_mitsuba_xml(path)
+
+
+TWOSIDED = SENSOR + """
+<bsdf type="roughplastic" id="p"><rgb name="diffuse_reflectance" value="0.2,0.4,0.6"/></bsdf>
+<bsdf type="diffuse" id="q"/>
+"""
+
+
+@pytest.mark.parametrize("inner, message", [
+    ('<ref id="p"/>', None),
+    ('<ref id="p"/><ref id="p"/>', None),                       # the same BSDF on both sides
+    ('<bsdf type="roughconductor"/>', None),
+    ('<bsdf type="twosided"><bsdf type="plastic"/></bsdf>', None),
+    ('<ref id="p"/><ref id="q"/>', "two different BSDFs"),
+    ('<bsdf type="dielectric"/>', "Mitsuba nests only materials without transmission"),
+    ('<ref id="p"/><ref id="p"/><ref id="p"/>', "one or two nested BSDFs"),
+    ('<ref id="nope"/>', "unknown bsdf 'nope'"),
+])
+def test_twosided_around_any_opaque_bsdf(tmp_path, inner, message):
+    """twosided is Mitsuba's: one BSDF (nested or a <ref>) on both sides, which is what every
+    jgi opaque BSDF is; two different ones (front, back), transmissive ones (Mitsuba refuses
+    them too) and more than two are refused."""
+    path = write(tmp_path, TWOSIDED + f'<shape type="rectangle"><bsdf type="twosided">{inner}'
+                                      '</bsdf></shape>')
+    if message is None:
+        s = load_mitsuba_xml(path)
+        assert s.rects.count == 1
+        mi = load_mitsuba()
+        if mi is not None:
+            mi.load_file(str(path))   # Mitsuba accepts it too
+    else:
+        with pytest.raises(SceneError, match=rf"{re.escape(str(path))}:\d+: .*{message}"):
+            load_mitsuba_xml(path)
+
+
+def test_twosided_ref_is_the_referenced_material(tmp_path):
+    s = load_mitsuba_xml(write(tmp_path, TWOSIDED + '<bsdf type="twosided" id="t"><ref id="p"/>'
+                                                    '</bsdf><shape type="rectangle"><ref id="t"/>'
+                                                    '</shape>'))
+    assert int(s.materials.kind[int(s.rects.material[0])]) == ROUGH_PLASTIC
+
+
+@pytest.mark.parametrize("integrator, expected", [
+    ('', mitsuba.IntegratorSettings("path")),
+    ('<integrator type="path"><integer name="max_depth" value="8"/></integrator>',
+     mitsuba.IntegratorSettings("path", 8)),
+    ('<default name="d" value="6"/><integrator type="moment"><integrator type="aov">'
+     '<string name="aovs" value="dd:depth"/><integrator type="volpath">'
+     '<integer name="max_depth" value="$d"/><integer name="rr_depth" value="3"/>'
+     '<boolean name="hide_emitters" value="true"/></integrator></integrator></integrator>',
+     mitsuba.IntegratorSettings("volpath", 6, 3, True, ("moment", "aov"))),
+    ('<integrator type="aov"><string name="aovs" value="nn:sh_normal"/></integrator>',
+     mitsuba.IntegratorSettings(None, wrappers=("aov",))),
+])
+def test_integrator_settings_read_through_moment_and_aov(tmp_path, integrator, expected):
+    """The moment and aov wrappers are read through to the nested integrator's max_depth,
+    rr_depth and hide_emitters (Mitsuba's defaults where absent); the scene loads as before."""
+    path = write(tmp_path, integrator + SENSOR)
+    assert mitsuba.read_mitsuba_integrator(path) == expected
+    assert load_mitsuba_xml(path).camera.width == 8
+
+
+def test_integrator_wrapper_with_two_integrators_is_refused(tmp_path):
+    path = write(tmp_path, SENSOR + '\n<integrator type="moment"><integrator type="path"/>'
+                                    '<integrator type="direct"/></integrator>')
+    with pytest.raises(SceneError, match=r":3: integrator 'moment': jgi reads through exactly "
+                                         "one nested <integrator>, got 2"):
+        mitsuba.read_mitsuba_integrator(path)
+
+
+SPOT_XML = """<scene version="3.0.0">
+    <integrator type="path"><integer name="max_depth" value="3"/></integrator>
+    <sensor type="perspective">
+        <float name="fov" value="60"/>
+        <transform name="to_world"><lookat origin="0, 0, 3" target="0, 0, 0" up="0, 1, 0"/>
+        </transform>
+        <sampler type="independent"/>
+        <film type="hdrfilm"><integer name="width" value="16"/><integer name="height" value="16"/>
+            <rfilter type="box"/></film>
+    </sensor>
+    <shape type="rectangle">
+        <transform name="to_world"><scale value="3"/></transform>
+        <bsdf type="diffuse"><rgb name="reflectance" value="0.6, 0.5, 0.4"/></bsdf>
+    </shape>
+    <emitter type="spot">
+        <rgb name="intensity" value="5, 4, 3"/>
+        <float name="cutoff_angle" value="40"/>
+        BEAM
+        <transform name="to_world"><lookat origin="0.3, 0.2, 1.2" target="0.6, -0.1, 0"
+            up="0, 1, 0"/></transform>
+    </emitter>
+</scene>
+"""
+SPOT_POS, SPOT_TARGET = np.array([0.3, 0.2, 1.2]), np.array([0.6, -0.1, 0.0])
+RHO, INTENSITY = np.array([0.6, 0.5, 0.4]), np.array([5.0, 4.0, 3.0])
+
+
+def mitsuba_spot_falloff(cos_theta, cutoff_deg, beam_deg):
+    """Mitsuba 3's spot.cpp falloff_curve, in float64: 1 inside beam_width, then linear in the
+    angle down to 0 at cutoff_angle."""
+    c, b = np.radians(cutoff_deg), np.radians(beam_deg)
+    theta = np.arccos(np.clip(cos_theta, -1, 1))
+    ramp = np.where(cos_theta >= np.cos(b), 1.0, (c - theta) / max(c - b, 1e-300))
+    return np.where(cos_theta > np.cos(c), ramp, 0.0)
+
+
+def _spot_scene(tmp_path, beam):
+    xml = tmp_path / "spot.xml"
+    xml.write_text(SPOT_XML.replace("BEAM", "" if beam is None else
+                                    f'<float name="beam_width" value="{beam}"/>'))
+    return xml
+
+
+def _spot_plane_radiance(points, cutoff, beam):
+    """Radiance leaving the diffuse plane z = 0 towards any direction at ``points`` [N, 3]:
+    rho / pi * I * falloff * cos / d^2 (direct light only: a plane cannot see itself)."""
+    to_light = SPOT_POS - points
+    d2 = np.sum(to_light**2, 1)
+    d = np.sqrt(d2)
+    axis = (SPOT_TARGET - SPOT_POS) / np.linalg.norm(SPOT_TARGET - SPOT_POS)
+    fall = mitsuba_spot_falloff(-(to_light / d[:, None]) @ axis, cutoff, beam)
+    cos_plane = to_light[:, 2] / d
+    return RHO / np.pi * INTENSITY * (fall * cos_plane / d2)[:, None]
+
+
+@pytest.mark.parametrize("beam", [None, 10.0, 0.0])
+def test_spot_falloff_is_mitsubas(tmp_path, beam):
+    """A Mitsuba spot light (beam_width absent: Mitsuba's 3/4 of cutoff_angle; 10 degrees; 0)
+    gives jgi's light sampler I * falloff / d^2 with Mitsuba's falloff, linear in the angle
+    between beam_width and cutoff_angle: equal to the closed form and to Mitsuba's own
+    sample_direction at points across the whole ramp."""
+    from tests.support.light_samplers import sample_li_from_uniforms, uniforms
+    xml = _spot_scene(tmp_path, beam)
+    lights = load_mitsuba_xml(xml).lights
+    assert bool(lights.spot_linear[0])
+    axis = (SPOT_TARGET - SPOT_POS) / np.linalg.norm(SPOT_TARGET - SPOT_POS)
+    s, t = _common.tangent_frame(axis)
+    angles = np.radians(np.linspace(0.0, 45.0, 91))
+    dist = 1.3
+    xs = SPOT_POS + dist * (np.cos(angles)[:, None] * axis + np.sin(angles)[:, None]
+                            * (0.6 * s + 0.8 * t))
+    out = {k: np.asarray(v) for k, v in sample_li_from_uniforms(
+        lights, np.float32(xs), uniforms(3, 3, len(xs))).items()}
+    fall = mitsuba_spot_falloff(np.cos(angles), 40.0, 30.0 if beam is None else beam)
+    assert np.sum((fall > 0) & (fall < 1)) >= 10   # the ramp is sampled
+    np.testing.assert_allclose(out["Li"], INTENSITY * fall[:, None] / dist**2, rtol=2e-5,
+                               atol=1e-5)
+    mi = load_mitsuba()
+    if mi is not None:
+        emitter = mi.load_file(str(xml)).emitters()[0]
+        it = mi.Interaction3f()
+        it.p = mi.Point3f(*(xs.T.astype(np.float32)))
+        _, spec = emitter.sample_direction(it, mi.Point2f(0.5, 0.5))
+        theirs = np.stack([np.asarray(spec[c]) for c in range(3)], 1)
+        np.testing.assert_allclose(out["Li"], theirs, rtol=2e-4, atol=1e-5)
+
+
+def test_spot_emission_power_closed_form(tmp_path):
+    """Light paths leave the Mitsuba spot with weights whose mean is its power,
+    2 pi I (1 + (sin beam - sin cutoff) / (cutoff - beam)) for the falloff linear in the angle
+    (the closed form of 2 pi int falloff(theta) sin(theta) d theta)."""
+    from tests.support.light_samplers import sample_emission
+    lights = load_mitsuba_xml(_spot_scene(tmp_path, 10.0)).lights
+    e = sample_emission(lights, seed=21)
+    c, b = np.radians(40.0), np.radians(10.0)
+    power = 2 * np.pi * INTENSITY * (1 + (np.sin(b) - np.sin(c)) / (c - b))
+    m, se = e["weight"].mean(0), e["weight"].std(0) / np.sqrt(len(e["weight"]))
+    t = np.abs(m - power) / se
+    assert np.all(t < critical_t(len(e["weight"]) - 1, 3)), (m, power, t)
+
+
+def _spot_closed_form_image(cam, cutoff, beam, n=64):
+    """The pixel averages of the closed-form radiance (n x n midpoints per pixel): the camera
+    looks straight down at z = 0 from height 3, so a film point (sx, sy) sees the plane at
+    position + 3 (forward + sx right + sy up)."""
+    W, H = cam.width, cam.height
+    pos = np.array([float(c) for c in cam.position])
+    right = np.array([float(c) for c in cam.right])
+    up = np.array([float(c) for c in cam.up])
+    forward = np.array([float(c) for c in cam.forward])
+    g = (np.arange(n) + 0.5) / n
+    img = np.zeros((H, W, 3))
+    for py in range(H):
+        sy = 1.0 - 2.0 * (py + g) / H
+        for px in range(W):
+            sx = 2.0 * (px + g) / W - 1.0
+            SX, SY = np.meshgrid(sx, sy)
+            pts = pos + 3.0 * (forward + SX.reshape(-1, 1) * right + SY.reshape(-1, 1) * up)
+            img[py, px] = _spot_plane_radiance(pts, cutoff, beam).mean(0)
+    return img
+
+
+@pytest.mark.parametrize("estimator", ["pt", "lt"])
+def test_spot_plane_renders_the_closed_form(tmp_path, estimator):
+    """A diffuse plane under a Mitsuba spot (default beam_width, its ramp crossing the image):
+    jgi's path and light tracers' pixel means agree with the closed form
+    rho / pi * I * falloff * cos / d^2 averaged over each pixel, per 4 x 4 region (Welch's t
+    with the renders' standard error from 16 seeds)."""
+    xml = _spot_scene(tmp_path, None)
+    ours = load_mitsuba_xml(xml)
+    assert float(ours.camera.forward.z) == pytest.approx(-1.0)
+    ref = _spot_closed_form_image(ours.camera, 40.0, 30.0)
+    mine = np.stack([jgi.render(ours, estimator, spp=16, seed=s, max_depth=3)
+                     for s in range(16)])
+    t = assert_agree(mine, np.stack([ref, ref]), regions=4,
+                     label=f"{estimator} vs closed form (spot)")
+    print(f"spot plane, {estimator} vs closed form: max |t| = {t.max():.2f}; image mean "
+          f"{mine.mean():.5f} vs {ref.mean():.5f}")
+
+
+def test_spot_renders_like_mitsuba(tmp_path):
+    """The same spot-lit plane rendered by Mitsuba 3 and by jgi's path tracer: per 4 x 4 region
+    (Welch's t, both sides' standard errors from 16 seeds)."""
+    mi = load_mitsuba()
+    if mi is None:
+        pytest.skip("mitsuba is not installed")
+    xml = _spot_scene(tmp_path, None)
+    scene_mi = mi.load_file(str(xml))
+    theirs = np.stack([np.asarray(mi.render(scene_mi, spp=16, seed=s))[..., :3]
+                       for s in range(16)])
+    mine = np.stack([jgi.render(load_mitsuba_xml(xml), "pt", spp=16, seed=s, max_depth=3)
+                     for s in range(16)])
+    t = assert_agree(mine, theirs, regions=4, label="spot: jgi vs Mitsuba 3")
+    print(f"spot plane vs Mitsuba: max |t| = {t.max():.2f}; means {mine.mean():.5f} vs "
+          f"{theirs.mean():.5f}")

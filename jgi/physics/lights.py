@@ -14,7 +14,8 @@ triangle      pdf = |x-y|^2 / (A cos theta_y)     pdf = (1/A)(cos/pi), power pi 
 area sphere   uniform in the cone subtended       uniform y on the sphere, cosine direction
               at x: pdf = 1/(2 pi (1-cos_max))
 point         delta, L_i = I / d^2                uniform direction, power 4 pi I
-spot          delta, I * smoothstep falloff       uniform within the cone
+spot          delta, I * falloff (pbrt's          uniform within the cone
+              smoothstep or Mitsuba's linear)
 directional   delta, L_i = E along -direction     parallel rays over the scene's bounding
                                                   disc, power E pi R^2
 environment   uniform direction, pdf 1/(4 pi)     uniform direction, bounding disc
@@ -87,11 +88,21 @@ def select_light(lights: Lights, u: Array) -> Array:
     return jnp.clip(i, 0, lights.count - 1).astype(jnp.int32)
 
 
-def spot_falloff(cos_theta, cos_total, cos_falloff) -> Array:
-    """pbrt-v4's smoothstep falloff between the cutoff and the falloff-start cones."""
+def spot_falloff(cos_theta, cos_total, cos_falloff, linear=None) -> Array:
+    """The falloff between the cutoff and the falloff-start (beam) cones: pbrt-v4's smoothstep
+    in the cosine, or where ``linear``, Mitsuba 3's ramp linear in the angle,
+    (cutoff - theta) / (cutoff - beam) (its spot.cpp ``falloff_curve``)."""
     span = jnp.maximum(cos_falloff - cos_total, 1e-6)
     t = jnp.clip((cos_theta - cos_total) / span, 0.0, 1.0)
-    return jnp.where(cos_theta >= cos_falloff, 1.0, t * t * (3.0 - 2.0 * t))
+    smooth = jnp.where(cos_theta >= cos_falloff, 1.0, t * t * (3.0 - 2.0 * t))
+    if linear is None:
+        return smooth
+    cutoff = jnp.arccos(jnp.clip(cos_total, -1.0, 1.0))
+    theta = jnp.arccos(jnp.clip(cos_theta, -1.0, 1.0))
+    ramp = jnp.clip((cutoff - theta) / jnp.maximum(cutoff - jnp.arccos(
+        jnp.clip(cos_falloff, -1.0, 1.0)), 1e-6), 0.0, 1.0)
+    ramp = jnp.where(cos_theta >= cos_falloff, 1.0, jnp.where(cos_theta > cos_total, ramp, 0.0))
+    return jnp.where(linear, ramp, smooth)
 
 
 def _area_to_solid_angle(pdf_area, dist2, cos_light):
@@ -179,7 +190,7 @@ def sample_li(lights: Lights, x: V3, u_sel: Array, u1: Array, u2: Array) -> Ligh
             out = choose(kind == POINT, s, out)
         if SPOT in kinds:
             fall = spot_falloff(-dot(wi, _take(lights.direction, k)), take(lights.cos_total, k),
-                                take(lights.cos_falloff, k))
+                                take(lights.cos_falloff, k), take(lights.spot_linear, k))
             s = LightSample(wi, dist, emission * (inv_d2 * fall), pmf, ok, ok & (fall > 0))
             out = choose(kind == SPOT, s, out)
     if DIRECTIONAL in kinds:
@@ -288,7 +299,7 @@ def sample_emission(lights: Lights, u_sel, u1, u2, u3, u4) -> EmissionSample:
         ct, cf = take(lights.cos_total, k), take(lights.cos_falloff, k)
         d = to_world(warps.sample_uniform_cone(u3, u4, ct), axis)
         pdf_dir = warps.pdf_uniform_cone(ct)
-        fall = spot_falloff(dot(d, axis), ct, cf)
+        fall = spot_falloff(dot(d, axis), ct, cf, take(lights.spot_linear, k))
         w = emission * (fall * jnp.where(pdf_dir > 0, 1.0 / jnp.where(pdf_dir > 0, pdf_dir, 1.0),
                                          0.0) * inv_pmf)
         s = EmissionSample(p0, Z, d, w, pmf, pdf_dir, zero == 0, zero > 0, k)

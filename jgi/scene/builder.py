@@ -542,7 +542,14 @@ class SceneBuilder:
     def point_light(self, position, intensity):
         self.lights.append(dict(kind=POINT, p0=position, emission=_rgb(intensity)))
 
-    def spot_light(self, position, target, intensity, cutoff_deg=30.0, falloff_deg=None):
+    def spot_light(self, position, target, intensity, cutoff_deg=30.0, falloff_deg=None,
+                   profile="smoothstep"):
+        """A spot light; between the falloff-start (beam) and cutoff cones its intensity falls
+        as pbrt's smoothstep in the cosine (``profile="smoothstep"``) or as Mitsuba 3's ramp
+        linear in the angle (``"linear"``)."""
+        if profile not in ("smoothstep", "linear"):
+            raise SceneError(f"spot light: profile '{profile}' unknown; supported: smoothstep, "
+                             "linear")
         d = np.asarray(target, float) - np.asarray(position, float)
         falloff_deg = cutoff_deg * 0.75 if falloff_deg is None else falloff_deg
         if not 0 < cutoff_deg <= 90 or not 0 <= falloff_deg <= cutoff_deg:
@@ -550,7 +557,8 @@ class SceneBuilder:
         self.lights.append(dict(kind=SPOT, p0=position, direction=d / np.linalg.norm(d),
                                 emission=_rgb(intensity),
                                 cos_total=np.cos(np.radians(cutoff_deg)),
-                                cos_falloff=np.cos(np.radians(falloff_deg))))
+                                cos_falloff=np.cos(np.radians(falloff_deg)),
+                                spot_linear=profile == "linear"))
 
     def directional_light(self, direction, irradiance):
         d = np.asarray(direction, float)
@@ -903,6 +911,11 @@ def light_power(el: dict, radius: float) -> float:
         return np.pi * el["area"] * lum
     if k == POINT:
         return 4 * np.pi * lum
+    if k == SPOT and el.get("spot_linear", False):
+        # 2 pi int_0^cutoff falloff(theta) sin(theta) d theta, the falloff linear in theta
+        c, b = np.arccos(el["cos_total"]), np.arccos(el["cos_falloff"])
+        ramp = (np.sin(b) - np.sin(c)) / (c - b) if c - b > 1e-6 else -np.cos(c)
+        return 2 * np.pi * (1 + ramp) * lum
     if k == SPOT:
         return 2 * np.pi * (1 - 0.5 * (el["cos_total"] + el["cos_falloff"])) * lum
     if k == DIRECTIONAL:
@@ -936,6 +949,7 @@ def _build_lights(elements: list, center, radius) -> Lights:
         emission=_v3(col("emission", z3)),
         cos_total=jnp.asarray(col("cos_total", 1.0), jnp.float32),
         cos_falloff=jnp.asarray(col("cos_falloff", 1.0), jnp.float32),
+        spot_linear=jnp.asarray(col("spot_linear", False), bool),
         area=jnp.asarray(col("area", 0.0), jnp.float32),
         pmf=jnp.asarray(pmf, jnp.float32), cdf=jnp.asarray(cdf, jnp.float32),
         bound_center=_v3_scalar(center), bound_radius=jnp.asarray(radius, jnp.float32),

@@ -253,6 +253,8 @@ class Lights(eqx.Module):
                         # irradiance E (directional)
     cos_total: Array    # spot: cosine of the cone half-angle (no light outside)
     cos_falloff: Array  # spot: cosine where the smooth falloff starts
+    spot_linear: Array  # spot: True for Mitsuba's falloff (linear in the angle), False for
+                        # pbrt's (smoothstep in the cosine)
     area: Array         # area of area-light elements (0 otherwise)
     pmf: Array          # selection probability (proportional to power)
     cdf: Array          # inclusive running sum of pmf, for inversion

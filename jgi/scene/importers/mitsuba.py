@@ -5,7 +5,9 @@ supported):
 
   sensor     perspective: fov, fov_axis (x | y | smaller | larger | diagonal), to_world;
              film hdrfilm: width, height (pixel filter, sampler and integrator are ignored:
-             jgi uses box pixel filtering and its own estimators)
+             jgi uses box pixel filtering and its own estimators; read_mitsuba_integrator
+             gives the integrator's max_depth, rr_depth and hide_emitters, through the moment
+             and aov wrappers, to pass to them)
   bsdf       diffuse (reflectance); conductor and roughconductor (material: a name from jgi's
              table of metals, or eta / k as rgb, float or constant spectrum;
              specular_reflectance; material "none" without eta and k is a 100 % reflector);
@@ -15,9 +17,11 @@ supported):
              <ref>s to one texture; other textured tints are refused);
              roughplastic and plastic (smooth: a Dirac coating reflection over a diffuse
              base) (diffuse_reflectance, specular_reflectance, int_ior, ext_ior,
-             nonlinear); twosided (unwrapped: jgi's opaque BSDFs are two-sided, Mitsuba's are
-             one-sided, so a one-sided Mitsuba surface seen from the back renders black there
-             and not in jgi).
+             nonlinear); twosided around any of the opaque ones (nested or a <ref>; one BSDF,
+             or the same one twice, for front and back; Mitsuba refuses transmissive ones,
+             and jgi two different ones) is that BSDF: jgi's opaque BSDFs are two-sided,
+             Mitsuba's are one-sided, so a one-sided Mitsuba surface seen from the back
+             renders black there and not in jgi.
              rough plugins: distribution beckmann | ggx, alpha or alpha_u / alpha_v (not for
              roughplastic; anisotropic only where Mitsuba's shading frame is jgi's, see
              check_anisotropy_frame: rectangles whose to_world x axis, and meshes whose
@@ -52,11 +56,13 @@ supported):
              emission (jgi's emitters radiate about the geometric normal) and anisotropic
              roughness
   emitter    area (radiance), point (intensity, position or to_world), spot (intensity,
-             cutoff_angle; only with beam_width equal to cutoff_angle, since Mitsuba's falloff
-             curve differs from jgi's), directional (direction, irradiance), constant (radiance)
+             cutoff_angle, beam_width: Mitsuba's falloff, linear in the angle between the two
+             cones; to_world), directional (direction, irradiance), constant (radiance)
   values     rgb, float, spectrum with a single constant value; <default> and $name
-             substitution; <ref>; <include>; transforms translate, rotate, scale, matrix,
-             lookat (each applied after the previous one, as Mitsuba does)
+             substitution; <ref>; <include>; <path> (relative file names are looked up as
+             Mitsuba's file resolver does: in the <path> folders, the latest first, then in
+             the main scene file's folder, for included files too); transforms translate,
+             rotate, scale, matrix, lookat (each applied after the previous one, as Mitsuba does)
 
 Units need no conversion: Mitsuba's radiance (W m^-2 sr^-1), intensity (W sr^-1) and
 irradiance (W m^-2) are jgi's.
@@ -68,6 +74,7 @@ import math
 import xml.etree.ElementTree as ET
 import xml.parsers.expat as expat
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 
@@ -92,7 +99,10 @@ SUPPORTED = {
     "shape": ("rectangle", "cube", "sphere", "obj", "ply"),
     "emitter": ("area", "point", "spot", "directional", "constant"),
 }
-IGNORED_TAGS = ("integrator", "sampler", "rfilter")
+IGNORED_TAGS = ("sampler", "rfilter")
+# Mitsuba 3's integrators that wrap others (their nested <integrator>s): read through to the
+# inner one's settings
+WRAPPER_INTEGRATORS = ("moment", "aov")
 
 _ROUGH = ("distribution", "alpha", "alpha_u", "alpha_v", "sample_visible")
 # The parameters each BSDF plugin takes (Mitsuba refuses unreferenced properties too).
@@ -115,6 +125,19 @@ TEXTURE_PARAMETERS = {
     "bitmap": ("filename", "filter_type", "wrap_mode", "raw", "to_uv"),
     "checkerboard": ("color0", "color1", "to_uv"),
 }
+
+
+class IntegratorSettings(NamedTuple):
+    """The light-transport settings of a Mitsuba scene's integrator (the innermost one, through
+    ``moment`` and ``aov`` wrappers), Mitsuba's defaults filled in: what to pass to jgi's
+    estimators to render what Mitsuba renders (``max_depth`` counts as Mitsuba's and jgi's do:
+    1 = emitters seen directly; None = unbounded, Mitsuba's -1)."""
+
+    type: str | None            # "path", "volpath", ...; None: an aov integrator without one
+    max_depth: int | None = None
+    rr_depth: int = 5
+    hide_emitters: bool = False
+    wrappers: tuple = ()        # the wrappers read through, outermost first
 
 
 class TextureRef(str):
@@ -158,6 +181,9 @@ class _Importer:
         self.checkerboards: dict[str, dict] = {}   # name -> the builder's checkerboard kwargs
         self.sensor_done = False
         self.source: dict = {}
+        self.integrator: IntegratorSettings | None = None
+        # Mitsuba's file resolver: the scene file's folder, then each <path> prepended
+        self.search_paths: list[Path] = [path.parent]
 
     # --- helpers --------------------------------------------------------------------------
     def where(self, el) -> str:
@@ -169,6 +195,24 @@ class _Importer:
 
     def fail(self, el, msg):
         raise ImportError_(f"{self.where(el)}: {msg}")
+
+    def resolve(self, el, name: str, what: str | None = None) -> Path:
+        """A file name as Mitsuba 3's file resolver finds it: an absolute name as it is; a
+        relative one in the folders of the <path> elements, the latest first, then in the main
+        scene file's folder (also for names in <include>d files: checked with Mitsuba 3.9.1,
+        an included file's own folder is not searched). A name found nowhere is refused when
+        ``what`` names it, otherwise returned in the scene's folder for the reader to report."""
+        p = Path(name)
+        if p.is_absolute():
+            return p
+        for base in self.search_paths:
+            if (base / p).exists():
+                return base / p
+        if what is None:
+            return self.path.parent / p
+        self.fail(el, f"{what} '{name}' does not exist in the folders Mitsuba's file resolver "
+                      "searches (the <path> folders, latest first, then the scene's folder): "
+                      f"{', '.join(str(b) for b in self.search_paths)}")
 
     def attr(self, el, name, default=None):
         v = el.get(name, default)
@@ -266,7 +310,7 @@ class _Importer:
                 if not isinstance(raw, bool):
                     self.fail(el, "bitmap: 'raw' must be a <boolean>")
                 self.b.texture(name, "bitmap", to_uv=to_uv, raw=raw,
-                               filename=self.file_of(el).parent / fname)
+                               filename=self.resolve(el, fname))
         except SceneError as e:
             self.fail(el, str(e))
         return name
@@ -314,6 +358,8 @@ class _Importer:
         kind = self.check_type(el)
         p = self.props(el)
         for c in el:
+            if kind == "twosided" and c.tag == "ref" and not c.get("name"):
+                continue   # a nested BSDF by reference
             if c.tag == "ref" and c.get("name") and c.get("id") not in self.b.texture_names:
                 self.fail(c, f"bsdf '{kind}': parameter '{c.get('name')}' refers to "
                              f"'{c.get('id')}', which is not a texture defined before it")
@@ -324,10 +370,7 @@ class _Importer:
         name = el.get("id") or f"_bsdf{self.n_anon}"
         self.n_anon += 1
         if kind == "twosided":
-            inner = [c for c in el if c.tag == "bsdf"]
-            if len(inner) != 1:
-                self.fail(el, "twosided needs exactly one nested bsdf")
-            inner_name = self.bsdf(inner[0])
+            inner_name = self.twosided(el)
             if inner_name in self.anisotropic:
                 self.anisotropic.add(name)
             self.bsdfs[name] = self.bsdfs[inner_name]
@@ -377,6 +420,32 @@ class _Importer:
             self.anisotropic.add(name)
         self.bsdfs[name] = (kind, p)
         return name
+
+    def twosided(self, el) -> str:
+        """The BSDF a ``twosided`` wraps (nested or a <ref>), as Mitsuba 3 defines it: one
+        BSDF used on both sides, or two (front, back). jgi's opaque BSDFs are two-sided, so one
+        BSDF (or the same one twice) is that BSDF; two different ones are refused (a jgi
+        surface has one material on both sides), and so are transmissive ones, which Mitsuba
+        refuses too."""
+        names = []
+        for c in el:
+            if c.tag == "bsdf":
+                names.append(self.bsdf(c))
+            elif c.tag == "ref" and not c.get("name"):
+                if c.get("id") not in self.b.material_names:
+                    self.fail(c, f"twosided: reference to unknown bsdf '{c.get('id')}'")
+                names.append(c.get("id"))
+        if len(names) not in (1, 2):
+            self.fail(el, f"twosided needs one or two nested BSDFs (or <ref>s), got {len(names)}")
+        for n in names:
+            if self.bsdfs[n][0] in ("dielectric", "roughdielectric"):
+                self.fail(el, f"twosided: the nested bsdf '{self.bsdfs[n][0]}' transmits light; "
+                              "Mitsuba nests only materials without transmission")
+        if len(names) == 2 and self.b.material_names[names[0]] != \
+                self.b.material_names[names[1]]:
+            self.fail(el, "twosided with two different BSDFs (front, back) is not supported: "
+                          "a jgi surface has one material on both sides; give one nested bsdf")
+        return names[0]
 
     def conductor(self, el, name: str, kind: str, p: dict):
         """conductor / roughconductor: Mitsuba's rules for ``material`` versus ``eta`` / ``k``
@@ -525,19 +594,19 @@ class _Importer:
             fname = p.get("filename")
             if not fname:
                 self.fail(el, f"{kind} shape needs a 'filename'")
-            base = self.file_of(el).parent
+            mesh_file = self.resolve(el, fname, f"{kind} mesh file")
             smooth = not p.get("face_normals", False)
             if smooth:
                 # Mitsuba 3 shades with the file's vertex normals, or with smooth ones it
                 # computes when there are none (OBJMesh / PLYMesh: recompute_vertex_normals)
-                v, f, uv, normals = load_mesh_with_normals(base / fname, self.where(el))
+                v, f, uv, normals = load_mesh_with_normals(mesh_file, self.where(el))
                 normals = "smooth" if normals is None else normals
             else:
-                v, f, uv = load_mesh(base / fname, self.where(el), allow_vertex_normals=True,
+                v, f, uv = load_mesh(mesh_file, self.where(el), allow_vertex_normals=True,
                                      with_uv=True)
                 normals = None
             textured = bool(self.b.materials[self.b.material_names[material]].textures)
-            if textured and has_texture_coordinates(base / fname):
+            if textured and has_texture_coordinates(mesh_file):
                 if uv is None:
                     self.fail(el, f"{kind} mesh '{fname}' with a textured material: its texture "
                                   "coordinates cannot be read (an OBJ file must give vt on "
@@ -596,7 +665,7 @@ class _Importer:
             fname = p.get("filename")
             if p.get("flip_normals", False):
                 why = "flip_normals changes Mitsuba's frame"
-            elif has_texture_coordinates(self.file_of(el).parent / fname):
+            elif has_texture_coordinates(self.resolve(el, fname)):
                 why = f"'{fname}' has texture coordinates, which orient Mitsuba's frame"
             else:
                 tri = vertices[faces]
@@ -628,15 +697,19 @@ class _Importer:
             pos = p.get("position", xf.apply_point(m, np.zeros(3)))
             self.b.point_light(pos, p.get("intensity", np.ones(3)))
         elif kind == "spot":
+            # Mitsuba 3's falloff: linear in the angle from 1 at beam_width (default 3/4 of
+            # cutoff_angle) to 0 at cutoff_angle; with beam_width = cutoff_angle a hard cone
             cutoff = float(p.get("cutoff_angle", 20.0))
             beam = float(p.get("beam_width", cutoff * 0.75))
-            if not math.isclose(beam, cutoff, rel_tol=1e-6):
-                self.fail(el, "spot: Mitsuba's falloff between beam_width and cutoff_angle differs "
-                              "from jgi's; set beam_width equal to cutoff_angle")
+            if not 0 < cutoff <= 90 or not 0 <= beam <= cutoff:
+                self.fail(el, f"spot: need 0 < cutoff_angle <= 90 and 0 <= beam_width <= "
+                              f"cutoff_angle (degrees), got {cutoff} and {beam}")
+            hard = math.isclose(beam, cutoff, rel_tol=1e-6)
             pos = xf.apply_point(m, np.zeros(3))
             target = xf.apply_point(m, np.array([0.0, 0.0, 1.0]))
             self.b.spot_light(pos, target, p.get("intensity", np.ones(3)), cutoff_deg=cutoff,
-                              falloff_deg=cutoff)
+                              falloff_deg=cutoff if hard else beam,
+                              profile="smoothstep" if hard else "linear")
         elif kind == "directional":
             d = p.get("direction", xf.apply_vector(m, np.array([0.0, 0.0, 1.0])))
             self.b.directional_light(d, p.get("irradiance", np.ones(3)))
@@ -665,16 +738,53 @@ class _Importer:
         pos = m[:3, 3]
         self.b.camera(pos, pos + m[:3, 2], up=m[:3, 1], fov=fov, width=w, height=h, fov_axis=axis)
 
+    def read_integrator(self, el):
+        """Record the settings of the integrator ``el``, reading through ``moment`` and ``aov``
+        wrappers to the integrator they nest (Mitsuba's moment and aov integrators render
+        their nested integrator's image unchanged, adding channels)."""
+        if self.integrator is not None:
+            self.fail(el, "only one <integrator> is allowed (Mitsuba takes one)")
+        wrappers = []
+        while el.get("type") in WRAPPER_INTEGRATORS:
+            wrappers.append(el.get("type"))
+            inner = [c for c in el if c.tag == "integrator"]
+            if not inner and el.get("type") == "aov":   # AOVs only: no light transport
+                self.integrator = IntegratorSettings(None, wrappers=tuple(wrappers))
+                return
+            if len(inner) != 1:
+                self.fail(el, f"integrator '{el.get('type')}': jgi reads through exactly one "
+                              f"nested <integrator>, got {len(inner)}")
+            el = inner[0]
+        p = self.props(el)
+        depth = int(p.get("max_depth", -1))
+        if depth < -1:   # as Mitsuba checks it
+            self.fail(el, f"integrator '{el.get('type')}': max_depth must be -1 (unbounded) "
+                          f"or >= 0, got {depth}")
+        self.integrator = IntegratorSettings(
+            el.get("type"), None if depth == -1 else depth, int(p.get("rr_depth", 5)),
+            bool(p.get("hide_emitters", False)), tuple(wrappers))
+
     # --- document -------------------------------------------------------------------------
-    def children(self, root: ET.Element, file: Path):
+    def children(self, root: ET.Element, file: Path, settings_only: bool = False):
         for el in root:
             tag = el.tag
-            if tag == "default":
+            if tag == "integrator":
+                self.read_integrator(el)
+            elif settings_only and tag not in ("default", "path", "include"):
+                continue
+            elif tag == "default":
                 self.defaults.setdefault(el.get("name"), el.get("value"))
+            elif tag == "path":
+                if not el.get("value"):
+                    self.fail(el, "<path> needs a value (a folder)")
+                folder = self.resolve(el, self.attr(el, "value"), "<path> folder")
+                if not folder.is_dir():
+                    self.fail(el, f"<path>: '{folder}' is not a folder")
+                self.search_paths.insert(0, folder)
             elif tag == "include":
-                inc = file.parent / self.attr(el, "filename")
+                inc = self.resolve(el, self.attr(el, "filename"), "included file")
                 inc_root = _parse(inc, self.source)
-                self.children(inc_root, inc)
+                self.children(inc_root, inc, settings_only)
             elif tag == "bsdf":
                 self.bsdf(el)
             elif tag == "shape":
@@ -690,14 +800,17 @@ class _Importer:
             elif tag in IGNORED_TAGS:
                 continue
             else:
-                self.fail(el, f"<{tag}> is not supported; supported elements: default, include, "
-                              "bsdf, shape, emitter, sensor (integrator/sampler are ignored)")
+                self.fail(el, f"<{tag}> is not supported; supported elements: default, path, "
+                              "include, bsdf, shape, emitter, sensor, texture (integrator, "
+                              "sampler and rfilter are ignored)")
 
-    def run(self) -> Scene:
+    def run(self, settings_only: bool = False) -> Scene | None:
         root = _parse(self.path, self.source)
         if root.tag != "scene":
             self.fail(root, f"the root element must be <scene>, got <{root.tag}>")
-        self.children(root, self.path)
+        self.children(root, self.path, settings_only)
+        if settings_only:
+            return None
         if not self.sensor_done:
             raise ImportError_(f"{self.path}: the scene has no <sensor>")
         return self.b.build()
@@ -714,3 +827,13 @@ def _flat_normals(v, f, normals, to_world) -> bool:
 def load_mitsuba_xml(path) -> Scene:
     """Load a Mitsuba 3 XML scene (see the module docstring for the supported subset)."""
     return _Importer(Path(path)).run()
+
+
+def read_mitsuba_integrator(path) -> IntegratorSettings:
+    """The integrator settings of a Mitsuba 3 XML scene (max_depth, rr_depth, hide_emitters:
+    :class:`IntegratorSettings`), read through ``moment`` and ``aov`` wrappers; Mitsuba's
+    defaults (a ``path`` integrator, max_depth -1, rr_depth 5) when the file has none. jgi's
+    scenes do not carry render settings: pass these to the estimator."""
+    importer = _Importer(Path(path))
+    importer.run(settings_only=True)
+    return importer.integrator or IntegratorSettings("path")
