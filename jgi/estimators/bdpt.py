@@ -65,7 +65,7 @@ from ..core.imageio import write_exr, write_png
 from ..core.vec import V3, dot, where
 from ..drivers.splat import render_splats
 from ..physics import bsdf, camera, geometry
-from ..physics.lights import emitted, environment_radiance, select_light
+from ..physics.lights import emitted, environment_pdf, environment_radiance, select_light
 from ..scene.tables import Scene
 from ..transport import mis
 from ..transport.connection import connect_camera, connect_vertices, occluded_many
@@ -280,9 +280,9 @@ def _camera_visit(scene: Scene, exponent: float):
         # ---- s = 0 on the environment: the ray escaped (two-strategy MIS with s = 1) ----
         if lights.environment >= 0:
             escaped = s.alive & ~hit.valid
-            L_env = s.beta * environment_radiance(lights, z)
-            p_light = lights.pmf[lights.environment] * jnp.float32(0.25 / np.pi)
-            w = mis.heuristic_weight(1.0, s.pdf_dir, [(1.0, p_light + z)], exponent)
+            L_env = s.beta * environment_radiance(lights, s.d)
+            p_light = environment_pdf(lights, s.d)
+            w = mis.heuristic_weight(1.0, s.pdf_dir, [(1.0, p_light)], exponent)
             w = jnp.where((v.step == 0) | s.prev_delta, 1.0, w)
             out["env_value"] = where(escaped, L_env, Z)
             out["env_weight"] = w

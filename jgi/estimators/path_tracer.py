@@ -55,7 +55,7 @@ from ..core.configured import Configured
 from ..core.vec import V3, max_component, where
 from ..drivers.wavefront import render_wavefront
 from ..physics import bsdf, geometry
-from ..physics.lights import emitted, environment_radiance, pdf_li
+from ..physics.lights import emitted, environment_pdf, environment_radiance, pdf_li
 from ..scene.tables import Scene
 from ..transport import mis
 from ..transport.subpath import camera_ray, next_event_value, sample_next_event, shading
@@ -159,9 +159,8 @@ def _shade(scene: Scene, cfg: PathTracerConfig, s: PathState, hit: geometry.Hit,
         take_e = s.active & hit.valid & counts(length)
         L = s.L + where(take_e, s.beta * Le * bsdf_hit_weight(pdf_light), Z)
         if lights.environment >= 0:
-            Lenv = environment_radiance(lights, z)
-            pdf_env = lights.pmf[lights.environment] * jnp.float32(0.25 / jnp.pi)
-            w_env = bsdf_hit_weight(jnp.broadcast_to(pdf_env, z.shape))
+            Lenv = environment_radiance(lights, s.d)
+            w_env = bsdf_hit_weight(environment_pdf(lights, s.d))
             take_env = s.active & ~hit.valid & counts(length)
             L = L + where(take_env, s.beta * Lenv * w_env, Z)
     else:

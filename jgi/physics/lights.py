@@ -18,8 +18,13 @@ spot          delta, I * falloff (pbrt's          uniform within the cone
               smoothstep or Mitsuba's linear)
 directional   delta, L_i = E along -direction     parallel rays over the scene's bounding
                                                   disc, power E pi R^2
-environment   uniform direction, pdf 1/(4 pi)     uniform direction, bounding disc
+environment   uniform direction, pdf 1/(4 pi);    uniform direction, bounding disc;
+              a map: by its piecewise-constant    a map: a direction by its distribution
+              distribution (``EnvironmentMap``)
 ============  ==================================  ============================================
+An environment map's radiance is its ``emission`` row (Mitsuba's ``scale``) times the image's
+bilinear lookup (:func:`environment_radiance`); a constant environment (``lights.envmap`` None,
+static) compiles to the code of a scene before environment maps.
 Quad and triangle emitters radiate on the side of their normal only; spheres outwards.
 """
 
@@ -28,6 +33,7 @@ from __future__ import annotations
 from typing import NamedTuple
 
 import jax.numpy as jnp
+import numpy as np
 from jax import Array
 
 from .. import _xla
@@ -42,6 +48,7 @@ from ..scene.tables import (
     ENVIRONMENT,
     POINT,
     SPOT,
+    EnvironmentMap,
     Lights,
 )
 
@@ -118,6 +125,88 @@ def _sphere_cone(center: V3, radius, x: V3):
     sin2 = jnp.where(outside, radius * radius / jnp.where(dc2 > 0, dc2, 1.0), 1.0)
     cos_max = jnp.sqrt(jnp.maximum(1.0 - sin2, 0.0))
     return normalize(to_c), cos_max, sin2 / (1.0 + cos_max), outside
+
+
+# --- environment maps (see jgi.scene.tables.EnvironmentMap for the layout) --------------------
+
+def _rotate(m: Array, v: V3, transpose: bool = False) -> V3:
+    r = (lambda i, j: m[j, i]) if transpose else (lambda i, j: m[i, j])  # noqa: E731
+    return V3(r(0, 0) * v.x + r(0, 1) * v.y + r(0, 2) * v.z,
+              r(1, 0) * v.x + r(1, 1) * v.y + r(1, 2) * v.z,
+              r(2, 0) * v.x + r(2, 1) * v.y + r(2, 2) * v.z)
+
+
+def _env_cell(env: EnvironmentMap, d: V3):
+    """(row, column, x, y) of world direction d: the cell (r, c) between texel centres and the
+    continuous texel coordinates (x in [0, W) from column 0's centre, y in [0, H - 1])."""
+    H, W = env.shape
+    v = _rotate(env.to_world, d, transpose=True)
+    u = jnp.arctan2(v.x, -v.z) * jnp.float32(0.5 / np.pi) - jnp.float32(0.5 / W)
+    u = u - jnp.floor(u)
+    x = u * W
+    y = jnp.arccos(jnp.clip(v.y, -1.0, 1.0)) * jnp.float32((H - 1) / np.pi)
+    c = jnp.clip(jnp.floor(x).astype(jnp.int32), 0, W - 1)
+    r = jnp.clip(jnp.floor(y).astype(jnp.int32), 0, H - 2)
+    return r, c, x, y
+
+
+def _env_lookup(env: EnvironmentMap, d: V3) -> V3:
+    """Bilinear texel lookup towards world direction d (Mitsuba 3's envmap ``eval``)."""
+    W = env.shape[1]
+    r, c, x, y = _env_cell(env, d)
+    wx = jnp.clip(x - c, 0.0, 1.0)
+    wy = jnp.clip(y - r, 0.0, 1.0)
+    c1 = jnp.where(c + 1 >= W, 0, c + 1)
+    t = env.texels
+    rgb = ((t[r, c] * (1 - wx)[..., None] + t[r, c1] * wx[..., None]) * (1 - wy)[..., None]
+           + (t[r + 1, c] * (1 - wx)[..., None] + t[r + 1, c1] * wx[..., None]) * wy[..., None])
+    return V3(rgb[..., 0], rgb[..., 1], rgb[..., 2])
+
+
+def _env_cell_pdf(env: EnvironmentMap, r, c) -> Array:
+    """Solid-angle density on cell (r, c): its probability over its solid angle."""
+    W = env.shape[1]
+    solid = (env.cos_edge[r] - env.cos_edge[r + 1]) * jnp.float32(2 * np.pi / W)
+    p = env.row_pmf[r] * env.col_pmf[r, c]
+    ok = (solid > 0) & (p > 0)
+    return jnp.where(ok, p / jnp.where(ok, solid, 1.0), 0.0)
+
+
+def _search_row(cdf: Array, r: Array, u: Array) -> Array:
+    """Per lane, the first column j of row r of the inclusive ``cdf`` [R, W] with cdf > u
+    (binary search: one gather per halving, whatever the row's length)."""
+    W = cdf.shape[1]
+    lo = jnp.zeros(jnp.shape(u), jnp.int32)
+    hi = jnp.full(jnp.shape(u), W - 1, jnp.int32)
+    for _ in range(int(np.ceil(np.log2(max(W, 2)))) + 1):
+        mid = (lo + hi) // 2
+        right = cdf[r, mid] <= u
+        lo = jnp.where(right & (lo < hi), mid + 1, lo)
+        hi = jnp.where(right | (lo >= hi), hi, mid)
+    return jnp.minimum(lo, W - 1)
+
+
+def _env_sample(env: EnvironmentMap, u1: Array, u2: Array) -> tuple[V3, Array]:
+    """(world direction, solid-angle density) drawn from the map's distribution: a row of
+    cells by the marginal, a cell by the row's conditional, then cos(theta) and phi uniform
+    in the cell (reusing each uniform's remainder)."""
+    H, W = env.shape
+    r = jnp.clip(jnp.searchsorted(env.row_cdf, u1, side="right"), 0, H - 2).astype(jnp.int32)
+    c = _search_row(env.col_cdf, r, u2)
+    pr, pc = env.row_pmf[r], env.col_pmf[r, c]
+    fr = jnp.clip((u1 - (env.row_cdf[r] - pr)) / jnp.where(pr > 0, pr, 1.0), 0.0, 1.0)
+    fc = jnp.clip((u2 - (env.col_cdf[r, c] - pc)) / jnp.where(pc > 0, pc, 1.0), 0.0, 1.0)
+    c0, c1 = env.cos_edge[r], env.cos_edge[r + 1]
+    cos_t = c0 + (c1 - c0) * fr
+    sin_t = jnp.sqrt(jnp.maximum(1.0 - cos_t * cos_t, 0.0))
+    phi = (c.astype(jnp.float32) + fc + 0.5) * jnp.float32(2 * np.pi / W)
+    local = V3(sin_t * jnp.sin(phi), cos_t, -sin_t * jnp.cos(phi))
+    return _rotate(env.to_world, local), _env_cell_pdf(env, r, c)
+
+
+def _env_pdf(env: EnvironmentMap, d: V3) -> Array:
+    r, c, _, _ = _env_cell(env, d)
+    return _env_cell_pdf(env, r, c)
 
 
 def sample_li(lights: Lights, x: V3, u_sel: Array, u1: Array, u2: Array) -> LightSample:
@@ -197,9 +286,16 @@ def sample_li(lights: Lights, x: V3, u_sel: Array, u1: Array, u2: Array) -> Ligh
         s = LightSample(-_take(lights.direction, k), zero + jnp.inf, emission, pmf, zero == 0,
                         zero == 0)
         out = choose(kind == DIRECTIONAL, s, out)
-    if ENVIRONMENT in kinds:
+    if ENVIRONMENT in kinds and lights.envmap is None:
         s = LightSample(warps.sample_uniform_sphere(u1, u2), zero + jnp.inf, emission,
                         pmf * warps.INV_4PI, zero > 0, zero == 0)
+        out = choose(kind == ENVIRONMENT, s, out)
+    elif ENVIRONMENT in kinds:
+        d, pdf_d = _env_sample(lights.envmap, u1, u2)
+        ok = pdf_d > 0
+        s = LightSample(d, zero + jnp.inf, where(ok, emission * _env_lookup(lights.envmap, d),
+                                                V3(zero, zero, zero)),
+                        pmf * pdf_d, zero > 0, ok)
         out = choose(kind == ENVIRONMENT, s, out)
     return out
 
@@ -227,8 +323,10 @@ def pdf_li(lights: Lights, k: Array, x: V3, y: V3, n_y: V3) -> Array:
         pdf_cone = jnp.where(one_minus > 0,
                              1.0 / (2.0 * jnp.pi * jnp.where(one_minus > 0, one_minus, 1.0)), 0.0)
         pdf = jnp.where(kind == AREA_SPHERE, jnp.where(outside, pdf_cone, 0.0), pdf)
-    if ENVIRONMENT in kinds:
-        pdf = jnp.where(kind == ENVIRONMENT, warps.INV_4PI, pdf)
+    if ENVIRONMENT in kinds:   # y is then a point along the direction to the environment
+        env = (warps.INV_4PI if lights.envmap is None
+               else _env_pdf(lights.envmap, normalize(y - x)))
+        pdf = jnp.where(kind == ENVIRONMENT, env, pdf)
     return jnp.where(k >= 0, pdf * pmf, 0.0)
 
 
@@ -241,12 +339,28 @@ def emitted(lights: Lights, k: Array, n_y: V3, wo: V3) -> V3:
     return where(front, e, V3(z, z, z))
 
 
-def environment_radiance(lights: Lights, like: Array) -> V3:
+def environment_radiance(lights: Lights, d: V3) -> V3:
+    """Radiance arriving from the environment along -d (d: a ray's direction that escaped)."""
     if lights.environment < 0:
-        z = jnp.zeros_like(like)
+        z = jnp.zeros_like(d.x)
         return V3(z, z, z)
     e = _take(lights.emission, lights.environment)
+    if lights.envmap is not None:
+        return e * _env_lookup(lights.envmap, d)
+    like = jnp.zeros_like(d.x)
     return V3(e.x + 0 * like, e.y + 0 * like, e.z + 0 * like)
+
+
+def environment_pdf(lights: Lights, d: V3) -> Array:
+    """Solid-angle density (incl. selection) with which ``sample_li`` draws direction d on the
+    environment (0 without one)."""
+    like = jnp.zeros_like(d.x)
+    if lights.environment < 0:
+        return like
+    pmf = lights.pmf[lights.environment]
+    if lights.envmap is None:
+        return pmf * jnp.float32(0.25 / np.pi) + like
+    return pmf * _env_pdf(lights.envmap, d)
 
 
 def sample_emission(lights: Lights, u_sel, u1, u2, u3, u4) -> EmissionSample:
@@ -318,10 +432,19 @@ def sample_emission(lights: Lights, u_sel, u1, u2, u3, u4) -> EmissionSample:
             s = EmissionSample(parallel(d), d, d, emission * (disc_area * inv_pmf),
                                pmf / disc_area, zero + 1.0, zero > 0, zero == 0, k)
             out = choose(kind == DIRECTIONAL, s, out)
-        if ENVIRONMENT in kinds:
+        if ENVIRONMENT in kinds and lights.envmap is None:
             d = -warps.sample_uniform_sphere(u3, u4)
             s = EmissionSample(parallel(d), d, d,
                                emission * (disc_area * 4.0 * jnp.pi * inv_pmf),
                                pmf / disc_area, zero + warps.INV_4PI, zero > 0, zero > 0, k)
+            out = choose(kind == ENVIRONMENT, s, out)
+        elif ENVIRONMENT in kinds:   # travelling along d: radiance arriving from -d
+            w_env, pdf_w = _env_sample(lights.envmap, u3, u4)
+            d = -w_env
+            inv_pdf = jnp.where(pdf_w > 0, 1.0 / jnp.where(pdf_w > 0, pdf_w, 1.0), 0.0)
+            s = EmissionSample(parallel(d), d, d,
+                               emission * _env_lookup(lights.envmap, w_env)
+                               * (disc_area * inv_pdf * inv_pmf),
+                               pmf / disc_area, pdf_w, zero > 0, zero > 0, k)
             out = choose(kind == ENVIRONMENT, s, out)
     return out

@@ -48,6 +48,7 @@ from .tables import (
     TEXTURED_PARAMS,
     Boxes,
     Camera,
+    EnvironmentMap,
     Lights,
     Materials,
     Quads,
@@ -570,6 +571,23 @@ class SceneBuilder:
             raise SceneError("only one environment light is allowed")
         self.lights.append(dict(kind=ENVIRONMENT, emission=_rgb(radiance)))
 
+    def environment_map(self, image, scale=1.0, to_world=None, where="environment map"):
+        """An environment lit by a latitude-longitude image (Mitsuba 3's ``envmap``): ``image``
+        an [H, W, 3] linear RGB array or a file name (EXR, or PNG / JPEG decoded from sRGB),
+        radiance ``scale`` times its bilinear lookup, ``to_world`` a 4x4 (or 3x3) transform
+        whose rotation turns the map's frame (+y up, see :class:`EnvironmentMap`) into the
+        world's. ``where`` names the source in errors."""
+        if any(l["kind"] == ENVIRONMENT for l in self.lights):
+            raise SceneError("only one environment light is allowed")
+        if isinstance(image, (str, bytes)) or hasattr(image, "__fspath__"):
+            try:
+                image = read_image(image)
+            except OSError as e:
+                raise SceneError(f"{where}: cannot read the image ({e})") from None
+        env = environment_map_table(image, to_world, where)
+        self.lights.append(dict(kind=ENVIRONMENT, emission=_rgb(scale), envmap=env,
+                                env_mean=float(environment_map_mean(env))))
+
     # --- camera -----------------------------------------------------------------------------
     def camera(self, position, look_at, up=(0, 1, 0), fov=40.0, width=256, height=256,
                fov_axis="y", mirror=False):
@@ -920,8 +938,8 @@ def light_power(el: dict, radius: float) -> float:
         return 2 * np.pi * (1 - 0.5 * (el["cos_total"] + el["cos_falloff"])) * lum
     if k == DIRECTIONAL:
         return np.pi * radius * radius * lum
-    if k == ENVIRONMENT:
-        return 4 * np.pi * np.pi * radius * radius * lum
+    if k == ENVIRONMENT:   # a map's mean luminance over the sphere scales its emission's
+        return 4 * np.pi * np.pi * radius * radius * lum * el.get("env_mean", 1.0)
     raise AssertionError(k)
 
 
@@ -955,4 +973,52 @@ def _build_lights(elements: list, center, radius) -> Lights:
         bound_center=_v3_scalar(center), bound_radius=jnp.asarray(radius, jnp.float32),
         kinds=tuple(sorted({e["kind"] for e in elements})),
         environment=env[0] if env else -1,
+        envmap=elements[env[0]].get("envmap") if env else None,
     )
+
+
+def environment_map_table(image, to_world=None, where="environment map") -> EnvironmentMap:
+    """The :class:`EnvironmentMap` of an [H, W, 3] linear RGB image: its sampling tables
+    (cells between texel centres weighted by mean luminance times solid angle) and the rotation
+    of ``to_world`` (4x4 or 3x3; its scale and shear are removed, as directions have none)."""
+    img = np.asarray(image, np.float64)
+    if img.ndim != 3 or img.shape[2] != 3 or img.shape[0] < 2 or img.shape[1] < 1:
+        raise SceneError(f"{where}: expected an [H, W, 3] image with H >= 2, got shape "
+                         f"{img.shape}")
+    if not np.all(np.isfinite(img)) or np.any(img < 0):
+        raise SceneError(f"{where}: texels must be finite and non-negative")
+    H, W = img.shape[:2]
+    lum = np.maximum(img @ np.array([0.2126, 0.7152, 0.0722]), 0.0)
+    cell = 0.25 * (lum[:-1] + lum[1:] + np.roll(lum[:-1], -1, 1) + np.roll(lum[1:], -1, 1))
+    cos_edge = np.cos(np.pi * np.arange(H) / (H - 1))
+    cos_edge[-1] = -1.0
+    solid = (cos_edge[:-1] - cos_edge[1:])[:, None] * (2 * np.pi / W)   # per cell
+    weight = cell * solid
+    if weight.sum() <= 0:               # a black map: sample uniformly (its power is 0 anyway)
+        weight = np.broadcast_to(solid, cell.shape).copy()
+    row = weight.sum(1)
+    row_pmf = row / row.sum()
+    col_pmf = np.where(row[:, None] > 0, weight / np.where(row > 0, row, 1.0)[:, None], 1.0 / W)
+    row_cdf = np.cumsum(row_pmf)
+    row_cdf[-1] = 1.0
+    col_cdf = np.cumsum(col_pmf, 1)
+    col_cdf[:, -1] = 1.0
+    m = np.eye(3) if to_world is None else np.asarray(to_world, np.float64)[:3, :3]
+    if not np.all(np.isfinite(m)) or abs(np.linalg.det(m)) < 1e-12:
+        raise SceneError(f"{where}: to_world is singular or not finite")
+    u_, _, vt = np.linalg.svd(m)       # the nearest rotation (polar decomposition)
+    rot = u_ @ vt
+    f32 = lambda a: jnp.asarray(a, jnp.float32)  # noqa: E731
+    return EnvironmentMap(texels=f32(img), row_pmf=f32(row_pmf), row_cdf=f32(row_cdf),
+                          col_pmf=f32(col_pmf), col_cdf=f32(col_cdf), cos_edge=f32(cos_edge),
+                          to_world=f32(rot))
+
+
+def environment_map_mean(env: EnvironmentMap) -> float:
+    """The map's luminance averaged over the sphere of directions (cells' mean texels)."""
+    img = np.asarray(env.texels, np.float64)
+    lum = np.maximum(img @ np.array([0.2126, 0.7152, 0.0722]), 0.0)
+    cell = 0.25 * (lum[:-1] + lum[1:] + np.roll(lum[:-1], -1, 1) + np.roll(lum[1:], -1, 1))
+    ce = np.asarray(env.cos_edge, np.float64)
+    solid = (ce[:-1] - ce[1:])[:, None] * (2 * np.pi / img.shape[1])
+    return float((cell * solid).sum() / (4 * np.pi))

@@ -118,11 +118,11 @@ LIGHT_KEYS = {
     "spot": {"position": "vec3", "target": "vec3", "intensity": "rgb", "cutoff": "number",
              "falloff": "number"},
     "directional": {"direction": "vec3", "irradiance": "rgb"},
-    "environment": {"radiance": "rgb"},
+    "environment": {"radiance": "rgb", "image": "str", "scale": "number", "transform": "table"},
 }
 LIGHT_REQUIRED = {"point": ("position", "intensity"),
                   "spot": ("position", "target", "intensity"),
-                  "directional": ("direction", "irradiance"), "environment": ("radiance",)}
+                  "directional": ("direction", "irradiance"), "environment": ()}
 
 TRANSFORM_KEYS = ("matrix", "translate", "rotate", "scale")
 ROTATE_KEYS = {"axis": "vec3", "angle": "number"}
@@ -674,4 +674,21 @@ class _TomlLoader:
         else:
             if any(l_["kind"] == ENVIRONMENT for l_ in b.lights):
                 self.fail(key, "a second environment light; allowed: at most one")
-            b.environment_light(t["radiance"])
+            if ("radiance" in t) == ("image" in t):
+                self.fail(key, "an environment light needs exactly one of 'radiance' (constant) "
+                               "and 'image' (a latitude-longitude map)")
+            if "radiance" in t:
+                for k in ("scale", "transform"):
+                    if k in t:
+                        self.fail(f"{key}.{k}", "applies to an 'image' environment only")
+                b.environment_light(t["radiance"])
+                return
+            path = (self.path.parent / t["image"]).resolve()
+            if not path.is_file() or path.suffix.lower() not in (".exr", ".png", ".jpg", ".jpeg"):
+                self.fail(f"{key}.image", f"file '{path}' does not exist or is not an image; "
+                                          "allowed: an EXR, PNG or JPEG latitude-longitude map "
+                                          "(relative to the scene file)")
+            m = (self.transform(f"{key}.transform", t["transform"]) if "transform" in t
+                 else np.eye(4))
+            b.environment_map(path, scale=t.get("scale", 1.0), to_world=m,
+                              where=f"{self.path}: {key}.image")

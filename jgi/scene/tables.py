@@ -241,6 +241,32 @@ class Materials(eqx.Module):
         return self.textures is not None
 
 
+class EnvironmentMap(eqx.Module):
+    """A latitude-longitude environment image (Mitsuba 3's ``envmap``), the radiance of the
+    environment element relative to its ``emission`` row (which holds Mitsuba's ``scale``).
+
+    Texel (r, c) is the radiance towards the local direction with polar angle
+    theta = pi r / (H - 1) from +y and azimuth phi = 2 pi (c + 1/2) / W measured by
+    atan2(x, -z) (Mitsuba's convention); between texels it is bilinear, wrapping around in phi.
+    Sampling is piecewise constant over the W x (H - 1) cells between texel centres: a cell's
+    weight is its four texels' mean luminance times its solid angle (the sin(theta) Jacobian),
+    rows by the marginal, columns by the row's conditional; within a cell phi and cos(theta)
+    are uniform, so the solid-angle density is constant on it. ``texels`` are pytree leaves
+    (gradients flow through lookups); the sampling tables are computed at build time."""
+
+    texels: Array       # [H, W, 3] linear RGB, row 0 towards +y (local)
+    row_pmf: Array      # [H - 1] marginal probability of each row of cells
+    row_cdf: Array      # [H - 1] its inclusive running sum (last entry 1)
+    col_pmf: Array      # [H - 1, W] conditional probability of each cell in its row
+    col_cdf: Array      # [H - 1, W] inclusive running sums (last entry 1)
+    cos_edge: Array     # [H] cos(pi r / (H - 1)): the cells' polar edges
+    to_world: Array     # [3, 3] rotation, local -> world (columns: the local axes)
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return int(self.texels.shape[0]), int(self.texels.shape[1])
+
+
 class Lights(eqx.Module):
     kind: Array         # int32 [K]
     p0: V3              # quad/triangle corner, sphere centre, point/spot position
@@ -262,6 +288,9 @@ class Lights(eqx.Module):
     bound_radius: Array
     kinds: tuple[int, ...] = eqx.field(static=True)
     environment: int = eqx.field(static=True)  # element index of the environment light or -1
+    # the environment's image (None: a constant environment, whose kernels are those of a scene
+    # before environment maps)
+    envmap: EnvironmentMap | None = None
 
     @property
     def count(self) -> int:

@@ -120,7 +120,7 @@ def trace_to_diffuse(scene: Scene, uniform, o: V3, d: V3, *, max_depth: int,
         if lights.count:
             L = L + where(active & hit.valid, beta * emitted(lights, hit.emitter, hit.n, wo), Z)
             if lights.environment >= 0:
-                L = L + where(active & ~hit.valid, beta * environment_radiance(lights, z), Z)
+                L = L + where(active & ~hit.valid, beta * environment_radiance(lights, d), Z)
         active = active & hit.valid
         mp = bsdf.lookup(mats, hit.material, hit.uv)
         specular = samples_through(mp, lookup_rough, kinds)

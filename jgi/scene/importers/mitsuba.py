@@ -57,7 +57,8 @@ supported):
              roughness
   emitter    area (radiance), point (intensity, position or to_world), spot (intensity,
              cutoff_angle, beam_width: Mitsuba's falloff, linear in the angle between the two
-             cones; to_world), directional (direction, irradiance), constant (radiance)
+             cones; to_world), directional (direction, irradiance), constant (radiance),
+             envmap (filename: EXR, PNG or JPEG latitude-longitude image; scale; to_world)
   values     rgb, float, spectrum with a single constant value; <default> and $name
              substitution; <ref>; <include>; <path> (relative file names are looked up as
              Mitsuba's file resolver does: in the <path> folders, the latest first, then in
@@ -97,7 +98,7 @@ SUPPORTED = {
     "bsdf": ("diffuse", "conductor", "roughconductor", "dielectric", "roughdielectric",
              "roughplastic", "plastic", "twosided"),
     "shape": ("rectangle", "cube", "sphere", "obj", "ply"),
-    "emitter": ("area", "point", "spot", "directional", "constant"),
+    "emitter": ("area", "point", "spot", "directional", "constant", "envmap"),
 }
 IGNORED_TAGS = ("sampler", "rfilter")
 # Mitsuba 3's integrators that wrap others (their nested <integrator>s): read through to the
@@ -715,6 +716,22 @@ class _Importer:
             self.b.directional_light(d, p.get("irradiance", np.ones(3)))
         elif kind == "constant":
             self.b.environment_light(p.get("radiance", np.ones(3)))
+        elif kind == "envmap":
+            # Mitsuba 3's envmap: radiance scale x the latitude-longitude image's bilinear
+            # lookup (EXR linear, PNG / JPEG sRGB-decoded), oriented by to_world
+            fname = p.get("filename")
+            if not isinstance(fname, str):
+                self.fail(el, "envmap: needs a <string name=\"filename\"> (EXR, PNG or JPEG)")
+            path = self.resolve(el, fname, "envmap image")
+            if path.suffix.lower() not in (".exr", ".png", ".jpg", ".jpeg"):
+                self.fail(el, f"envmap: '{fname}' is not an EXR, PNG or JPEG image (the formats "
+                              "jgi reads)")
+            try:
+                self.b.environment_map(path, scale=float(p.get("scale", 1.0)), to_world=m,
+                                       where=f"envmap '{fname}'")
+            except SceneError as e:
+                self.fail(el, str(e))
+
 
     def sensor(self, el):
         self.check_type(el)
