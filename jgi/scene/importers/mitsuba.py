@@ -59,7 +59,10 @@ supported):
              cutoff_angle, beam_width: Mitsuba's falloff, linear in the angle between the two
              cones; to_world), directional (direction, irradiance), constant (radiance),
              envmap (filename: EXR, PNG or JPEG latitude-longitude image; scale; to_world)
-  values     rgb, float, spectrum with a single constant value; <default> and $name
+  values     rgb, float, spectrum (a constant, wavelength:value pairs, a filename= .spd
+             file, blackbody in emitters: converted to RGB as Mitsuba 3's RGB variants
+             do, jgi.scene.spectra; a blackbody as its spectral variants' RGB film sees
+             it, since its RGB variants cannot render one); <default> and $name
              substitution; <ref>; <include>; <path> (relative file names are looked up as
              Mitsuba's file resolver does: in the <path> folders, the latest first, then in
              the main scene file's folder, for included files too); transforms translate,
@@ -80,6 +83,7 @@ from typing import NamedTuple
 import numpy as np
 
 from ...core import transform as xf
+from .. import spectra
 from ..builder import SceneBuilder, SceneError, smooth_vertex_normals
 from ..tables import Scene
 from ._common import (
@@ -253,11 +257,7 @@ class _Importer:
             if c.tag in ("rgb", "color"):
                 out[name] = self.vec3(c)
             elif c.tag == "spectrum":
-                v = self.attr(c, "value", "")
-                try:
-                    out[name] = np.full(3, float(v))
-                except ValueError:
-                    self.fail(c, f"spectrum '{name}': only a single constant value is supported")
+                out[name] = self.spectrum(c, el)
             elif c.tag in ("float", "integer"):
                 out[name] = self.number(c)
             elif c.tag == "boolean":
@@ -273,6 +273,40 @@ class _Importer:
             elif c.tag == "ref" and name and c.get("id") in self.b.texture_names:
                 out[name] = TextureRef(c.get("id"))
         return out
+
+    def spectrum(self, c, parent) -> np.ndarray:
+        """A <spectrum> (a constant, wavelength:value pairs, a filename= .spd file, or
+        type="blackbody" in an emitter) as the RGB Mitsuba 3's RGB variants use
+        (jgi.scene.spectra): emitters' values unbounded and without the D65 weighting, a
+        conductor's eta and k unbounded, other values reflectances clamped to [0, 1]."""
+        name = c.get("name")
+        emitter = parent.tag == "emitter"
+        unbounded = parent.tag == "bsdf" and name in ("eta", "k")
+        try:
+            if c.get("type") is not None:
+                if c.get("type") != "blackbody":
+                    self.fail(c, f"spectrum '{name}': type '{c.get('type')}' is not "
+                                 "supported; supported: blackbody (in emitters), value=, "
+                                 "filename=")
+                if not emitter:
+                    self.fail(c, f"spectrum '{name}': a blackbody is supported as an "
+                                 "emitter's radiance / intensity / irradiance only")
+                q = {k.get("name"): self.number(k) for k in c if k.tag == "float"}
+                extra = set(q) - {"temperature", "wavelength_min", "wavelength_max"}
+                if "temperature" not in q or extra:
+                    self.fail(c, "blackbody: needs <float name=\"temperature\"> (kelvin); "
+                                 "also accepted: wavelength_min, wavelength_max")
+                return spectra.mitsuba_blackbody_rgb(
+                    q["temperature"], q.get("wavelength_min", spectra.CIE_MIN),
+                    q.get("wavelength_max", spectra.CIE_MAX))
+            if c.get("filename") is not None:
+                value = spectra.read_spd(self.resolve(c, self.attr(c, "filename"),
+                                                      "spectrum file"))
+            else:
+                value = spectra.parse_mitsuba_value(self.attr(c, "value", ""))
+        except spectra.SpectrumError as e:
+            self.fail(c, f"spectrum '{name}': {e}")
+        return spectra.mitsuba_rgb(value, emitter=emitter, unbounded=unbounded)
 
     def texture(self, el) -> str:
         """Register a <texture> (bitmap or checkerboard), return its name in the builder.
