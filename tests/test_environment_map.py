@@ -218,6 +218,7 @@ def test_light_tracing_and_photons_from_the_map():
     print(f"max |t| pt-lt {t.max():.2f}")
 
 
+@pytest.mark.slow
 def test_photon_mapping_from_the_map():
     """SPPM's photons leave the map (directions by its distribution, origins on the bounding
     disc): on two closed balls it agrees with PT (the density estimate's bias is below the
