@@ -170,8 +170,10 @@ def test_microfacet_materials_give_the_builder_rows(tmp_path):
      "must name the same metal"),
     ('Material "conductor" "spectrum eta" "metal-Au-eta" "rgb k" [3 2 1]',
      "cannot be mixed with an rgb value"),
-    ('Material "conductor" "spectrum eta" [400 0.2 700 1.1] "spectrum k" [400 3 700 3]',
-     "only named or constant spectra are supported"),
+    ('Material "diffuse" "spectrum reflectance" [500 0.3 400 0.2]',
+     "wavelengths must increase"),
+    ('Material "diffuse" "spectrum reflectance" [400 0.3 500]', "pairs"),
+    ('Material "dielectric" "blackbody eta" 3000', "a blackbody is an emission spectrum"),
     ('Material "conductor" "rgb reflectance" [0.9 0.9 0.9] "rgb eta" [1 1 1]',
      "give either \"reflectance\" or \"eta\" and \"k\""),
     ('Material "conductor" "float roughness" -0.1', "roughness must be >= 0"),
@@ -181,6 +183,8 @@ def test_microfacet_materials_give_the_builder_rows(tmp_path):
     ('Material "diffuse" "float roughness" 0.5',
      "material 'diffuse': unknown parameter 'roughness'; diffuse takes: reflectance"),
     ('Material "dielectric" "spectrum eta" "glass-BK7"', "varies with wavelength \\(dispersion\\)"),
+    ('Material "dielectric" "spectrum eta" [400 1.53 700 1.51]',
+     "varies with wavelength \\(dispersion\\)"),
     ('Material "diffuse" "texture reflectance" "wood"',
      "reflectance names texture 'wood', which is not defined before it"),
     ('Texture "wood" "spectrum" "imagemap" "string filename" "wood.png"',
@@ -189,8 +193,14 @@ def test_microfacet_materials_give_the_builder_rows(tmp_path):
      'Texture "checks": only "spectrum" textures are supported'),
     ('Texture "w" "spectrum" "imagemap" "string filename" "w.png" "string wrap" "clamp"',
      'wrap "clamp" is not supported'),
-    ('LightSource "point" "spectrum I" "stdillum-D65"', "spectrum values are not supported here"),
-    ('LightSource "point" "blackbody I" 3000', "blackbody values are not supported"),
+    ('LightSource "point" "spectrum I" "glass-BK7"', "'glass-BK7' is neither a named "
+     "spectrum jgi carries \\(stdillum-D65, stdillum-A"),
+    ('LightSource "point" "blackbody I" -300', "temperature must be > 0"),
+    ('LightSource "point" "blackbody I" [3000 1]', "blackbody takes one temperature"),
+    ('LightSource "distant" "spectrum from" [400 1 500 1]', "spectrum values are supported "
+     "for L, I, reflectance"),
+    ('CoordSysTransform "nowhere"', 'unknown coordinate system "nowhere"; defined: camera, '
+     'world'),
     ('LightSource "goniometric"', 'LightSource "goniometric" is not supported'),
     ('LightSource "infinite" "string filename" "sky.exr"', "environment map"),
     ('AreaLightSource "diffuse" "bool twosided" true', "two-sided"),
@@ -278,3 +288,127 @@ def test_textured_plymesh_takes_the_files_uv(tmp_path, names):
     with pytest.raises(SceneError, match=r"plymesh 'q.ply' with a textured material needs "
                                          "texture coordinates"):
         load_pbrt(write(tmp_path, body))
+
+
+def _quad_mesh(z=0.0, reverse_winding=False):
+    idx = "0 2 1  0 3 2" if reverse_winding else "0 1 2  0 2 3"
+    return (f'Shape "trianglemesh" "point3 P" [-1 -1 {z}  1 -1 {z}  1 1 {z}  -1 1 {z}] '
+            f'"integer indices" [{idx}]')
+
+
+def test_coordinate_systems_load_like_their_explicit_transforms(tmp_path):
+    """CoordinateSystem / CoordSysTransform (a saved system, the predefined "camera" and
+    "world") give the scene the explicit transforms give: the "camera" system is the
+    inverse of the transform at Camera (HEADER's Scale -1 1 1 times LookAt)."""
+    named = """
+    AttributeBegin
+      Translate 1 2 3
+      Rotate 30 0 1 0
+      CoordinateSystem "tilted"
+    AttributeEnd
+    AttributeBegin
+      CoordSysTransform "tilted"
+      Material "diffuse" "rgb reflectance" [0.5 0.4 0.3]
+      Shape "sphere" "float radius" 0.5
+      """ + _quad_mesh(0.25) + """
+      CoordSysTransform "camera"
+      Translate 0 0 2
+      LightSource "point" "rgb I" [1 2 3] "point3 from" [0.5 0 0]
+      CoordSysTransform "world"
+      LightSource "point" "rgb I" [3 2 1] "point3 from" [0 4 0]
+    AttributeEnd
+    """
+    pos, look, up = np.array([0.0, 1, 5]), np.zeros(3), np.array([0.0, 1, 0])
+    d = (look - pos) / np.linalg.norm(look - pos)
+    right = np.cross(up, d)
+    right /= np.linalg.norm(right)
+    new_up = np.cross(d, right)
+    # pbrt's LookAt gives camera-from-world; its inverse has columns right, up, dir, pos, and
+    # HEADER's Scale -1 1 1 (applied first) negates the first column
+    cols = np.concatenate([-right, [0], new_up, [0], d, [0], pos, [1]])
+    explicit = """
+    AttributeBegin
+      Translate 1 2 3
+      Rotate 30 0 1 0
+      Material "diffuse" "rgb reflectance" [0.5 0.4 0.3]
+      Shape "sphere" "float radius" 0.5
+      """ + _quad_mesh(0.25) + """
+      Transform [""" + " ".join(f"{x:.17g}" for x in cols) + """]
+      Translate 0 0 2
+      LightSource "point" "rgb I" [1 2 3] "point3 from" [0.5 0 0]
+      Identity
+      LightSource "point" "rgb I" [3 2 1] "point3 from" [0 4 0]
+    AttributeEnd
+    """
+    a = load_pbrt(write(tmp_path, named, "named.pbrt"))
+    b = load_pbrt(write(tmp_path, explicit, "explicit.pbrt"))
+    for field in ("spheres", "triangles", "lights", "camera", "materials"):
+        leaves_equal(getattr(a, field), getattr(b, field))
+
+
+def _light_from(tmp_path, name, body, behind):
+    camera = ("LookAt 0 0 -4  0 0 0  0 1 0" if behind else "LookAt 0 0 4  0 0 0  0 1 0")
+    text = f"""Scale -1 1 1
+{camera}
+Camera "perspective" "float fov" [ 20 ]
+Film "rgb" "integer xresolution" [ 8 ] "integer yresolution" [ 8 ]
+WorldBegin
+AttributeBegin
+  AreaLightSource "diffuse" "rgb L" [1 0.5 0.25]
+  {body}
+AttributeEnd
+"""
+    (tmp_path / name).write_text(text)
+    return load_pbrt(tmp_path / name)
+
+
+def test_reverse_orientation_turns_a_one_sided_area_light(tmp_path):
+    """A one-sided area light quad wound towards +z lights +z; under ReverseOrientation, or a
+    handedness-swapping Scale, it lights -z (pbrt-v4: reverseOrientation ^
+    transformSwapsHandedness): the path tracer sees L from that side and black from the other
+    (the quad fills the view, so every pixel is the emitted radiance, with no noise)."""
+    L = np.array([1, 0.5, 0.25])
+    cases = {"plain": (_quad_mesh(), False),
+             "reversed": ("ReverseOrientation\n  " + _quad_mesh(), True),
+             "rewound": (_quad_mesh(reverse_winding=True), True),
+             "mirrored": ("Scale 1 1 -1\n  " + _quad_mesh(), True),
+             "both": ("ReverseOrientation\n  Scale 1 1 -1\n  " + _quad_mesh(), False)}
+    for name, (body, lights_minus_z) in cases.items():
+        for behind in (False, True):
+            scene = _light_from(tmp_path, f"{name}{behind}.pbrt", body, behind)
+            img = np.asarray(jgi.render(scene, "pt", spp=2, seed=0))
+            want = L if behind == lights_minus_z else np.zeros(3)
+            np.testing.assert_allclose(img.reshape(-1, 3), np.broadcast_to(want, (64, 3)),
+                                       rtol=1e-6, atol=1e-7, err_msg=f"{name}, behind={behind}")
+
+
+def test_sphere_area_light_facing_inwards_is_refused(tmp_path):
+    body = 'ReverseOrientation\nAreaLightSource "diffuse" "rgb L" [1 1 1]\nShape "sphere"'
+    with pytest.raises(SceneError, match="sphere with inward normals"):
+        load_pbrt(write(tmp_path, body))
+
+
+def test_spectra_become_what_pbrts_rgb_film_sees(tmp_path):
+    """"spectrum" / "blackbody" values: lights at luminance 1 times their scale (pbrt divides
+    a light spectrum by its photometric integral), reflectances under D65, .spd files next
+    to the scene file, named illuminants."""
+    from jgi.scene import spectra
+    (tmp_path / "lamp.spd").write_text("# lamp\n400 0.5\n550 2\n700 4\n")
+    body = """
+    LightSource "point" "spectrum I" "stdillum-A" "float scale" 3 "point3 from" [0 3 0]
+    LightSource "point" "spectrum I" "lamp.spd" "point3 from" [0 3 1]
+    LightSource "point" "blackbody I" 2700 "point3 from" [0 3 2]
+    LightSource "uniform" "spectrum L" [300 1  800 1]
+    Material "diffuse" "spectrum reflectance" [400 0.2  550 0.5  700 0.8]
+    Shape "sphere" "float radius" 0.5
+    """
+    s = load_pbrt(write(tmp_path, body))
+    emission = np.stack([np.asarray(getattr(s.lights.emission, c)) for c in "xyz"], 1)
+    want = [3 * spectra.pbrt_rgb(spectra.pbrt_named("stdillum-A"), True),
+            spectra.pbrt_rgb(([400.0, 550, 700], [0.5, 2, 4]), True),
+            spectra.pbrt_rgb(spectra.pbrt_blackbody(2700.0), True),
+            spectra.pbrt_rgb(([300.0, 800], [1.0, 1]), True)]
+    np.testing.assert_allclose(emission, np.stack(want), rtol=1e-6)
+    diffuse = np.array([float(getattr(s.materials.diffuse, c)[-1]) for c in "xyz"])
+    np.testing.assert_allclose(
+        diffuse, spectra.pbrt_rgb(([400.0, 550, 700], [0.2, 0.5, 0.8]), False), rtol=1e-6)

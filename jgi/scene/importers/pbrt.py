@@ -8,7 +8,11 @@ supported):
              xresolution, yresolution. Sampler, Integrator, PixelFilter, ColorSpace, Option,
              Accelerator are ignored (jgi has its own estimators and box pixel filtering).
   transforms Identity, Translate, Scale, Rotate, LookAt, Transform, ConcatTransform,
-             AttributeBegin/End (and pbrt-v3's TransformBegin/End), ReverseOrientation
+             AttributeBegin/End (and pbrt-v3's TransformBegin/End), CoordinateSystem /
+             CoordSysTransform (with pbrt's predefined "camera" and "world"; an unknown name
+             is refused, where pbrt warns and keeps the transform), ReverseOrientation (as
+             pbrt: a mesh's geometric normal turns under ReverseOrientation xor a
+             handedness-swapping transform, deciding which side an area light lights)
   materials  Material / MakeNamedMaterial + NamedMaterial: "diffuse" (reflectance);
              "conductor" (eta and k as rgb, constant spectra or pbrt's named metal spectra
              "metal-X-eta" / "metal-X-k" of one metal X, default copper, mapped to jgi's metal X;
@@ -42,6 +46,14 @@ supported):
              conedelta, scale, power), "distant" (L, from, to, scale, illuminance),
              "uniform" / "infinite" without a map (L, scale)
   files      Include / Import
+  spectra    "spectrum" values ((wavelength, value) pairs, a .spd file next to the scene file,
+             or a named illuminant: stdillum-D65, stdillum-A, stdillum-F1..F12) and
+             "blackbody" values (one temperature) for lights' L / I, diffuse reflectance and
+             checkerboard tex1 / tex2, converted to the RGB pbrt-v4's RGB film (sensor
+             "cie1931") sees (jgi.scene.spectra.pbrt_rgb): a light spectrum at luminance 1
+             times the light's scale (pbrt divides it by its photometric integral), a
+             reflectance under the sRGB colour space's D65 white. Named metal spectra:
+             see conductor; glass-* (dispersive) are refused
 
 Units (pbrt-v4's RGB lights): an "rgb" emission spectrum is normalised by pbrt to the colour
 space's illuminant, so its RGB values are radiance/intensity in jgi's units, times ``scale``.
@@ -51,7 +63,10 @@ sided), each divided by the luminance of the given RGB so that the *luminous* po
 pbrt divides by the spectrum's photometric integral). A distant light's "illuminance" E sets
 its irradiance to E / luminance(rgb) times the rgb.
 
-Approximations: pbrt-v4 renders spectrally and jgi in RGB, so a named metal spectrum becomes the
+Approximations: pbrt-v4 renders spectrally and jgi in RGB: a reflectance spectrum is its RGB
+under white (D65) light, exact only for light of that colour; a conductor's varying eta / k
+spectrum becomes its RGB as a reflectance would (pbrt evaluates Fresnel per wavelength);
+a named metal spectrum becomes the
 RGB eta / k of jgi's metal of that name (Mitsuba's RGB-mode values of the measured data, which
 Mitsuba's documentation says is pbrt's); and pbrt-v4's rough conductor and dielectric use the
 height-correlated Smith masking-shadowing G = 1 / (1 + Lambda(wo) + Lambda(wi)) where jgi's
@@ -68,6 +83,7 @@ from pathlib import Path
 import numpy as np
 
 from ...core import transform as xf
+from .. import spectra
 from ..builder import SceneBuilder, SceneError
 from ..tables import Scene
 from ._common import (
@@ -105,6 +121,10 @@ TEXTURE_PARAMETERS = {
     "imagemap": ("filename", "filter", "wrap", "encoding", "scale") + _UV_MAPPING,
     "checkerboard": ("dimension", "tex1", "tex2") + _UV_MAPPING,
 }
+# parameters that take "spectrum" / "blackbody" values, and whether pbrt reads them as
+# illuminants (normalised to luminance 1) or as reflectances (seen under D65)
+SPECTRUM_PARAMETERS = {"L": True, "I": True, "reflectance": False, "tex1": False,
+                       "tex2": False}
 COATEDDIFFUSE_REFUSAL = (
     "material 'coateddiffuse' is not supported: pbrt-v4's coateddiffuse is a stochastic "
     "layered BSDF (a random walk, truncated at maxdepth, between a dielectric coating and a "
@@ -162,6 +182,8 @@ class _Importer:
         self.material = None
         self.area = None       # (L rgb) of the current AreaLightSource
         self.reverse = False
+        self.coordinate_systems: dict[str, np.ndarray] = {}   # CoordinateSystem "name"
+        self.material_kind: dict[str, str] = {}              # builder name -> pbrt material
         self.named = {}
         self.n_mat = 0
         self.textures: dict[str, str] = {}   # pbrt texture name -> builder texture name
@@ -212,8 +234,13 @@ class _Importer:
                 except ValueError:
                     vals = [v.strip('"') for v in vals]
             elif typ == "blackbody":
-                self.fail((toks.path, line), f"parameter '{name}': blackbody values are not "
-                                             "supported (use rgb)")
+                try:
+                    vals = [float(v) for v in vals]
+                except ValueError:
+                    vals = []
+                if len(vals) != 1:
+                    self.fail((toks.path, line), f"parameter '{name}': blackbody takes one "
+                                                 "temperature in kelvin")
             out[name] = (typ, vals)
 
     def texture(self, name, typ, cls, p, where):
@@ -278,9 +305,12 @@ class _Importer:
         if typ == "texture":
             self.fail(where, f"parameter '{name}': textures are not supported (jgi has no "
                              "textures; give a constant value)")
-        if typ == "spectrum":
-            self.fail(where, f"parameter '{name}': spectrum values are not supported here (use "
-                             "rgb)")
+        if typ in ("spectrum", "blackbody"):
+            if name not in SPECTRUM_PARAMETERS:
+                self.fail(where, f"parameter '{name}': {typ} values are supported for "
+                                 f"{', '.join(SPECTRUM_PARAMETERS)} (and a conductor's eta / "
+                                 "k); give rgb here")
+            return self.spectrum_rgb(typ, vals, SPECTRUM_PARAMETERS[name], name, where)
         if n == 1:
             return vals[0]
         if n is not None and len(vals) != n:
@@ -291,6 +321,7 @@ class _Importer:
     def material_from(self, kind, p, where) -> str:
         name = f"_pbrt_material{self.n_mat}"
         self.n_mat += 1
+        self.material_kind[name] = kind
         if kind == "coateddiffuse":
             self.fail(where, COATEDDIFFUSE_REFUSAL)
         if kind not in MATERIAL_PARAMETERS:
@@ -346,6 +377,45 @@ class _Importer:
                              "would turn; give one roughness")
         return {"distribution": "ggx", "alpha": au}
 
+    def spectrum_source(self, typ, vals, name, where):
+        """A "spectrum" or "blackbody" value as a constant, (wavelengths, values) or values at
+        pbrt's 1 nm wavelengths (jgi.scene.spectra.pbrt_sample); a name jgi does not carry
+        nor a readable file is refused."""
+        try:
+            if typ == "blackbody":
+                return spectra.pbrt_blackbody(float(vals[0]))
+            if len(vals) == 1 and isinstance(vals[0], str):
+                named = spectra.pbrt_named(vals[0])
+                if named is not None:
+                    return named
+                path = Path(where[0]).parent / vals[0]
+                if not path.is_file():
+                    self.fail(where, f"parameter '{name}': '{vals[0]}' is neither a named "
+                                     "spectrum jgi carries ("
+                                     f"{', '.join(spectra.pbrt_named_illuminants())}; "
+                                     "metal-X-eta / metal-X-k for a conductor) nor a "
+                                     "spectrum file")
+                return spectra.read_spd(path)
+            if not all(isinstance(x, float) for x in vals):
+                self.fail(where, f"parameter '{name}': a spectrum is a name, a file name or "
+                                 "(wavelength, value) pairs")
+            return spectra.parse_pairs(vals, f"parameter '{name}'")
+        except spectra.SpectrumError as e:
+            self.fail(where, str(e))
+
+    def spectrum_rgb(self, typ, vals, illuminant, name, where) -> np.ndarray:
+        """The RGB pbrt-v4's RGB film sees of a "spectrum" / "blackbody" value
+        (jgi.scene.spectra.pbrt_rgb): an ``illuminant`` at luminance 1 (pbrt divides light
+        spectra by their photometric integral; the light's scale multiplies), a reflectance
+        under the colour space's D65 white."""
+        try:
+            rgb = spectra.pbrt_rgb(self.spectrum_source(typ, vals, name, where), illuminant)
+        except spectra.SpectrumError as e:
+            self.fail(where, f"parameter '{name}': {e}")
+        if not illuminant and name in ("reflectance", "tex1", "tex2"):
+            rgb = np.clip(rgb, 0.0, 1.0)   # pbrt's albedo spectra are clamped to [0, 1]
+        return np.maximum(rgb, 0.0)
+
     def spectrum(self, p, name, where):
         """An "rgb" value (3 numbers), a constant "spectrum" ((lambda, value) pairs with one
         value, or a single number) as 3 equal numbers, or a named spectrum as its name."""
@@ -359,13 +429,18 @@ class _Importer:
             return np.array(vals, float)
         if typ == "spectrum":
             if len(vals) == 1 and isinstance(vals[0], str):
-                return vals[0]
+                if (PBRT_METAL.fullmatch(vals[0]) or vals[0].startswith("glass-")
+                        or not (Path(where[0]).parent / vals[0]).is_file()):
+                    return vals[0]
             if all(isinstance(x, float) for x in vals):
                 values = vals[1::2] if len(vals) > 1 else vals
                 if len(vals) in (1,) or (len(vals) % 2 == 0 and len(set(values)) == 1):
                     return np.full(3, values[0])
-            self.fail(where, f"parameter '{name}': only named or constant spectra are supported "
-                             "(jgi renders in RGB; give rgb values)")
+            # a varying eta / k: its RGB under D65, as for a reflectance (an approximation:
+            # pbrt evaluates the Fresnel equations per wavelength)
+            return self.spectrum_rgb(typ, vals, False, name, where)
+        if typ == "blackbody":
+            self.fail(where, f"parameter '{name}': a blackbody is an emission spectrum")
         self.fail(where, f"parameter '{name}': expected \"rgb\" or \"spectrum\", got \"{typ}\"")
 
     def conductor_ior(self, p, where) -> dict:
@@ -412,9 +487,10 @@ class _Importer:
             eta = float(vals[0])
         else:
             v = self.spectrum(p, "eta", where)
-            if isinstance(v, str):
-                self.fail(where, f"dielectric: eta '{v}' varies with wavelength (dispersion), "
-                                 "which jgi's RGB renderer cannot reproduce; give \"float eta\"")
+            if isinstance(v, str) or not np.all(v == v[0]):
+                self.fail(where, f"dielectric: eta '{v if isinstance(v, str) else p['eta'][1]}'"
+                                 " varies with wavelength (dispersion), which jgi's RGB "
+                                 "renderer cannot reproduce; give \"float eta\"")
             eta = float(v[0])
         if not eta > 0:
             self.fail(where, f"dielectric: eta must be > 0, got {eta}")
@@ -458,6 +534,13 @@ class _Importer:
                 self.fail(where, "infinite lights with an environment map are not supported")
             self.b.environment_light(self._get(p, "L", np.ones(3), where, 3) * scale)
 
+    def flips_normals(self) -> bool:
+        """pbrt-v4 turns a shape's geometric normal around under ReverseOrientation and under
+        a transform that swaps handedness, and under both it keeps it (reverseOrientation ^
+        transformSwapsHandedness): which side an area light lights, and which side of a
+        dielectric is outside."""
+        return self.reverse != bool(np.linalg.det(self.ctm[:3, :3]) < 0)
+
     def shape(self, kind, p, where):
         mat = self.material
         if mat is None:
@@ -479,6 +562,12 @@ class _Importer:
             if not np.allclose(s, s[0], rtol=1e-6):
                 self.fail(where, "sphere under a non-uniform scale is not supported")
             r = float(self._get(p, "radius", 1.0, where, 1)) * s[0]
+            if self.flips_normals() and (emission is not None
+                                         or self.material_kind.get(mat) == "dielectric"):
+                self.fail(where, "sphere with inward normals (ReverseOrientation, or a "
+                                 "transform that swaps handedness) as an area light or a "
+                                 "dielectric is not supported: jgi's spheres face outwards; "
+                                 "use a trianglemesh")
             if emission is not None and self.area[1] > 0:
                 emission = emission * self.area[1] / (math.pi * 4 * math.pi * r * r
                                                       * _lum(emission))
@@ -523,7 +612,7 @@ class _Importer:
                                  "texture_u, texture_v or texture_s, texture_t; pbrt's default "
                                  "uv differs from jgi's)")
             uv = uv if textured else None
-        if self.reverse:
+        if self.flips_normals():
             f = f[:, ::-1]
         v = xf.apply_point(self.ctm, v)
         if normals is not None:
@@ -602,6 +691,16 @@ class _Importer:
                 self.check("Camera", k, where)
                 p = self.params(toks, where)
                 self.cam = (np.linalg.inv(self.ctm), float(self._get(p, "fov", 90.0, where, 1)))
+                self.coordinate_systems["camera"] = np.linalg.inv(self.ctm)
+            elif tok == "CoordinateSystem":
+                self.coordinate_systems[kind()] = self.ctm.copy()
+            elif tok == "CoordSysTransform":
+                name = kind()
+                if name not in self.coordinate_systems:
+                    self.fail(where, f"CoordSysTransform: unknown coordinate system \"{name}\"; "
+                                     "defined: "
+                                     f"{', '.join(self.coordinate_systems) or '(none)'}")
+                self.ctm = self.coordinate_systems[name].copy()
             elif tok == "Film":
                 k = kind()
                 self.check("Film", k, where)
@@ -610,6 +709,7 @@ class _Importer:
                              int(self._get(p, "yresolution", 720, where, 1)))
             elif tok == "WorldBegin":
                 self.ctm = np.eye(4)
+                self.coordinate_systems["world"] = self.ctm.copy()
             elif tok == "Material":
                 k = kind()
                 self.material = self.material_from(k, self.params(toks, where), where)
