@@ -762,3 +762,189 @@ def test_spot_renders_like_mitsuba(tmp_path):
     t = assert_agree(mine, theirs, regions=4, label="spot: jgi vs Mitsuba 3")
     print(f"spot plane vs Mitsuba: max |t| = {t.max():.2f}; means {mine.mean():.5f} vs "
           f"{theirs.mean():.5f}")
+
+
+@pytest.mark.parametrize("to_uv", [
+    '<rotate z="1" angle="30"/><translate x="0.25" y="0.1"/><scale x="3" y="2"/>',
+    '<matrix value="2 0.5 0 0.3  0.1 3 0 -0.2  0 0 1 0  0 0 0 1"/>',
+    '<matrix value="2 0.5 0.25  0.1 3 0.7  0.2 0.3 1.5"/>',   # 3 x 3: its third column dropped
+])
+def test_texture_to_uv_maps_as_mitsubas(tmp_path, to_uv):
+    """A checkerboard's to_uv (composed operations, a 4 x 4 and a 3 x 3 matrix) maps texture
+    coordinates as Mitsuba's: jgi's texture equals Mitsuba's eval at 4096 random (u, v), but
+    for points within 1e-4 of a checker edge (float rounding decides there)."""
+    from jgi.physics import textures
+    path = write(tmp_path, SENSOR + f"""
+    <shape type="rectangle"><bsdf type="diffuse"><texture type="checkerboard" name="reflectance">
+        <rgb name="color0" value="0.9, 0.6, 0.1"/><rgb name="color1" value="0.1, 0.5, 0.2"/>
+        <transform name="to_uv">{to_uv}</transform></texture></bsdf></shape>""")
+    ours = load_mitsuba_xml(path)
+    rng = np.random.default_rng(7)
+    u, v = rng.uniform(-1, 2, 4096), rng.uniform(-1, 2, 4096)
+    tex, row = ours.materials.textures, np.zeros(u.shape, np.int32)
+    mine = np.asarray(textures.evaluate(tex, row, (np.float32(u), np.float32(v))).stack())
+    mu, mv = textures.map_uv(tex, row, u, v)
+    frac = np.stack([np.asarray(mu) % 0.5, np.asarray(mv) % 0.5])
+    clear = np.all(np.minimum(frac, 0.5 - frac) > 1e-4, axis=0)
+    assert clear.mean() > 0.99
+    mi = load_mitsuba()
+    if mi is None:
+        pytest.skip("mitsuba is not installed")
+    bsdf = mi.load_file(str(path)).shapes()[0].bsdf()
+    si = mi.SurfaceInteraction3f()
+    si.uv = mi.Point2f(np.float32(u), np.float32(v))
+    theirs = np.stack([np.asarray(c) for c in bsdf.eval_diffuse_reflectance(si)], 1)
+    np.testing.assert_allclose(mine[clear], theirs[clear], rtol=1e-6)
+
+
+def _serialized_mesh(v, f, normals=None, uv=None, colors=None, face_normals=False,
+                     double=False, version=4, name="mesh"):
+    """One mesh in Mitsuba's documented serialized layout (little endian: uint16 0x041C,
+    uint16 version, then zlib: uint32 flags, [v4: name], uint64 counts, arrays, uint32 faces)."""
+    import struct
+    import zlib
+    flags = ((0x1 if normals is not None else 0) | (0x2 if uv is not None else 0)
+             | (0x8 if colors is not None else 0) | (0x10 if face_normals else 0)
+             | (0x2000 if double else 0x1000))
+    body = struct.pack("<I", flags) + (name.encode() + b"\0" if version == 4 else b"")
+    body += struct.pack("<QQ", len(v), len(f))
+    for a in (v, normals, uv, colors):
+        if a is not None:
+            body += np.asarray(a, "<f8" if double else "<f4").tobytes()
+    body += np.asarray(f, "<u4").tobytes()
+    return struct.pack("<HH", 0x041C, version) + zlib.compress(body)
+
+
+def _serialized_file(meshes, version=4):
+    """Meshes concatenated, then their offsets and count (the end-of-file dictionary)."""
+    import struct
+    out, offsets = b"", []
+    for m in meshes:
+        offsets.append(len(out))
+        out += m
+    return out + np.asarray(offsets, "<u8" if version == 4 else "<u4").tobytes() + \
+        struct.pack("<I", len(meshes))
+
+
+def _icosphere():
+    import trimesh
+    s = trimesh.creation.icosphere(subdivisions=1)
+    v = np.asarray(s.vertices, float)
+    uv = np.stack([0.5 + np.arctan2(v[:, 1], v[:, 0]) / (2 * np.pi), 0.5 + 0.5 * v[:, 2]], 1)
+    return v, np.asarray(s.faces), np.asarray(s.vertex_normals, float) * 1.7, uv
+
+
+SERIALIZED_MESHES = [
+    dict(),                                              # positions only: smooth normals
+    dict(normals=True, uv=True, double=True),            # the file's normals, uv
+    dict(normals=True, colors=True, face_normals=True),  # colours skipped; flag ignored
+]
+
+
+@pytest.mark.parametrize("version", [3, 4])
+@pytest.mark.parametrize("index", range(len(SERIALIZED_MESHES)))
+@pytest.mark.parametrize("face_normals", [False, True])
+def test_serialized_meshes_read_as_mitsuba(tmp_path, version, index, face_normals):
+    """A multi-mesh .serialized file (Mitsuba's documented format, versions 3 and 4, single and
+    double precision, with and without normals, uv, colours): shape_index picks the mesh, and
+    the triangles' corners, shading normals (Mitsuba's smooth ones where the file has none;
+    none with face_normals) and uv after a non-uniform to_world are the vertex buffers Mitsuba
+    3 loads from the same file (positions and normals to float32 rounding)."""
+    v, f, n, uv = _icosphere()
+    meshes = []
+    for i, kw in enumerate(SERIALIZED_MESHES):
+        meshes.append(_serialized_mesh(
+            v + i, f, normals=n if kw.get("normals") else None,
+            uv=uv if kw.get("uv") else None, colors=np.abs(v) if kw.get("colors") else None,
+            face_normals=kw.get("face_normals", False), double=kw.get("double", False),
+            version=version))
+    (tmp_path / "m.serialized").write_bytes(_serialized_file(meshes, version))
+    fn = '<boolean name="face_normals" value="true"/>' if face_normals else ""
+    path = write(tmp_path, SENSOR + f"""
+    <texture type="checkerboard" id="c"/>
+    <shape type="serialized"><string name="filename" value="m.serialized"/>
+        <integer name="shape_index" value="{index}"/>{fn}
+        <transform name="to_world"><scale x="2" y="1" z="0.5"/><rotate x="0.6" y="0.8"
+            angle="25"/><translate x="0.3"/></transform>
+        <bsdf type="diffuse"><ref name="reflectance" id="c"/></bsdf></shape>""")
+    ours = load_mitsuba_xml(path)
+    t = ours.triangles
+    corners = np.stack([t.v0.stack(), t.v0.stack() + t.edge1.stack(),
+                        t.v0.stack() + t.edge2.stack()], 1)
+    assert corners.shape == (len(f), 3, 3)
+    mi = load_mitsuba()
+    if mi is None:
+        pytest.skip("mitsuba is not installed")
+    shape = mi.load_file(str(path)).shapes()[0]
+    params = mi.traverse(shape)
+    faces = np.asarray(params["faces"]).reshape(-1, 3)
+    pos = np.asarray(params["vertex_positions"]).reshape(-1, 3)
+    np.testing.assert_allclose(corners, pos[faces], atol=2e-6)
+    if face_normals:
+        assert t.normals is None
+    else:
+        nrm = np.asarray(params["vertex_normals"]).reshape(-1, 3)[faces].reshape(-1, 9)
+        np.testing.assert_allclose(np.asarray(t.normals), nrm, atol=2e-6)
+    tuv = np.asarray(t.uv)
+    mine_uv = np.stack([tuv[:, :2], tuv[:, :2] + tuv[:, 2:4], tuv[:, :2] + tuv[:, 4:6]], 1)
+    if shape.has_vertex_texcoords():
+        theirs_uv = np.asarray(params["vertex_texcoords"]).reshape(-1, 2)[faces]
+    else:   # Mitsuba's (0,0), (1,0), (0,1) per triangle
+        theirs_uv = np.broadcast_to([[0, 0], [1, 0], [0, 1]], mine_uv.shape)
+    np.testing.assert_allclose(mine_uv, theirs_uv, atol=1e-6)
+
+
+@pytest.mark.parametrize("data, index, message", [
+    (b"\x1c\x05\x04\x00" + b"\0" * 8, 0, "not a serialized file"),
+    (b"\x1c\x04\x05\x00" + b"\0" * 8, 0, "version 5 is not supported"),
+    ("two", 2, r"shape_index 2 is out of range: the file holds 2 meshes \(0..1\)"),
+    ("two", -1, "shape_index must be an integer >= 0"),
+    ("cut", 0, "truncated or malformed|cannot decompress"),
+])
+def test_serialized_refusals(tmp_path, data, index, message):
+    v, f, _, _ = _icosphere()
+    one = _serialized_mesh(v, f)
+    data = {"two": _serialized_file([one, one]), "cut": one[:60]}.get(data, data)
+    (tmp_path / "m.serialized").write_bytes(data)
+    path = write(tmp_path, SENSOR + f"""
+    <shape type="serialized"><string name="filename" value="m.serialized"/>
+        <integer name="shape_index" value="{index}"/></shape>""")
+    with pytest.raises(SceneError, match=rf"{re.escape(str(path))}:\d+: .*({message})"):
+        load_mitsuba_xml(path)
+
+
+def test_rotation_about_a_non_unit_axis_is_mitsubas(tmp_path):
+    """Mitsuba 3 rotates about the axis as given (c I + (1 - c) a a^T + s [a]x, not normalised:
+    a non-unit axis scales and shears): the same vertices as Mitsuba's; a mesh whose file
+    normals Mitsuba would move as if by a rotation is refused."""
+    v, f, n, _ = _icosphere()
+    (tmp_path / "m.serialized").write_bytes(_serialized_file([_serialized_mesh(v, f)]))
+    (tmp_path / "n.serialized").write_bytes(_serialized_file([_serialized_mesh(v, f, n)]))
+    shape = ('<shape type="serialized"><string name="filename" value="{}"/><transform '
+             'name="to_world"><rotate x="1" y="1" angle="25"/><translate x="0.3"/></transform>'
+             '</shape>')
+    path = write(tmp_path, SENSOR + shape.format("m.serialized"))
+    t = load_mitsuba_xml(path).triangles
+    mi = load_mitsuba()
+    if mi is not None:
+        params = mi.traverse(mi.load_file(str(path)).shapes()[0])
+        pos = np.asarray(params["vertex_positions"]).reshape(-1, 3)
+        np.testing.assert_allclose(t.v0.stack(), pos[np.asarray(params["faces"])[::3]],
+                                   atol=2e-6)
+    with pytest.raises(SceneError, match=r":\d+: serialized mesh 'n.serialized': its to_world "
+                                         "rotates about a non-unit axis"):
+        load_mitsuba_xml(write(tmp_path, SENSOR + shape.format("n.serialized"), "n.xml"))
+
+
+def test_area_emitter_by_reference(tmp_path):
+    """A shape may <ref> a top-level area emitter with an id, defined before or after it (as in
+    Mitsuba's documentation scenes): the scene is the one with the emitter nested."""
+    emitter = '<emitter type="area" id="e"><rgb name="radiance" value="3,2,1"/></emitter>'
+    shape = '<shape type="rectangle">{}</shape>'
+    nested = load_mitsuba_xml(write(tmp_path, SENSOR + shape.format(emitter.replace(
+        ' id="e"', "")), "a.xml"))
+    for body in (shape.format('<ref id="e"/>') + emitter, emitter + shape.format('<ref id="e"/>')):
+        leaves_equal(load_mitsuba_xml(write(tmp_path, SENSOR + body, "b.xml")), nested)
+    with pytest.raises(SceneError, match=r":\d+: an area emitter must be nested in a shape, or "
+                                         "have an id"):
+        load_mitsuba_xml(write(tmp_path, SENSOR + emitter.replace(' id="e"', ""), "c.xml"))

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import zlib
 from pathlib import Path
 
 import numpy as np
@@ -178,6 +179,80 @@ def _read_ply(path: Path, where: str, uv_names=MITSUBA_PLY_UV):
             raise ImportError_(f"{where}: mesh '{path.name}': expected {len(v)} {what}, got "
                                f"{len(arr)}")
     return v, f, uv, normals
+
+
+SERIALIZED_HEADER = 0x041C
+# Mitsuba's serialized mesh flags (its serialized.cpp)
+_HAS_NORMALS, _HAS_TEXCOORDS, _HAS_COLORS, _FACE_NORMALS, _DOUBLE = 0x1, 0x2, 0x8, 0x10, 0x2000
+
+
+def read_serialized(path: Path, where: str, shape_index: int = 0):
+    """Mesh ``shape_index`` of a Mitsuba ``.serialized`` file, as Mitsuba 3 reads it (its
+    documented format: little endian; uint16 0x041C, uint16 version 3 or 4, then a zlib
+    stream holding uint32 flags, [version 4: the shape's null-terminated name], uint64 vertex
+    and face counts, positions, [normals], [uv], [colours, skipped], uint32 triangle indices;
+    several meshes are concatenated, with their offsets (uint64, version 3: uint32) and
+    their count (uint32) at the end of the file). Returns (v [V, 3], f [F, 3], uv [V, 2] or
+    None, normals [V, 3] or None, face_normals: the file's face-normal flag)."""
+    try:
+        data = path.read_bytes()
+    except OSError as e:
+        raise ImportError_(f"{where}: cannot read mesh '{path}': {e}") from None
+
+    def bad(msg):
+        raise ImportError_(f"{where}: serialized mesh '{path.name}': {msg}")
+
+    if len(data) < 8:
+        bad("the file is too short")
+    fmt, version = np.frombuffer(data[:4], "<u2")
+    if fmt != SERIALIZED_HEADER:
+        bad(f"not a serialized file (header {fmt:#06x}, expected {SERIALIZED_HEADER:#06x})")
+    if version not in (3, 4):
+        bad(f"version {version} is not supported (Mitsuba reads versions 3 and 4)")
+    offset = 0
+    if shape_index != 0:
+        count = int(np.frombuffer(data[-4:], "<u4")[0])
+        if not 0 <= shape_index < count:
+            bad(f"shape_index {shape_index} is out of range: the file holds {count} meshes "
+                f"(0..{count - 1})")
+        size = 8 if version == 4 else 4
+        at = len(data) - 4 - size * (count - shape_index)
+        offset = int(np.frombuffer(data[at:at + size], "<u8" if size == 8 else "<u4")[0])
+        if data[offset:offset + 2] != data[:2]:
+            bad(f"the offset of mesh {shape_index} ({offset}) does not point at a mesh")
+    try:
+        stream = zlib.decompressobj().decompress(data[offset + 4:])
+    except zlib.error as e:
+        bad(f"cannot decompress mesh {shape_index}: {e}")
+    try:
+        flags = int(np.frombuffer(stream[:4], "<u4")[0])
+        at = 4
+        if version == 4:
+            at = stream.index(b"\0", at) + 1
+        n_v, n_f = (int(x) for x in np.frombuffer(stream[at:at + 16], "<u8"))
+        at += 16
+        real = np.dtype("<f8" if flags & _DOUBLE else "<f4")
+
+        def take(n, dtype):
+            nonlocal at
+            arr = np.frombuffer(stream, dtype, count=n, offset=at)
+            at += n * np.dtype(dtype).itemsize
+            return arr
+
+        v = take(3 * n_v, real).reshape(-1, 3).astype(float)
+        normals = take(3 * n_v, real).reshape(-1, 3).astype(float) \
+            if flags & _HAS_NORMALS else None
+        uv = take(2 * n_v, real).reshape(-1, 2).astype(float) if flags & _HAS_TEXCOORDS else None
+        if flags & _HAS_COLORS:
+            take(3 * n_v, real)
+        f = take(3 * n_f, "<u4").reshape(-1, 3).astype(np.int64)
+    except (ValueError, IndexError):
+        bad(f"mesh {shape_index} is truncated or malformed")
+    if n_f == 0:
+        bad(f"mesh {shape_index} has no faces")
+    if f.max() >= n_v:
+        bad(f"mesh {shape_index} refers to a vertex that does not exist")
+    return v, f, uv, normals, bool(flags & _FACE_NORMALS)
 
 
 def load_mesh_with_normals(path: Path, where: str, ply_uv=MITSUBA_PLY_UV):

@@ -34,7 +34,8 @@ supported):
              are refused (Mitsuba refuses unreferenced properties too). Refused: the other
              plugins.
   texture    bitmap (filename: PNG, JPEG or EXR; filter_type bilinear; wrap_mode repeat; raw;
-             to_uv) and checkerboard (color0, color1, to_uv), nested or at the top level with an
+             to_uv: the 4 x 4 transform's rows / columns 0, 1, 3, as Mitsuba takes them) and
+             checkerboard (color0, color1, to_uv), nested or at the top level with an
              id and a <ref name=...>, for diffuse's reflectance, (rough)plastic's
              diffuse_reflectance, the specular_reflectance of conductors and (rough)plastic, and
              the alpha or alpha_u / alpha_v of roughconductor and roughdielectric (not
@@ -47,7 +48,10 @@ supported):
              texture_u, texture_v: Mitsuba's names; v as written), both Mitsuba's (0,0), (1,0),
              (0,1) per triangle without them. Textured cubes take Mitsuba's per-face uv
              (SceneBuilder.cube).
-  shape      rectangle, cube, sphere (center/radius or a uniform-scale to_world), obj, ply:
+  shape      rectangle, cube, sphere (center/radius or a uniform-scale to_world), obj, ply,
+             serialized (Mitsuba's compressed format, versions 3 and 4, one of several meshes
+             by shape_index; its normals and uv as stored, vertex colours skipped and the
+             face-normal flag ignored, as Mitsuba 3.9.1 does):
              with face_normals="true" shaded flat; otherwise, as Mitsuba, with vertex normals
              (the file's, transformed and normalised, or, when it has none, Mitsuba's smooth
              angle-weighted ones: jgi.scene.builder.smooth_vertex_normals) interpolated into a
@@ -66,7 +70,9 @@ supported):
              substitution; <ref>; <include>; <path> (relative file names are looked up as
              Mitsuba's file resolver does: in the <path> folders, the latest first, then in
              the main scene file's folder, for included files too); transforms translate,
-             rotate, scale, matrix, lookat (each applied after the previous one, as Mitsuba does)
+             rotate (about the axis as given: Mitsuba does not normalise it), scale, matrix
+             (16 values, or 9: a 3 x 3 in the upper left of a 4 x 4), lookat (each applied
+             after the previous one, as Mitsuba does)
 
 Units need no conversion: Mitsuba's radiance (W m^-2 sr^-1), intensity (W sr^-1) and
 irradiance (W m^-2) are jgi's.
@@ -94,6 +100,7 @@ from ._common import (
     load_mesh_with_normals,
     named_metals,
     normals_are_flat,
+    read_serialized,
     tangent_frame,
 )
 
@@ -101,7 +108,7 @@ SUPPORTED = {
     "sensor": ("perspective",),
     "bsdf": ("diffuse", "conductor", "roughconductor", "dielectric", "roughdielectric",
              "roughplastic", "plastic", "twosided"),
-    "shape": ("rectangle", "cube", "sphere", "obj", "ply"),
+    "shape": ("rectangle", "cube", "sphere", "obj", "ply", "serialized"),
     "emitter": ("area", "point", "spot", "directional", "constant", "envmap"),
 }
 IGNORED_TAGS = ("sampler", "rfilter")
@@ -187,6 +194,10 @@ class _Importer:
         self.sensor_done = False
         self.source: dict = {}
         self.integrator: IntegratorSettings | None = None
+        # ids of the transforms with a non-unit rotation axis: Mitsuba moves normals by such
+        # a rotation as if it were one (its inverse transpose taken as itself)
+        self.nonunit_rotations: set[int] = set()
+        self.area_emitters: dict[str, ET.Element] = {}   # top-level area emitters by id
         # Mitsuba's file resolver: the scene file's folder, then each <path> prepended
         self.search_paths: list[Path] = [path.parent]
 
@@ -194,9 +205,6 @@ class _Importer:
     def where(self, el) -> str:
         file, line, _ = self.source.get(id(el), (self.path, "?", None))
         return f"{file}:{line}"
-
-    def file_of(self, el) -> Path:
-        return self.source.get(id(el), (self.path, 0, None))[0]
 
     def fail(self, el, msg):
         raise ImportError_(f"{self.where(el)}: {msg}")
@@ -352,22 +360,37 @@ class _Importer:
 
     def transform(self, el) -> np.ndarray:
         m = np.eye(4)
+        unit_axes = True
         for op in el:
             if op.tag == "translate":
                 t = xf.translate(self.vec3(op))
             elif op.tag == "rotate":
                 axis = self.vec3(op) if op.get("value") else np.array(
                     [float(self.attr(op, k, "0")) for k in "xyz"])
-                t = xf.rotate(axis, float(self.attr(op, "angle", "0")))
+                angle = float(self.attr(op, "angle", "0"))
+                if not np.any(axis):
+                    self.fail(op, "rotate: the axis must be non-zero")
+                # Mitsuba 3 does not normalise the axis (checked with 3.9.1's parser): a
+                # non-unit one also scales and shears, as the same formula does here
+                unit = np.isclose(np.linalg.norm(axis), 1.0, rtol=0, atol=1e-12)
+                t = xf.rotate(axis, angle) if unit else _unnormalised_rotation(axis, angle)
+                unit_axes &= bool(unit)
             elif op.tag == "scale":
                 s = self.vec3(op) if op.get("value") else np.array(
                     [float(self.attr(op, k, "1")) for k in "xyz"])
                 t = xf.scale(s)
             elif op.tag == "matrix":
                 vals = [float(x) for x in self.attr(op, "value").replace(",", " ").split()]
-                if len(vals) != 16:
-                    self.fail(op, "matrix needs 16 values")
-                t = np.array(vals).reshape(4, 4)
+                if len(vals) not in (9, 16):
+                    self.fail(op, f"matrix needs 16 values (4 x 4) or 9 (3 x 3), got "
+                                  f"{len(vals)}")
+                # Mitsuba puts a 3 x 3 matrix in the upper left of a 4 x 4 one (so as a to_uv,
+                # whose 3 x 3 is rows / columns 0, 1, 3, its third column is dropped)
+                if len(vals) == 16:
+                    t = np.array(vals).reshape(4, 4)
+                else:
+                    t = np.eye(4)
+                    t[:3, :3] = np.reshape(vals, (3, 3))
             elif op.tag == "lookat":
                 def pt(k):
                     return np.array([float(x) for x in self.attr(op, k).replace(",", " ").split()])
@@ -376,6 +399,8 @@ class _Importer:
                 self.fail(op, f"unknown transform operation <{op.tag}>; supported: translate, "
                               "rotate, scale, matrix, lookat")
             m = t @ m
+        if not unit_axes:
+            self.nonunit_rotations.add(id(m))
         return m
 
     def check_type(self, el):
@@ -592,6 +617,10 @@ class _Importer:
         for c in el:
             if c.tag == "bsdf":
                 material = self.bsdf(c)
+            elif c.tag == "ref" and c.get("id") in self.area_emitters:
+                # a top-level area emitter with an id, referenced (before or after it)
+                emission = self.props(self.area_emitters[c.get("id")]).get("radiance",
+                                                                          np.ones(3))
             elif c.tag == "ref":
                 rid = c.get("id")
                 if rid not in self.b.material_names:
@@ -603,7 +632,7 @@ class _Importer:
                 if c.get("type") != "area":
                     self.fail(c, f"a shape's emitter must be 'area', got '{c.get('type')}'")
                 emission = self.props(c).get("radiance", np.ones(3))
-        if material in self.anisotropic and kind not in ("obj", "ply"):
+        if material in self.anisotropic and kind not in ("obj", "ply", "serialized"):
             self.check_anisotropy_frame(el, kind, p, m, material)
         if material is None:  # Mitsuba's default: diffuse, reflectance 0.5
             material = f"_default{self.n_anon}"
@@ -625,13 +654,24 @@ class _Importer:
                               "sphere uv is in the world frame)")
             center = xf.apply_point(m, p.get("center", np.zeros(3)))
             self.b.sphere(center, float(p.get("radius", 1.0)) * scales[0], material, emission)
-        else:  # obj, ply
+        else:  # obj, ply, serialized
             fname = p.get("filename")
             if not fname:
                 self.fail(el, f"{kind} shape needs a 'filename'")
             mesh_file = self.resolve(el, fname, f"{kind} mesh file")
             smooth = not p.get("face_normals", False)
-            if smooth:
+            if kind == "serialized":
+                index = p.get("shape_index", 0)
+                if index != int(index) or index < 0:
+                    self.fail(el, f"serialized: shape_index must be an integer >= 0, got {index}")
+                # (the file's face-normal flag is ignored: Mitsuba 3.9.1 ignores it too)
+                v, f, uv, normals, _ = read_serialized(mesh_file, self.where(el), int(index))
+                file_has_uv = uv is not None
+                if smooth:   # Mitsuba's smooth normals when the file has none
+                    normals = "smooth" if normals is None else normals
+                else:
+                    normals = None
+            elif smooth:
                 # Mitsuba 3 shades with the file's vertex normals, or with smooth ones it
                 # computes when there are none (OBJMesh / PLYMesh: recompute_vertex_normals)
                 v, f, uv, normals = load_mesh_with_normals(mesh_file, self.where(el))
@@ -640,8 +680,10 @@ class _Importer:
                 v, f, uv = load_mesh(mesh_file, self.where(el), allow_vertex_normals=True,
                                      with_uv=True)
                 normals = None
+            if kind != "serialized":
+                file_has_uv = has_texture_coordinates(mesh_file)
             textured = bool(self.b.materials[self.b.material_names[material]].textures)
-            if textured and has_texture_coordinates(mesh_file):
+            if textured and file_has_uv:
                 if uv is None:
                     self.fail(el, f"{kind} mesh '{fname}' with a textured material: its texture "
                                   "coordinates cannot be read (an OBJ file must give vt on "
@@ -659,7 +701,7 @@ class _Importer:
                                   "from the normal, so the highlight would turn; give alpha, or "
                                   "face_normals=true")
                 self.check_anisotropy_frame(el, kind, p, m, material,
-                                            xf.apply_point(m, v), f)
+                                            xf.apply_point(m, v), f, file_has_uv)
             if p.get("flip_normals", False):
                 # Mitsuba negates both the geometric and the shading normal
                 f = f[:, ::-1]
@@ -674,10 +716,16 @@ class _Importer:
                                   "emitters radiate about their geometric normal; add "
                                   "<boolean name=\"face_normals\" value=\"true\"/>")
                 normals = None
+            if id(m) in self.nonunit_rotations and not isinstance(normals, (str, type(None))):
+                self.fail(el, f"{kind} mesh '{fname}': its to_world rotates about a non-unit "
+                              "axis, which Mitsuba applies as given (scaling and shearing) to "
+                              "positions but to the file's vertex normals as if it were a "
+                              "rotation; give a unit axis, or face_normals=true")
             # (computed normals follow the flipped winding: negated as Mitsuba's are)
             self.b.mesh(v, f, material, emission, to_world=m, uv=uv, normals=normals)
 
-    def check_anisotropy_frame(self, el, kind, p, m, material, vertices=None, faces=None):
+    def check_anisotropy_frame(self, el, kind, p, m, material, vertices=None, faces=None,
+                               file_has_uv=None):
         """Anisotropic roughness is oriented by the shading frame. Mitsuba's tangent is dp/du of
         the shape's (u, v) parametrisation: to_world's x axis on a rectangle, the
         texture-coordinate gradient on a mesh with texture coordinates, and on a mesh without
@@ -696,11 +744,11 @@ class _Importer:
             if abs(np.dot(s, du)) < (1 - 1e-6) * np.linalg.norm(du):
                 why = (f"this rectangle's dp/du {np.round(du / np.linalg.norm(du), 4).tolist()} "
                        f"is not jgi's tangent {np.round(s, 4).tolist()}")
-        elif kind in ("obj", "ply"):
+        elif kind in ("obj", "ply", "serialized"):
             fname = p.get("filename")
             if p.get("flip_normals", False):
                 why = "flip_normals changes Mitsuba's frame"
-            elif has_texture_coordinates(self.resolve(el, fname)):
+            elif file_has_uv:
                 why = f"'{fname}' has texture coordinates, which orient Mitsuba's frame"
             else:
                 tri = vertices[faces]
@@ -725,7 +773,10 @@ class _Importer:
     def emitter(self, el):
         kind = self.check_type(el)
         if kind == "area":
-            self.fail(el, "an area emitter must be nested in a shape")
+            if el.get("id") in self.area_emitters:
+                return   # referenced by shapes (read there)
+            self.fail(el, "an area emitter must be nested in a shape, or have an id that shapes "
+                          "<ref>")
         p = self.props(el)
         m = p.get("to_world", np.eye(4))
         if kind == "point":
@@ -765,7 +816,6 @@ class _Importer:
                                        where=f"envmap '{fname}'")
             except SceneError as e:
                 self.fail(el, str(e))
-
 
     def sensor(self, el):
         self.check_type(el)
@@ -859,12 +909,27 @@ class _Importer:
         root = _parse(self.path, self.source)
         if root.tag != "scene":
             self.fail(root, f"the root element must be <scene>, got <{root.tag}>")
+        # Mitsuba resolves references after parsing: a shape may <ref> an area emitter
+        # defined at the top level after it
+        self.area_emitters = {el.get("id"): el for el in root if el.tag == "emitter"
+                              and el.get("type") == "area" and el.get("id")}
         self.children(root, self.path, settings_only)
         if settings_only:
             return None
         if not self.sensor_done:
             raise ImportError_(f"{self.path}: the scene has no <sensor>")
         return self.b.build()
+
+
+def _unnormalised_rotation(axis, degrees: float) -> np.ndarray:
+    """Mitsuba 3's rotate with the axis as given: c I + (1 - c) a a^T + s [a]_x."""
+    a = np.asarray(axis, float)
+    t = np.radians(degrees)
+    c, s = np.cos(t), np.sin(t)
+    cross = np.array([[0, -a[2], a[1]], [a[2], 0, -a[0]], [-a[1], a[0], 0]])
+    m = np.eye(4)
+    m[:3, :3] = c * np.eye(3) + (1 - c) * np.outer(a, a) + s * cross
+    return m
 
 
 def _flat_normals(v, f, normals, to_world) -> bool:
