@@ -412,3 +412,88 @@ def test_spectra_become_what_pbrts_rgb_film_sees(tmp_path):
     diffuse = np.array([float(getattr(s.materials.diffuse, c)[-1]) for c in "xyz"])
     np.testing.assert_allclose(
         diffuse, spectra.pbrt_rgb(([400.0, 550, 700], [0.2, 0.5, 0.8]), False), rtol=1e-6)
+
+
+def _texture_rows(scene):
+    t = scene.materials.textures
+    return {"color0": np.stack([np.asarray(getattr(t.color0, c)) for c in "xyz"], 1),
+            "color1": np.stack([np.asarray(getattr(t.color1, c)) for c in "xyz"], 1),
+            "to_uv": np.asarray(t.to_uv), "kind": np.asarray(t.kind),
+            "width": np.asarray(t.width), "height": np.asarray(t.height)}
+
+
+def test_scale_and_mix_textures_fold_into_one_texture(tmp_path):
+    """pbrt-v4's "scale" and "mix" of constants, a checkerboard or an imagemap load as the
+    texture (or constant) they equal: pbrt's scale texture of a checkerboard is the
+    checkerboard of scaled colours; of an imagemap, the imagemap with "float scale"; a mix
+    of two constants is their weighted sum."""
+    from jgi.core.imageio import write_exr
+    rng = np.random.default_rng(1)
+    write_exr(tmp_path / "grid.exr", rng.uniform(0, 1, (4, 6, 3)).astype(np.float32))
+    quad = ('Shape "trianglemesh" "point3 P" [0 0 0 1 0 0 1 1 0 0 1 0] '
+            '"point2 uv" [0 0 1 0 1 1 0 1] "integer indices" [0 1 2 0 2 3]')
+    folded = f"""
+    Texture "checks" "spectrum" "checkerboard" "float uscale" 4 "float vscale" 2
+      "rgb tex1" [0.2 0.4 0.6] "rgb tex2" [0.8 0.1 0]
+    Texture "half" "spectrum" "scale" "texture tex" "checks" "float scale" 0.5
+    Texture "grey" "spectrum" "mix" "float tex1" 0.2 "rgb tex2" [0.6 0.4 1] "float amount" 0.25
+    Texture "toward" "spectrum" "mix" "texture tex1" "half" "rgb tex2" [1 1 1]
+      "float amount" 0.5
+    Texture "grid" "spectrum" "imagemap" "string filename" "grid.exr" "string encoding" "linear"
+    Texture "dim" "spectrum" "scale" "texture tex" "grid" "float scale" 0.3
+    Material "diffuse" "texture reflectance" "toward"
+    {quad}
+    Material "diffuse" "texture reflectance" "dim"
+    {quad}
+    Material "diffuse" "texture reflectance" "grey"
+    {quad}
+    """
+    explicit = f"""
+    Texture "checks" "spectrum" "checkerboard" "float uscale" 4 "float vscale" 2
+      "rgb tex1" [0.2 0.4 0.6] "rgb tex2" [0.8 0.1 0]
+    Texture "half" "spectrum" "checkerboard" "float uscale" 4 "float vscale" 2
+      "rgb tex1" [0.1 0.2 0.3] "rgb tex2" [0.4 0.05 0]
+    Texture "grey" "spectrum" "checkerboard" "rgb tex1" [0.3 0.25 0.4] "rgb tex2" [0 0 0]
+    Texture "toward" "spectrum" "checkerboard" "float uscale" 4 "float vscale" 2
+      "rgb tex1" [0.55 0.6 0.65] "rgb tex2" [0.7 0.525 0.5]
+    Texture "grid" "spectrum" "imagemap" "string filename" "grid.exr" "string encoding" "linear"
+    Texture "dim" "spectrum" "imagemap" "string filename" "grid.exr" "string encoding" "linear"
+      "float scale" 0.3
+    Material "diffuse" "texture reflectance" "toward"
+    {quad}
+    Material "diffuse" "texture reflectance" "dim"
+    {quad}
+    Material "diffuse" "rgb reflectance" [0.3 0.25 0.4]
+    {quad}
+    """
+    a = load_pbrt(write(tmp_path, folded, "folded.pbrt"))
+    b = load_pbrt(write(tmp_path, explicit, "explicit.pbrt"))
+    # the explicit file's extra "grey" checkerboard row stands where "folded" has none
+    ra, rb = _texture_rows(a), _texture_rows(b)
+    keep = [0, 1, 3, 4, 5]
+    for key in ra:
+        np.testing.assert_allclose(ra[key], rb[key][keep], rtol=1e-6, err_msg=key)
+    np.testing.assert_allclose(np.asarray(a.materials.textures.atlas),
+                               np.asarray(b.materials.textures.atlas), rtol=1e-6)
+    leaves_equal(a.materials.diffuse, b.materials.diffuse)
+    leaves_equal(a.triangles, b.triangles)
+
+
+@pytest.mark.parametrize("body, message", [
+    ('Texture "c" "spectrum" "checkerboard"\n'
+     'Texture "g" "spectrum" "imagemap" "string filename" "g.exr"\n'
+     'Texture "m" "spectrum" "mix" "texture tex1" "c" "texture tex2" "g"',
+     'Texture "m" \\("mix"\\): its operands are a checker and a image texture'),
+    ('Texture "c" "spectrum" "checkerboard"\n'
+     'Texture "m" "spectrum" "mix" "texture tex1" "c" "texture amount" "c"',
+     "'amount' is supported as a \"float\" constant only"),
+    ('Texture "m" "spectrum" "scale" "texture tex" "nope"',
+     "'tex' names texture 'nope', which is not a spectrum texture defined before it"),
+])
+def test_unsupported_scale_and_mix_are_refused(tmp_path, body, message):
+    from jgi.core.imageio import write_exr
+    write_exr(tmp_path / "g.exr", np.ones((2, 2, 3), np.float32))
+    path = write(tmp_path, body)
+    with pytest.raises(SceneError, match=message) as e:
+        load_pbrt(path)
+    assert f"{path}:" in str(e.value)

@@ -29,7 +29,10 @@ supported):
              materials, displacement and normal
              maps.
   textures   Texture "name" "spectrum" "imagemap" (filename, filter bilinear, wrap repeat,
-             encoding sRGB | linear) and "checkerboard" (dimension 2, rgb tex1 / tex2), with
+             encoding sRGB | linear, scale) and "checkerboard" (dimension 2, rgb tex1 / tex2),
+             "scale" (tex x float scale) and "mix" ((1 - float amount) tex1 + amount tex2) of
+             constants, one checkerboard or one imagemap, or two of one kind with one mapping
+             (folded into one jgi texture or a constant; others refused), with
              the uv mapping (uscale, vscale, udelta, vdelta), for diffuse "texture reflectance",
              on trianglemesh shapes with "point2 uv" and plymesh shapes whose file has texture
              coordinates (pbrt-v4's names: vertex properties u, v or s, t or texture_u,
@@ -83,6 +86,7 @@ from pathlib import Path
 import numpy as np
 
 from ...core import transform as xf
+from ...core.imageio import read_image
 from .. import spectra
 from ..builder import SceneBuilder, SceneError
 from ..tables import Scene
@@ -120,6 +124,8 @@ _UV_MAPPING = ("mapping", "uscale", "vscale", "udelta", "vdelta")
 TEXTURE_PARAMETERS = {
     "imagemap": ("filename", "filter", "wrap", "encoding", "scale") + _UV_MAPPING,
     "checkerboard": ("dimension", "tex1", "tex2") + _UV_MAPPING,
+    "scale": ("tex", "scale"),
+    "mix": ("tex1", "tex2", "amount"),
 }
 # parameters that take "spectrum" / "blackbody" values, and whether pbrt reads them as
 # illuminants (normalised to luminance 1) or as reflectances (seen under D65)
@@ -187,6 +193,10 @@ class _Importer:
         self.named = {}
         self.n_mat = 0
         self.textures: dict[str, str] = {}   # pbrt texture name -> builder texture name
+        # what each pbrt texture holds, for "scale" and "mix": ("const", rgb),
+        # ("checker", rgb0, rgb1, to_uv) or ("image", (path, linear, scale) or array, to_uv)
+        self.texture_recipes: dict[str, tuple] = {}
+        self.constant_textures: dict[str, np.ndarray] = {}  # scale / mix of constants
         self.camera_seen = False
         self.film = (1280, 720)
         self.cam = None
@@ -265,14 +275,19 @@ class _Importer:
         if self._get(p, "mapping", ["uv"], where)[0] != "uv":
             self.fail(where, f"Texture \"{name}\": only the \"uv\" mapping is supported")
         tex = f"_pbrt_texture_{name}"
+        if cls in ("scale", "mix"):
+            self.combined_texture(name, cls, p, where)
+            return
         try:
             if cls == "checkerboard":
                 if int(self._get(p, "dimension", 2, where, 1)) != 2:
                     self.fail(where, f"Texture \"{name}\": only 2D checkerboards are supported")
-                self.b.texture(tex, "checkerboard",
-                               color0=self._get(p, "tex1", np.ones(3), where, 3),
-                               color1=self._get(p, "tex2", np.zeros(3), where, 3),
-                               to_uv=[[su / 2, 0, du / 2], [0, sv / 2, dv / 2], [0, 0, 1]])
+                to_uv = [[su / 2, 0, du / 2], [0, sv / 2, dv / 2], [0, 0, 1]]
+                c0 = self._get(p, "tex1", np.ones(3), where, 3)
+                c1 = self._get(p, "tex2", np.zeros(3), where, 3)
+                self.b.texture(tex, "checkerboard", color0=c0, color1=c1, to_uv=to_uv)
+                self.texture_recipes[name] = ("checker", np.asarray(c0, float),
+                                              np.asarray(c1, float), to_uv)
             else:
                 for key, ok in (("filter", "bilinear"), ("wrap", "repeat")):
                     v = self._get(p, key, [ok], where)[0]
@@ -287,11 +302,106 @@ class _Importer:
                 if not fname:
                     self.fail(where, f"Texture \"{name}\": imagemap needs \"string filename\"")
                 scale = float(self._get(p, "scale", 1.0, where, 1))
-                if scale != 1.0:
-                    self.fail(where, f"Texture \"{name}\": \"scale\" is not supported")
-                self.b.texture(tex, "bitmap", filename=Path(where[0]).parent / fname[0],
-                               raw=enc == "linear",
-                               to_uv=[[su, 0, du], [0, -sv, 1 - dv], [0, 0, 1]])
+                path = Path(where[0]).parent / fname[0]
+                to_uv = [[su, 0, du], [0, -sv, 1 - dv], [0, 0, 1]]
+                if scale == 1.0:
+                    self.b.texture(tex, "bitmap", filename=path, raw=enc == "linear",
+                                   to_uv=to_uv)
+                else:   # pbrt's imagemap "scale" multiplies the texels
+                    self.b.texture(tex, "bitmap", data=self.image_texels(
+                        (path, enc == "linear", scale), name, where), to_uv=to_uv)
+                self.texture_recipes[name] = ("image", (path, enc == "linear", scale), to_uv)
+        except SceneError as e:
+            self.fail(where, str(e))
+        self.textures[name] = tex
+
+    def image_texels(self, source, name, where) -> np.ndarray:
+        """An imagemap's linear texels ([H, W, 3]) times its scale, as the builder reads them."""
+        if isinstance(source, np.ndarray):
+            return source
+        path, linear, scale = source
+        try:
+            img = np.asarray(read_image(path, raw=linear), float)
+        except (OSError, ValueError) as e:
+            self.fail(where, f"Texture \"{name}\": cannot read '{path}': {e}")
+        img = np.repeat(img[:, :, None], 3, axis=2) if img.ndim == 2 else img[:, :, :3]
+        return img * scale
+
+    def texture_operand(self, p, key, default, name, where) -> tuple:
+        """A spectrum operand of a "scale" or "mix" texture: a texture defined before, or a
+        constant (float, rgb, spectrum), as a recipe (see texture_recipes)."""
+        if key not in p:
+            return ("const", np.full(3, default))
+        typ, vals = p[key]
+        if typ == "texture":
+            if vals[0] not in self.texture_recipes:
+                self.fail(where, f"Texture \"{name}\": '{key}' names texture '{vals[0]}', "
+                                 "which is not a spectrum texture defined before it")
+            return self.texture_recipes[vals[0]]
+        if typ == "float":
+            return ("const", np.full(3, float(vals[0])))
+        if typ == "rgb" and len(vals) == 3:
+            return ("const", np.array(vals, float))
+        if typ in ("spectrum", "blackbody"):
+            return ("const", self.spectrum_rgb(typ, vals, False, key, where))
+        self.fail(where, f"Texture \"{name}\": '{key}' must be a texture, float, rgb or "
+                         f"spectrum, got \"{typ}\"")
+
+    def texture_weight(self, p, key, default, name, where) -> float:
+        """A float operand of "scale" / "mix" (pbrt's float texture): a constant here."""
+        if key not in p:
+            return default
+        typ, vals = p[key]
+        if typ != "float" or len(vals) != 1:
+            self.fail(where, f"Texture \"{name}\": '{key}' is supported as a \"float\" "
+                             "constant only (jgi has no float textures)")
+        return float(vals[0])
+
+    def combined_texture(self, name, cls, p, where):
+        """pbrt-v4's "scale" (tex x scale) and "mix" ((1 - amount) tex1 + amount tex2) of
+        constants, one checkerboard, one imagemap, or two of one kind with equal mappings (and
+        images of one size): folded into one jgi texture (or a constant) of that kind."""
+        if cls == "scale":
+            s = self.texture_weight(p, "scale", 1.0, name, where)
+            a, b = self.texture_operand(p, "tex", 1.0, name, where), ("const", np.full(3, s))
+            op = (lambda x, y: x * y)
+        else:
+            w = self.texture_weight(p, "amount", 0.5, name, where)
+            a = self.texture_operand(p, "tex1", 0.0, name, where)
+            b = self.texture_operand(p, "tex2", 1.0, name, where)
+            op = (lambda x, y: (1 - w) * x + w * y)
+        kinds = {a[0], b[0]} - {"const"}
+        if len(kinds) > 1 or (a[0] == b[0] != "const" and not np.allclose(a[-1], b[-1])):
+            self.fail(where, f"Texture \"{name}\" (\"{cls}\"): its operands are a "
+                             f"{a[0]} and a {b[0]} texture with different mappings; supported: "
+                             "constants with one checkerboard or one imagemap, or two of one "
+                             "kind with the same uv mapping (a jgi texture is one checkerboard "
+                             "or one image)")
+        tex = f"_pbrt_texture_{name}"
+        try:
+            if not kinds:
+                self.constant_textures[name] = op(a[1], b[1])
+                self.texture_recipes[name] = ("const", self.constant_textures[name])
+                return
+            if kinds == {"checker"}:
+                def colors(r):
+                    return (r[1], r[2]) if r[0] == "checker" else (r[1], r[1])
+                (a0, a1), (b0, b1) = colors(a), colors(b)
+                to_uv = (a if a[0] == "checker" else b)[3]
+                c0, c1 = np.maximum(op(a0, b0), 0), np.maximum(op(a1, b1), 0)
+                self.b.texture(tex, "checkerboard", color0=c0, color1=c1, to_uv=to_uv)
+                self.texture_recipes[name] = ("checker", c0, c1, to_uv)
+            else:
+                def texels(r):
+                    return r[1] if r[0] == "const" else self.image_texels(r[1], name, where)
+                x, y = texels(a), texels(b)
+                if x.shape != y.shape and x.ndim == y.ndim:
+                    self.fail(where, f"Texture \"{name}\" (\"{cls}\"): its images differ "
+                                     f"in size ({x.shape[:2]} and {y.shape[:2]})")
+                img = np.maximum(op(x, y), 0)
+                to_uv = (a if a[0] == "image" else b)[2]
+                self.b.texture(tex, "bitmap", data=img, to_uv=to_uv)
+                self.texture_recipes[name] = ("image", img, to_uv)
         except SceneError as e:
             self.fail(where, str(e))
         self.textures[name] = tex
@@ -302,6 +412,8 @@ class _Importer:
         typ, vals = p[name]
         if typ == "texture" and name == "reflectance" and vals[0] in self.textures:
             return self.textures[vals[0]]
+        if typ == "texture" and name == "reflectance" and vals[0] in self.constant_textures:
+            return self.constant_textures[vals[0]]
         if typ == "texture":
             self.fail(where, f"parameter '{name}': textures are not supported (jgi has no "
                              "textures; give a constant value)")
@@ -336,7 +448,8 @@ class _Importer:
                                  f"{', '.join(MATERIAL_PARAMETERS[kind])}")
         if kind == "diffuse":
             refl = p.get("reflectance", ("rgb", []))
-            if refl[0] == "texture" and refl[1][0] not in self.textures:
+            if refl[0] == "texture" and refl[1][0] not in {**self.textures,
+                                                            **self.constant_textures}:
                 self.fail(where, f"material 'diffuse': reflectance names texture "
                                  f"'{refl[1][0]}', which is not defined before it")
             self.b.material(name, "diffuse",
