@@ -14,7 +14,7 @@ import pytest
 import jgi
 from jgi.analysis.chi2 import SphereDomain, assert_chi2
 from jgi.core.errors import ParameterError
-from jgi.core.imageio import write_exr
+from jgi.core.imageio import read_hdr, write_exr
 from jgi.core.vec import V3
 from jgi.estimators.path_tracer import PathTracerConfig, trace_pixels
 from jgi.physics import lights as LT
@@ -304,6 +304,59 @@ def test_bad_maps_are_refused():
     scene = furnace_scene(lambda b: b.environment_map(np.zeros((4, 8, 3))), size=8)
     img = np.asarray(jgi.render(scene, "pt", spp=4, seed=0))
     assert np.all(img == 0)
+
+
+def write_rgbe(path, rgbe: np.ndarray, rle: bool):
+    """A Radiance file of the [H, W, 4] RGBE bytes: flat, or new-style run-length encoded
+    (runs of equal bytes and literal stretches, per channel)."""
+    H, W, _ = rgbe.shape
+    out = bytearray(b"#?RADIANCE\nFORMAT=32-bit_rle_rgbe\n\n" + f"-Y {H} +X {W}\n".encode())
+    for y in range(H):
+        if not rle:
+            out += rgbe[y].tobytes()
+            continue
+        out += bytes([2, 2, W >> 8, W & 255])
+        for c in range(4):
+            row, x = rgbe[y, :, c], 0
+            while x < W:
+                n = 1
+                while x + n < W and n < 127 and row[x + n] == row[x]:
+                    n += 1
+                if n >= 3:
+                    out += bytes([128 + n, row[x]])
+                else:
+                    n = min(W - x, 128)
+                    for k in range(x, min(W, x + 128) - 2):   # stop a literal before a run
+                        if row[k] == row[k + 1] == row[k + 2]:
+                            n = max(k - x, 1)
+                            break
+                    out += bytes([n]) + row[x:x + n].tobytes()
+                x += n
+    path.write_bytes(bytes(out))
+
+
+@pytest.mark.parametrize("rle", [False, True])
+def test_radiance_hdr_reads_as_mitsuba_reads_it(tmp_path, rle):
+    rng = np.random.default_rng(7)
+    rgbe = rng.integers(0, 256, (6, 20, 4), dtype=np.uint8)
+    rgbe[:, 5:12] = rgbe[:, 5:6]            # runs
+    rgbe[2, :, 3] = 0                        # a black row (e = 0)
+    path = tmp_path / ("sky_rle.hdr" if rle else "sky.hdr")
+    write_rgbe(path, rgbe, rle)
+    mine = read_hdr(path)
+    e = rgbe[..., 3].astype(int)
+    expected = np.where(e[..., None] > 0, rgbe[..., :3] * np.ldexp(1.0, e - 136)[..., None], 0.0)
+    np.testing.assert_array_equal(mine, expected.astype(np.float32))
+    mi = load_mitsuba()
+    if mi is not None:
+        np.testing.assert_array_equal(mine, np.array(mi.Bitmap(str(path)))[..., :3])
+    b = SceneBuilder("hdr")
+    b.environment_map(path)
+    assert b.lights[0]["envmap"].shape == (6, 20)
+    (tmp_path / "bad.hdr").write_bytes(b"#?RADIANCE\n\n+Y 2 +X 2\n" + bytes(16))
+    with pytest.raises(SceneError, match="resolution line"):
+        b2 = SceneBuilder("bad")
+        b2.environment_map(tmp_path / "bad.hdr")
 
 
 ENVMAP_XML = """<scene version="3.0.0">

@@ -684,10 +684,11 @@ class _TomlLoader:
                 b.environment_light(t["radiance"])
                 return
             path = (self.path.parent / t["image"]).resolve()
-            if not path.is_file() or path.suffix.lower() not in (".exr", ".png", ".jpg", ".jpeg"):
+            if not path.is_file() or path.suffix.lower() not in (".exr", ".hdr", ".rgbe", ".png",
+                                                                 ".jpg", ".jpeg"):
                 self.fail(f"{key}.image", f"file '{path}' does not exist or is not an image; "
-                                          "allowed: an EXR, PNG or JPEG latitude-longitude map "
-                                          "(relative to the scene file)")
+                                          "allowed: an EXR, Radiance HDR, PNG or JPEG "
+                                          "latitude-longitude map (relative to the scene file)")
             m = (self.transform(f"{key}.transform", t["transform"]) if "transform" in t
                  else np.eye(4))
             b.environment_map(path, scale=t.get("scale", 1.0), to_world=m,

@@ -62,7 +62,8 @@ supported):
   emitter    area (radiance), point (intensity, position or to_world), spot (intensity,
              cutoff_angle, beam_width: Mitsuba's falloff, linear in the angle between the two
              cones; to_world), directional (direction, irradiance), constant (radiance),
-             envmap (filename: EXR, PNG or JPEG latitude-longitude image; scale; to_world)
+             envmap (filename: EXR, Radiance HDR, PNG or JPEG latitude-longitude image;
+             scale; to_world)
   values     rgb, float, spectrum (a constant, wavelength:value pairs, a filename= .spd
              file, blackbody in emitters: converted to RGB as Mitsuba 3's RGB variants
              do, jgi.scene.spectra; a blackbody as its spectral variants' RGB film sees
@@ -806,11 +807,12 @@ class _Importer:
             # lookup (EXR linear, PNG / JPEG sRGB-decoded), oriented by to_world
             fname = p.get("filename")
             if not isinstance(fname, str):
-                self.fail(el, "envmap: needs a <string name=\"filename\"> (EXR, PNG or JPEG)")
+                self.fail(el, "envmap: needs a <string name=\"filename\"> (EXR, HDR, PNG or "
+                              "JPEG)")
             path = self.resolve(el, fname, "envmap image")
-            if path.suffix.lower() not in (".exr", ".png", ".jpg", ".jpeg"):
-                self.fail(el, f"envmap: '{fname}' is not an EXR, PNG or JPEG image (the formats "
-                              "jgi reads)")
+            if path.suffix.lower() not in (".exr", ".hdr", ".rgbe", ".png", ".jpg", ".jpeg"):
+                self.fail(el, f"envmap: '{fname}' is not an EXR, Radiance HDR, PNG or JPEG "
+                              "image (the formats jgi reads)")
             try:
                 self.b.environment_map(path, scale=float(p.get("scale", 1.0)), to_world=m,
                                        where=f"envmap '{fname}'")
