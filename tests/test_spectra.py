@@ -177,3 +177,27 @@ def test_malformed_spectra_are_refused(tmp_path):
     (tmp_path / "bad.spd").write_text("400 1\n500 x\n")
     with pytest.raises(spectra.SpectrumError, match="'x' is not a number"):
         spectra.read_spd(tmp_path / "bad.spd")
+
+
+@pytest.mark.parametrize("body, message", [
+    ('<bsdf type="diffuse"><spectrum name="reflectance" type="blackbody">'
+     '<float name="temperature" value="3000"/></spectrum></bsdf>',
+     "a blackbody is supported as an emitter's radiance / intensity / irradiance only"),
+    ('<bsdf type="diffuse"><spectrum name="reflectance" type="irregular">'
+     '<string name="wavelengths" value="400, 700"/><string name="values" value="0.1, 0.2"/>'
+     '</spectrum></bsdf>', "type 'irregular' is not supported"),
+    ('<bsdf type="diffuse"><spectrum name="reflectance" value="400:0.1, 300:0.2"/></bsdf>',
+     "spectrum 'reflectance': .*wavelengths must increase"),
+    ('<bsdf type="diffuse"><spectrum name="reflectance" filename="none.spd"/></bsdf>',
+     "spectrum file 'none.spd' does not exist"),
+    ('<emitter type="constant"><spectrum name="radiance" type="blackbody">'
+     '<float name="temp" value="3000"/></spectrum></emitter>',
+     "blackbody: needs <float name=\"temperature\">"),
+])
+def test_mitsuba_spectrum_refusals_name_file_and_line(tmp_path, body, message):
+    from jgi.scene import SceneError
+    path = tmp_path / "bad.xml"
+    path.write_text(f'<scene version="3.0.0">\n{body}\n</scene>\n')
+    with pytest.raises(SceneError, match=message) as e:
+        load_mitsuba_xml(path)
+    assert f"{path}:2:" in str(e.value)

@@ -295,7 +295,8 @@ class _Importer:
             if c.get("type") is not None:
                 if c.get("type") != "blackbody":
                     self.fail(c, f"spectrum '{name}': type '{c.get('type')}' is not "
-                                 "supported; supported: blackbody (in emitters), value=, "
+                                 "supported (Mitsuba's RGB variants cannot evaluate it "
+                                 "either); supported: blackbody (in emitters), value=, "
                                  "filename=")
                 if not emitter:
                     self.fail(c, f"spectrum '{name}': a blackbody is supported as an "
