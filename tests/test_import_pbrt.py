@@ -497,3 +497,20 @@ def test_unsupported_scale_and_mix_are_refused(tmp_path, body, message):
     with pytest.raises(SceneError, match=message) as e:
         load_pbrt(path)
     assert f"{path}:" in str(e.value)
+
+
+def test_included_files_resolve_names_against_the_main_file(tmp_path):
+    """pbrt-v4 resolves every relative file name (ResolveFilename) against the main scene
+    file's folder, also inside Included files in other folders."""
+    from jgi.scene import spectra
+    (tmp_path / "spds").mkdir()
+    (tmp_path / "spds" / "lamp.spd").write_text("400 1\n700 3\n")
+    (tmp_path / "parts").mkdir()
+    (tmp_path / "parts" / "lights.pbrt").write_text(
+        'LightSource "point" "spectrum I" "spds/lamp.spd"\nInclude "parts/more.pbrt"\n')
+    (tmp_path / "parts" / "more.pbrt").write_text('LightSource "point" "blackbody I" 4000\n')
+    s = load_pbrt(write(tmp_path, 'Include "parts/lights.pbrt"'))
+    emission = np.stack([np.asarray(getattr(s.lights.emission, c)) for c in "xyz"], 1)
+    np.testing.assert_allclose(emission, np.stack([
+        spectra.pbrt_rgb(([400.0, 700], [1.0, 3]), True),
+        spectra.pbrt_rgb(spectra.pbrt_blackbody(4000.0), True)]), rtol=1e-6)

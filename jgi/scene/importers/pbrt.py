@@ -48,7 +48,9 @@ supported):
   lights     LightSource "point" (I, from, scale, power), "spot" (I, from, to, coneangle,
              conedelta, scale, power), "distant" (L, from, to, scale, illuminance),
              "uniform" / "infinite" without a map (L, scale)
-  files      Include / Import
+  files      Include / Import; relative file names (includes, meshes, images, spectra)
+             are found in the main scene file's folder, also from included files, as pbrt-v4
+             resolves them
   spectra    "spectrum" values ((wavelength, value) pairs, a .spd file next to the scene file,
              or a named illuminant: stdillum-D65, stdillum-A, stdillum-F1..F12) and
              "blackbody" values (one temperature) for lights' L / I, diffuse reflectance and
@@ -204,6 +206,11 @@ class _Importer:
     def fail(self, where, msg):
         raise ImportError_(f"{where[0]}:{where[1]}: {msg}")
 
+    def resolve(self, name: str) -> Path:
+        """A file name as pbrt-v4 resolves it (ResolveFilename): relative names against the
+        main scene file's folder, also inside Included files."""
+        return self.path.parent / name
+
     # --- parameter lists ------------------------------------------------------------------
     def params(self, toks: _Tokens, where) -> dict:
         out = {}
@@ -250,7 +257,8 @@ class _Importer:
                     vals = []
                 if len(vals) != 1:
                     self.fail((toks.path, line), f"parameter '{name}': blackbody takes one "
-                                                 "temperature in kelvin")
+                                                 "temperature in kelvin (for pbrt-v3's "
+                                                 "[T scale], give \"float scale\")")
             out[name] = (typ, vals)
 
     def texture(self, name, typ, cls, p, where):
@@ -302,7 +310,7 @@ class _Importer:
                 if not fname:
                     self.fail(where, f"Texture \"{name}\": imagemap needs \"string filename\"")
                 scale = float(self._get(p, "scale", 1.0, where, 1))
-                path = Path(where[0]).parent / fname[0]
+                path = self.resolve(fname[0])
                 to_uv = [[su, 0, du], [0, -sv, 1 - dv], [0, 0, 1]]
                 if scale == 1.0:
                     self.b.texture(tex, "bitmap", filename=path, raw=enc == "linear",
@@ -501,7 +509,7 @@ class _Importer:
                 named = spectra.pbrt_named(vals[0])
                 if named is not None:
                     return named
-                path = Path(where[0]).parent / vals[0]
+                path = self.resolve(vals[0])
                 if not path.is_file():
                     self.fail(where, f"parameter '{name}': '{vals[0]}' is neither a named "
                                      "spectrum jgi carries ("
@@ -543,7 +551,7 @@ class _Importer:
         if typ == "spectrum":
             if len(vals) == 1 and isinstance(vals[0], str):
                 if (PBRT_METAL.fullmatch(vals[0]) or vals[0].startswith("glass-")
-                        or not (Path(where[0]).parent / vals[0]).is_file()):
+                        or not (self.resolve(vals[0])).is_file()):
                     return vals[0]
             if all(isinstance(x, float) for x in vals):
                 values = vals[1::2] if len(vals) > 1 else vals
@@ -717,7 +725,7 @@ class _Importer:
             fname = self._get(p, "filename", None, where)
             if not fname:
                 self.fail(where, "plymesh needs \"string filename\"")
-            v, f, uv, normals = load_mesh_with_normals(Path(where[0]).parent / fname[0],
+            v, f, uv, normals = load_mesh_with_normals(self.resolve(fname[0]),
                                                        f"{where[0]}:{where[1]}", PBRT_PLY_UV)
             if textured and uv is None:
                 self.fail(where, f"plymesh '{fname[0]}' with a textured material needs texture "
@@ -862,7 +870,7 @@ class _Importer:
                 self.texture(tex_name, tex_type, tex_class, self.params(toks, where), where)
             elif tok in ("Include", "Import"):
                 f, _ = toks.next()
-                self.run_file(path.parent / f.strip('"'))
+                self.run_file(self.resolve(f.strip('"')))
             elif tok in IGNORED:
                 if tok not in ("WorldEnd",):
                     k, _ = (toks.next() if toks.peek()[0] and toks.peek()[0].startswith('"')
