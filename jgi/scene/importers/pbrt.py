@@ -70,7 +70,9 @@ its irradiance to E / luminance(rgb) times the rgb.
 
 Approximations: pbrt-v4 renders spectrally and jgi in RGB: a reflectance spectrum is its RGB
 under white (D65) light, exact only for light of that colour; a conductor's varying eta / k
-spectrum becomes its RGB as a reflectance would (pbrt evaluates Fresnel per wavelength);
+spectrum becomes its RGB as a reflectance would (pbrt evaluates Fresnel per wavelength); a
+spectrum outside the sRGB gamut has its negative channels set to 0 (pbrt's film keeps them;
+jgi's emission and albedos are non-negative), as Mitsuba's conversion does;
 a named metal spectrum becomes the
 RGB eta / k of jgi's metal of that name (Mitsuba's RGB-mode values of the measured data, which
 Mitsuba's documentation says is pbrt's); and pbrt-v4's rough conductor and dielectric use the
