@@ -47,9 +47,9 @@ import numpy as np
 from jax import Array
 
 from ..core import rng
-from ..core.vec import V3, coordinate_system, cross, dot, length
+from ..core.vec import V3, coordinate_system, cross, dot, length, where
 from ..physics import geometry
-from ..physics.lights import emitted
+from ..physics.lights import emitted, environment_radiance
 from ..scene.tables import Scene
 from ..transport import density, hash_grid
 from ..transport.photons import trace_photons
@@ -155,6 +155,8 @@ def gather(scene: Scene, cfg: CacheConfig, seed, ids, p: V3, n: V3, ng: V3 | Non
     hit = geometry.intersect(scene, of, df)
     Le = (emitted(scene.lights, hit.emitter, hit.n, -df) if scene.lights.count
           else V3(*(0 * of.x,) * 3))
+    if scene.lights.environment >= 0:   # an escaped gather ray's environment is direct light too
+        Le = where(hit.valid, Le, environment_radiance(scene.lights, df))
     L = radiance(scene, cfg.pt, lambda dim: rng.uniform(kf, dim + 2), of, df)
     L = V3(*(jnp.maximum(jnp.where(jnp.isfinite(a), a - b, 0.0), 0.0) for a, b in zip(L, Le)))
     r = jnp.where(hit.valid, hit.t, jnp.inf)
