@@ -12,8 +12,11 @@ at LLVM 19's ``libLLVM.so.19.1``; set automatically when Debian's ``libllvm19`` 
 
 ``--objects spheres`` replaces the two blocks, in both renderers, by two diffuse spheres of
 radius 0.35 (five walls, two spheres and an area light: the scene of the prototype that issue 2's
-5x target was derived from). ``--objects veach_ggx`` renders Veach's MIS plates with GGX
-rough-conductor plates instead (``jgi.scenes.veach_plates_ggx``, translated for Mitsuba by
+5x target was derived from). ``--objects envmap`` renders a diffuse and a rough-conductor
+ball on a floor under a latitude-longitude sky map with a sun (an EXR written here; both load
+the same Mitsuba XML: environment-map importance sampling and MIS).
+``--objects veach_ggx`` renders Veach's MIS plates with GGX rough-conductor plates instead
+(``jgi.scenes.veach_plates_ggx``, translated for Mitsuba by
 ``experiments/mitsuba_scene.py``): the glossy case, where most of the time goes to microfacet
 evaluation and sampling.
 
@@ -35,6 +38,47 @@ import time
 import numpy as np
 
 SPHERES = [((-0.45, -0.65, -0.3), 0.35), ((0.45, -0.65, 0.3), 0.35)]   # (centre, radius)
+ENVMAP_XML = """<scene version="3.0.0">
+  <integrator type="path"><integer name="max_depth" value="8"/><integer name="rr_depth" value="5"/>
+  </integrator>
+  <sensor type="perspective"><float name="fov" value="40"/>
+    <transform name="to_world"><lookat origin="0, 1.5, 4" target="0, -0.2, 0" up="0, 1, 0"/>
+    </transform>
+    <film type="hdrfilm"><integer name="width" value="{res}"/><integer name="height" value="{res}"/>
+      <rfilter type="box"/></film>
+  </sensor>
+  <shape type="sphere"><point name="center" x="-0.6" y="0" z="0"/>
+    <float name="radius" value="0.6"/>
+    <bsdf type="diffuse"><rgb name="reflectance" value="0.7, 0.3, 0.2"/></bsdf></shape>
+  <shape type="sphere"><point name="center" x="0.7" y="0" z="0.2"/>
+    <float name="radius" value="0.6"/>
+    <bsdf type="roughconductor"><string name="material" value="Au"/>
+      <float name="alpha" value="0.2"/></bsdf></shape>
+  <shape type="rectangle"><transform name="to_world"><scale value="4"/><rotate x="1" angle="-90"/>
+    <translate y="-0.6"/></transform>
+    <bsdf type="diffuse"><rgb name="reflectance" value="0.6"/></bsdf></shape>
+  <emitter type="envmap"><string name="filename" value="sky.exr"/>
+    <transform name="to_world"><rotate y="1" angle="60"/></transform></emitter>
+</scene>
+"""
+
+
+def envmap_scene_file(resolution: int) -> str:
+    """The envmap bench scene as a Mitsuba XML file (and its sky EXR) in a temporary folder."""
+    import tempfile
+
+    from jgi.core.imageio import write_exr
+
+    folder = tempfile.mkdtemp(prefix="bench_envmap_")
+    H, W = 64, 128
+    up = 0.5 * (1 + np.cos(np.pi * np.arange(H) / (H - 1)))[:, None, None]
+    sky = np.broadcast_to(0.05 + np.array([0.4, 0.6, 1.0]) * up, (H, W, 3)).copy()
+    sky[14:17, 40:44] = (400.0, 350.0, 300.0)    # the sun
+    write_exr(os.path.join(folder, "sky.exr"), sky)
+    path = os.path.join(folder, "envmap.xml")
+    with open(path, "w") as f:
+        f.write(ENVMAP_XML.format(res=resolution))
+    return path
 
 
 def bench_jgi(resolution: int, spp: int, repeats: int, objects: str = "blocks") -> dict:
@@ -44,6 +88,10 @@ def bench_jgi(resolution: int, spp: int, repeats: int, objects: str = "blocks") 
 
     if objects == "veach_ggx":
         scene = jgi.scenes.veach_plates_ggx(resolution=resolution)
+    elif objects == "envmap":
+        from jgi.scene.importers.mitsuba import load_mitsuba_xml
+
+        scene = load_mitsuba_xml(envmap_scene_file(resolution))
     elif objects == "spheres":
         from jgi.scene import SceneBuilder
         from jgi.scene.builtin import cornell_room
@@ -88,7 +136,9 @@ def bench_mitsuba(resolution: int, spp: int, repeats: int, objects: str = "block
         print(f"mitsuba unavailable: {e}", file=sys.stderr)
         return None
     desc = mi.cornell_box()
-    if objects == "veach_ggx":
+    if objects == "envmap":
+        scene = mi.load_file(envmap_scene_file(resolution))
+    elif objects == "veach_ggx":
         from experiments.mitsuba_scene import to_mitsuba
         from jgi.scene import builtin
 
@@ -98,10 +148,11 @@ def bench_mitsuba(resolution: int, spp: int, repeats: int, objects: str = "block
         for i, (centre, radius) in enumerate(SPHERES):
             desc[f"sphere-{i}"] = {"type": "sphere", "center": list(centre), "radius": radius,
                                    "bsdf": {"type": "ref", "id": "white"}}
-    desc["sensor"]["film"]["width"] = desc["sensor"]["film"]["height"] = resolution
-    desc["sensor"]["film"]["rfilter"] = {"type": "box"}
-    desc["integrator"] = {"type": "path", "max_depth": 8, "rr_depth": 5}
-    scene = mi.load_dict(desc)
+    if objects != "envmap":
+        desc["sensor"]["film"]["width"] = desc["sensor"]["film"]["height"] = resolution
+        desc["sensor"]["film"]["rfilter"] = {"type": "box"}
+        desc["integrator"] = {"type": "path", "max_depth": 8, "rr_depth": 5}
+        scene = mi.load_dict(desc)
     t0 = time.perf_counter()
     np.asarray(mi.render(scene, spp=1, seed=0))
     compile_s = time.perf_counter() - t0
@@ -126,9 +177,11 @@ def main(argv=None) -> dict:
     ap.add_argument("--devices", type=int, default=1,
                     help="split jgi's lanes over this many virtual CPU devices")
     ap.add_argument("--no-mitsuba", action="store_true")
-    ap.add_argument("--objects", choices=("blocks", "spheres", "veach_ggx"), default="blocks",
+    ap.add_argument("--objects", choices=("blocks", "spheres", "veach_ggx", "envmap"),
+                    default="blocks",
                     help="what stands in the room: the two blocks, or two diffuse spheres; or "
-                         "Veach's plates with GGX plates instead of the room")
+                         "Veach's plates with GGX plates instead of the room; or two balls "
+                         "under an environment map")
     ap.add_argument("--json", default=None)
     a = ap.parse_args(argv)
     if a.devices > 1:

@@ -172,18 +172,18 @@ def _env_cell_pdf(env: EnvironmentMap, r, c) -> Array:
     return jnp.where(ok, p / jnp.where(ok, solid, 1.0), 0.0)
 
 
-def _search_row(cdf: Array, r: Array, u: Array) -> Array:
-    """Per lane, the first column j of row r of the inclusive ``cdf`` [R, W] with cdf > u
-    (binary search: one gather per halving, whatever the row's length)."""
-    W = cdf.shape[1]
+def _search(cdf: Array, base, n: int, u: Array) -> Array:
+    """Per lane, the first j in [0, n) with cdf[base + j] > u, for an inclusive CDF stored flat
+    from ``base`` (binary search: one gather per halving, fused into the caller's kernel, where
+    ``searchsorted`` would be a loop of kernels of its own)."""
     lo = jnp.zeros(jnp.shape(u), jnp.int32)
-    hi = jnp.full(jnp.shape(u), W - 1, jnp.int32)
-    for _ in range(int(np.ceil(np.log2(max(W, 2)))) + 1):
+    hi = jnp.full(jnp.shape(u), n - 1, jnp.int32)
+    for _ in range(int(np.ceil(np.log2(max(n, 2)))) + 1):
         mid = (lo + hi) // 2
-        right = cdf[r, mid] <= u
+        right = cdf[base + mid] <= u
         lo = jnp.where(right & (lo < hi), mid + 1, lo)
         hi = jnp.where(right | (lo >= hi), hi, mid)
-    return jnp.minimum(lo, W - 1)
+    return jnp.minimum(lo, n - 1)
 
 
 def _env_sample(env: EnvironmentMap, u1: Array, u2: Array) -> tuple[V3, Array]:
@@ -191,11 +191,12 @@ def _env_sample(env: EnvironmentMap, u1: Array, u2: Array) -> tuple[V3, Array]:
     cells by the marginal, a cell by the row's conditional, then cos(theta) and phi uniform
     in the cell (reusing each uniform's remainder)."""
     H, W = env.shape
-    r = jnp.clip(jnp.searchsorted(env.row_cdf, u1, side="right"), 0, H - 2).astype(jnp.int32)
-    c = _search_row(env.col_cdf, r, u2)
-    pr, pc = env.row_pmf[r], env.col_pmf[r, c]
+    r = _search(env.row_cdf, 0, H - 1, u1)
+    col_cdf = env.col_cdf.reshape(-1)
+    c = _search(col_cdf, r * W, W, u2)
+    pr, pc = env.row_pmf[r], env.col_pmf.reshape(-1)[r * W + c]
     fr = jnp.clip((u1 - (env.row_cdf[r] - pr)) / jnp.where(pr > 0, pr, 1.0), 0.0, 1.0)
-    fc = jnp.clip((u2 - (env.col_cdf[r, c] - pc)) / jnp.where(pc > 0, pc, 1.0), 0.0, 1.0)
+    fc = jnp.clip((u2 - (col_cdf[r * W + c] - pc)) / jnp.where(pc > 0, pc, 1.0), 0.0, 1.0)
     c0, c1 = env.cos_edge[r], env.cos_edge[r + 1]
     cos_t = c0 + (c1 - c0) * fr
     sin_t = jnp.sqrt(jnp.maximum(1.0 - cos_t * cos_t, 0.0))
