@@ -9,7 +9,9 @@ import pytest
 from scipy.spatial import cKDTree
 
 import jgi
+from jgi.core import transform as xf
 from jgi.core.vec import V3
+from jgi.scene import SceneBuilder
 from jgi.transport import density, hash_grid
 from jgi.transport.photons import PhotonMap
 from tests.support.stats import critical_t
@@ -211,6 +213,23 @@ def test_sppm_is_consistent():
                          radius=0.15, radius_alpha=0.7)
         rel.append(float(np.mean((img - ref) ** 2 / (ref**2 + 1e-2))))
     assert rel[0] > rel[1] > rel[2], rel
+
+
+def test_photons_on_a_thin_surfaces_far_side_are_not_seen_from_the_near_side():
+    """A one-sheet floor lit from below, seen from above: its top receives no light, so every
+    estimator renders it black. Photons landing on the underside were once stored with the
+    sheet's normal as given (+y), which the top's queries accepted: the top glowed."""
+    b = SceneBuilder("lit_from_below")
+    b.material("white", "diffuse", diffuse=0.8)
+    b.rectangle(xf.rotate([1, 0, 0], -90), "white")           # y = 0, normal +y
+    b.point_light((0.0, -0.5, 0.0), (5.0, 5.0, 5.0))
+    b.camera((0.0, 2.0, 0.01), (0.0, 0.0, 0.0), fov=30.0, width=8, height=8)
+    scene = b.build()
+    assert float(jgi.render(scene, "pt", spp=4, seed=0).max()) == 0.0
+    for est, kw in (("pm", dict(photons=20_000, radius=0.2)),
+                    ("sppm", dict(passes=2, photons=10_000, radius=0.2))):
+        img = jgi.render(scene, est, spp=1, seed=0, **kw)
+        assert float(img.max()) == 0.0, (est, float(img.max()))
 
 
 @pytest.mark.parametrize("estimator", ["pm", "ppm", "sppm"])

@@ -39,7 +39,7 @@ from jax import Array
 from ..core import rng
 from ..core.calls import ordered_calls
 from ..core.sharding import device_mesh, sharded_calls
-from ..core.vec import V3, max_component, where
+from ..core.vec import V3, dot, max_component, where
 from ..physics import bsdf, geometry
 from ..physics.lights import sample_emission
 from ..scene.tables import Scene
@@ -55,7 +55,7 @@ class PhotonMap(NamedTuple):
     position: V3
     power: V3        # flux carried (W), already divided by the number of emitted photons
     wi: V3           # unit direction towards the photon's previous vertex
-    normal: V3       # geometric normal of the surface it was stored on
+    normal: V3       # geometric normal of the surface it was stored on, on the arrival side
     caustic: Array   # bool: L S+ D path
     depth: Array     # int32: number of bounces before storage (0 = direct from the light)
 
@@ -89,7 +89,10 @@ def trace_photon_paths(scene: Scene, seed, photon_index: Array, n_emitted, max_d
         # caustic: L S+ D with S what Jensen's split samples through (Dirac and microfacet
         # lobes) and D a diffuse or Phong surface, where its camera chains end
         through = samples_through(mp, lookup_rough=False, kinds=mats.kinds)
-        record = (hit.p, pw, -d, hit.n, store & ~through & spec_seen & only_spec, store)
+        # the normal of the side the photon arrived on: a query (whose normal faces its viewer)
+        # then takes no photon that reached the other side of a thin surface
+        n_arrival = where(dot(hit.n, d) > 0, -hit.n, hit.n)
+        record = (hit.p, pw, -d, n_arrival, store & ~through & spec_seen & only_spec, store)
         base = 5 + depth * DIMS_PER_BOUNCE
         ns = hit.n if hit.ns is None else hit.ns
         bs = bsdf.sample(mats.kinds, mp, ns, -d, u(base), u(base + 1), u(base + 2),
