@@ -59,6 +59,23 @@ def test_knn_and_ball_queries_agree_with_ckdtree(rng_np, clustered):
     assert np.all((counts >= ref_counts) & (counts <= ref_counts_hi))
 
 
+def test_a_table_entry_shared_by_neighbour_cells_is_read_once(rng_np):
+    """With a table of 16 entries the 27 cells around a query must share entries: each photon
+    within the cell size is still gathered exactly once (it was listed once per cell sharing
+    its entry, so counted two or three times)."""
+    pm, xy = plane_photons(rng_np, 4000)
+    q = rng_np.random((300, 2))
+    grid = hash_grid.build_grid(pm, 0.05, table_size=16)
+    x, n = queries(q)
+    g = density.gather(grid, x, n, cap=1024)
+    assert not np.any(np.asarray(g.truncated))
+    rb = 0.9 * float(grid.cell)
+    counts = np.asarray(jnp.sum(g.d2 < rb**2, axis=-1))
+    ref_lo = np.array([len(c) for c in cKDTree(xy).query_ball_point(q, rb - 1e-6)])
+    ref_hi = np.array([len(c) for c in cKDTree(xy).query_ball_point(q, rb + 1e-6)])
+    assert np.all((counts >= ref_lo) & (counts <= ref_hi)), np.max(counts - ref_hi)
+
+
 def test_neighbour_hash_gives_a_cells_27_neighbours_distinct_entries():
     """The device grid's linear hash (:func:`hash_grid.neighbour_hash`): for every table size
     VCM uses, the 27 cells around a cell land on 27 distinct entries (so a query reads no entry

@@ -42,6 +42,9 @@ NEIGHBOURS = np.array([(dx, dy, dz) for dx in (-1, 0, 1) for dy in (-1, 0, 1)
                        for dz in (-1, 0, 1)], np.int32)                   # [27, 3]
 
 
+_EARLIER = np.tril(np.ones((NEIGHBOURS.shape[0],) * 2, bool), -1)   # [i, j]: j before i
+
+
 def cell_of(origin: V3, cell, x: V3) -> list[Array]:
     """The integer cell (int32 per axis) of points x."""
     return [jnp.floor((a - o) / cell).astype(jnp.int32) for a, o in zip(x, origin)]
@@ -129,11 +132,14 @@ def cells_around(grid: HashGrid, x: V3, cap: int):
     """(slot [N, 27 cap], valid [N, 27 cap], truncated [N]): the sorted-order slots of at most
     ``cap`` points from each of the 27 hashed cells around each query point x ([N]), so every
     point within ``grid.cell`` of x is among them unless a cell held more than cap
-    (``truncated``). Two of the 27 cells may share a table entry (the XOR hash): its points are
-    then listed twice, and a far-away colliding cell's points too; callers test the distance."""
+    (``truncated``). Two of the 27 cells may share a table entry (the XOR hash): the entry is
+    read once, at its first cell (its points would otherwise be counted twice). A far-away cell
+    hashed to the same entry lists its points too: callers test the distance."""
     h = teschner_hash(*neighbour_cells(grid.origin, grid.cell, x), grid.table_size)  # [N, 27]
     st, ct = grid.start[h], grid.count[h]
     trunc = jnp.any(ct > cap, axis=-1)
+    repeated = jnp.any((h[..., :, None] == h[..., None, :]) & _EARLIER, axis=-1)
+    ct = jnp.where(repeated, 0, ct)
     offs = jnp.arange(cap, dtype=jnp.int32)
     valid = offs < ct[..., None]                                                # [N, 27, cap]
     slot = jnp.where(valid, st[..., None] + offs, 0)
