@@ -98,7 +98,9 @@ class MaterialRule:
     texture; ``textured``: every parameter that may name a texture; ``interface``: None, or
     the defaults of its index of refraction: "dielectric" (ior 1.5, int_ior bk7) or "coating"
     (polypropylene, which must differ from ext_ior); ``isotropic``: one alpha only;
-    ``untextured_why``: why a parameter cannot be textured, appended to that error."""
+    ``untextured_why``: why a parameter cannot be textured, appended to that error;
+    ``one_sided``: whether it may be one-sided (reflective types; a dielectric is two-sided by
+    nature)."""
 
     kind: int
     keys: tuple[str, ...] = ()
@@ -107,6 +109,7 @@ class MaterialRule:
     interface: str | None = None
     isotropic: bool = False
     untextured_why: dict = dc_field(default_factory=dict)
+    one_sided: bool = True
 
 
 MATERIAL_RULES = {
@@ -114,13 +117,14 @@ MATERIAL_RULES = {
     "mirror": MaterialRule(MIRROR),
     "conductor": MaterialRule(MIRROR, keys=_CONDUCTOR),
     "dielectric": MaterialRule(DIELECTRIC, keys=(*_IOR, "transmittance"),
-                               interface="dielectric"),
+                               interface="dielectric", one_sided=False),
     "phong": MaterialRule(PHONG, colours=("diffuse", "specular"),
                           textured=("diffuse", "specular")),
     "roughconductor": MaterialRule(ROUGH_CONDUCTOR, keys=(*_ROUGHNESS, *_CONDUCTOR),
                                    textured=("specular", *_ROUGHNESS)),
     "roughdielectric": MaterialRule(ROUGH_DIELECTRIC, keys=(*_ROUGHNESS, *_IOR, "transmittance"),
-                                    textured=("specular", *_ROUGHNESS), interface="dielectric"),
+                                    textured=("specular", *_ROUGHNESS), interface="dielectric",
+                                    one_sided=False),
     "roughplastic": MaterialRule(
         ROUGH_PLASTIC, keys=(*_ROUGHNESS, *_IOR, "nonlinear"), colours=("diffuse", "specular"),
         textured=("diffuse", "specular"), interface="coating", isotropic=True,
@@ -234,6 +238,7 @@ class _Material:
     k: tuple = (0.0, 0.0, 0.0)
     nonlinear: bool = False
     transmission: tuple | None = None   # dielectrics' k_t (None: specular)
+    one_sided: bool = False             # reflects on the normal's side only (Mitsuba's)
     textures: dict = dc_field(default_factory=dict)  # TEX_* column -> texture row
 
 
@@ -340,7 +345,7 @@ class SceneBuilder:
                  alpha_v: float | None = None, distribution: str = "ggx", eta=None, k=None,
                  metal: str | None = None, int_ior: float | None = None,
                  ext_ior: float | None = None, nonlinear: bool = False,
-                 transmittance=None) -> int:
+                 transmittance=None, one_sided: bool = False) -> int:
         """Define material ``name``; returns its row. Parameters by ``kind``:
 
         * ``"diffuse"``: ``diffuse`` (k_d).
@@ -373,6 +378,11 @@ class SceneBuilder:
         roughness ``alpha`` or ``alpha_u`` / ``alpha_v`` (each on its own; its luminance) of
         roughconductor and roughdielectric. A roughplastic's ``alpha`` cannot be textured (its
         coating tables are computed from one value).
+
+        ``one_sided``: the surface reflects on the side its normal points to only, as
+        Mitsuba 3's reflective BSDFs without ``twosided``: seen or lit from the back it is
+        black (f = 0, no sample). Not for the dielectrics (two-sided by nature). Default
+        False: two-sided, as pbrt's materials.
 
         Raises :class:`SceneError` naming the material and what is allowed; the rules per
         type are :data:`MATERIAL_RULES`."""
@@ -417,6 +427,12 @@ class SceneBuilder:
         elif ior is not None:   # stored and unused, as before
             m.ior = float(ior)
         m.nonlinear = bool(nonlinear)
+        if not isinstance(one_sided, (bool, np.bool_)):
+            fail(f"'one_sided' must be true or false, got {one_sided!r}")
+        if one_sided and not rule.one_sided:
+            fail("cannot be one-sided (a dielectric is two-sided by nature); one-sided types: "
+                 + ", ".join(k for k, r in MATERIAL_RULES.items() if r.one_sided))
+        m.one_sided = bool(one_sided)
         if "diffuse" not in rule.colours:
             m.diffuse = (0.0, 0.0, 0.0)
         if "specular" not in rule.colours:
@@ -847,6 +863,8 @@ class SceneBuilder:
                                    for m in ms]),
             kinds=tuple(sorted({m.kind for m in ms})),
             distributions=tuple(sorted({m.distribution for m in ms if m.kind in ROUGH_KINDS})),
+            one_sided=(jnp.asarray([m.one_sided for m in ms], bool)
+                       if any(m.one_sided for m in ms) else None),
             **tex,
         )
 

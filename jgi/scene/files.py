@@ -74,6 +74,11 @@ MATERIAL_KEYS = {
                      "nonlinear": "bool", "alpha": "number", "distribution": "str"},
     "plastic": {"diffuse": "rgb|texture", "specular": "rgb|texture", **_IOR, "nonlinear": "bool"},
 }
+# the reflective types may be one-sided (Mitsuba's default; jgi's is two-sided, as pbrt's)
+for _kind, _keys in MATERIAL_KEYS.items():
+    if _kind not in ("dielectric", "roughdielectric"):
+        _keys["one_sided"] = "bool"
+del _kind, _keys
 # [[texture]] tables: Mitsuba's checkerboard and bitmap (SceneBuilder.texture).
 TEXTURE_KEYS = {
     "checkerboard": {"color0": "rgb", "color1": "rgb"},

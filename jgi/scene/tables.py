@@ -234,11 +234,19 @@ class Materials(eqx.Module):
     textures: Textures | None = None
     texture: Array | None = None   # int32 [M, 3]: texture row per TEX_* column, -1 = constant
     textured: tuple[int, ...] = eqx.field(static=True, default=())  # TEX_* columns in use
+    # bool [M]: reflects on its normal's side only (Mitsuba's BSDFs without ``twosided``);
+    # None in a scene without one-sided materials (its kernels are those before the flag)
+    one_sided: Array | None = None
 
     @property
     def has_textures(self) -> bool:
         """Static: the scene uses textures (hits then carry surface coordinates uv)."""
         return self.textures is not None
+
+    @property
+    def has_one_sided(self) -> bool:
+        """Static: some material is one-sided (the BSDFs then test the side of the normal)."""
+        return self.one_sided is not None
 
 
 class EnvironmentMap(eqx.Module):

@@ -135,6 +135,8 @@ def trace_to_diffuse(scene: Scene, uniform, o: V3, d: V3, *, max_depth: int,
             beta_end = beta * jnp.where(is_plastic & (p_base > 0),
                                         1.0 / jnp.where(p_base > 0, p_base, 1.0), 1.0)
         diffuse_end = active & ~specular
+        if mats.has_one_sided:   # a one-sided surface seen from the back reflects nothing
+            beta_end = where(bsdf.back_side(mp, shading(hit), wo), Z, beta_end)
         # ---- direct light at the first non-specular surface ----
         if lights.count:
             for j in range(light_samples):

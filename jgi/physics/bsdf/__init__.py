@@ -6,13 +6,15 @@ Conventions (pbrt's): ``wo`` points back along the path (towards the camera for 
 ``wi`` is the sampled direction, both leave the surface; ``n`` is the normal the BSDF is
 evaluated about: the primitive's unit geometric normal, or on smooth meshes the shading normal
 (Mitsuba 3 and pbrt-v4 evaluate BSDFs in the shading frame alone: its side tests, two-sided
-flip and the dielectric's entering or leaving; callers keep the geometric normal for ray
-offsets and area densities, and apply :func:`adjoint_correction` in importance mode). :func:`evaluate` returns the BSDF value f(wo, wi) *without* the cosine, and its
+flip, one-sided materials' back side and the dielectric's entering or leaving; callers keep
+the geometric normal for ray offsets and area densities, and apply :func:`adjoint_correction` in importance mode). :func:`evaluate` returns the BSDF value f(wo, wi) *without* the cosine, and its
 solid-angle pdf; :func:`sample` returns a direction and the weight f |cos theta_i| / pdf.
 Dirac (specular) lobes have no value and no pdf: ``evaluate`` gives 0 for them and ``sample``
 flags them with ``delta``. Opaque materials are two-sided (the normal is flipped to ``wo``'s
-side); the dielectric uses the normal's orientation to tell entering from leaving. A surface
-seen edge-on (|cos theta_o| <= ``vec.EDGE_ON_COS``) scatters nothing, and directions within
+side), except one-sided ones (Mitsuba's reflective BSDFs without ``twosided``: the material
+table's ``one_sided``), which are black, with pdf 0 and no sample, where wo or wi is on the
+back side of ``n`` (:func:`back_side`); the dielectric uses the normal's orientation to tell
+entering from leaving. A surface seen edge-on (|cos theta_o| <= ``vec.EDGE_ON_COS``) scatters nothing, and directions within
 that band of the surface have f = 0 and pdf = 0, on every CPU (see ``vec.EDGE_ON_COS``).
 Reflection-only kinds give f = 0 for wi on the other side from wo; the rough dielectric gives
 its transmission lobe there, whose value depends on the transport ``mode`` (radiance or
@@ -77,7 +79,8 @@ __all__ = ["RADIANCE", "IMPORTANCE", "GLOSSY_ALPHA", "MaterialParams", "BSDFSamp
            "lookup_specialised", "is_delta", "sampled_delta", "is_glossy", "is_rough",
            "facing", "side", "lit", "specular_probability", "fresnel_dielectric", "refract",
            "fresnel_conductor", "fresnel_conductor_rgb", "mirror_reflectance",
-           "adjoint_correction", "shading_ratio", "evaluate", "sample", "transmission_tint"]
+           "adjoint_correction", "shading_ratio", "evaluate", "sample", "transmission_tint",
+           "back_side"]
 
 
 def _rough(kinds, mp: MaterialParams, flipped: Array, wo_l: V3, wi_l: V3,
@@ -146,7 +149,19 @@ def evaluate(kinds, mp: MaterialParams, n: V3, wo: V3, wi: V3,
         f_r, pdf_r = _rough(kinds, mp, flipped, wo_l, wi_l, mode)
         rough = is_rough(mp)
         f, pdf = where(rough, f_r, f), jnp.where(rough, pdf_r, pdf)
+    if mp.one_sided is not None:
+        back = back_side(mp, n, wo) | back_side(mp, n, wi)
+        f, pdf = where(back, V3(zero, zero, zero), f), jnp.where(back, 0.0, pdf)
     return f, pdf
+
+
+def back_side(mp: MaterialParams, n: V3, w: V3) -> Array:
+    """A one-sided material's lanes where ``w`` is on the back side of the raw (unflipped)
+    normal ``n`` (cos theta <= 0, Mitsuba's test): it neither reflects nor is seen there.
+    All False in a scene without one-sided materials."""
+    if mp.one_sided is None:
+        return jnp.zeros(jnp.shape(w.x), bool)
+    return mp.one_sided & (dot(w, n) <= 0.0)
 
 
 def sample(kinds, mp: MaterialParams, n: V3, wo: V3, u_lobe: Array, u1: Array, u2: Array,
@@ -174,6 +189,8 @@ def sample(kinds, mp: MaterialParams, n: V3, wo: V3, u_lobe: Array, u1: Array, u
     if any(k in kinds for k in ROUGH_KINDS):
         out = choose(is_rough(mp), _sample_rough(kinds, mp, n, nf, cos_o, flipped, wo, u_lobe,
                                                  u1, u2, mode), out)
+    if mp.one_sided is not None:   # seen from the back, or scattered to it: nothing
+        out = choose(back_side(mp, n, wo) | back_side(mp, n, out.wi), no_sample(u1), out)
     return out
 
 

@@ -66,6 +66,8 @@ class MaterialParams(NamedTuple):
     nonlinear: Array = False          # roughplastic's nonlinear option (per lane)
     kt: V3 | None = None              # a (rough) dielectric's transmission tint (Mitsuba's
                                       # specular_transmittance); None: ks tints both lobes
+    one_sided: Array | None = None    # bool: reflects on n's side only; None: the scene has
+                                      # no one-sided material
 
 
 def transmission_tint(mp: MaterialParams) -> V3:
@@ -92,7 +94,8 @@ def lookup(mats: Materials, m: Array, uv=None) -> MaterialParams:
                           mats.exponent[m], mats.ior[m], mats.alpha_u[m], mats.alpha_v[m],
                           mats.distribution[m], row3(mats.eta), row3(mats.k), m,
                           mats.transmittance, mats.internal_reflectance[m], mats.nonlinear[m],
-                          row3(mats.transmission_tint)))
+                          row3(mats.transmission_tint),
+                          mats.one_sided[m] if mats.has_one_sided else None))
 
 
 def textured(mats: Materials, m: Array, uv, mp: MaterialParams) -> MaterialParams:
@@ -163,7 +166,8 @@ def lookup_specialised(mats: Materials, m: Array, uv=None) -> MaterialParams:
         mats.transmittance if plastic else _NO_TABLE,
         take(mats.internal_reflectance, m) if coated else zero,
         take(mats.nonlinear, m) if coated else zero > 0,
-        col3(mats.transmission_tint) if has(DIELECTRIC, ROUGH_DIELECTRIC) else None))
+        col3(mats.transmission_tint) if has(DIELECTRIC, ROUGH_DIELECTRIC) else None,
+        take(mats.one_sided, m) if mats.has_one_sided else None))
 
 
 def is_delta(mp: MaterialParams) -> Array:

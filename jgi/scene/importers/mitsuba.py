@@ -17,11 +17,12 @@ supported):
              <ref>s to one texture; other textured tints are refused);
              roughplastic and plastic (smooth: a Dirac coating reflection over a diffuse
              base) (diffuse_reflectance, specular_reflectance, int_ior, ext_ior,
-             nonlinear); twosided around any of the opaque ones (nested or a <ref>; one BSDF,
-             or the same one twice, for front and back; Mitsuba refuses transmissive ones,
-             and jgi two different ones) is that BSDF: jgi's opaque BSDFs are two-sided,
-             Mitsuba's are one-sided, so a one-sided Mitsuba surface seen from the back
-             renders black there and not in jgi.
+             nonlinear). The reflective ones (every BSDF but the dielectrics, and a shape's
+             default diffuse) are one-sided, as in Mitsuba: black seen or lit from the back
+             of the surface (jgi's ``one_sided`` material flag); twosided around any of them
+             (nested or a <ref>; one BSDF, or the same one twice, for front and back;
+             Mitsuba refuses transmissive ones, and jgi two different ones) is that BSDF on
+             both sides.
              rough plugins: distribution beckmann | ggx, alpha or alpha_u / alpha_v (not for
              roughplastic; anisotropic only where Mitsuba's shading frame is jgi's, see
              check_anisotropy_frame: rectangles whose to_world x axis, and meshes whose
@@ -81,6 +82,7 @@ irradiance (W m^-2) are jgi's.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import xml.etree.ElementTree as ET
 import xml.parsers.expat as expat
@@ -190,6 +192,7 @@ class _Importer:
         self.b = SceneBuilder(path.stem)
         self.bsdfs: dict[str, tuple] = {}   # id -> (kind, kwargs)
         self.anisotropic: set[str] = set()  # BSDFs with alpha_u != alpha_v
+        self.two_sided_rows: dict[int, int] = {}  # one-sided row -> its twosided copy
         self.n_anon = 0
         self.checkerboards: dict[str, dict] = {}   # name -> the builder's checkerboard kwargs
         self.sensor_done = False
@@ -433,13 +436,16 @@ class _Importer:
         self.n_anon += 1
         if kind == "twosided":
             inner_name = self.twosided(el)
+            nested = [c for c in el if c.tag == "bsdf"]
+            if nested and not nested[0].get("id"):   # used here alone: made two-sided in place
+                self.b.materials[self.b.material_names[inner_name]].one_sided = False
             if inner_name in self.anisotropic:
                 self.anisotropic.add(name)
             self.bsdfs[name] = self.bsdfs[inner_name]
-            self.b.material_names[name] = self.b.material_names[inner_name]
+            self.b.material_names[name] = self.two_sided_row(inner_name)
             return name
         if kind == "diffuse":
-            self.b.material(name, "diffuse",
+            self.b.material(name, "diffuse", one_sided=True,
                             diffuse=self.rgb(el, p, "reflectance", 0.5, texture=True))
         elif kind in ("conductor", "roughconductor"):
             self.conductor(el, name, kind, p)
@@ -474,7 +480,7 @@ class _Importer:
                 self.fail(el, f"{kind}: 'nonlinear' must be a <boolean>")
             rough = (self.roughness(el, kind, p, anisotropic=False) if kind == "roughplastic"
                      else {})
-            self.b.material(name, kind,
+            self.b.material(name, kind, one_sided=True,
                             diffuse=self.rgb(el, p, "diffuse_reflectance", 0.5, texture=True),
                             specular=self.rgb(el, p, "specular_reflectance", 1.0, texture=True),
                             int_ior=int_ior, ext_ior=ext_ior, nonlinear=nonlinear, **rough)
@@ -509,6 +515,19 @@ class _Importer:
                           "a jgi surface has one material on both sides; give one nested bsdf")
         return names[0]
 
+    def two_sided_row(self, inner_name: str) -> int:
+        """The material row of ``inner_name`` made two-sided: the row itself if it is (an
+        anonymous nested BSDF, made two-sided in place), else a two-sided copy of it (the
+        one-sided row stays for the shapes that use the BSDF unwrapped, by reference)."""
+        row = self.b.material_names[inner_name]
+        m = self.b.materials[row]
+        if not m.one_sided:
+            return row
+        if row not in self.two_sided_rows:
+            self.two_sided_rows[row] = len(self.b.materials)
+            self.b.materials.append(dataclasses.replace(m, one_sided=False))
+        return self.two_sided_rows[row]
+
     def conductor(self, el, name: str, kind: str, p: dict):
         """conductor / roughconductor: Mitsuba's rules for ``material`` versus ``eta`` / ``k``
         (``material`` "none" without eta and k is a 100 % reflector)."""
@@ -525,15 +544,15 @@ class _Importer:
             if material not in metals:
                 self.fail(el, f"{kind}: material '{material}' is not in jgi's table of metals; "
                               f"supported: {', '.join(metals)} (or give eta and k)")
-            self.b.material(name, jgi_kind, specular=spec, metal=material, **rough)
+            self.b.material(name, jgi_kind, specular=spec, metal=material, **rough, one_sided=True)
         elif "eta" not in p and "k" not in p:   # Mitsuba's "none": eta 0, k 1, F = 1
-            self.b.material(name, jgi_kind, specular=spec, metal="none", **rough)
+            self.b.material(name, jgi_kind, specular=spec, metal="none", **rough, one_sided=True)
         else:  # Mitsuba's defaults for a missing one of the two: eta 0, k 1
             eta, k = self.rgb(el, p, "eta", 0.0), self.rgb(el, p, "k", 1.0)
             if np.any(eta < 0) or np.any(k < 0):
                 self.fail(el, f"{kind}: eta and k must be >= 0, got eta {eta.tolist()}, "
                               f"k {k.tolist()}")
-            self.b.material(name, jgi_kind, specular=spec, eta=eta, k=k, **rough)
+            self.b.material(name, jgi_kind, specular=spec, eta=eta, k=k, **rough, one_sided=True)
 
     def roughness(self, el, kind: str, p: dict, anisotropic: bool = True) -> dict:
         """distribution (beckmann | ggx, default beckmann) and alpha or alpha_u / alpha_v
@@ -639,8 +658,15 @@ class _Importer:
         if material is None:  # Mitsuba's default: diffuse, reflectance 0.5
             material = f"_default{self.n_anon}"
             self.n_anon += 1
-            self.b.material(material, "diffuse", diffuse=(0.5, 0.5, 0.5))
+            self.b.material(material, "diffuse", diffuse=(0.5, 0.5, 0.5), one_sided=True)
+        if p.get("flip_normals", False) and kind in ("cube", "sphere"):
+            # the side matters to one-sided BSDFs, area emitters and dielectrics
+            self.fail(el, f"{kind}: flip_normals is not supported on a {kind} (it turns "
+                          "Mitsuba's one-sided surfaces, emitters and interfaces inside out); "
+                          "supported on rectangle, obj, ply and serialized shapes")
         if kind == "rectangle":
+            if p.get("flip_normals", False):   # the same rectangle, its normal negated
+                m = m @ np.diag([1.0, -1.0, 1.0, 1.0])
             self.b.rectangle(m, material, emission)
         elif kind == "cube":
             self.b.cube(m, material, emission)
@@ -738,7 +764,9 @@ class _Importer:
         tangent, and meshes without texture coordinates whose every triangle's first edge is
         (called once the mesh is loaded, with its world-space ``vertices`` and ``faces``)."""
         why = None
-        if kind == "rectangle":
+        if kind == "rectangle" and p.get("flip_normals", False):
+            why = "flip_normals changes Mitsuba's frame"
+        elif kind == "rectangle":
             du, dv = m[:3, 0], m[:3, 1]
             n = np.cross(du, dv)
             s, _ = tangent_frame(n)
