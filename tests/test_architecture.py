@@ -184,7 +184,7 @@ def test_readme_layout_table_matches_the_tree():
 ROOT = PACKAGE.parent
 SCRIPT_TREES = ("jgi", "tests", "experiments", "paper")
 # experiment modules that are libraries, not scripts: tests may import these
-EXPERIMENT_LIBRARIES = {"experiments.mitsuba_scene"}
+EXPERIMENT_LIBRARIES = {"experiments.mitsuba_scene", "experiments.bench.smallvcm"}
 
 
 def _sources(*trees: str):

@@ -1,19 +1,27 @@
-"""VCM throughput: light and camera subpaths per second on the caustic Cornell box.
+"""jgi's bidirectional estimators against SmallVCM, on the same scene in the same run.
 
-    python -m experiments.bench.vcm [--resolution 512] [--max-depth 10] [--iterations 3]
-                                    [--modes vcm,bpm,bpt,ppm] [--json out.json]
+    python -m experiments.bench.vcm [--iterations 4] [--max-depth 10]
+        [--modes vcm,bpm,bpt,ppm,lt,pt] [--check-seeds 8] [--check-iterations 1] [--json out.json]
 
-The issue's setting (SmallVCM's own benchmark): a Cornell box with a mirror and a glass sphere
-(``cornell_box_caustics``), 512^2, paths of at most 10 segments, one light and one camera
-subpath per pixel and iteration. A *sample* is one pixel's pair (light subpath + camera subpath
-with every technique); samples per second is what SmallVCM reports as paths per second.
-SmallVCM was not run here (it is a C++ program outside the package registries); its figures
-measured on this 2-core CPU, from the issue, are the peer: VCM 0.12, BPT 0.18, PPM 0.40 and PT
-0.47 M samples/s. jgi's path tracer (NEE + MIS, no Russian roulette) is measured in the same run.
+SmallVCM (experiments.bench.smallvcm) is built from ``../shared/peers/smallvcm`` in a temporary
+folder; without its source or a compiler the benchmark prints why and exits. Both render its
+Cornell box (``smallvcm_box``: the light box under the ceiling, a mirror and a glass ball),
+512^2, paths of at most ``--max-depth`` segments, one light and one camera subpath per pixel
+and iteration, SmallVCM's merge radius r_0 = 0.003 x the scene's bounding-sphere radius with
+its schedule (alpha 0.75), the balance heuristic (SmallVCM's) and the box filter (its kernel).
+A *sample* is one pixel's pair (light subpath + camera subpath with every technique), what
+SmallVCM calls a path. jgi's ``pt`` is its path tracer (Russian roulette from the first
+bounce, as SmallVCM's), ``lt`` its light tracer (SmallVCM's splats no emitter seen directly, so
+the pixels that see one are left out of that mode's comparison).
 
-Prints per mode: compile seconds (first iteration, compiles included), then samples per second
-of wall clock and per CPU-second of the process (less sensitive to other jobs), and the ratio
-to SmallVCM's figure. One JSON object on stdout (or --json FILE).
+First, per mode, both render ``--check-seeds`` independent images of ``--check-iterations``
+iterations each, compared per 4 x 4 region and channel by Welch's t (both sides' seed spreads,
+Bonferroni-corrected: :func:`jgi.analysis.stats.region_agreement`): a rate is only worth
+comparing between renderers that compute the same image. Then the rates: SmallVCM's from the
+wall clock of ``n`` and ``2 n`` iterations (its start-up left out), jgi's from a render of
+``n`` iterations after a compiling one. Printed per mode: SmallVCM's and jgi's M samples/s and
+their ratio (also per CPU-second, less sensitive to other jobs), jgi's compile seconds, and the
+agreement. One JSON object on stdout (or --json FILE).
 """
 
 from __future__ import annotations
@@ -22,76 +30,131 @@ import argparse
 import json
 import os
 import sys
+import tempfile
 import time
+from pathlib import Path
 
-SMALLVCM = {"vcm": 0.12e6, "bpt": 0.18e6, "ppm": 0.40e6, "pt": 0.47e6}
+import numpy as np
 
+from . import smallvcm
 
-def bench_vcm(scene, mode: str, iterations: int, max_depth: int, radius: float) -> dict:
-    from jgi.estimators import vcm
-
-    cfg = vcm.VCMConfig(mode=mode, max_depth=max_depth, radius=radius)
-    t0 = time.perf_counter()
-    first = vcm.render(scene, cfg, spp=1, seed=0)
-    compile_s = time.perf_counter() - t0
-    t0, c0 = time.perf_counter(), time.process_time()
-    r = vcm.render(scene, cfg, spp=iterations, seed=1)
-    wall, cpu = time.perf_counter() - t0, time.process_time() - c0
-    n = scene.camera.width * scene.camera.height * iterations
-    return dict(mode=mode, compile_s=compile_s, seconds=wall, samples_per_s=n / wall,
-                samples_per_cpu_s=n / cpu, stats={**first.stats, **r.stats},
-                mean_rgb=r.image.reshape(-1, 3).mean(0).tolist())
+MODES = ("vcm", "bpm", "bpt", "ppm", "lt", "pt")
+REGIONS = 4
 
 
-def bench_pt(scene, spp: int, max_depth: int) -> dict:
+def jgi_estimator(mode: str, max_depth: int, radius: float) -> tuple[str, dict]:
+    """jgi's estimator and parameters for SmallVCM's algorithm ``mode``."""
+    if mode == "pt":
+        return "pt", dict(max_depth=max_depth, rr_depth=1)
+    if mode == "lt":
+        return "lt", dict(max_depth=max_depth)
+    return "vcm", dict(mode=mode, max_depth=max_depth, radius=radius, radius_alpha=0.75,
+                       heuristic="balance", filter="box")
+
+
+def bench_jgi(scene, estimator: str, params: dict, iterations: int) -> dict:
     import jgi
 
     t0 = time.perf_counter()
-    jgi.render(scene, "pt", spp=1, seed=0, max_depth=max_depth, rr_depth=-1)
+    jgi.render(scene, estimator, spp=1, seed=0, **params)
     compile_s = time.perf_counter() - t0
     t0, c0 = time.perf_counter(), time.process_time()
-    img = jgi.render(scene, "pt", spp=spp, seed=1, max_depth=max_depth, rr_depth=-1)
+    jgi.render(scene, estimator, spp=iterations, seed=1, **params)
     wall, cpu = time.perf_counter() - t0, time.process_time() - c0
-    n = scene.camera.width * scene.camera.height * spp
-    return dict(mode="pt", compile_s=compile_s, seconds=wall, samples_per_s=n / wall,
-                samples_per_cpu_s=n / cpu, mean_rgb=img.reshape(-1, 3).mean(0).tolist())
+    n = scene.camera.width * scene.camera.height * iterations
+    return dict(compile_s=compile_s, seconds=wall, samples_per_s=n / wall,
+                samples_per_cpu_s=n / cpu)
+
+
+def agreement(peer: smallvcm.SmallVCM, scene, mode: str, estimator: str, params: dict,
+              seeds: int, iterations: int) -> dict:
+    import jgi
+    from jgi.analysis.stats import region_agreement
+
+    ours = np.stack([jgi.render(scene, estimator, spp=iterations, seed=100 + s, **params)
+                     for s in range(seeds)])
+    theirs = peer.images(mode, iterations, seeds=range(1, seeds + 1))
+    if mode == "lt":
+        # SmallVCM's light tracer splats no light vertex itself (emitters seen directly stay
+        # black in its image); jgi's does: both leave out the pixels that see an emitter
+        seen = jgi.render(scene, "pt", spp=16, seed=0, max_depth=1).max(-1) > 0
+        ours, theirs = ours * ~seen[..., None], theirs * ~seen[..., None]
+    r = region_agreement(ours, theirs, REGIONS)
+    w = r.worst
+    return dict(agree=r.agree, max_t=float(r.t.max()), worst_region=[int(i) for i in w],
+                worst_t=float(r.t[w]), critical_t=float(r.critical[w]),
+                mean_jgi=ours.reshape(-1, 3).mean(0).tolist(),
+                mean_smallvcm=theirs.reshape(-1, 3).mean(0).tolist())
+
+
+def scene_radius() -> float:
+    """SmallVCM's scene radius: half the diagonal of its geometry's bounding box."""
+    from jgi.scene.builtin import SMALLVCM_BOX
+
+    return float(np.linalg.norm(SMALLVCM_BOX.max(0) - SMALLVCM_BOX.min(0)) / 2)
 
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--resolution", type=int, default=512)
     ap.add_argument("--max-depth", type=int, default=10)
-    ap.add_argument("--iterations", type=int, default=3)
-    ap.add_argument("--radius", type=float, default=0.003 * 3 ** 0.5 * 2,
-                    help="r_0 (default SmallVCM's: 0.003 x the scene's bounding-sphere radius)")
-    ap.add_argument("--modes", default="vcm,bpm,bpt,ppm")
+    ap.add_argument("--iterations", type=int, default=4)
+    ap.add_argument("--modes", default=",".join(MODES))
+    ap.add_argument("--check-seeds", type=int, default=8,
+                    help="independent images per side for the agreement check (0: skip it)")
+    ap.add_argument("--check-iterations", type=int, default=1)
     ap.add_argument("--json", default=None)
     a = ap.parse_args(argv)
+    modes = a.modes.split(",")
+    unknown = sorted(set(modes) - set(MODES))
+    if unknown:
+        ap.error(f"unknown modes {unknown}; allowed: {', '.join(MODES)}")
 
     import jgi
 
-    scene = jgi.load_scene("cornell_box_caustics").with_resolution(a.resolution, a.resolution)
-    load = os.getloadavg()[0]
-    rows = [bench_vcm(scene, m, a.iterations, a.max_depth, a.radius)
-            for m in a.modes.split(",")]
-    rows.append(bench_pt(scene, a.iterations, a.max_depth))
-    for r in rows:
-        peer = SMALLVCM.get(r["mode"])
-        r["over_smallvcm"] = r["samples_per_s"] / peer if peer else None
-    out = dict(scene="cornell_box_caustics", resolution=a.resolution, max_depth=a.max_depth,
-               load_average=load, cpus=os.cpu_count(), rows=rows)
+    with tempfile.TemporaryDirectory() as tmp:
+        try:
+            peer = smallvcm.build(Path(tmp))
+        except smallvcm.PeerUnavailable as e:
+            print(f"skipped: SmallVCM is not available ({e})", file=sys.stderr)
+            return 0
+        scene = jgi.load_scene("smallvcm_box", resolution=smallvcm.RESOLUTION)
+        radius = 0.003 * scene_radius()
+        load = os.getloadavg()[0]
+        rows = []
+        for mode in modes:
+            estimator, params = jgi_estimator(mode, a.max_depth, radius)
+            row = dict(mode=mode, estimator=estimator, params=params)
+            if a.check_seeds > 1:
+                row["agreement"] = agreement(peer, scene, mode, estimator, params,
+                                             a.check_seeds, a.check_iterations)
+            row["smallvcm"] = peer.rate(mode, a.iterations)
+            row["jgi"] = bench_jgi(scene, estimator, params, a.iterations)
+            row["ratio"] = row["jgi"]["samples_per_s"] / row["smallvcm"]["samples_per_s"]
+            row["ratio_cpu"] = (row["jgi"]["samples_per_cpu_s"]
+                                / row["smallvcm"]["samples_per_cpu_s"])
+            rows.append(row)
+            _summary(row, a)
+    out = dict(scene="smallvcm_box", resolution=smallvcm.RESOLUTION, max_depth=a.max_depth,
+               radius=radius, iterations=a.iterations, load_average=load, cpus=os.cpu_count(),
+               rows=rows)
     text = json.dumps(out, indent=2)
     if a.json:
-        with open(a.json, "w") as f:
-            f.write(text)
+        Path(a.json).write_text(text)
     print(text)
-    for r in rows:
-        ratio = "" if r["over_smallvcm"] is None else f"  {r['over_smallvcm']:.2f}x SmallVCM"
-        print(f"{r['mode']:4s} {a.resolution}^2 depth {a.max_depth}: compile+1 "
-              f"{r['compile_s']:.1f} s, {r['samples_per_s'] / 1e6:.3f} M samples/s "
-              f"({r['samples_per_cpu_s'] / 1e6:.3f} per CPU-s){ratio}", file=sys.stderr)
     print(f"load {load:.1f} on {os.cpu_count()} CPUs", file=sys.stderr)
     return 0
+
+
+def _summary(row: dict, a) -> None:
+    peer, ours = row["smallvcm"], row["jgi"]
+    check = row.get("agreement")
+    agree = ("" if check is None else
+             f"  images {'agree' if check['agree'] else 'DIFFER'} (max t {check['max_t']:.1f}, "
+             f"worst {check['worst_t']:.1f} vs {check['critical_t']:.1f})")
+    print(f"{row['mode']:4s} 512^2 depth {a.max_depth}: SmallVCM {peer['samples_per_s'] / 1e6:.3f}"
+          f", jgi {ours['samples_per_s'] / 1e6:.3f} M samples/s = {row['ratio']:.2f}x "
+          f"({row['ratio_cpu']:.2f}x per CPU-s; jgi compile+1 {ours['compile_s']:.1f} s)"
+          f"{agree}", file=sys.stderr)
 
 
 if __name__ == "__main__":

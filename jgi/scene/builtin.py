@@ -20,6 +20,9 @@
   textured roughness (every textured parameter and texture kind).
 * ``point_light_plane``: a point light of intensity I at height h over a diffuse plane: the
   radiance is (rho / pi) I cos(theta) / d^2 at every point.
+* ``smallvcm_box``: SmallVCM's Cornell box (its ``LoadCornellBox`` with the ceiling light box
+  and both small spheres: a mirror and an index-1.6 glass ball), its geometry, one-sided
+  materials, light and camera, so that benchmarks run jgi and SmallVCM on the same scene.
 """
 
 from __future__ import annotations
@@ -314,6 +317,49 @@ def mirror_sds(resolution: int = 64, intensity: float = 10.0, albedo: float = 0.
     return b.build()
 
 
+# SmallVCM's box corners (its scene.hxx, z up): 0-3 at y = +1.30455 (the back), 4-7 at the front
+SMALLVCM_BOX = np.array([
+    (-1.27029, 1.30455, -1.28002), (1.28975, 1.30455, -1.28002), (1.28975, 1.30455, 1.28002),
+    (-1.27029, 1.30455, 1.28002), (-1.27029, -1.25549, -1.28002), (1.28975, -1.25549, -1.28002),
+    (1.28975, -1.25549, 1.28002), (-1.27029, -1.25549, 1.28002)])
+SMALLVCM_LIGHT_BOX = np.array([
+    (-0.25, 0.25, 1.26002), (0.25, 0.25, 1.26002), (0.25, 0.25, 1.28002), (-0.25, 0.25, 1.28002),
+    (-0.25, -0.25, 1.26002), (0.25, -0.25, 1.26002), (0.25, -0.25, 1.28002),
+    (-0.25, -0.25, 1.28002)])
+
+
+def smallvcm_box(resolution: int = 512) -> Scene:
+    """SmallVCM's ``LoadCornellBox(kLightCeiling | kBothSmallSpheres)``: triangles in its vertex
+    order (so its normals), its albedos, a light box under the ceiling whose downward face
+    emits 25.0333 (its radiance), a mirror ball (reflectance 1) and a glass ball (index 1.6),
+    and its camera (45 degrees horizontal field of view). Its diffuse surfaces are one-sided
+    (SmallVCM's BSDF is black from behind), and so are they here."""
+    b = SceneBuilder("smallvcm_box")
+    for name, rgb in (("white", (0.803922,) * 3), ("green", (0.156863, 0.803922, 0.172549)),
+                      ("red", (0.803922, 0.152941, 0.152941))):
+        b.material(name, "diffuse", diffuse=rgb, one_sided=True)
+    b.material("emitter", "diffuse", one_sided=True)
+    b.material("mirror", "mirror", specular=(1.0, 1.0, 1.0))
+    b.material("glass", "dielectric", ior=1.6)
+    cb, lb = SMALLVCM_BOX, SMALLVCM_LIGHT_BOX
+    walls = {"white": [(0, 4, 5), (5, 1, 0), (0, 1, 2), (2, 3, 0), (2, 6, 7), (7, 3, 2)],
+             "green": [(3, 7, 4), (4, 0, 3)], "red": [(1, 5, 6), (6, 2, 1)]}
+    for material, faces in walls.items():
+        b.mesh(cb, faces, material)
+    b.mesh(lb, [(0, 2, 1), (2, 0, 3), (3, 4, 7), (4, 3, 0), (1, 6, 5), (6, 1, 2), (4, 5, 6),
+                (6, 7, 4)], "white")
+    b.mesh(lb, [(0, 5, 4), (5, 0, 1)], "emitter", emission=(25.03329895614464,) * 3)
+    floor_left, floor_right = (cb[0] + cb[4]) / 2, (cb[1] + cb[5]) / 2
+    shift = np.array([2 * (floor_right[0] - floor_left[0]) / 7, 0, 0.5])
+    b.sphere(floor_left + shift * (1, 0, 1), 0.5, "mirror")
+    b.sphere(floor_right + shift * (-1, 0, 1), 0.5, "glass")
+    position = np.array((-0.0439815, -4.12529, 0.222539))
+    b.camera(position=position, look_at=position + (0.00688625, 0.998505, -0.0542161),
+             up=(3.73896e-4, 0.0542148, 0.998529), fov=45.0, width=resolution,
+             height=resolution, fov_axis="x")
+    return b.build()
+
+
 BUILTINS = {
     "cornell_box": cornell_box,
     "cornell_box_caustics": cornell_box_caustics,
@@ -328,6 +374,7 @@ BUILTINS = {
     "point_light_plane": point_light_plane,
     "mirror_caustic": mirror_caustic,
     "mirror_sds": mirror_sds,
+    "smallvcm_box": smallvcm_box,
 }
 
 
