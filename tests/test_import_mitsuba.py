@@ -133,6 +133,11 @@ def test_lights_materials_and_transforms(tmp_path):
      "supported by jgi; supported texture plugins: bitmap, checkerboard"),
     ('<bsdf type="roughplastic" id="x"><ref name="diffuse_reflectance" id="checks"/></bsdf>',
      "parameter 'diffuse_reflectance' refers to 'checks', which is not a texture defined"),
+    ('<shape type="rectangle"><emitter type="area"><texture type="checkerboard" '
+     'name="radiance"/></emitter></shape>', "emitter 'area': a textured radiance is not "
+     "supported"),
+    ('<emitter type="point"><texture type="checkerboard" name="intensity"/></emitter>',
+     "emitter 'point': a textured intensity is not supported"),
     ('<volume/>', "<volume> is not supported"),
     ('<shape type="rectangle"', "XML syntax error"),
 ])

@@ -640,8 +640,7 @@ class _Importer:
                 material = self.bsdf(c)
             elif c.tag == "ref" and c.get("id") in self.area_emitters:
                 # a top-level area emitter with an id, referenced (before or after it)
-                emission = self.props(self.area_emitters[c.get("id")]).get("radiance",
-                                                                          np.ones(3))
+                emission = self.emitted(self.area_emitters[c.get("id")], "radiance")
             elif c.tag == "ref":
                 rid = c.get("id")
                 if rid not in self.b.material_names:
@@ -652,7 +651,7 @@ class _Importer:
             elif c.tag == "emitter":
                 if c.get("type") != "area":
                     self.fail(c, f"a shape's emitter must be 'area', got '{c.get('type')}'")
-                emission = self.props(c).get("radiance", np.ones(3))
+                emission = self.emitted(c, "radiance")
         if material in self.anisotropic and kind not in ("obj", "ply", "serialized"):
             self.check_anisotropy_frame(el, kind, p, m, material)
         if material is None:  # Mitsuba's default: diffuse, reflectance 0.5
@@ -800,6 +799,14 @@ class _Importer:
                           "and meshes whose triangles' first edges, are that frame's tangent; "
                           "or give alpha")
 
+    def emitted(self, el, name: str):
+        """An emitter's constant radiance / intensity / irradiance (Mitsuba's default 1)."""
+        value = self.props(el).get(name, np.ones(3))
+        if isinstance(value, TextureRef):
+            self.fail(el, f"emitter '{el.get('type')}': a textured {name} is not supported "
+                          "(jgi's emitters are constant: give an rgb, spectrum or float)")
+        return value
+
     def emitter(self, el):
         kind = self.check_type(el)
         if kind == "area":
@@ -811,7 +818,7 @@ class _Importer:
         m = p.get("to_world", np.eye(4))
         if kind == "point":
             pos = p.get("position", xf.apply_point(m, np.zeros(3)))
-            self.b.point_light(pos, p.get("intensity", np.ones(3)))
+            self.b.point_light(pos, self.emitted(el, "intensity"))
         elif kind == "spot":
             # Mitsuba 3's falloff: linear in the angle from 1 at beam_width (default 3/4 of
             # cutoff_angle) to 0 at cutoff_angle; with beam_width = cutoff_angle a hard cone
@@ -823,14 +830,14 @@ class _Importer:
             hard = math.isclose(beam, cutoff, rel_tol=1e-6)
             pos = xf.apply_point(m, np.zeros(3))
             target = xf.apply_point(m, np.array([0.0, 0.0, 1.0]))
-            self.b.spot_light(pos, target, p.get("intensity", np.ones(3)), cutoff_deg=cutoff,
+            self.b.spot_light(pos, target, self.emitted(el, "intensity"), cutoff_deg=cutoff,
                               falloff_deg=cutoff if hard else beam,
                               profile="smoothstep" if hard else "linear")
         elif kind == "directional":
             d = p.get("direction", xf.apply_vector(m, np.array([0.0, 0.0, 1.0])))
-            self.b.directional_light(d, p.get("irradiance", np.ones(3)))
+            self.b.directional_light(d, self.emitted(el, "irradiance"))
         elif kind == "constant":
-            self.b.environment_light(p.get("radiance", np.ones(3)))
+            self.b.environment_light(self.emitted(el, "radiance"))
         elif kind == "envmap":
             # Mitsuba 3's envmap: radiance scale x the latitude-longitude image's bilinear
             # lookup (EXR linear, PNG / JPEG sRGB-decoded), oriented by to_world
