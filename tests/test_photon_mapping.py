@@ -117,6 +117,38 @@ def test_device_grid_pairs_list_every_point_within_the_cell_once(rng_np, capacit
     assert near and near <= set(got)
 
 
+@pytest.mark.parametrize("kind", ["box", "epanechnikov"])
+def test_sum_within_takes_every_photon_within_each_radius(rng_np, kind):
+    """density.sum_within (SPPM's and PPM's gather) against a brute-force sum over all photons:
+    clustered photons (cells far fuller than the old per-cell cap of 128), a radius per point,
+    photons on the back side (normal away from the point's) left out, points not live get 0."""
+    pm, xy = plane_photons(rng_np, 20000, clustered=True)
+    flip = rng_np.random(20000) < 0.2
+    pm = pm._replace(normal=V3(*(np.where(flip, -c, c).astype(np.float32) for c in pm.normal)),
+                     power=V3(*(rng_np.random(20000).astype(np.float32) for _ in range(3))))
+    scene = jgi.load_scene("cornell_box", resolution=4)       # diffuse rows for f_r = k_d / pi
+    q = np.concatenate([rng_np.random((250, 2)), xy[rng_np.integers(0, 20000, 250)]])
+    x, n = queries(q)
+    wo = V3(jnp.zeros(500), jnp.zeros(500), jnp.ones(500))
+    material = jnp.asarray(rng_np.integers(0, scene.materials.kind.shape[0], 500), jnp.int32)
+    r2 = (rng_np.uniform(0.01, 0.05, 500) ** 2).astype(np.float32)
+    live = rng_np.random(500) < 0.9
+    got, count = density.sum_within(scene, pm, x, n, wo, material, r2, live=live, kind=kind)
+    d2 = ((q[:, None, :] - xy[None, :, :]) ** 2).sum(-1)
+    kd = np.stack([np.asarray(c)[np.asarray(material)] for c in scene.materials.diffuse]) / np.pi
+    power = np.stack([np.asarray(c) for c in pm.power])
+
+    def reference(scale):     # photons within r^2 scale (float32 decides the ones at the rim)
+        inside = (d2 < scale * r2[:, None]) & ~flip[None, :] & live[:, None]
+        w = np.ones_like(d2) if kind == "box" else np.maximum(1.0 - d2 / r2[:, None], 0.0)
+        return kd * np.einsum("qp,cp->cq", inside * w, power), inside.sum(1)
+
+    (lo, n_lo), (hi, n_hi) = reference(1 - 1e-5), reference(1 + 1e-5)
+    assert np.all((count >= n_lo) & (count <= n_hi)) and n_lo.max() > 128
+    assert np.all((got >= lo * (1 - 2e-5) - 1e-7) & (got <= hi * (1 + 2e-5) + 1e-7))
+    assert np.sum(n_hi - n_lo) < 1e-3 * np.sum(n_lo)      # the rim decides a few photons only
+
+
 @pytest.mark.parametrize("kind, params", [("box", {}), ("cone", dict(k=1.1)), ("cone", dict(k=3.0)),
                                           ("gaussian", dict(gauss_alpha=0.918, gauss_beta=1.953)),
                                           ("epanechnikov", {})])

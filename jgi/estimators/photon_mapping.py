@@ -107,7 +107,6 @@ class ProgressiveConfig:
                                 maximum=0.999)
     max_bounces: int = param(8, _MAX_BOUNCES_DOC, minimum=1)
     stochastic: bool = True         # a new visible point per pixel each pass (SPPM), or one (PPM)
-    cap: int | None = None          # photons read per grid cell (None: automatic)
 
 
 
@@ -230,29 +229,14 @@ def render_jensen(scene: Scene, cfg: JensenConfig = JensenConfig(), *, spp: int 
     return Render(_to_image(scene, total, spp), dict(stored=pm.count))
 
 
-@partial(jax.jit, static_argnames=("cap",))
-def _ppm_gather(scene: Scene, grid, x: V3, n: V3, wo: V3, material, r2, cap: int, uv=None,
-                ns=None):
-    """M_i (photons within R_i) and Phi_i = sum f_r DeltaPhi_p at each visible point."""
-    g = density.gather(grid, x, n, cap, None)
-    inside = g.d2 < r2[:, None]
-    M = jnp.sum(inside, axis=-1).astype(jnp.float32)
-    f = density.photon_reflectance(scene, material, n, wo, g.wi, uv, ns, g.normal)
-    if f.x.shape[-1] == 1:   # k_d / pi per point: summed once (the scene has no microfacets)
-        phi = V3(*(jnp.sum(jnp.where(inside, p, 0.0), axis=-1) * c[:, 0]
-                   for p, c in zip(g.power, f)))
-    else:
-        phi = V3(*(jnp.sum(jnp.where(inside, p * c, 0.0), axis=-1) for p, c in zip(g.power, f)))
-    return M, phi, g.truncated
-
-
 def render_progressive(scene: Scene, cfg: ProgressiveConfig = ProgressiveConfig(), *, spp: int = 1,
                        seed: int = 0) -> Render:
-    """PPM (``cfg.stochastic=False``) or SPPM; ``spp`` visible points per pixel per pass.
+    """PPM (``cfg.stochastic=False``) or SPPM; ``spp`` visible points per pixel per pass. Each
+    pass gathers every photon within each point's radius (:func:`density.sum_within`: no cap).
 
-    Stats: ``radius_final`` (root mean square of the final radii), ``truncated``."""
+    Stats: ``radius_final`` (root mean square of the final radii)."""
     passes, photons, radius, radius_alpha = cfg.passes, cfg.photons, cfg.radius, cfg.radius_alpha
-    stochastic, cap, max_depth = cfg.stochastic, cfg.cap, cfg.max_bounces
+    stochastic, max_depth = cfg.stochastic, cfg.max_bounces
     if not 0.0 < radius_alpha < 1.0:
         raise ValueError(f"radius_alpha must be in (0, 1), got {radius_alpha}")
     pix, smp = _pixels(scene, spp)
@@ -262,7 +246,6 @@ def render_progressive(scene: Scene, cfg: ProgressiveConfig = ProgressiveConfig(
     tau = np.zeros((3, n_pts), np.float64)
     direct = np.zeros((3, n_pts), np.float64)
     v = None
-    truncated = False
     for t in range(passes):
         if stochastic or v is None:
             v = visible_points(scene,
@@ -274,22 +257,9 @@ def render_progressive(scene: Scene, cfg: ProgressiveConfig = ProgressiveConfig(
         direct += Lv
         pm = trace_photons(scene, photons, seed=int(rng.lowbias32(jnp.uint32(seed * 7919 + t + 1))),
                            max_depth=max_depth)
-        grid = hash_grid.build_grid(pm, float(np.sqrt(R2.max())))
-        cap_t = cap or hash_grid.auto_cap(grid)
-        chunk = hash_grid.query_chunk(cap_t)
-        M = np.zeros(n_pts)
-        phi = np.zeros((3, n_pts))
-        for s0 in range(0, n_pts, chunk):
-            sl = slice(s0, s0 + chunk)
-            sub = lambda vv: V3(*(c[sl] for c in vv))
-            m, ph, tr = _ppm_gather(scene, grid, sub(v.p), sub(v.n), sub(v.wo), v.material[sl],
-                                    jnp.asarray(R2[sl], jnp.float32), cap_t,
-                                    None if v.uv is None else tuple(c[sl] for c in v.uv),
-                                    None if v.ns is None else sub(v.ns))
-            M[sl] = np.asarray(m)
-            phi[:, sl] = np.stack([np.asarray(c) for c in ph])
-            truncated |= bool(np.any(np.asarray(tr)))
-        M = np.where(found, M, 0.0)
+        # M_i (photons within R_i) and Phi_i = sum f_r DeltaPhi_p, over every photon (no cap)
+        phi, M = density.sum_within(scene, pm, v.p, v.n, v.wo, v.material, R2, live=found,
+                                    uv=v.uv, ns=v.ns)
         phi = np.where(found, beta_ * phi, 0.0)
         grow = N + radius_alpha * M
         ratio = np.where(N + M > 0, grow / np.maximum(N + M, 1e-30), 1.0)
@@ -297,9 +267,7 @@ def render_progressive(scene: Scene, cfg: ProgressiveConfig = ProgressiveConfig(
         R2 = R2 * ratio
         N = grow
     L = direct / passes + tau / (np.pi * R2 * passes)
-    density.warn_truncated(truncated, cap_t, radius)
-    return Render(_to_image(scene, L, spp), dict(radius_final=float(np.sqrt(R2.mean())),
-                                                 truncated=truncated))
+    return Render(_to_image(scene, L, spp), dict(radius_final=float(np.sqrt(R2.mean()))))
 
 
 def _pm(scene: Scene, cfg: PMConfig, *, spp: int, seed: int, progress: bool = False) -> Render:

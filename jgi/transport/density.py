@@ -39,7 +39,15 @@ from jax import Array
 from ..core.vec import V3, dot, where
 from ..physics import bsdf
 from ..scene.tables import PLASTIC, Scene
-from .hash_grid import HashGrid, auto_cap, cells_around, query_chunk
+from .hash_grid import (
+    CellIndex,
+    HashGrid,
+    accumulate_near_pairs,
+    auto_cap,
+    cells_around,
+    index_cells,
+    query_chunk,
+)
 from .visible_points import evaluates_whole
 
 FILTERS = ("box", "cone", "gaussian", "epanechnikov")
@@ -216,3 +224,116 @@ def estimate_at_points(scene, grid, x, n, wo, m, r, *, cap, k, kind, thickness, 
         trunc |= bool(np.any(np.asarray(t)[: chunk - pad]))
     warn_truncated(trunc, cap, r)
     return np.concatenate(out, axis=1), trunc
+
+
+# --- fixed-radius estimates over every photon within r: the device grid, no cap ------------------
+
+PAIR_BLOCK = 1 << 14     # (point, photon) candidate pairs tested per block
+NEAR_BLOCK = 1 << 12     # pairs within r evaluated per batch
+QUERY_CHUNK = 1 << 16    # points per jitted call (its pair lists are 27 entries a point)
+
+
+class PhotonRows(NamedTuple):
+    """A photon map on the device grid (:func:`jgi.transport.hash_grid.index_cells`), its
+    records in grid order as rows, so a candidate is one contiguous read: ``where`` [M, 6]
+    (position, normal: the cheap test's columns) and ``rows`` [M, 12] (position, normal,
+    incident direction, power)."""
+    cells: CellIndex
+    where: Array
+    rows: Array
+
+
+def photon_rows(position: V3, normal: V3, wi: V3, power: V3, valid: Array, cell,
+                table_size: int) -> PhotonRows:
+    cells = index_cells(position, valid, cell, table_size)
+    o = cells.order
+    rows = jnp.stack([c[o] for c in (*position, *normal, *wi, *power)], -1)
+    return PhotonRows(cells, rows[:, :6], rows)
+
+
+def padded_size(n: int) -> int:
+    """n rounded up to one of four sizes per octave, so that photon maps of a few different
+    lengths (each pass stores a different number) share one compiled program."""
+    if n <= 1024:
+        return 1024
+    step = 1 << (int(np.floor(np.log2(n))) - 2)
+    return int(-(-n // step) * step)
+
+
+def _facing_within(q: Array, y: Array, *, x: V3, n: V3, r2: Array) -> Array:
+    """The cheap test's per-point part: the photon within the point's own radius and stored on
+    a surface facing the point's normal."""
+    diff = V3(y[:, 0], y[:, 1], y[:, 2]) - V3(*(c[q] for c in x))
+    return (dot(diff, diff) < r2[q]) & (dot(V3(y[:, 3], y[:, 4], y[:, 5]), V3(*(c[q] for c in n)))
+                                        > 0.0)
+
+
+def _add_photons(acc: Array, q: Array, slot: Array, ok: Array, *, scene: Scene, rows: Array,
+                 x: V3, n: V3, wo: V3, material: Array, r2: Array, uv, ns, kind: str,
+                 filter_params: dict) -> Array:
+    """Pair visitor: sum_p f_r W DeltaPhi_p and the photon count, added to acc [N, 4]."""
+    y = rows[slot]
+    col = lambda k: V3(y[:, k, None], y[:, k + 1, None], y[:, k + 2, None])   # noqa: E731
+    at = lambda v: V3(*(c[q] for c in v))                                      # noqa: E731
+    diff = V3(y[:, 0], y[:, 1], y[:, 2]) - at(x)
+    d2 = dot(diff, diff)
+    w, _ = filter_weight(kind, d2, r2[q], **filter_params)
+    f = photon_reflectance(scene, material[q], at(n), at(wo), col(6),
+                           None if uv is None else tuple(c[q] for c in uv),
+                           None if ns is None else at(ns), col(3))
+    terms = [jnp.where(ok, f_c[:, 0] * y[:, 9 + c] * w, 0.0) for c, f_c in enumerate(f)]
+    return acc.at[q].add(jnp.stack([ok.astype(acc.dtype), *terms], -1))
+
+
+@partial(jax.jit, static_argnames=("table_size", "kind"))
+def _sum_within(scene: Scene, photons: PhotonRows, table_size: int, x: V3, n: V3, wo: V3,
+                material: Array, r2: Array, live: Array, kind: str, filter_params: dict,
+                uv=None, ns=None):
+    visit = partial(_add_photons, scene=scene, rows=photons.rows, x=x, n=n, wo=wo,
+                    material=material, r2=r2, uv=uv, ns=ns, kind=kind,
+                    filter_params=filter_params)
+    acc = accumulate_near_pairs(photons.cells, table_size, photons.where, x, live,
+                                jnp.max(jnp.where(live, r2, 0.0)), visit,
+                                jnp.zeros((live.shape[0], 4), jnp.float32), block=PAIR_BLOCK,
+                                near_block=NEAR_BLOCK,
+                                keep=partial(_facing_within, x=x, n=n, r2=r2))
+    return V3(acc[:, 1], acc[:, 2], acc[:, 3]), acc[:, 0]
+
+
+def sum_within(scene: Scene, pm, x: V3, n: V3, wo: V3, material, r2, *, live=None,
+               kind: str = "box", filter_params: dict | None = None, uv=None, ns=None):
+    """(sum_p f_r(x, w_p, w) W(d_p) DeltaPhi_p, count) over *every* photon of the map ``pm`` (a
+    :class:`~jgi.transport.photons.PhotonMap`, host arrays) within each point's own radius
+    (r2 = r^2 per point) on a surface facing its normal: numpy [3, N] and [N]. The estimate is
+    the sum divided by K = (the filter's constant) pi r^2 (:func:`filter_weight`).
+
+    Exact, with no cap: the photons are sorted into cells of the largest radius on the device
+    and every (point, photon) pair of a point's 27 cells is read
+    (:func:`jgi.transport.hash_grid.accumulate_near_pairs`, as vertex merging does), so a
+    crowded cell costs its own photons and none is dropped."""
+    N = x.x.shape[0]
+    r2 = np.asarray(r2, np.float32)
+    live = np.ones(N, bool) if live is None else np.asarray(live, bool)
+    cell = float(np.sqrt(max(float(r2[live].max(initial=0.0)), 1e-12)))
+    M = pm.count
+    size = padded_size(M)
+    pad = lambda a: jnp.asarray(np.pad(np.asarray(a, np.float32), (0, size - M)))  # noqa: E731
+    padv = lambda v: V3(*(pad(c) for c in v))                                      # noqa: E731
+    valid = jnp.asarray(np.arange(size) < M)
+    table_size = int(1 << max(10, int(np.ceil(np.log2(2 * size)))))
+    photons = photon_rows(padv(pm.position), padv(pm.normal), padv(pm.wi), padv(pm.power), valid,
+                          jnp.float32(cell), table_size)
+    out, count = np.zeros((3, N), np.float32), np.zeros(N, np.float32)
+    chunk = min(QUERY_CHUNK, padded_size(N))
+    for s in range(0, N, chunk):
+        sl = slice(s, min(s + chunk, N))
+        k = sl.stop - s
+        fill = lambda a: jnp.asarray(np.pad(np.asarray(a)[sl], (0, chunk - k), mode="edge"))  # noqa: E731
+        fv = lambda v: None if v is None else V3(*(fill(c) for c in v))                     # noqa: E731
+        L, c = _sum_within(scene, photons, table_size, fv(x), fv(n), fv(wo), fill(material),
+                           fill(r2), jnp.asarray(np.pad(live[sl], (0, chunk - k))), kind,
+                           filter_params or {}, None if uv is None else
+                           tuple(fill(u) for u in uv), fv(ns))
+        out[:, sl] = np.stack([np.asarray(a)[:k] for a in L])
+        count[sl] = np.asarray(c)[:k]
+    return out, count
