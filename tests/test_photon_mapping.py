@@ -117,15 +117,19 @@ def test_device_grid_pairs_list_every_point_within_the_cell_once(rng_np, capacit
     assert near and near <= set(got)
 
 
-@pytest.mark.parametrize("kind", ["box", "epanechnikov"])
-def test_sum_within_takes_every_photon_within_each_radius(rng_np, kind):
-    """density.sum_within (SPPM's and PPM's gather) against a brute-force sum over all photons:
-    clustered photons (cells far fuller than the old per-cell cap of 128), a radius per point,
-    photons on the back side (normal away from the point's) left out, points not live get 0."""
+@pytest.mark.parametrize("kind, thickness", [("box", None), ("epanechnikov", None),
+                                             ("box", 0.004)])
+def test_sum_within_takes_every_photon_within_each_radius(rng_np, kind, thickness):
+    """density.sum_within (pm's, PPM's and SPPM's gather) against a brute-force sum over all
+    photons: clustered photons (cells far fuller than the old per-cell cap of 128), a radius per
+    point, photons on the back side (normal away from the point's) left out, points not live
+    get 0; with ``thickness``, photons off the plane by more than it too."""
     pm, xy = plane_photons(rng_np, 20000, clustered=True)
     flip = rng_np.random(20000) < 0.2
+    z = rng_np.uniform(-0.01, 0.01, 20000) if thickness else np.zeros(20000)
     pm = pm._replace(normal=V3(*(np.where(flip, -c, c).astype(np.float32) for c in pm.normal)),
-                     power=V3(*(rng_np.random(20000).astype(np.float32) for _ in range(3))))
+                     power=V3(*(rng_np.random(20000).astype(np.float32) for _ in range(3))),
+                     position=V3(pm.position.x, pm.position.y, z.astype(np.float32)))
     scene = jgi.load_scene("cornell_box", resolution=4)       # diffuse rows for f_r = k_d / pi
     q = np.concatenate([rng_np.random((250, 2)), xy[rng_np.integers(0, 20000, 250)]])
     x, n = queries(q)
@@ -133,13 +137,15 @@ def test_sum_within_takes_every_photon_within_each_radius(rng_np, kind):
     material = jnp.asarray(rng_np.integers(0, scene.materials.kind.shape[0], 500), jnp.int32)
     r2 = (rng_np.uniform(0.01, 0.05, 500) ** 2).astype(np.float32)
     live = rng_np.random(500) < 0.9
-    got, count = density.sum_within(scene, pm, x, n, wo, material, r2, live=live, kind=kind)
-    d2 = ((q[:, None, :] - xy[None, :, :]) ** 2).sum(-1)
+    got, count = density.sum_within(scene, pm, x, n, wo, material, r2, live=live, kind=kind,
+                                    thickness=thickness)
+    d2 = ((q[:, None, :] - xy[None, :, :]) ** 2).sum(-1) + z[None, :] ** 2
+    flat = np.ones(20000, bool) if thickness is None else np.abs(z) <= thickness
     kd = np.stack([np.asarray(c)[np.asarray(material)] for c in scene.materials.diffuse]) / np.pi
     power = np.stack([np.asarray(c) for c in pm.power])
 
     def reference(scale):     # photons within r^2 scale (float32 decides the ones at the rim)
-        inside = (d2 < scale * r2[:, None]) & ~flip[None, :] & live[:, None]
+        inside = (d2 < scale * r2[:, None]) & ~flip[None, :] & flat[None, :] & live[:, None]
         w = np.ones_like(d2) if kind == "box" else np.maximum(1.0 - d2 / r2[:, None], 0.0)
         return kd * np.einsum("qp,cp->cq", inside * w, power), inside.sum(1)
 
@@ -211,11 +217,23 @@ def test_gradients_match_central_differences(rng_np, kind, name):
     assert abs(grad - fd) <= 1e-6 * abs(fd) + 1e-6, (grad, fd)
 
 
-def test_truncation_is_reported(rng_np):
+def test_truncation_is_refused_not_estimated(rng_np):
+    """A k-nearest gather that would read fewer photons of a cell than it holds raises a named
+    error (it would be biased); the default cap reads the fullest cell whole."""
     pm, _ = plane_photons(rng_np, 20000)
     grid = hash_grid.build_grid(pm, 0.2)
     x, n = queries(np.array([[0.5, 0.5]]))
     assert bool(density.gather(grid, x, n, cap=8).truncated[0])
+    scene = jgi.load_scene("cornell_box", resolution=4)
+    wo, m = V3(*(jnp.ones(1) * c for c in (0.0, 0.0, 1.0))), jnp.zeros(1, jnp.int32)
+    args = (scene, grid, x, n, wo, m, 0.2)
+    with pytest.raises(density.TruncatedGather, match=r"a grid cell holds \d+ photons, more "
+                                                      r"than the 8 read per cell"):
+        density.estimate_at_points(*args, cap=8, k=10, kind="box", thickness=None,
+                                   filter_params={})
+    L = density.estimate_at_points(*args, cap=None, k=10, kind="box", thickness=None,
+                                   filter_params={})
+    assert np.all(np.isfinite(L)) and L.shape == (3, 1)
 
 
 def test_photon_mapping_point_light_converges_to_closed_form():

@@ -258,7 +258,7 @@ def test_stats_of_photon_mapping_and_the_irradiance_cache():
     # photon counts and sizes of tests/test_photon_mapping.py: its compiled kernels serve here
     scene = jgi.scenes.cornell_box(resolution=16)
     pm = jgi.render_result(scene, "pm", spp=1, photons=10_000, radius=0.15).stats
-    assert pm["stored"] > 0 and pm["truncated"] in (True, False)
+    assert pm["stored"] > 0
     sppm = jgi.render_result(scene, "sppm", spp=1, passes=2, photons=10_000, radius=0.15,
                              radius_alpha=0.7).stats
     assert 0 < sppm["radius_final"] < 0.15

@@ -184,7 +184,7 @@ def gather_photons(scene: Scene, cfg: CacheConfig, seed, ids, p: V3, n: V3, grid
     is the photon estimate of the light reflected at the diffuse surface it reaches."""
     K = p.x.shape[0]
     v, r, angles, frame = _gather_hits(scene, cfg, seed, ids, p, n, ng)
-    Lp, _ = density.estimate_at_points(scene, grid, v.p, v.n, v.wo, v.material, radius, cap=cap,
+    Lp = density.estimate_at_points(scene, grid, v.p, v.n, v.wo, v.material, radius, cap=cap,
                                     k=k, kind="box", thickness=None, filter_params={}, uv=v.uv,
                                     ns=v.ns)
     found = np.asarray(v.found)

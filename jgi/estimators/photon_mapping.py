@@ -71,7 +71,7 @@ class PMConfig:
     gauss_beta: float = param(density.JENSEN_BETA, "Gaussian filter beta (Jensen's)",
                               minimum=1e-3)
     max_bounces: int = param(8, _MAX_BOUNCES_DOC, minimum=1)
-    cap: int | None = None          # photons read per grid cell (None: 128 with k, else automatic)
+    cap: int | None = None          # k > 0: photons read per grid cell (None: the fullest cell)
     thickness: float | None = None  # flattened-disc selection: reject photons this far off
                                     # the plane
 
@@ -125,25 +125,31 @@ def _to_image(scene, L, spp):
 def render_pm(scene: Scene, cfg: PMConfig = PMConfig(), *, spp: int = 4, seed: int = 0) -> Render:
     """Direct visualisation of the global photon map (see the module docstring).
 
-    Stats: ``stored`` (photons in the map), ``truncated`` (a grid cell held more than ``cap``)."""
+    Stats: ``stored`` (photons in the map)."""
     photons, radius, k, filter, max_depth = (cfg.photons, cfg.radius, cfg.k, cfg.filter,
                                              cfg.max_bounces)
     cap, thickness = cfg.cap, cfg.thickness
     pm = trace_photons(scene, photons, seed=seed, max_depth=max_depth)
-    grid = hash_grid.build_grid(pm, radius, cap=(cap or 128) if k > 0 else None)
-    radius = float(grid.cell)
     pix, smp = _pixels(scene, spp)
     v = visible_points(scene, jnp.uint32(seed), pix, smp, max_depth=max_depth, light_samples=0)
     fp = (dict(k=cfg.cone_k) if filter == "cone" else
           dict(gauss_alpha=cfg.gauss_alpha, gauss_beta=cfg.gauss_beta) if filter == "gaussian"
           else {})
-    L, trunc = density.estimate_at_points(scene, grid, v.p, v.n, v.wo, v.material, radius, cap=cap,
-                                       k=k, kind=filter, thickness=thickness, filter_params=fp,
-                                       uv=v.uv, ns=v.ns)
+    if k == 0:   # every photon within r (no cap): sum / K
+        r2 = np.full(pix.shape[0], radius * radius, np.float32)
+        L, _ = density.sum_within(scene, pm, v.p, v.n, v.wo, v.material, r2,
+                                  live=np.asarray(v.found), kind=filter, filter_params=fp,
+                                  uv=v.uv, ns=v.ns, thickness=thickness)
+        L = L / (np.pi * radius * radius * float(density.filter_weight(filter, 0.0, 1.0, **fp)[1]))
+    else:        # the k nearest within r, from the host grid (cells shrunk to hold ~ cap / 2)
+        grid = hash_grid.build_grid(pm, radius, cap=cap or 128)
+        L = density.estimate_at_points(scene, grid, v.p, v.n, v.wo, v.material,
+                                       float(grid.cell), cap=cap, k=k, kind=filter,
+                                       thickness=thickness, filter_params=fp, uv=v.uv, ns=v.ns)
     found = np.asarray(v.found)
     beta_ = np.stack([np.asarray(c) for c in v.beta])
     total = np.stack([np.asarray(c) for c in v.L]) + np.where(found, beta_ * L, 0.0)
-    return Render(_to_image(scene, total, spp), dict(stored=pm.count, truncated=trunc))
+    return Render(_to_image(scene, total, spp), dict(stored=pm.count))
 
 
 @partial(jax.jit, static_argnames=("n_gather", "max_depth"))
@@ -189,7 +195,7 @@ def render_jensen(scene: Scene, cfg: JensenConfig = JensenConfig(), *, spp: int 
         cpm = cpm.select(cpm.caustic)
         if cpm.count:
             cgrid = hash_grid.build_grid(cpm, cfg.caustic_radius, cap=cap or 128)
-            Lc, _ = density.estimate_at_points(scene, cgrid, v.p, v.n, v.wo, v.material,
+            Lc = density.estimate_at_points(scene, cgrid, v.p, v.n, v.wo, v.material,
                                             float(cgrid.cell),
                                             cap=cap, k=cfg.k_caustic, kind=filter, thickness=None,
                                             filter_params={}, uv=v.uv, ns=v.ns)
@@ -218,7 +224,7 @@ def render_jensen(scene: Scene, cfg: JensenConfig = JensenConfig(), *, spp: int 
             g = _gather_points(scene, jnp.uint32(seed), jnp.asarray(pad, jnp.int32), take(v.p),
                                take(shading(v)), final_gather, max_depth,
                                None if v.ns is None else take(v.n))
-            Lg, _ = density.estimate_at_points(scene, grid, g.p, g.n, g.wo, g.material, radius,
+            Lg = density.estimate_at_points(scene, grid, g.p, g.n, g.wo, g.material, radius,
                                             cap=cap, k=k, kind=filter, thickness=None,
                                             filter_params={}, uv=g.uv, ns=g.ns)
             gb = np.stack([np.asarray(c) for c in g.beta])

@@ -16,9 +16,10 @@ photon density is estimated without bias by every filter (:data:`FILTERS`):
                 elsewhere in jgi)
   epanechnikov  W = 1 - d^2 / r^2                       K = pi r^2 / 2
 
-Candidates are read from the 27 grid cells around x, at most ``cap`` photons per cell
-(:func:`jgi.transport.hash_grid.cells_around`; ``truncated`` reports when a cell held more,
-which would bias the estimate). Photons are selected in a disc (|x - x_p| < r), or a flattened
+Fixed-radius estimates (:func:`sum_within`) take every photon of the 27 grid cells around x;
+k-nearest ones read at most ``cap`` photons per cell (:func:`jgi.transport.hash_grid.cells_around`),
+by default as many as the fullest cell holds, and refuse (:class:`TruncatedGather`) rather
+than drop any. Photons are selected in a disc (|x - x_p| < r), or a flattened
 disc that also rejects photons further than ``thickness * r`` from the tangent plane (the
 lecture's non-symmetric selection, better at edges), and only if their surface normal agrees
 with x's. The estimate is a differentiable function of r and the filter parameters. Vertex
@@ -27,7 +28,6 @@ merging (:mod:`jgi.estimators.vcm`) weights its merges with the same filters.
 
 from __future__ import annotations
 
-import warnings
 from functools import partial
 from typing import NamedTuple
 
@@ -36,6 +36,7 @@ import jax.numpy as jnp
 import numpy as np
 from jax import Array
 
+from ..core.errors import ParameterError
 from ..core.vec import V3, dot, where
 from ..physics import bsdf
 from ..scene.tables import PLASTIC, Scene
@@ -192,20 +193,26 @@ def radiance_estimate(scene: Scene, grid: HashGrid, x: V3, n: V3, wo: V3, materi
     return L, count, g.truncated
 
 
-def warn_truncated(trunc, cap, r):
-    if trunc:
-        warnings.warn(f"photon grid cells held more than cap={cap} photons: the estimate is biased "
-                      f"low; use a smaller radius than {r} or a larger cap", RuntimeWarning,
-                      stacklevel=3)
+class TruncatedGather(ParameterError):
+    """A k-nearest gather would have read fewer photons of a grid cell than it holds."""
+
+
+def refuse_truncated(grid: HashGrid, cap: int, r) -> None:
+    most = int(np.asarray(grid.count).max()) if grid.count.size else 0
+    raise TruncatedGather(
+        f"photon gather: a grid cell holds {most} photons, more than the {cap} read per cell, "
+        f"so the k-nearest estimate would miss photons; use a smaller radius than {r:g}, fewer "
+        f"photons, or a cap of at least {most}")
 
 
 def estimate_at_points(scene, grid, x, n, wo, m, r, *, cap, k, kind, thickness, filter_params,
                        uv=None, ns=None):
     """:func:`radiance_estimate` at any number of points (host arrays in, numpy [3, N] out;
     ``uv`` their surface coordinates in a scene with textures, ``ns`` their shading normals in
-    a scene with vertex normals), in padded chunks of one compiled size; warns if grid cells
-    were truncated."""
-    out, trunc = [], False
+    a scene with vertex normals), in padded chunks of one compiled size. Exact: the cap per
+    cell defaults to the fullest cell (:func:`~jgi.transport.hash_grid.auto_cap`), and a gather
+    that would still drop photons raises :class:`TruncatedGather`."""
+    out = []
     N = x.x.shape[0]
     cap = cap or auto_cap(grid)
     chunk = query_chunk(cap)
@@ -221,9 +228,9 @@ def estimate_at_points(scene, grid, x, n, wo, m, r, *, cap, k, kind, thickness, 
                                     tuple(jnp.pad(c[sl], (0, pad), mode="edge") for c in uv),
                                     None if ns is None else padv(V3(*(c[sl] for c in ns))))
         out.append(np.stack([np.asarray(c)[: chunk - pad] for c in L]))
-        trunc |= bool(np.any(np.asarray(t)[: chunk - pad]))
-    warn_truncated(trunc, cap, r)
-    return np.concatenate(out, axis=1), trunc
+        if np.any(np.asarray(t)[: chunk - pad]):
+            refuse_truncated(grid, cap, r)
+    return np.concatenate(out, axis=1)
 
 
 # --- fixed-radius estimates over every photon within r: the device grid, no cap ------------------
@@ -260,12 +267,13 @@ def padded_size(n: int) -> int:
     return int(-(-n // step) * step)
 
 
-def _facing_within(q: Array, y: Array, *, x: V3, n: V3, r2: Array) -> Array:
-    """The cheap test's per-point part: the photon within the point's own radius and stored on
-    a surface facing the point's normal."""
+def _facing_within(q: Array, y: Array, *, x: V3, n: V3, r2: Array, thickness) -> Array:
+    """The cheap test's per-point part: the photon within the point's own radius, stored on a
+    surface facing the point's normal (and within ``thickness`` of its tangent plane)."""
     diff = V3(y[:, 0], y[:, 1], y[:, 2]) - V3(*(c[q] for c in x))
-    return (dot(diff, diff) < r2[q]) & (dot(V3(y[:, 3], y[:, 4], y[:, 5]), V3(*(c[q] for c in n)))
-                                        > 0.0)
+    nq = V3(*(c[q] for c in n))
+    ok = (dot(diff, diff) < r2[q]) & (dot(V3(y[:, 3], y[:, 4], y[:, 5]), nq) > 0.0)
+    return ok if thickness is None else ok & (jnp.abs(dot(diff, nq)) <= thickness)
 
 
 def _add_photons(acc: Array, q: Array, slot: Array, ok: Array, *, scene: Scene, rows: Array,
@@ -285,10 +293,10 @@ def _add_photons(acc: Array, q: Array, slot: Array, ok: Array, *, scene: Scene, 
     return acc.at[q].add(jnp.stack([ok.astype(acc.dtype), *terms], -1))
 
 
-@partial(jax.jit, static_argnames=("table_size", "kind"))
+@partial(jax.jit, static_argnames=("table_size", "kind", "thickness"))
 def _sum_within(scene: Scene, photons: PhotonRows, table_size: int, x: V3, n: V3, wo: V3,
                 material: Array, r2: Array, live: Array, kind: str, filter_params: dict,
-                uv=None, ns=None):
+                uv=None, ns=None, thickness=None):
     visit = partial(_add_photons, scene=scene, rows=photons.rows, x=x, n=n, wo=wo,
                     material=material, r2=r2, uv=uv, ns=ns, kind=kind,
                     filter_params=filter_params)
@@ -296,16 +304,18 @@ def _sum_within(scene: Scene, photons: PhotonRows, table_size: int, x: V3, n: V3
                                 jnp.max(jnp.where(live, r2, 0.0)), visit,
                                 jnp.zeros((live.shape[0], 4), jnp.float32), block=PAIR_BLOCK,
                                 near_block=NEAR_BLOCK,
-                                keep=partial(_facing_within, x=x, n=n, r2=r2))
+                                keep=partial(_facing_within, x=x, n=n, r2=r2, thickness=thickness))
     return V3(acc[:, 1], acc[:, 2], acc[:, 3]), acc[:, 0]
 
 
 def sum_within(scene: Scene, pm, x: V3, n: V3, wo: V3, material, r2, *, live=None,
-               kind: str = "box", filter_params: dict | None = None, uv=None, ns=None):
+               kind: str = "box", filter_params: dict | None = None, uv=None, ns=None,
+               thickness: float | None = None):
     """(sum_p f_r(x, w_p, w) W(d_p) DeltaPhi_p, count) over *every* photon of the map ``pm`` (a
     :class:`~jgi.transport.photons.PhotonMap`, host arrays) within each point's own radius
-    (r2 = r^2 per point) on a surface facing its normal: numpy [3, N] and [N]. The estimate is
-    the sum divided by K = (the filter's constant) pi r^2 (:func:`filter_weight`).
+    (r2 = r^2 per point) on a surface facing its normal (and within ``thickness`` of its
+    tangent plane, if given): numpy [3, N] and [N]. The estimate is the sum divided by
+    K = (the filter's constant) pi r^2 (:func:`filter_weight`).
 
     Exact, with no cap: the photons are sorted into cells of the largest radius on the device
     and every (point, photon) pair of a point's 27 cells is read
@@ -333,7 +343,8 @@ def sum_within(scene: Scene, pm, x: V3, n: V3, wo: V3, material, r2, *, live=Non
         L, c = _sum_within(scene, photons, table_size, fv(x), fv(n), fv(wo), fill(material),
                            fill(r2), jnp.asarray(np.pad(live[sl], (0, chunk - k))), kind,
                            filter_params or {}, None if uv is None else
-                           tuple(fill(u) for u in uv), fv(ns))
+                           tuple(fill(u) for u in uv), fv(ns),
+                           None if thickness is None else float(thickness))
         out[:, sl] = np.stack([np.asarray(a)[:k] for a in L])
         count[sl] = np.asarray(c)[:k]
     return out, count
