@@ -8,7 +8,10 @@ name = "pt_strategies"        # output folder runs/NAME/
 scene = "cornell_box"         # built-in name or scene file (relative to the config)
 resolution = 32               # optional film size override
 repetitions = 4               # independent seeds per configuration
-seed = 0
+seed = 0                      # base seed; every (estimator, sweep point, repetition) derives
+                              # its own independent one from it (see plan)
+# nested_seeds = true: the sweep points of an estimator share a repetition's seed (an spp = 16
+#     render then contains the spp = 8 one's samples: correlated points, on purpose)
 reference = { estimator = "pt", spp = 512, params = { strategy = "mis" } }
 # or: reference = { closed_form = 1.5 }   (a constant image, e.g. a furnace), or the name of
 #     a built-in scene with an exact image (jgi.analysis.closed_form.IMAGES: "mirror_sds")
@@ -51,14 +54,15 @@ import numpy as np
 
 from . import __version__
 from .analysis import closed_form, stats
-from .analysis.stats import loglog_slope
+from .analysis.stats import fit_error_slope
 from .api import render as render_image
 from .core.errors import ParameterError
 from .core.imageio import tonemap, write_exr
 from .estimators.registry import get
 from .scene.files import load_scene
 
-EXPERIMENT_KEYS = {"name", "scene", "resolution", "repetitions", "seed", "reference"}
+EXPERIMENT_KEYS = {"name", "scene", "resolution", "repetitions", "seed", "reference",
+                   "nested_seeds"}
 ESTIMATOR_KEYS = {"name", "label", "spp", "params", "sweep"}
 
 
@@ -95,6 +99,9 @@ def load_config(path) -> dict:
         if key in exp and (isinstance(exp[key], bool) or not isinstance(exp[key], int)
                            or exp[key] < lo):
             _fail(path, f"experiment.{key}", f"must be an integer >= {lo}, got {exp[key]!r}")
+    if not isinstance(exp.get("nested_seeds", False), bool):
+        _fail(path, "experiment.nested_seeds", f"must be true or false, got "
+                                               f"{exp['nested_seeds']!r}")
     ref = exp.get("reference")
     if not isinstance(ref, dict) or not ({"estimator", "spp"} <= set(ref) or "closed_form" in ref):
         _fail(path, "experiment.reference",
@@ -178,15 +185,26 @@ def _hash(obj) -> str:
     return hashlib.sha256(json.dumps(obj, sort_keys=True, default=str).encode()).hexdigest()[:16]
 
 
+def run_seed(base: int, estimator: int, point: int, rep: int, nested: bool = False) -> int:
+    """The seed of one render: independent streams for every (estimator, sweep point,
+    repetition), drawn from ``base`` by numpy's SeedSequence (so no two renders of a study
+    share samples and the errors of its sweep points are independent, as the slope fits
+    assume); ``nested``: the points of an estimator share a repetition's seed."""
+    key = (estimator, rep) if nested else (estimator, point, rep)
+    return int(np.random.SeedSequence(base, spawn_key=key).generate_state(1)[0] >> 1)
+
+
 def plan(doc: dict):
     exp = doc["experiment"]
     reps = exp.get("repetitions", 4)
+    nested = exp.get("nested_seeds", False)
     runs = []
     for i, e in enumerate(doc["estimator"]):
-        for point in _points(e):
+        for j, point in enumerate(_points(e)):
             for r in range(reps):
                 runs.append(dict(index=i, name=e["name"], label=e.get("label", e["name"]),
-                                 point=point, rep=r, seed=exp.get("seed", 0) + 1000 * r + 17 * i))
+                                 point=point, rep=r,
+                                 seed=run_seed(exp.get("seed", 0), i, j, r, nested)))
     return runs
 
 
@@ -352,14 +370,17 @@ def run(config_path, *, out_root="runs", dry_run: bool = False, reduced: bool = 
                                           + float(np.sum(secs)))
         ref, ref_var = reference_for(rs[0]["point"])
         s = stats.error_stats(np.stack(imgs), ref, ref_var)
-        mse = float(s.mse.mean())
-        _, lo, hi = stats.image_average(s.mse)
         # The fastest repetition: the first one of a configuration also pays for compilation.
         seconds = float(np.min(secs))
-        row = dict(estimator=rs[0]["name"], label=rs[0]["label"], **json.loads(pkey),
-                   mse=mse, mse_lo=lo, mse_hi=hi, bias2=float(s.bias2.mean()),
-                   variance=float(s.variance.mean()), rel_mse=float(s.rel_mse.mean()),
-                   seconds=seconds, efficiency=stats.efficiency(mse, seconds) if mse > 0 else None)
+        row = dict(estimator=rs[0]["name"], label=rs[0]["label"], **json.loads(pkey))
+        z = 1.959963984540054          # 95 % normal intervals from the standard errors
+        for name, per_pixel in (("mse", s.mse), ("bias2", s.bias2), ("variance", s.variance)):
+            mean, se = stats.pixel_mean_and_se(per_pixel)
+            row.update({name: mean, f"{name}_se": se, f"{name}_lo": mean - z * se,
+                        f"{name}_hi": mean + z * se})
+        mse = row["mse"]
+        row.update(rel_mse=float(s.rel_mse.mean()), seconds=seconds,
+                   efficiency=stats.efficiency(mse, seconds) if mse > 0 else None)
         rows.append(row)
         name = f"mean_{_slug(rs[0]['label'])}_{_hash(pkey)[:6]}.exr"
         write_exr(out / name, s.mean.astype(np.float32))
@@ -382,12 +403,12 @@ def run(config_path, *, out_root="runs", dry_run: bool = False, reduced: bool = 
                 seeds=sorted({r["seed"] for r in runs}), wall_seconds=time.perf_counter() - t_start,
                 render_seconds=render_seconds)
     (out / "provenance.json").write_text(json.dumps(prov, indent=2))
-    for sl in slopes:
-        se = "" if sl["stderr"] is None else f" +- {sl['stderr']:.2f}"
-        parts = "".join(f", {p} ~ {sl['key']}^{sl[p + '_slope']:.2f}"
+    for sl in slopes:   # each slope with its 95 % interval (jgi.analysis.stats.fit_error_slope)
+        parts = "".join(f", {p} ~ {sl['key']}^{sl[p + '_slope']:.2f} "
+                        f"[{sl[p + '_lo']:.2f}, {sl[p + '_hi']:.2f}]"
                         for p in ("bias2", "variance") if p + "_slope" in sl)
-        print(f"  {sl['label']:20s} MSE ~ {sl['key']}^{sl['slope']:.2f}{se}{parts}  "
-              f"{sl['fixed']}")
+        print(f"  {sl['label']:20s} MSE ~ {sl['key']}^{sl['slope']:.2f} "
+              f"[{sl['lo']:.2f}, {sl['hi']:.2f}]{parts}  {sl['fixed']}")
     print(f"wrote {out}/ ({len(rows)} configurations: metrics.csv, slopes.json, plots, EXR means)")
     return out
 
@@ -437,20 +458,25 @@ def _plots(out: Path, rows, doc) -> list[dict]:
             colour = f"C{n % 10}"
             ok = mse > 0
             text = ""
+            se = {m: np.array([r[m + "_se"] for r in rs]) for m in ("mse", "bias2", "variance")}
             if ok.sum() >= 2:
-                fit = loglog_slope(x[ok], mse[ok])
+                fit = fit_error_slope(x[ok], mse[ok], se["mse"][ok])
                 entry = dict(label=label, key=key, fixed=dict(fixed), slope=fit.slope,
-                             stderr=fit.stderr if ok.sum() > 2 else None)
+                             stderr=fit.stderr, lo=fit.lo, hi=fit.hi, confidence=fit.confidence)
                 # the two parts of the MSE on their own (a consistent estimator's bias^2 and
                 # variance fall at different rates), where every point estimates a positive one
                 for part, y in (("bias2", b2), ("variance", var)):
                     if np.all(y > 0):
-                        f = loglog_slope(x, y)
-                        entry[f"{part}_slope"] = f.slope
-                        entry[f"{part}_stderr"] = f.stderr if len(x) > 2 else None
+                        f = fit_error_slope(x, y, se[part])
+                        entry.update({f"{part}_slope": f.slope, f"{part}_stderr": f.stderr,
+                                      f"{part}_lo": f.lo, f"{part}_hi": f.hi})
                 slopes.append(entry)
-                text = f" (slope {fit.slope:.2f})"
-            ax.loglog(x[ok], mse[ok], "o-", color=colour, label=f"{name} MSE{text}")
+                text = f" (slope {fit.slope:.2f} [{fit.lo:.2f}, {fit.hi:.2f}])"
+            bars = 1.959963984540054 * se["mse"][ok]
+            ax.errorbar(x[ok], mse[ok], yerr=np.stack([np.minimum(bars, 0.999 * mse[ok]), bars]),
+                        fmt="o-", color=colour, capsize=2, label=f"{name} MSE{text}")
+            ax.set_xscale("log")
+            ax.set_yscale("log")
             ax.loglog(x[var > 0], var[var > 0], ":", color=colour, label=f"{name} variance")
             ax.loglog(x[b2 > 0], b2[b2 > 0], "--", color=colour, label=f"{name} bias²")
         ax.set_xlabel(key)

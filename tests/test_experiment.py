@@ -63,6 +63,8 @@ BAD = [
     (FURNACE.replace("reference = { closed_form = 1.9921875 }", "reference = { spp = 4 }"),
      "experiment.reference"),
     (FURNACE.replace("resolution = 4", "resolution = 4\nfoo = 1"), "experiment.foo"),
+    (FURNACE.replace("resolution = 4", "resolution = 4\nnested_seeds = 1"),
+     "experiment.nested_seeds"),
     (FURNACE + "\n[extra]\n", "extra"),
     (FURNACE.replace("[[estimator]]", "[[estimator]]\nlable = 'x'"), "estimator[0].lable"),
     ("[experiment\n", "TOML syntax error"),
@@ -104,6 +106,15 @@ def test_plan_is_the_cartesian_product_with_distinct_seeds(tmp_path):
     for p in points:  # repetitions of one point use different seeds
         seeds = [r["seed"] for r in runs if json.dumps(r["point"], sort_keys=True) == p]
         assert len(set(seeds)) == 3
+    # every (estimator, sweep point, repetition) has its own seed: no render shares samples
+    assert len({r["seed"] for r in runs}) == 12
+    # nested on request: an estimator's sweep points share a repetition's seed
+    doc["experiment"]["nested_seeds"] = True
+    nested = plan(doc)
+    by_rep = {}
+    for r in nested:
+        by_rep.setdefault((r["index"], r["rep"]), set()).add(r["seed"])
+    assert all(len(s) == 1 for s in by_rep.values()) and len(by_rep) == 3
 
 
 def test_interrupted_run_resumes_without_recomputing(tmp_path):
@@ -144,11 +155,12 @@ def test_outputs_and_provenance(tmp_path):
         assert (out / f).exists(), f
     with open(out / "metrics.csv") as fh:
         rows = list(csv.DictReader(fh))
-    assert len(rows) == 4 and ({"mse", "bias2", "variance", "rel_mse", "seconds", "spp"}
+    assert len(rows) == 4 and ({"mse", "bias2", "variance", "rel_mse", "seconds", "spp",
+                                "mse_se", "mse_lo", "mse_hi", "variance_lo", "bias2_hi"}
                                <= set(rows[0]))
     prov = json.loads((out / "provenance.json").read_text())
     assert (prov["jax_version"] and prov["jgi_version"] == jgi.__version__
-            and len(prov["seeds"]) == 3)
+            and len(prov["seeds"]) == 12)    # 4 points x 3 repetitions, each its own seed
     slopes = json.loads((out / "slopes.json").read_text())
     # Only the light-sampled curve has nonzero MSE; with two spp values its slope is a secant.
     assert [s["fixed"] for s in slopes] == [{"strategy": "light"}]

@@ -14,7 +14,7 @@ CONFIG = Path(__file__).resolve().parents[1] / "configs" / "quickstart.toml"
 
 
 def test_quickstart_runs_and_writes_results(tmp_path):
-    # the bundled config as it is (32^2, three repetitions of 1..16 spp: about 15 s)
+    # the bundled config as it is (64^2, four repetitions of 1..16 spp: about 30 s)
     out = run(CONFIG, out_root=tmp_path, progress=False)
     for f in ("metrics.csv", "metrics.json", "slopes.json", "mse_vs_spp.png", "mse_vs_time.png",
               "error_maps.png", "reference.exr", "provenance.json"):
@@ -25,5 +25,5 @@ def test_quickstart_runs_and_writes_results(tmp_path):
     slopes = {s["label"]: s for s in json.loads((out / "slopes.json").read_text())
               if s["key"] == "spp"}
     assert set(slopes) == {"bsdf", "light", "mis"}
-    for s in slopes.values():  # Monte Carlo: MSE falls with spp
-        assert s["slope"] < -0.5
+    for s in slopes.values():  # unbiased Monte Carlo: MSE ~ spp^-1, inside each stated interval
+        assert s["lo"] <= -1.0 <= s["hi"] and s["hi"] - s["lo"] < 0.6, s

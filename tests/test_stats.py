@@ -51,3 +51,38 @@ def test_image_average_and_efficiency():
     m, lo, hi = stats.image_average(np.arange(100.0))
     assert lo < m == 49.5 < hi
     assert stats.efficiency(0.5, 4.0) == 0.5
+
+
+def test_mse_slope_intervals_are_calibrated_on_a_closed_form_case():
+    """Many independent small studies of the point light over a plane (exact reference): the
+    reported 95 % interval of the MSE slope, from the statistics a study computes
+    (error_stats, pixel_mean_and_se, fit_error_slope), contains the true -1 in 90-99 % of them.
+
+    The studies are the 400 tiles of 8 x 8 pixels of 160^2 renders: pixels have independent
+    random streams, so each tile is its own study of 5 sweep points x 3 repetitions, every
+    render with its own seed, as jgi.experiment.plan gives them."""
+    import jgi
+    from jgi.analysis import closed_form
+    from jgi.experiment import run_seed
+
+    scene = jgi.load_scene("point_light_plane", resolution=160)
+    reference = closed_form.point_light_plane_image(scene, per_axis=16)
+    spps, reps, tile = (1, 2, 4, 8, 16), 3, 8
+
+    def tiles(img):
+        return img.reshape(20, tile, 20, tile, 3).swapaxes(1, 2).reshape(400, tile, tile, 3)
+
+    ref_tiles = tiles(reference)
+    mse = np.zeros((400, len(spps)))
+    se = np.zeros_like(mse)
+    for j, spp in enumerate(spps):
+        renders = np.stack([tiles(jgi.render(scene, "pt", spp=spp, seed=run_seed(7, 0, j, r)))
+                            for r in range(reps)])                       # [reps, 400, 8, 8, 3]
+        for k in range(400):
+            s = stats.error_stats(renders[:, k], ref_tiles[k])
+            mse[k, j], se[k, j] = stats.pixel_mean_and_se(s.mse)
+    fits = [stats.fit_error_slope(np.array(spps), mse[k], se[k]) for k in range(400)
+            if np.all(mse[k] > 0)]
+    covered = np.mean([f.lo <= -1.0 <= f.hi for f in fits])
+    assert len(fits) > 380
+    assert 0.90 <= covered <= 0.99, covered

@@ -59,4 +59,27 @@ def mirror_sds_image(scene: Scene, intensity: float = 10.0, albedo: float = 0.5,
     return np.repeat(L[..., None], 3, -1).astype(np.float32)
 
 
-IMAGES = {"mirror_sds": mirror_sds_image}
+def point_light_plane_image(scene: Scene, per_axis: int = 8) -> np.ndarray:
+    """:func:`jgi.scene.builtin.point_light_plane` (its intensity, height and albedo read from
+    the scene's tables): a pixel sees the plane y = 0 at x, lit by the point light at height h
+    and distance d, L = (rho / pi) I cos(theta) / d^2 = (rho / pi) I h / d^3 per channel; the
+    only paths are L D E (nothing else reflects)."""
+    o, d = _film_rays(scene, per_axis)
+    lights, mats = scene.lights, scene.materials
+    light = np.array([float(c[0]) for c in lights.p0])
+    intensity = np.array([float(c[0]) for c in lights.emission])
+    albedo = np.array([float(c[0]) for c in mats.diffuse])
+    r = scene.rects     # the builder stores the axis-aligned plane as a rectangle (a = x, b = z)
+    lo = np.array([float(r.lo_a[0]), float(r.lo_b[0])])
+    hi = np.array([float(r.hi_a[0]), float(r.hi_b[0])])
+    down = d[..., 1] < 0
+    t = np.where(down, -o[..., 1] / np.where(down, d[..., 1], -1.0), 0.0)
+    x = o + d * t[..., None]
+    inside = down & np.all((x[..., [0, 2]] >= lo) & (x[..., [0, 2]] <= hi), -1)
+    v = x - light
+    dist = np.sqrt(np.sum(v * v, -1))
+    E = np.where(inside, light[1] / np.maximum(dist, 1e-12) ** 3, 0.0).mean(-1)
+    return (E[..., None] * intensity * albedo / np.pi).astype(np.float32)
+
+
+IMAGES = {"mirror_sds": mirror_sds_image, "point_light_plane": point_light_plane_image}

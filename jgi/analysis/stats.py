@@ -86,6 +86,48 @@ def loglog_slope(x, y, sigma_log_y=None) -> Slope:
     return Slope(float(coef[0]), float(coef[1]), float(np.sqrt(cov[0, 0])))
 
 
+class SlopeFit(NamedTuple):
+    """A fitted log-log slope with its standard error and confidence interval [lo, hi]."""
+    slope: float
+    intercept: float
+    stderr: float
+    lo: float
+    hi: float
+    confidence: float
+
+
+def fit_error_slope(x, y, y_se, confidence: float = 0.95) -> SlopeFit:
+    """The slope of log y against log x for error measures y (MSE, variance, bias^2) known to
+    standard errors ``y_se`` (from the repetitions and pixels of each point, independent
+    between points), and its confidence interval.
+
+    Weighted least squares with sigma(log y) = y_se / y (the delta method). The standard error
+    is the weights' one, inflated by sqrt(chi^2 / dof) when the points scatter more than their
+    own errors allow (the Birge ratio: a curve that is not a power law, or errors stated too
+    small, widen the interval rather than narrow it); the interval is slope +- z stderr. A
+    residual-only error (``loglog_slope`` without sigma) would treat a handful of points as
+    their own noise estimate and, when the points share noise, state too narrow an interval."""
+    x, y, y_se = (np.asarray(a, np.float64) for a in (x, y, y_se))
+    sigma = np.maximum(y_se / y, 1e-12)
+    fit = loglog_slope(x, y, sigma)
+    resid = np.log(y) - (fit.slope * np.log(x) + fit.intercept)
+    dof = len(x) - 2
+    birge = np.sqrt(max(1.0, float(np.sum((resid / sigma) ** 2)) / dof)) if dof > 0 else 1.0
+    se = fit.stderr * birge
+    z = scipy.stats.norm.ppf(0.5 + confidence / 2)
+    return SlopeFit(fit.slope, fit.intercept, float(se), float(fit.slope - z * se),
+                    float(fit.slope + z * se), confidence)
+
+
+def pixel_mean_and_se(per_pixel) -> tuple[float, float]:
+    """The image average of a per-pixel error measure ([H, W] or [H, W, C]: channels averaged
+    first, since a pixel's channels come from the same paths) and its standard error over
+    pixels, which are independent (each has its own random streams)."""
+    v = np.asarray(per_pixel, np.float64)
+    v = v.reshape(v.shape[0] * v.shape[1], -1).mean(-1) if v.ndim == 3 else v.ravel()
+    return float(v.mean()), float(v.std(ddof=1) / np.sqrt(v.size)) if v.size > 1 else 0.0
+
+
 def region_stats(images: np.ndarray, regions: int = 4):
     """Per-region means of each repetition -> (mean over repetitions, standard error).
 
