@@ -170,7 +170,9 @@ def _octahedral_texel(env: EnvironmentMap, local: V3):
     under, over = r < 0, r >= N
     c = jnp.where(under | over, N - 1 - c, c)
     r = jnp.where(under, -r, jnp.where(over, 2 * N - 1 - r, r))
-    return jnp.clip(r, 0, N - 1), jnp.clip(c, 0, N - 1)
+    # stored once: each gather by (r, c) is a kernel of its own, and XLA recomputed the whole
+    # chain (the samplers' searches too) in every one of them
+    return _xla.materialize((jnp.clip(r, 0, N - 1), jnp.clip(c, 0, N - 1)))
 
 
 def _env_lookup(env: EnvironmentMap, d: V3) -> V3:
@@ -232,7 +234,7 @@ def _env_sample(env: EnvironmentMap, u1: Array, u2: Array) -> tuple[V3, Array]:
     if env.octahedral:
         local = warps.equal_area_square_to_sphere((c.astype(jnp.float32) + fc) / W,
                                                   (r.astype(jnp.float32) + fr) / H)
-        d = _rotate(env.to_world, local)
+        d = _xla.materialize(_rotate(env.to_world, local))   # as in _octahedral_texel
         # the density of the texel d is looked up in ((r, c) but where rounding puts d across
         # a texel edge): pdf_li's, and the radiance's texel
         return d, _env_pdf(env, d)
