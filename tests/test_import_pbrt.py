@@ -202,7 +202,12 @@ def test_microfacet_materials_give_the_builder_rows(tmp_path):
     ('CoordSysTransform "nowhere"', 'unknown coordinate system "nowhere"; defined: camera, '
      'world'),
     ('LightSource "goniometric"', 'LightSource "goniometric" is not supported'),
-    ('LightSource "infinite" "string filename" "sky.exr"', "environment map"),
+    ('LightSource "infinite" "string filename" "sky.exr"',
+     'LightSource "infinite": cannot read "filename" \'.*sky.exr\''),
+    ('LightSource "infinite" "point3 portal" [0 0 0  1 0 0  1 1 0  0 1 0]',
+     '"portal" is not supported'),
+    ('LightSource "infinite" "rgb L" [1 1 1] "string filename" "sky.exr"',
+     'either "L" or "filename", not both'),
     ('AreaLightSource "diffuse" "bool twosided" true', "two-sided"),
     ('ObjectBegin "x"', "directive 'ObjectBegin' is not supported"),
     ('NamedMaterial "nope"', 'unknown named material "nope"'),

@@ -91,6 +91,54 @@ def pdf_uniform_sphere() -> Array:
     return INV_4PI
 
 
+# --- Clarberg's equal-area octahedral map (pbrt-v4's image infinite light) --------------------
+
+def equal_area_square_to_sphere(s: Array, t: Array, xp=jnp) -> V3:
+    """The unit square onto the sphere, area-preserving (Jacobian 4 pi): Clarberg's concentric
+    octahedral map, as pbrt-v4's EqualAreaSquareToSphere. With (u, v) = (2s - 1, 2t - 1), the
+    inner diamond |u| + |v| <= 1 is the upper hemisphere (z >= 0) and the four outer corners
+    fold onto the lower one; r = 1 - |1 - |u| - |v|| is the concentric radius, z = +-(1 - r^2)
+    and the azimuth is pi/4 ((|v| - |u|) / r + 1) in the quadrant of (u, v).
+    ``xp=numpy``: the same map in float64 (scene build)."""
+    u, v = 2.0 * s - 1.0, 2.0 * t - 1.0
+    au, av = xp.abs(u), xp.abs(v)
+    signed = 1.0 - (au + av)                 # > 0 inside the diamond (upper hemisphere)
+    r = 1.0 - xp.abs(signed)
+    phi = xp.where(r > 0, (av - au) / xp.where(r > 0, r, 1.0) + 1.0, 1.0) * (math.pi / 4)
+    if xp is jnp:
+        # phi in [0, pi/2]: the quarter-range polynomials about pi/4
+        sa, ca = sincos_quarter(phi - jnp.float32(math.pi / 4))
+        h = jnp.float32(math.sqrt(0.5))
+        cos_phi, sin_phi = (ca - sa) * h, (sa + ca) * h
+    else:
+        cos_phi, sin_phi = xp.cos(phi), xp.sin(phi)
+    z = xp.where(signed < 0, -1.0, 1.0) * (1.0 - r * r)
+    sin_theta = r * xp.sqrt(xp.maximum(2.0 - r * r, 0.0))
+    return V3(xp.where(u < 0, -1.0, 1.0) * xp.abs(cos_phi) * sin_theta,
+              xp.where(v < 0, -1.0, 1.0) * xp.abs(sin_phi) * sin_theta, z)
+
+
+def equal_area_sphere_to_square(d: V3, xp=jnp) -> tuple[Array, Array]:
+    """The inverse of :func:`equal_area_square_to_sphere` for unit d: (s, t) in [0, 1]^2
+    (pbrt-v4's EqualAreaSphereToSquare, with the library's arctangent where pbrt uses a
+    polynomial, and 1 - |z| as (x^2 + y^2) / (1 + |z|), which keeps float32 its precision
+    near the poles)."""
+    x, y, z = xp.abs(d.x), xp.abs(d.y), xp.abs(d.z)
+    r = xp.sqrt(xp.maximum((x * x + y * y) / (1.0 + z), 0.0))
+    a, b = xp.maximum(x, y), xp.minimum(x, y)
+    # arctan2, not arctan(b / a): jnp.arctan comes out wrong (errors up to pi/2) on arrays
+    # of a thousand elements or more under jgi's XLA flags (jgi._xla: vector width 512)
+    phi = xp.arctan2(b, xp.where(a > 0, a, 1.0)) * (2.0 / math.pi)
+    phi = xp.where(x < y, 1.0 - phi, phi)
+    v = phi * r
+    u = r - v
+    south = d.z < 0                          # mirror into an outer corner
+    u, v = xp.where(south, 1.0 - v, u), xp.where(south, 1.0 - u, v)
+    u = xp.where(d.x < 0, -u, u)
+    v = xp.where(d.y < 0, -v, v)
+    return 0.5 * (u + 1.0), 0.5 * (v + 1.0)
+
+
 def sample_uniform_cone(u1: Array, u2: Array, cos_max: Array,
                         one_minus_cos_max: Array | None = None) -> V3:
     """Uniform direction within angle acos(cos_max) of +z; pdf = 1 / (2 pi (1 - cos_max)).

@@ -22,9 +22,11 @@ environment   uniform direction, pdf 1/(4 pi);    uniform direction, bounding di
               a map: by its piecewise-constant    a map: a direction by its distribution
               distribution (``EnvironmentMap``)
 ============  ==================================  ============================================
-An environment map's radiance is its ``emission`` row (Mitsuba's ``scale``) times the image's
-bilinear lookup (:func:`environment_radiance`); a constant environment (``lights.envmap`` None,
-static) compiles to the code of a scene before environment maps.
+An environment map's radiance is its ``emission`` row (Mitsuba's or pbrt's ``scale``) times the
+image's lookup (:func:`environment_radiance`): bilinear on a latitude-longitude map, the nearest
+texel on pbrt-v4's equal-area octahedral one (``EnvironmentMap.mapping``, static, so either
+compiles to its own code); a constant environment (``lights.envmap`` None, static) compiles to
+the code of a scene before environment maps.
 Quad and triangle emitters radiate on the side of their normal only; spheres outwards.
 """
 
@@ -138,9 +140,12 @@ def _rotate(m: Array, v: V3, transpose: bool = False) -> V3:
 
 def _env_cell(env: EnvironmentMap, d: V3):
     """(row, column, x, y) of world direction d: the cell (r, c) between texel centres and the
-    continuous texel coordinates (x in [0, W) from column 0's centre, y in [0, H - 1])."""
+    continuous texel coordinates (x in [0, W) from column 0's centre, y in [0, H - 1]); on an
+    octahedral map the texel (r, c) holding d (x, y unused)."""
     H, W = env.shape
     v = _rotate(env.to_world, d, transpose=True)
+    if env.octahedral:
+        return _octahedral_texel(env, v) + (None, None)
     u = jnp.arctan2(v.x, -v.z) * jnp.float32(0.5 / np.pi) - jnp.float32(0.5 / W)
     u = u - jnp.floor(u)
     x = u * W
@@ -150,24 +155,51 @@ def _env_cell(env: EnvironmentMap, d: V3):
     return r, c, x, y
 
 
+def _octahedral_texel(env: EnvironmentMap, local: V3):
+    """(row, column) of the texel pbrt-v4's nearest lookup reads for a local direction:
+    (floor(t N), floor(s N)) of its equal-area square point, a coordinate that reaches N (s or
+    t exactly 1) wrapped as pbrt's WrapMode::OctahedralSphere (the square's edges fold at their
+    midpoints: column N is column N - 1 of the row mirrored about the middle, then a row out of
+    range is mirrored back with the column mirrored)."""
+    N = env.shape[0]
+    s, t = warps.equal_area_sphere_to_square(local)
+    c = jnp.floor(s * N).astype(jnp.int32)
+    r = jnp.floor(t * N).astype(jnp.int32)
+    over = c >= N
+    c, r = jnp.where(over, 2 * N - 1 - c, c), jnp.where(over, N - 1 - r, r)
+    under, over = r < 0, r >= N
+    c = jnp.where(under | over, N - 1 - c, c)
+    r = jnp.where(under, -r, jnp.where(over, 2 * N - 1 - r, r))
+    # stored once: each gather by (r, c) is a kernel of its own, and XLA recomputed the whole
+    # chain (the samplers' searches too) in every one of them
+    return _xla.materialize((jnp.clip(r, 0, N - 1), jnp.clip(c, 0, N - 1)))
+
+
 def _env_lookup(env: EnvironmentMap, d: V3) -> V3:
-    """Bilinear texel lookup towards world direction d (Mitsuba 3's envmap ``eval``)."""
+    """Texel lookup towards world direction d: bilinear (Mitsuba 3's envmap ``eval``) or, on
+    an octahedral map, the nearest texel (pbrt-v4's ImageInfiniteLight::ImageLe)."""
     W = env.shape[1]
     r, c, x, y = _env_cell(env, d)
+    t = env.texels
+    if env.octahedral:
+        rgb = t[r, c]
+        return V3(rgb[..., 0], rgb[..., 1], rgb[..., 2])
     wx = jnp.clip(x - c, 0.0, 1.0)
     wy = jnp.clip(y - r, 0.0, 1.0)
     c1 = jnp.where(c + 1 >= W, 0, c + 1)
-    t = env.texels
     rgb = ((t[r, c] * (1 - wx)[..., None] + t[r, c1] * wx[..., None]) * (1 - wy)[..., None]
            + (t[r + 1, c] * (1 - wx)[..., None] + t[r + 1, c1] * wx[..., None]) * wy[..., None])
     return V3(rgb[..., 0], rgb[..., 1], rgb[..., 2])
 
 
 def _env_cell_pdf(env: EnvironmentMap, r, c) -> Array:
-    """Solid-angle density on cell (r, c): its probability over its solid angle."""
-    W = env.shape[1]
-    solid = (env.cos_edge[r] - env.cos_edge[r + 1]) * jnp.float32(2 * np.pi / W)
+    """Solid-angle density on cell (r, c): its probability over its solid angle (on an
+    octahedral map every texel's, 4 pi / N^2)."""
+    H, W = env.shape
     p = env.row_pmf[r] * env.col_pmf[r, c]
+    if env.octahedral:
+        return p * jnp.float32(H * W / (4 * np.pi))
+    solid = (env.cos_edge[r] - env.cos_edge[r + 1]) * jnp.float32(2 * np.pi / W)
     ok = (solid > 0) & (p > 0)
     return jnp.where(ok, p / jnp.where(ok, solid, 1.0), 0.0)
 
@@ -188,15 +220,24 @@ def _search(cdf: Array, base, n: int, u: Array) -> Array:
 
 def _env_sample(env: EnvironmentMap, u1: Array, u2: Array) -> tuple[V3, Array]:
     """(world direction, solid-angle density) drawn from the map's distribution: a row of
-    cells by the marginal, a cell by the row's conditional, then cos(theta) and phi uniform
-    in the cell (reusing each uniform's remainder)."""
+    cells by the marginal, a cell by the row's conditional, then a point uniform in the cell
+    (reusing each uniform's remainder): cos(theta) and phi on a latitude-longitude map, the
+    square's (s, t) on an octahedral one."""
     H, W = env.shape
-    r = _search(env.row_cdf, 0, H - 1, u1)
+    rows = env.row_pmf.shape[0]
+    r = _search(env.row_cdf, 0, rows, u1)
     col_cdf = env.col_cdf.reshape(-1)
     c = _search(col_cdf, r * W, W, u2)
     pr, pc = env.row_pmf[r], env.col_pmf.reshape(-1)[r * W + c]
     fr = jnp.clip((u1 - (env.row_cdf[r] - pr)) / jnp.where(pr > 0, pr, 1.0), 0.0, 1.0)
     fc = jnp.clip((u2 - (col_cdf[r * W + c] - pc)) / jnp.where(pc > 0, pc, 1.0), 0.0, 1.0)
+    if env.octahedral:
+        local = warps.equal_area_square_to_sphere((c.astype(jnp.float32) + fc) / W,
+                                                  (r.astype(jnp.float32) + fr) / H)
+        d = _xla.materialize(_rotate(env.to_world, local))   # as in _octahedral_texel
+        # the density of the texel d is looked up in ((r, c) but where rounding puts d across
+        # a texel edge): pdf_li's, and the radiance's texel
+        return d, _env_pdf(env, d)
     c0, c1 = env.cos_edge[r], env.cos_edge[r + 1]
     cos_t = c0 + (c1 - c0) * fr
     sin_t = jnp.sqrt(jnp.maximum(1.0 - cos_t * cos_t, 0.0))

@@ -16,6 +16,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..core import transform as xf
+from ..core import warps
 from ..core.bvh import build_bvh
 from ..core.imageio import read_image
 from ..core.vec import V3
@@ -587,12 +588,15 @@ class SceneBuilder:
             raise SceneError("only one environment light is allowed")
         self.lights.append(dict(kind=ENVIRONMENT, emission=_rgb(radiance)))
 
-    def environment_map(self, image, scale=1.0, to_world=None, where="environment map"):
-        """An environment lit by a latitude-longitude image (Mitsuba 3's ``envmap``): ``image``
-        an [H, W, 3] linear RGB array or a file name (EXR, or PNG / JPEG decoded from sRGB),
-        radiance ``scale`` times its bilinear lookup, ``to_world`` a 4x4 (or 3x3) transform
-        whose rotation turns the map's frame (+y up, see :class:`EnvironmentMap`) into the
-        world's. ``where`` names the source in errors."""
+    def environment_map(self, image, scale=1.0, to_world=None, where="environment map",
+                        mapping="latlong"):
+        """An environment lit by an image: ``image`` an [H, W, 3] linear RGB array or a file
+        name (EXR, or PNG / JPEG decoded from sRGB), radiance ``scale`` times its lookup,
+        ``to_world`` a 4x4 (or 3x3) transform whose rotation turns the map's frame into the
+        world's. ``mapping``: "latlong" (Mitsuba 3's ``envmap``, +y up, bilinear) or
+        "octahedral" (pbrt-v4's image ``infinite`` light: a square equal-area octahedral image,
+        +z up, nearest texel); see :class:`EnvironmentMap`. ``where`` names the source in
+        errors."""
         if any(l["kind"] == ENVIRONMENT for l in self.lights):
             raise SceneError("only one environment light is allowed")
         if isinstance(image, (str, bytes)) or hasattr(image, "__fspath__"):
@@ -600,7 +604,7 @@ class SceneBuilder:
                 image = read_image(image)
             except OSError as e:
                 raise SceneError(f"{where}: cannot read the image ({e})") from None
-        env = environment_map_table(image, to_world, where)
+        env = environment_map_table(image, to_world, where, mapping)
         self.lights.append(dict(kind=ENVIRONMENT, emission=_rgb(scale), envmap=env,
                                 env_mean=float(environment_map_mean(env))))
 
@@ -995,25 +999,43 @@ def _build_lights(elements: list, center, radius) -> Lights:
     )
 
 
-def environment_map_table(image, to_world=None, where="environment map") -> EnvironmentMap:
+ENVIRONMENT_MAPPINGS = ("latlong", "octahedral")
+
+
+def environment_map_table(image, to_world=None, where="environment map",
+                          mapping="latlong") -> EnvironmentMap:
     """The :class:`EnvironmentMap` of an [H, W, 3] linear RGB image: its sampling tables
-    (cells between texel centres weighted by mean luminance times solid angle) and the rotation
-    of ``to_world`` (4x4 or 3x3; its scale and shear are removed, as directions have none)."""
+    (latlong: cells between texel centres weighted by mean luminance times solid angle;
+    octahedral: texels weighted by their channels' mean, pbrt-v4's choice, all of one solid
+    angle) and the rotation of ``to_world`` (4x4 or 3x3; its scale and shear are removed, as
+    directions have none)."""
+    if mapping not in ENVIRONMENT_MAPPINGS:
+        raise SceneError(f"{where}: unknown mapping {mapping!r}; allowed: "
+                         f"{', '.join(ENVIRONMENT_MAPPINGS)}")
     img = np.asarray(image, np.float64)
     if img.ndim != 3 or img.shape[2] != 3 or img.shape[0] < 2 or img.shape[1] < 1:
         raise SceneError(f"{where}: expected an [H, W, 3] image with H >= 2, got shape "
                          f"{img.shape}")
+    if mapping == "octahedral" and img.shape[0] != img.shape[1]:
+        raise SceneError(f"{where}: an equal-area octahedral map must be square (N x N "
+                         f"texels, as pbrt-v4 requires), got {img.shape[1]} x {img.shape[0]}")
     if not np.all(np.isfinite(img)) or np.any(img < 0):
         raise SceneError(f"{where}: texels must be finite and non-negative")
     H, W = img.shape[:2]
-    lum = np.maximum(img @ np.array([0.2126, 0.7152, 0.0722]), 0.0)
-    cell = 0.25 * (lum[:-1] + lum[1:] + np.roll(lum[:-1], -1, 1) + np.roll(lum[1:], -1, 1))
-    cos_edge = np.cos(np.pi * np.arange(H) / (H - 1))
-    cos_edge[-1] = -1.0
-    solid = (cos_edge[:-1] - cos_edge[1:])[:, None] * (2 * np.pi / W)   # per cell
-    weight = cell * solid
+    if mapping == "octahedral":
+        weight = img.mean(2)             # equal solid angles: no Jacobian
+        solid = np.ones_like(weight)
+        cos_edge = np.zeros(0)
+    else:
+        lum = np.maximum(img @ np.array([0.2126, 0.7152, 0.0722]), 0.0)
+        cell = 0.25 * (lum[:-1] + lum[1:] + np.roll(lum[:-1], -1, 1) + np.roll(lum[1:], -1, 1))
+        cos_edge = np.cos(np.pi * np.arange(H) / (H - 1))
+        cos_edge[-1] = -1.0
+        solid = np.broadcast_to((cos_edge[:-1] - cos_edge[1:])[:, None] * (2 * np.pi / W),
+                                cell.shape)
+        weight = cell * solid
     if weight.sum() <= 0:               # a black map: sample uniformly (its power is 0 anyway)
-        weight = np.broadcast_to(solid, cell.shape).copy()
+        weight = np.array(solid, np.float64)
     row = weight.sum(1)
     row_pmf = row / row.sum()
     col_pmf = np.where(row[:, None] > 0, weight / np.where(row > 0, row, 1.0)[:, None], 1.0 / W)
@@ -1029,14 +1051,37 @@ def environment_map_table(image, to_world=None, where="environment map") -> Envi
     f32 = lambda a: jnp.asarray(a, jnp.float32)  # noqa: E731
     return EnvironmentMap(texels=f32(img), row_pmf=f32(row_pmf), row_cdf=f32(row_cdf),
                           col_pmf=f32(col_pmf), col_cdf=f32(col_cdf), cos_edge=f32(cos_edge),
-                          to_world=f32(rot))
+                          to_world=f32(rot), mapping=mapping)
 
 
 def environment_map_mean(env: EnvironmentMap) -> float:
-    """The map's luminance averaged over the sphere of directions (cells' mean texels)."""
+    """The map's luminance averaged over the sphere of directions (latlong: cells' mean
+    texels; octahedral: the texels', each of one solid angle)."""
     img = np.asarray(env.texels, np.float64)
     lum = np.maximum(img @ np.array([0.2126, 0.7152, 0.0722]), 0.0)
+    if env.octahedral:
+        return float(lum.mean())
     cell = 0.25 * (lum[:-1] + lum[1:] + np.roll(lum[:-1], -1, 1) + np.roll(lum[1:], -1, 1))
     ce = np.asarray(env.cos_edge, np.float64)
     solid = (ce[:-1] - ce[1:])[:, None] * (2 * np.pi / img.shape[1])
     return float((cell * solid).sum() / (4 * np.pi))
+
+
+def octahedral_map_illuminance(image, subdivisions: int | None = None) -> float:
+    """The illuminance (luminance units) an equal-area octahedral map of radiance ``image``
+    ([N, N, 3], nearest-texel lookup) gives on a patch facing its local +z:
+    sum over texels of L_texel times the integral of cos(theta) over the texel's upper-
+    hemisphere part, by a midpoint rule on ``subdivisions``^2 points per texel (default: at
+    least 1024 points across the square). A constant map of luminance L gives pi L.
+    (pbrt-v4's "illuminance" measures with 2 pi / N^2 per texel centre, half a texel's
+    4 pi / N^2, so pbrt renders a map scaled this way twice as bright as asked for; jgi keeps
+    the definition, as pbrt does for a constant "L".)"""
+    img = np.asarray(image, np.float64)
+    N = img.shape[0]
+    k = subdivisions or max(1, -(-1024 // N))
+    g = (np.arange(N * k) + 0.5) / (N * k)
+    S, T = np.meshgrid(g, g, indexing="xy")           # S varies along columns (s), T rows (t)
+    z = warps.equal_area_square_to_sphere(S, T, xp=np).z
+    cos_up = np.maximum(z, 0.0).reshape(N, k, N, k).sum((1, 3))   # [row, column]
+    lum = np.maximum(img @ np.array([0.2126, 0.7152, 0.0722]), 0.0)
+    return float((lum * cos_up).sum() * 4 * np.pi / (N * N * k * k))

@@ -29,7 +29,7 @@ import numpy as np
 
 from ..core import transform as xf
 from . import builtin as scenes
-from .builder import IOR_AIR, SceneBuilder, SceneError
+from .builder import ENVIRONMENT_MAPPINGS, IOR_AIR, SceneBuilder, SceneError
 from .importers import load_mitsuba_xml, load_pbrt
 from .importers._common import (
     has_texture_coordinates,
@@ -123,7 +123,8 @@ LIGHT_KEYS = {
     "spot": {"position": "vec3", "target": "vec3", "intensity": "rgb", "cutoff": "number",
              "falloff": "number"},
     "directional": {"direction": "vec3", "irradiance": "rgb"},
-    "environment": {"radiance": "rgb", "image": "str", "scale": "number", "transform": "table"},
+    "environment": {"radiance": "rgb", "image": "str", "scale": "number", "transform": "table",
+                    "mapping": "str"},
 }
 LIGHT_REQUIRED = {"point": ("position", "intensity"),
                   "spot": ("position", "target", "intensity"),
@@ -681,9 +682,9 @@ class _TomlLoader:
                 self.fail(key, "a second environment light; allowed: at most one")
             if ("radiance" in t) == ("image" in t):
                 self.fail(key, "an environment light needs exactly one of 'radiance' (constant) "
-                               "and 'image' (a latitude-longitude map)")
+                               "and 'image' (a map)")
             if "radiance" in t:
-                for k in ("scale", "transform"):
+                for k in ("scale", "transform", "mapping"):
                     if k in t:
                         self.fail(f"{key}.{k}", "applies to an 'image' environment only")
                 b.environment_light(t["radiance"])
@@ -693,8 +694,12 @@ class _TomlLoader:
                                                                  ".jpg", ".jpeg"):
                 self.fail(f"{key}.image", f"file '{path}' does not exist or is not an image; "
                                           "allowed: an EXR, Radiance HDR, PNG or JPEG "
-                                          "latitude-longitude map (relative to the scene file)")
+                                          "map (relative to the scene file)")
             m = (self.transform(f"{key}.transform", t["transform"]) if "transform" in t
                  else np.eye(4))
+            mapping = t.get("mapping", "latlong")
+            if mapping not in ENVIRONMENT_MAPPINGS:
+                self.fail(f"{key}.mapping", f"'{mapping}'; allowed: "
+                                            f"{', '.join(ENVIRONMENT_MAPPINGS)}")
             b.environment_map(path, scale=t.get("scale", 1.0), to_world=m,
-                              where=f"{self.path}: {key}.image")
+                              where=f"{self.path}: {key}.image", mapping=mapping)

@@ -250,29 +250,46 @@ class Materials(eqx.Module):
 
 
 class EnvironmentMap(eqx.Module):
-    """A latitude-longitude environment image (Mitsuba 3's ``envmap``), the radiance of the
-    environment element relative to its ``emission`` row (which holds Mitsuba's ``scale``).
+    """An environment image, the radiance of the environment element relative to its
+    ``emission`` row (which holds Mitsuba's or pbrt's ``scale``), in one of two static
+    parametrisations (``mapping``):
 
-    Texel (r, c) is the radiance towards the local direction with polar angle
-    theta = pi r / (H - 1) from +y and azimuth phi = 2 pi (c + 1/2) / W measured by
-    atan2(x, -z) (Mitsuba's convention); between texels it is bilinear, wrapping around in phi.
-    Sampling is piecewise constant over the W x (H - 1) cells between texel centres: a cell's
-    weight is its four texels' mean luminance times its solid angle (the sin(theta) Jacobian),
-    rows by the marginal, columns by the row's conditional; within a cell phi and cos(theta)
-    are uniform, so the solid-angle density is constant on it. ``texels`` are pytree leaves
-    (gradients flow through lookups); the sampling tables are computed at build time."""
+    ``"latlong"`` (Mitsuba 3's ``envmap``): texel (r, c) is the radiance towards the local
+    direction with polar angle theta = pi r / (H - 1) from +y and azimuth
+    phi = 2 pi (c + 1/2) / W measured by atan2(x, -z) (Mitsuba's convention); between texels
+    it is bilinear, wrapping around in phi. Sampling is piecewise constant over the
+    W x (H - 1) cells between texel centres: a cell's weight is its four texels' mean
+    luminance times its solid angle (the sin(theta) Jacobian), rows by the marginal, columns
+    by the row's conditional; within a cell phi and cos(theta) are uniform, so the solid-angle
+    density is constant on it.
 
-    texels: Array       # [H, W, 3] linear RGB, row 0 towards +y (local)
-    row_pmf: Array      # [H - 1] marginal probability of each row of cells
-    row_cdf: Array      # [H - 1] its inclusive running sum (last entry 1)
-    col_pmf: Array      # [H - 1, W] conditional probability of each cell in its row
-    col_cdf: Array      # [H - 1, W] inclusive running sums (last entry 1)
-    cos_edge: Array     # [H] cos(pi r / (H - 1)): the cells' polar edges
+    ``"octahedral"`` (pbrt-v4's image ``infinite`` light): an N x N image over Clarberg's
+    equal-area octahedral square (local +z up; texel (r, c) covers s in [c, c + 1) / N,
+    t in [r, r + 1) / N, every texel the solid angle 4 pi / N^2); the radiance is the nearest
+    texel's, sampling piecewise constant over the texels (weight: the mean of the three
+    channels, as pbrt-v4's Image::GetSamplingDistribution), so the solid-angle density is a
+    texel's probability times N^2 / (4 pi).
+
+    ``texels`` are pytree leaves (gradients flow through lookups); the sampling tables are
+    computed at build time."""
+
+    texels: Array       # [H, W, 3] linear RGB, row 0 towards +y (latlong) / t = 0 (octahedral)
+    row_pmf: Array      # [R] marginal probability of each row of cells (R = H - 1 latlong, N)
+    row_cdf: Array      # [R] its inclusive running sum (last entry 1)
+    col_pmf: Array      # [R, W] conditional probability of each cell in its row
+    col_cdf: Array      # [R, W] inclusive running sums (last entry 1)
+    cos_edge: Array     # latlong: [H] cos(pi r / (H - 1)), the cells' polar edges; else [0]
     to_world: Array     # [3, 3] rotation, local -> world (columns: the local axes)
+    mapping: str = eqx.field(static=True, default="latlong")   # or "octahedral"
 
     @property
     def shape(self) -> tuple[int, int]:
         return int(self.texels.shape[0]), int(self.texels.shape[1])
+
+    @property
+    def octahedral(self) -> bool:
+        """Static: pbrt-v4's equal-area octahedral square rather than latitude-longitude."""
+        return self.mapping == "octahedral"
 
 
 class Lights(eqx.Module):

@@ -47,7 +47,9 @@ supported):
              wound (it decides only which side an emitter lights)
   lights     LightSource "point" (I, from, scale, power), "spot" (I, from, to, coneangle,
              conedelta, scale, power), "distant" (L, from, to, scale, illuminance),
-             "uniform" / "infinite" without a map (L, scale)
+             "uniform" / "infinite" (L, scale, illuminance; or filename: a square equal-area
+             octahedral image, EXR or PNG, nearest texel, +z up in the light's frame, with
+             scale and illuminance; "portal" refused)
   files      Include / Import; relative file names (includes, meshes, images, spectra)
              are found in the main scene file's folder, also from included files, as pbrt-v4
              resolves them
@@ -92,7 +94,7 @@ import numpy as np
 from ...core import transform as xf
 from ...core.imageio import read_image
 from .. import spectra
-from ..builder import SceneBuilder, SceneError
+from ..builder import SceneBuilder, SceneError, octahedral_map_illuminance
 from ..tables import Scene
 from ._common import (
     PBRT_PLY_UV,
@@ -653,9 +655,49 @@ class _Importer:
                 L = L * E / _lum(L / scale)
             self.b.directional_light(xf.apply_vector(m, to - frm), L)
         else:  # uniform / infinite
-            if "filename" in p:
-                self.fail(where, "infinite lights with an environment map are not supported")
-            self.b.environment_light(self._get(p, "L", np.ones(3), where, 3) * scale)
+            self.infinite_light(kind, p, scale, m, where)
+
+    def infinite_light(self, kind, p, scale, m, where):
+        """pbrt-v4's "infinite" (and "uniform") light: constant "L", or with "filename" an
+        equal-area octahedral image (square; nearest texel, +z up in the light's frame, turned
+        by the CTM). "illuminance" E scales either so that a patch facing the light's +z
+        receives E: L E / (pi lum(L)) for a constant, the map by E over its measured
+        illuminance (see :func:`jgi.scene.builder.octahedral_map_illuminance`)."""
+        E = float(self._get(p, "illuminance", -1.0, where, 1))
+        if "portal" in p:
+            self.fail(where, f"LightSource \"{kind}\": \"portal\" is not supported (pbrt-v4's "
+                             "PortalImageInfiniteLight); jgi samples the whole map")
+        if "filename" not in p:
+            L = self._get(p, "L", np.ones(3), where, 3) * scale
+            if E > 0:
+                if not _lum(L) > 0:
+                    self.fail(where, "\"illuminance\" needs an \"L\" of positive luminance")
+                L = L * E / (math.pi * _lum(L / scale))
+            self.b.environment_light(L)
+            return
+        if "L" in p:
+            self.fail(where, "LightSource \"infinite\": give either \"L\" or \"filename\", "
+                             "not both (as pbrt-v4)")
+        path = self.resolve(self._get(p, "filename", "", where, 1))
+        try:
+            img = np.asarray(read_image(path), float)
+        except (OSError, ValueError) as e:
+            self.fail(where, f"LightSource \"infinite\": cannot read \"filename\" '{path}': {e}")
+        if img.shape[0] != img.shape[1]:
+            self.fail(where, f"LightSource \"infinite\": \"filename\" '{path}' is "
+                             f"{img.shape[1]} x {img.shape[0]} texels; allowed: a square "
+                             "equal-area octahedral map (pbrt-v4 refuses other shapes too)")
+        if E > 0:
+            measured = octahedral_map_illuminance(img)
+            if not measured > 0:
+                self.fail(where, f"\"illuminance\": the map '{path}' is black over its upper "
+                                 "hemisphere (+z), so no scale gives it an illuminance")
+            scale = scale * E / measured
+        try:
+            self.b.environment_map(img, scale=scale, to_world=m, mapping="octahedral",
+                                   where=f"{where[0]}:{where[1]}: LightSource \"infinite\"")
+        except SceneError as e:
+            self.fail(where, str(e))
 
     def flips_normals(self) -> bool:
         """pbrt-v4 turns a shape's geometric normal around under ReverseOrientation and under
