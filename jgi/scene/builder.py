@@ -1067,21 +1067,18 @@ def environment_map_mean(env: EnvironmentMap) -> float:
     return float((cell * solid).sum() / (4 * np.pi))
 
 
-def octahedral_map_illuminance(image, subdivisions: int | None = None) -> float:
-    """The illuminance (luminance units) an equal-area octahedral map of radiance ``image``
-    ([N, N, 3], nearest-texel lookup) gives on a patch facing its local +z:
-    sum over texels of L_texel times the integral of cos(theta) over the texel's upper-
-    hemisphere part, by a midpoint rule on ``subdivisions``^2 points per texel (default: at
-    least 1024 points across the square). A constant map of luminance L gives pi L.
-    (pbrt-v4's "illuminance" measures with 2 pi / N^2 per texel centre, half a texel's
-    4 pi / N^2, so pbrt renders a map scaled this way twice as bright as asked for; jgi keeps
-    the definition, as pbrt does for a constant "L".)"""
+def pbrt_map_illuminance(image) -> float:
+    """The illuminance (luminance units) pbrt-v4 ascribes to an equal-area octahedral map of
+    radiance ``image`` ([N, N, 3]) when it scales the map to a requested "illuminance": the sum
+    over texels whose centre lies above the light's xy plane of luminance x cos(theta) at the
+    centre, times 2 pi / N^2 (lights.cpp, ImageInfiniteLight). A texel's solid angle is
+    4 pi / N^2, so this is about half the map's illuminance (a constant map of luminance L:
+    about pi L / 2, not pi L), and pbrt renders a map scaled by E over it with illuminance
+    about 2 E. jgi scales as pbrt does, so a file renders as in pbrt."""
     img = np.asarray(image, np.float64)
     N = img.shape[0]
-    k = subdivisions or max(1, -(-1024 // N))
-    g = (np.arange(N * k) + 0.5) / (N * k)
+    g = (np.arange(N) + 0.5) / N
     S, T = np.meshgrid(g, g, indexing="xy")           # S varies along columns (s), T rows (t)
     z = warps.equal_area_square_to_sphere(S, T, xp=np).z
-    cos_up = np.maximum(z, 0.0).reshape(N, k, N, k).sum((1, 3))   # [row, column]
-    lum = np.maximum(img @ np.array([0.2126, 0.7152, 0.0722]), 0.0)
-    return float((lum * cos_up).sum() * 4 * np.pi / (N * N * k * k))
+    lum = img @ np.array([0.2126, 0.7152, 0.0722])
+    return float(np.sum(np.where(z > 0, lum * z, 0.0)) * 2 * np.pi / (N * N))

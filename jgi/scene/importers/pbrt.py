@@ -94,7 +94,7 @@ import numpy as np
 from ...core import transform as xf
 from ...core.imageio import read_image
 from .. import spectra
-from ..builder import SceneBuilder, SceneError, octahedral_map_illuminance
+from ..builder import SceneBuilder, SceneError, pbrt_map_illuminance
 from ..tables import Scene
 from ._common import (
     PBRT_PLY_UV,
@@ -661,8 +661,9 @@ class _Importer:
         """pbrt-v4's "infinite" (and "uniform") light: constant "L", or with "filename" an
         equal-area octahedral image (square; nearest texel, +z up in the light's frame, turned
         by the CTM). "illuminance" E scales either so that a patch facing the light's +z
-        receives E: L E / (pi lum(L)) for a constant, the map by E over its measured
-        illuminance (see :func:`jgi.scene.builder.octahedral_map_illuminance`)."""
+        receives E: L E / (pi lum(L)) for a constant; a map by E over the illuminance pbrt-v4
+        ascribes to it (:func:`jgi.scene.builder.pbrt_map_illuminance`: about half its true
+        one, so the map renders with about 2 E, as in pbrt)."""
         E = float(self._get(p, "illuminance", -1.0, where, 1))
         if "portal" in p:
             self.fail(where, f"LightSource \"{kind}\": \"portal\" is not supported (pbrt-v4's "
@@ -688,7 +689,7 @@ class _Importer:
                              f"{img.shape[1]} x {img.shape[0]} texels; allowed: a square "
                              "equal-area octahedral map (pbrt-v4 refuses other shapes too)")
         if E > 0:
-            measured = octahedral_map_illuminance(img)
+            measured = pbrt_map_illuminance(img)
             if not measured > 0:
                 self.fail(where, f"\"illuminance\": the map '{path}' is black over its upper "
                                  "hemisphere (+z), so no scale gives it an illuminance")
