@@ -42,6 +42,11 @@
    called once per element, like ``sincosf`` (a scalar call inside the vectorised loop);
    ``exp(y log x)`` uses XLA's own vectorised exp and log.
 
+A fault of XLA's under these flags: with ``--xla_cpu_prefer_vector_width=512`` the vectorised
+single-argument ``jnp.arctan`` is wrong on arrays of 1024 elements or more (arctan(-6.28) came
+out +1.404; jax 0.10.2); every other elementary function jgi uses was within 6e-7, and arctan2
+with a traced second argument is right. jgi calls no ``jnp.arctan`` (tests/test_xla.py).
+
 What is guaranteed (measured with tests/test_cpu.py, which runs its cases under each setting
 below in a subprocess; ``--xla_cpu_max_isa`` makes XLA generate code for a lesser CPU, so any
 machine can check the others):

@@ -52,3 +52,23 @@ def test_unroll_threshold_changes_no_result(tmp_path):
     for i, (name, params) in enumerate(CASES):
         here = _render(name, params)
         assert np.array_equal(here, shipped[f"arr_{i}"]), name
+
+
+def test_no_jax_arctan_where_the_vector_width_flag_breaks_it():
+    """Under jgi's --xla_cpu_prefer_vector_width=512, XLA's vectorised single-argument arctan
+    (also arctan2(y, 1), which XLA rewrites to it) is wrong on arrays of 1024 elements or
+    more: arctan(-6.28) came out +1.404 (jax 0.10.2, found by the octahedral map work). Every
+    other elementary function jgi uses is within 6e-7 there (measured), and arctan2 with a
+    traced second argument is right. So jgi calls no jnp.arctan; this test keeps it so and
+    records the fault while XLA has it."""
+    import jax
+    import jax.numpy as jnp
+
+    calls = [f"{p.relative_to(ROOT)}:{i + 1}" for p in sorted((ROOT / "jgi").rglob("*.py"))
+             for i, line in enumerate(p.read_text().splitlines())
+             if "jnp.arctan(" in line.split("#")[0]]
+    assert not calls, calls
+    x = np.linspace(-8.0, 8.0, 4096, dtype=np.float32)
+    y = np.linspace(-3.0, 3.0, 4096, dtype=np.float32)
+    got = np.asarray(jax.jit(jnp.arctan2)(x, y))
+    np.testing.assert_allclose(got, np.arctan2(x, y), atol=1e-6)
