@@ -169,7 +169,7 @@ def test_intersect_normals_and_uv_follow_the_conventions():
     s3 = np.sqrt(3) / 2
     o = np.array([[1.0, 1.0, 3], [0.5 * s3, 0.25, -0.5], [8, 0, 1.5], [5, 0, 1], [-8, 0, 0.5]])
     d = np.array([[0, 0, -1.0], [0, 0, -1], [-1, 0, 0], [-s3, -0.5, 0], [1, 0, 0]])
-    hit = geometry.intersect(scene, _v3(o), _v3(d))
+    hit = jax.jit(geometry.intersect)(scene, _v3(o), _v3(d))
     t, n, uv = np.asarray(hit.t), _np(hit.n), np.stack([np.asarray(a) for a in hit.uv], 1)
     np.testing.assert_allclose(t, [3, 0.5, 2, 1, 2], atol=1e-5)
     np.testing.assert_allclose(n, [[0, 0, -1], [0, 0, 1], [1, 0, 0], [-s3, -0.5, 0],
@@ -191,14 +191,14 @@ def test_area_sampling_is_uniform_chi_square():
     key = jax.random.PRNGKey(4)
     u1, u2 = jax.random.uniform(key, (2, n))
     c, au, av = _v3([0.1, 0.2, 0.3]), _v3([0.0, 0.5, 0.0]), _v3([0.0, 0.0, 0.8])
-    p = _np(lights.disk_point(c, au, av, u1, u2)) - [0.1, 0.2, 0.3]
+    p = _np(jax.jit(lights.disk_point)(c, au, av, u1, u2)) - [0.1, 0.2, 0.3]
     a, b = p[:, 1] / 0.5, p[:, 2] / 0.8
     cells = (np.minimum((a * a + b * b) * 8, 7).astype(int) * 8
              + np.minimum((np.arctan2(b, a) % (2 * np.pi)) / (2 * np.pi) * 8, 7).astype(int))
     p_disk = stats.chisquare(np.bincount(cells, minlength=64)).pvalue
     w = np.array([0.0, 0.0, 2.0])
-    y, nrm = lights.cylinder_point(_v3([0, 0, 0]), _v3([0.3, 0, 0]), _v3([0, 0.3, 0]), _v3(w),
-                                   -1.0, u1, u2)
+    y, nrm = jax.jit(lights.cylinder_point)(_v3([0, 0, 0]), _v3([0.3, 0, 0]),
+                                            _v3([0, 0.3, 0]), _v3(w), -1.0, u1, u2)
     y, nrm = _np(y), _np(nrm)
     phi = np.arctan2(y[:, 1], y[:, 0]) % (2 * np.pi)
     cells = (np.minimum(y[:, 2] / 2 * 8, 7).astype(int) * 8
@@ -235,9 +235,10 @@ def test_disk_light_irradiance_and_pdf_match_closed_forms():
     L, r, h = 2.0, 0.5, 1.0
     n = 100_000
     u = jax.random.uniform(jax.random.PRNGKey(7), (3, n))
+    sample_li, pdf_li = jax.jit(lights.sample_li), jax.jit(lights.pdf_li)
     for a in (0.0, 0.3, 0.5, 0.8, 1.5):
         x = _v3(np.tile([a, 0.0, 0.0], (n, 1)))
-        s = lights.sample_li(scene.lights, x, *u)
+        s = sample_li(scene.lights, x, *u)
         cos = np.asarray(s.wi.y, np.float64)
         pdf = np.asarray(s.pdf, np.float64)
         f = np.where(np.asarray(s.valid), np.asarray(s.Li.x) * cos / np.where(pdf > 0, pdf, 1),
@@ -246,7 +247,7 @@ def test_disk_light_irradiance_and_pdf_match_closed_forms():
         se = f.std() / np.sqrt(n)
         assert abs(f.mean() - expected) < 4 * se + 1e-6, (a, f.mean(), expected, se)
         y = _np(x) + _np(s.wi) * np.asarray(s.dist)[:, None]
-        pdf2 = lights.pdf_li(scene.lights, jnp.zeros(n, jnp.int32), x, _v3(y),
+        pdf2 = pdf_li(scene.lights, jnp.zeros(n, jnp.int32), x, _v3(y),
                              _v3(np.tile([0, -1.0, 0], (n, 1))))
         np.testing.assert_allclose(np.asarray(pdf2), pdf, rtol=1e-4)
     above = lights.sample_li(scene.lights, _v3(np.tile([0.1, 2.0, 0.0], (8, 1))), *u[:, :8])
@@ -313,7 +314,8 @@ def test_estimators_agree_with_disk_and_cylinder_lights():
     """PT, BDPT, LT, VCM and SPPM agree per 4 x 4 region (Welch's t, both sides' standard
     errors from 4 seeds, Bonferroni) on a scene lit by a disk light and an inward-emitting
     tube, with a diffuse tube: every estimator's area-light sampling, emission sampling and
-    densities for the two new kinds."""
+    densities for the two new kinds (measured max |t| 1.6, 2.1, 5.4, 2.6; with 8 seeds each
+    VCM 1.7, BDPT 2.5)."""
     scene = _disk_and_cylinder_scene()
     runs = {"pt": dict(spp=64), "bdpt": dict(spp=16), "lt": dict(spp=16), "vcm": dict(spp=8),
             "sppm": dict(spp=4, photons=20_000, radius=0.05)}
@@ -383,7 +385,7 @@ def test_mitsuba_disk_and_cylinder_intersect_as_mitsuba(tmp_path):
     o = rng.uniform(-3, 3, (n, 3))
     d = rng.uniform(-1.5, 1.5, (n, 3)) + [0.2, 0.6, 0.5] - o
     d /= np.linalg.norm(d, axis=1, keepdims=True)
-    hit = geometry.intersect(scene, _v3(o), _v3(d))
+    hit = jax.jit(geometry.intersect)(scene, _v3(o), _v3(d))
     scene_mi = mi.load_file(str(xml))     # kept alive until its lazy results are read
     o32, d32 = o.astype(np.float32), d.astype(np.float32)
     si = scene_mi.ray_intersect(mi.Ray3f(mi.Point3f(*o32.T), mi.Vector3f(*d32.T)))
