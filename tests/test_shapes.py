@@ -157,7 +157,8 @@ def test_intersect_normals_and_uv_follow_the_conventions():
     """Through ``geometry.intersect`` (textured, so hits carry uv): a disk's normal is the
     given one, its uv Mitsuba's (r, phi / 2 pi) or pbrt's (phi / 2 pi, 1 - r); a cylinder's
     normal points away from the axis (towards it when not ``outward``), its uv is
-    (phi / 2 pi, z / height), also when seen from inside."""
+    (phi / 2 pi, z / height), also when seen from inside; ``closest_hit`` names the same
+    primitives and ``occluded`` stops at them."""
     b = SceneBuilder()
     b.texture("check", "checkerboard")
     b.material("m", "diffuse", diffuse="check")
@@ -178,6 +179,15 @@ def test_intersect_normals_and_uv_follow_the_conventions():
     # tube from its axis: the wall at phi = 210 degrees, z = 1; inward tube: phi = 180
     np.testing.assert_allclose(uv, [[np.sqrt(2) / 2, 0.125], [1 / 12, 0.5], [0, 0.75],
                                     [7 / 12, 0.5], [0.5, 0.25]], atol=1e-5)
+    # the closest-hit query names the same primitives, and shadow rays stop at them
+    t_c, kind, index = jax.jit(geometry.closest_hit)(scene, _v3(o), _v3(d))
+    np.testing.assert_allclose(np.asarray(t_c), t, atol=1e-6)
+    D, C = geometry.DISK, geometry.CYLINDER
+    assert np.asarray(kind).tolist() == [D, D, C, C, C]
+    assert np.asarray(index).tolist() == [0, 1, 0, 0, 1]
+    blocked = jax.jit(geometry.occluded)(scene, _v3(o), _v3(d), jnp.asarray(t + 0.01))
+    free = jax.jit(geometry.occluded)(scene, _v3(o), _v3(d), jnp.asarray(t - 0.01))
+    assert np.all(np.asarray(blocked)) and not np.any(np.asarray(free))
 
 
 # --- area sampling ------------------------------------------------------------------------
