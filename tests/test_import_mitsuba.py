@@ -86,8 +86,8 @@ def test_lights_materials_and_transforms(tmp_path):
 
 
 @pytest.mark.parametrize("body, message", [
-    ('<shape type="disk"/>',
-     "shape plugin 'disk' is not supported.*rectangle, cube, sphere, obj, ply"),
+    ('<shape type="sdfgrid"/>',
+     "shape plugin 'sdfgrid' is not supported.*rectangle, cube, sphere, disk, cylinder, obj, ply"),
     ('<bsdf type="thindielectric" id="x"/>',
      "bsdf plugin 'thindielectric' is not supported by jgi.*supported bsdf plugins: diffuse, "
      "conductor, roughconductor, dielectric, roughdielectric, roughplastic, plastic, twosided"),

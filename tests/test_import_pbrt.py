@@ -155,8 +155,8 @@ def test_microfacet_materials_give_the_builder_rows(tmp_path):
 
 
 @pytest.mark.parametrize("body, message", [
-    ('Shape "disk" "float radius" 1',
-     'Shape "disk" is not supported.*sphere, trianglemesh, plymesh'),
+    ('Shape "curve" "float width" 1',
+     'Shape "curve" is not supported.*sphere, disk, cylinder, trianglemesh, plymesh'),
     ('Material "coateddiffuse"', "material 'coateddiffuse' is not supported: pbrt-v4's "
      "coateddiffuse is a stochastic layered BSDF.*Use a Mitsuba XML or TOML scene with a "
      "roughplastic \\(or, for a smooth coating, a plastic\\) instead"),

@@ -674,8 +674,8 @@ def run_chains(scene: Scene, cfg: MLTConfig, mu: Mutations, seed, x: Path, step0
 def check_scene(scene: Scene) -> None:
     if scene.lights.count == 0 or any(k not in AREA_KINDS for k in scene.lights.kinds):
         raise ParameterError("estimator 'mlt': path-space MLT needs area emitters only (quads, "
-                             "triangles, spheres); this scene has point, spot, directional or "
-                             "environment lights, or none")
+                             "triangles, spheres, disks, cylinders); this scene has point, "
+                             "spot, directional or environment lights, or none")
 
 
 def normalisation_from_path_tracer(scene: Scene, cfg: MLTConfig, seed: int, paths: int) -> float:

@@ -1,4 +1,5 @@
-"""Ray-primitive intersection for spheres, parallelograms and triangles; closest-hit queries.
+"""Ray-primitive intersection for spheres, parallelograms, disks, cylinders and triangles;
+closest-hit queries.
 
 Rays are struct-of-arrays (origin ``o`` and unit direction ``d`` as :class:`V3` of shape [N]).
 Small primitive tables are unrolled at trace time (one fused kernel over all primitives, the
@@ -21,14 +22,14 @@ from .. import _xla
 from .._xla import materialize
 from ..core import bvh
 from ..core.vec import EDGE_ON_COS, V3, cross, dot, normalize, where
-from ..scene.tables import Boxes, Quads, Rects, Scene, Spheres, Triangles
+from ..scene.tables import Boxes, Cylinders, Disks, Quads, Rects, Scene, Spheres, Triangles
 
 INF = jnp.float32(jnp.inf)
 T_MIN = 1e-6          # reject hits this close to the origin (origins are also offset, see spawn)
 # one fused kernel for small tables, blocks for larger (perf: docs/performance.md#scan-blocks)
 UNROLL_LIMIT = 32     # primitive tables up to this size are unrolled into the kernel
 
-SPHERE, QUAD, TRIANGLE, RECT, BOX = 0, 1, 2, 3, 4
+SPHERE, QUAD, TRIANGLE, RECT, BOX, DISK, CYLINDER = 0, 1, 2, 3, 4, 5, 6
 
 
 class Hit(NamedTuple):
@@ -160,6 +161,88 @@ def box_t(c: V3, au: V3, av: V3, aw: V3, half: V3, o: V3, d: V3, with_normal: bo
     return t, axis * sign
 
 
+def disk_duals(dk: Disks) -> tuple[V3, V3]:
+    """Vectors with dual_u.axis_u = 1, dual_u.axis_v = 0 (and vice versa) in the disk's plane:
+    (p - center) . dual_u and . dual_v are p's coordinates (a, b) on the unit disk."""
+    n = cross(dk.axis_u, dk.axis_v)
+    n2 = dot(n, n)
+    inv = jnp.where(n2 > 0, 1.0 / jnp.where(n2 > 0, n2, 1.0), 0.0)
+    return cross(dk.axis_v, n) * inv, cross(n, dk.axis_u) * inv
+
+
+def disk_t(center: V3, normal: V3, dual_u: V3, dual_v: V3, o: V3, d: V3):
+    """(t, a, b): plane hit as for quads, then a^2 + b^2 <= 1 for the unit-disk coordinates
+    (a, b) of the hit point (inf on a miss; rays in the plane miss)."""
+    denom, ok = _crosses_plane(normal, d)
+    t = _xla.div(dot(normal, center - o), jnp.where(ok, denom, 1.0))
+    rel = o + d * t - center
+    a, b = dot(rel, dual_u), dot(rel, dual_v)
+    hit = ok & (t > T_MIN) & (a * a + b * b <= 1.0)
+    return jnp.where(hit, t, INF), a, b
+
+
+CYLINDER_MIN_SIN2 = 1e-10   # rays closer than this (sin^2) to the axis direction miss the tube
+
+
+def cylinder_t(base: V3, axis_u: V3, axis_v: V3, axis_w: V3, radius, height, o: V3, d: V3):
+    """(t, x, y): nearest t > T_MIN where the ray meets the tube x^2 + y^2 = radius^2,
+    0 <= z <= height in the cylinder's frame, and the hit's (x, y) there (t = inf on a miss).
+
+    As for spheres, the discriminant is formed from the ray's closest approach to the axis,
+    radius^2 - |f|^2 with f = o_xy - d_xy (o_xy . d_xy) / |d_xy|^2 (no cancellation for rays
+    far from a thin tube); a ray (nearly) parallel to the axis misses (it could only run
+    along the surface). From inside the tube the far root is taken. ``d`` need not be unit."""
+    rel = o - base
+    ox, oy, oz = dot(rel, axis_u), dot(rel, axis_v), dot(rel, axis_w)
+    dx, dy, dz = dot(d, axis_u), dot(d, axis_v), dot(d, axis_w)
+    a = dx * dx + dy * dy
+    ok = a > CYLINDER_MIN_SIN2 * (a + dz * dz)
+    inv_a = _xla.recip(jnp.where(ok, a, 1.0))
+    t_mid = -(ox * dx + oy * dy) * inv_a
+    fx, fy = ox + dx * t_mid, oy + dy * t_mid
+    disc = radius * radius - (fx * fx + fy * fy)
+    ok = ok & (disc >= 0)
+    half = _xla.sqrt(jnp.where(ok, disc, 0.0) * inv_a)
+    t0, t1 = t_mid - half, t_mid + half
+
+    def on_tube(t):
+        z = oz + dz * t
+        return (t > T_MIN) & (z >= 0) & (z <= height)
+    near = on_tube(t0)
+    t = jnp.where(near, t0, t1)
+    t = jnp.where(ok & (near | on_tube(t1)), t, INF)
+    t_at = jnp.where(t < INF, t, 0.0)    # misses: finite (x, y), never inf * 0
+    return t, ox + dx * t_at, oy + dy * t_at
+
+
+def disk_uv(a: Array, b: Array, pbrt_uv) -> tuple[Array, Array]:
+    """Surface coordinates at unit-disk coordinates (a, b), polar (r, phi): Mitsuba's
+    (r, phi / 2 pi), or pbrt-v4's (phi / 2 pi, 1 - r) where ``pbrt_uv``."""
+    r = jnp.sqrt(a * a + b * b)
+    turn = _turn(b, a)
+    return jnp.where(pbrt_uv, turn, r), jnp.where(pbrt_uv, 1.0 - r, turn)
+
+
+def _turn(y: Array, x: Array) -> Array:
+    """atan2(y, x) / 2 pi in [0, 1)."""
+    phi = jnp.arctan2(y, x) * (0.5 / jnp.pi)
+    return jnp.where(phi < 0, phi + 1.0, phi)
+
+
+def cylinder_uv(x: Array, y: Array, z: Array, height) -> tuple[Array, Array]:
+    """(phi / 2 pi, z / height): Mitsuba's and pbrt-v4's cylinder coordinates."""
+    return _turn(y, x), z / height
+
+
+def _cylinder_row(cy: Cylinders, i):
+    return (_take(cy.base, i), _take(cy.axis_u, i), _take(cy.axis_v, i), _take(cy.axis_w, i),
+            cy.radius[i], cy.height[i])
+
+
+def _disk_row(dk: Disks, du: V3, dv: V3, i):
+    return _take(dk.center, i), _take(dk.normal, i), _take(du, i), _take(dv, i)
+
+
 def quad_duals(q: Quads) -> tuple[V3, V3]:
     """Vectors with dual_u.edge_u = 1, dual_u.edge_v = 0 (and vice versa) in the quad's plane."""
     n = cross(q.edge_u, q.edge_v)
@@ -205,7 +288,8 @@ def traversal_loops(scene: Scene) -> bool:
     UNROLL_LIMIT rows) rather than one unrolled kernel: a value the rays are computed from is
     then best stored before the query, or each loop iteration's kernel recomputes it."""
     tables = (scene.spheres.count, *scene.rects.axis_counts, scene.boxes.count,
-              scene.quads.count, scene.triangles.count)
+              scene.quads.count, scene.triangles.count,
+              *(t.count for t in (scene.disks, scene.cylinders) if t is not None))
     return scene.triangles.bvh is not None or max(tables) > UNROLL_LIMIT
 
 
@@ -265,6 +349,15 @@ def closest_hit(scene: Scene, o: V3, d: V3, t_max: Array | None = None):
             t = quad_t(_take(q.origin, i), _take(q.normal, i), _take(du, i), _take(dv, i), o, d)
             return update(c, t, QUAD, i)
         carry = _scan(q.count, body, carry)
+    dk: Disks | None = scene.disks
+    if dk is not None:
+        ddu, ddv = disk_duals(dk)
+        carry = _scan(dk.count, lambda i, c: update(c, disk_t(*_disk_row(dk, ddu, ddv, i), o,
+                                                                 d)[0], DISK, i), carry)
+    cy: Cylinders | None = scene.cylinders
+    if cy is not None:
+        carry = _scan(cy.count, lambda i, c: update(c, cylinder_t(*_cylinder_row(cy, i), o,
+                                                                     d)[0], CYLINDER, i), carry)
     tr: Triangles = scene.triangles
     if tr.count and tr.bvh is not None:
         t, prim = _bvh_closest(tr, o, d, carry[0])
@@ -434,6 +527,26 @@ def intersect(scene: Scene, o: V3, d: V3, stored: bool = True) -> Hit:
                   if with_uv else None)
             return update(c, t < c.t, t, _take(q.normal, i), q.material[i], q.emitter[i], uv=uv)
         carry = _scan(q.count, body, carry)
+    dk: Disks | None = scene.disks
+    if dk is not None:
+        ddu, ddv = disk_duals(dk)
+
+        def body(i, c):
+            t, a, b = disk_t(*_disk_row(dk, ddu, ddv, i), o, d)
+            uv = disk_uv(a, b, dk.pbrt_uv[i]) if with_uv else None
+            return update(c, t < c.t, t, _take(dk.normal, i), dk.material[i], dk.emitter[i],
+                          uv=uv)
+        carry = _scan(dk.count, body, carry)
+    cy: Cylinders | None = scene.cylinders
+    if cy is not None:
+        def body(i, c):
+            row = _cylinder_row(cy, i)
+            base, au, av, aw, radius, height = row
+            t, x, y = cylinder_t(*row, o, d)
+            n = normalize(au * x + av * y) * cy.outward[i]
+            uv = (cylinder_uv(x, y, dot(o + d * t - base, aw), height) if with_uv else None)
+            return update(c, t < c.t, t, n, cy.material[i], cy.emitter[i], uv=uv)
+        carry = _scan(cy.count, body, carry)
     tr: Triangles = scene.triangles
     if tr.count and tr.bvh is not None:
         t, prim = _bvh_closest(tr, o, d, carry.t)
@@ -507,6 +620,15 @@ def occluded(scene: Scene, o: V3, d: V3, t_max: Array) -> Array:
         occ = _scan(q.count, lambda i, a: a | (quad_t(_take(q.origin, i), _take(q.normal, i),
                                                       _take(du, i), _take(dv, i), o, d) < t_max),
                     occ)
+    dk: Disks | None = scene.disks
+    if dk is not None:
+        ddu, ddv = disk_duals(dk)
+        occ = _scan(dk.count, lambda i, a: a | (disk_t(*_disk_row(dk, ddu, ddv, i), o, d)[0]
+                                                < t_max), occ)
+    cy: Cylinders | None = scene.cylinders
+    if cy is not None:
+        occ = _scan(cy.count, lambda i, a: a | (cylinder_t(*_cylinder_row(cy, i), o, d)[0]
+                                                < t_max), occ)
     tr: Triangles = scene.triangles
     if tr.count and tr.bvh is not None:
         # rays already occluded get an empty interval: they leave the traversal at once

@@ -10,7 +10,9 @@ Per kind (L_e radiance, I intensity, E irradiance, A area, R bounding-sphere rad
 kind          sample_li (towards x)               sample_emission (photons, light paths)
 ============  ==================================  ============================================
 area quad,    uniform point y on the element,     uniform y, cosine-distributed direction:
-triangle      pdf = |x-y|^2 / (A cos theta_y)     pdf = (1/A)(cos/pi), power pi A L_e
+triangle,     pdf = |x-y|^2 / (A cos theta_y)     pdf = (1/A)(cos/pi), power pi A L_e
+disk,         (disk: the concentric map;
+cylinder      cylinder: uniform in (phi, z))
 area sphere   uniform in the cone subtended       uniform y on the sphere, cosine direction
               at x: pdf = 1/(2 pi (1-cos_max))
 point         delta, L_i = I / d^2                uniform direction, power 4 pi I
@@ -27,7 +29,8 @@ image's lookup (:func:`environment_radiance`): bilinear on a latitude-longitude 
 texel on pbrt-v4's equal-area octahedral one (``EnvironmentMap.mapping``, static, so either
 compiles to its own code); a constant environment (``lights.envmap`` None, static) compiles to
 the code of a scene before environment maps.
-Quad and triangle emitters radiate on the side of their normal only; spheres outwards.
+Quad, triangle and disk emitters radiate on the side of their normal only; spheres outwards,
+cylinders to the side their ``outward`` sign (in ``radius``) names.
 """
 
 from __future__ import annotations
@@ -43,6 +46,8 @@ from .._xla import SMALL_TABLE, take
 from ..core import warps
 from ..core.vec import EDGE_ON_COS, V3, coordinate_system, dot, normalize, to_world, where
 from ..scene.tables import (
+    AREA_CYLINDER,
+    AREA_DISK,
     AREA_QUAD,
     AREA_SPHERE,
     AREA_TRIANGLE,
@@ -54,7 +59,7 @@ from ..scene.tables import (
     Lights,
 )
 
-AREA_KINDS = (AREA_QUAD, AREA_TRIANGLE, AREA_SPHERE)
+AREA_KINDS = (AREA_QUAD, AREA_TRIANGLE, AREA_SPHERE, AREA_DISK, AREA_CYLINDER)
 
 
 class LightSample(NamedTuple):
@@ -117,6 +122,32 @@ def spot_falloff(cos_theta, cos_total, cos_falloff, linear=None) -> Array:
 def _area_to_solid_angle(pdf_area, dist2, cos_light):
     ok = (cos_light > EDGE_ON_COS) & (pdf_area > 0)
     return jnp.where(ok, _xla.div(pdf_area * dist2, jnp.where(ok, cos_light, 1.0)), 0.0)
+
+
+def disk_point(center: V3, axis_u: V3, axis_v: V3, u1: Array, u2: Array) -> V3:
+    """A uniformly distributed point of the disk (ellipse) center + a axis_u + b axis_v,
+    a^2 + b^2 <= 1: (a, b) by the concentric map (a linear map keeps it uniform)."""
+    a, b = warps.sample_concentric_disc(u1, u2)
+    return center + axis_u * a + axis_v * b
+
+
+def cylinder_point(base: V3, radial_u: V3, radial_v: V3, axis: V3, outward, u1: Array,
+                   u2: Array) -> tuple[V3, V3]:
+    """(point, normal) uniformly distributed on the tube base + cos(phi) radial_u +
+    sin(phi) radial_v + z axis (radial_* = radius * unit axes, axis = height * unit axis),
+    phi = 2 pi u1, z = u2: the area element is radius dphi height dz, constant."""
+    phi = (2.0 * jnp.pi) * u1
+    radial = radial_u * jnp.cos(phi) + radial_v * jnp.sin(phi)
+    return base + radial + axis * u2, normalize(radial) * outward
+
+
+def cylinder_normal(base: V3, axis: V3, outward, y: V3) -> V3:
+    """The emitting-side unit normal of a cylinder element at its point y: y's offset from
+    the axis, times the element's ``outward`` sign."""
+    rel = y - base
+    a2 = dot(axis, axis)
+    along = dot(rel, axis) * jnp.where(a2 > 0, 1.0 / jnp.where(a2 > 0, a2, 1.0), 0.0)
+    return normalize(rel - axis * along) * outward
 
 
 def _sphere_cone(center: V3, radius, x: V3):
@@ -290,6 +321,17 @@ def sample_li(lights: Lights, x: V3, u_sel: Array, u1: Array, u2: Array) -> Ligh
             b1, b2 = warps.sample_uniform_triangle(u1, u2)
             s = towards(p0 + e1 * b1 + e2 * b2, n_l, inv_area)
             out = choose(kind == AREA_TRIANGLE, s, out)
+    if AREA_DISK in kinds or AREA_CYLINDER in kinds:
+        area = take(lights.area, k)
+        inv_area = jnp.where(area > 0, _xla.recip(jnp.where(area > 0, area, 1.0)), 0.0)
+        n_l = _take(lights.normal, k)
+        if AREA_DISK in kinds:
+            s = towards(disk_point(p0, e1, e2, u1, u2), n_l, inv_area)
+            out = choose(kind == AREA_DISK, s, out)
+        if AREA_CYLINDER in kinds:
+            y, n_c = cylinder_point(p0, e1, e2, n_l, take(lights.radius, k), u1, u2)
+            s = towards(y, n_c, inv_area)
+            out = choose(kind == AREA_CYLINDER, s, out)
     if AREA_SPHERE in kinds:
         r = take(lights.radius, k)
         axis, cos_max, one_minus, outside = _sphere_cone(p0, r, x)
@@ -445,6 +487,13 @@ def sample_emission(lights: Lights, u_sel, u1, u2, u3, u4) -> EmissionSample:
             n = warps.sample_uniform_sphere(u1, u2)
             s = area_sample(p0 + n * take(lights.radius, k), n)
             out = choose(kind == AREA_SPHERE, s, out)
+        if AREA_DISK in kinds:
+            s = area_sample(disk_point(p0, e1, e2, u1, u2), _take(lights.normal, k))
+            out = choose(kind == AREA_DISK, s, out)
+        if AREA_CYLINDER in kinds:
+            s = area_sample(*cylinder_point(p0, e1, e2, _take(lights.normal, k),
+                                            take(lights.radius, k), u1, u2))
+            out = choose(kind == AREA_CYLINDER, s, out)
     if POINT in kinds:
         d = warps.sample_uniform_sphere(u3, u4)
         s = EmissionSample(p0, Z, d, emission * (4.0 * jnp.pi * inv_pmf), pmf, zero + warps.INV_4PI,

@@ -6,6 +6,8 @@ The scene types are re-exported here: ``from jgi.scene import Scene, SceneBuilde
 
 from .builder import SceneBuilder, SceneError, light_power, luminance_np
 from .tables import (
+                   AREA_CYLINDER,
+                   AREA_DISK,
                    AREA_QUAD,
                    AREA_SPHERE,
                    AREA_TRIANGLE,
@@ -33,6 +35,8 @@ from .tables import (
                    SPOT,
                    Boxes,
                    Camera,
+                   Cylinders,
+                   Disks,
                    Lights,
                    Materials,
                    Quads,
@@ -43,10 +47,10 @@ from .tables import (
                    with_bvh,
 )
 
-__all__ = ["AREA_QUAD", "AREA_SPHERE", "AREA_TRIANGLE", "BECKMANN", "BVH_MIN_TRIANGLES",
+__all__ = ["AREA_CYLINDER", "AREA_DISK", "AREA_QUAD", "AREA_SPHERE", "AREA_TRIANGLE", "BECKMANN", "BVH_MIN_TRIANGLES",
            "DELTA_DIRECTION_KINDS", "DELTA_POSITION_KINDS", "DIELECTRIC", "DIFFUSE",
            "DIRECTIONAL", "ENVIRONMENT", "GGX", "LIGHT_KIND_NAMES", "MATERIAL_KINDS",
            "MICROFACET_DISTRIBUTIONS", "MIRROR", "NAMED_METALS", "PHONG", "POINT",
-           "ROUGH_CONDUCTOR", "ROUGH_DIELECTRIC", "ROUGH_KINDS", "ROUGH_PLASTIC", "PLASTIC", "SPOT", "Boxes", "Camera", "Lights", "Materials", "Quads", "Rects", "Scene",
+           "ROUGH_CONDUCTOR", "ROUGH_DIELECTRIC", "ROUGH_KINDS", "ROUGH_PLASTIC", "PLASTIC", "SPOT", "Boxes", "Camera", "Cylinders", "Disks", "Lights", "Materials", "Quads", "Rects", "Scene",
            "SceneBuilder", "SceneError", "Spheres", "Triangles", "light_power", "luminance_np",
            "with_bvh"]

@@ -22,6 +22,8 @@ from ..core.imageio import read_image
 from ..core.vec import V3
 from .rough_coating import TABLE_SIZE, fresnel_diffuse_reflectance, plastic_tables
 from .tables import (
+    AREA_CYLINDER,
+    AREA_DISK,
     AREA_QUAD,
     AREA_SPHERE,
     AREA_TRIANGLE,
@@ -49,6 +51,8 @@ from .tables import (
     TEXTURED_PARAMS,
     Boxes,
     Camera,
+    Cylinders,
+    Disks,
     EnvironmentMap,
     Lights,
     Materials,
@@ -285,6 +289,10 @@ class SceneBuilder:
     texture_names: dict = dc_field(default_factory=dict)
     triangle_uvs: list = dc_field(default_factory=list)  # per triangle: [3, 2] or None
     triangle_normals: list = dc_field(default_factory=list)  # per triangle: [3, 3] or None
+    # (center, axis_u, axis_v, normal, pbrt_uv, material, emission|None)
+    disks: list = dc_field(default_factory=list)
+    # (base, axis_u, axis_v, axis_w, radius, height, outward, material, emission|None)
+    cylinders: list = dc_field(default_factory=list)
 
     # --- textures ---------------------------------------------------------------------------
     def texture(self, name: str, kind: str, *, color0=(0.4, 0.4, 0.4), color1=(0.2, 0.2, 0.2),
@@ -477,6 +485,50 @@ class SceneBuilder:
                            np.asarray(edge_v, float), self._mat(material),
                            None if emission is None else _rgb(emission)))
 
+    def disk(self, center, axis_u, axis_v, material, emission=None, normal=None,
+             uv: str = "mitsuba"):
+        """An analytic disk center + a axis_u + b axis_v, a^2 + b^2 <= 1 (an ellipse if the
+        semi-axes differ). ``normal`` (the emitting side) defaults to axis_u x axis_v
+        normalised; ``uv`` is "mitsuba" (r, phi / 2 pi) or "pbrt" (phi / 2 pi, 1 - r)."""
+        c, au, av = (np.asarray(x, float).reshape(3) for x in (center, axis_u, axis_v))
+        cr = np.cross(au, av)
+        area = float(np.linalg.norm(cr))
+        if not (np.all(np.isfinite(np.concatenate([c, au, av]))) and area > 0):
+            raise SceneError(f"disk: the axes {list(au)} and {list(av)} span no area "
+                             "(zero radius or a degenerate transform)")
+        n = cr / area if normal is None else np.asarray(normal, float).reshape(3)
+        if not np.linalg.norm(n) > 0:
+            raise SceneError(f"disk: normal {list(n)} is zero")
+        if uv not in ("mitsuba", "pbrt"):
+            raise SceneError(f"disk: uv must be 'mitsuba' or 'pbrt', got {uv!r}")
+        self.disks.append((c, au, av, n / np.linalg.norm(n), uv == "pbrt", self._mat(material),
+                           None if emission is None else _rgb(emission)))
+
+    def cylinder(self, base, axis_u, axis_w, radius: float, height: float, material,
+                 emission=None, outward: bool = True, axis_v=None):
+        """An analytic open tube of ``radius`` around the segment base .. base + height axis_w
+        (unit axis_w; phi = 0 along unit axis_u, which must be perpendicular to it). Its
+        normal points away from the axis if ``outward`` (Mitsuba's and pbrt's default),
+        towards it otherwise. phi turns from axis_u towards ``axis_v``, by default
+        axis_w x axis_u (a mirrored frame gives -that)."""
+        b, au, aw = (np.asarray(x, float).reshape(3) for x in (base, axis_u, axis_w))
+        radius, height = float(radius), float(height)
+        if not (np.isfinite(radius) and np.isfinite(height) and radius > 0 and height > 0):
+            raise SceneError(f"cylinder: radius and height must be positive and finite, got "
+                             f"{radius} and {height}")
+        nu, nw = np.linalg.norm(au), np.linalg.norm(aw)
+        if not (nu > 0 and nw > 0) or abs(np.dot(au, aw)) > 1e-6 * nu * nw:
+            raise SceneError(f"cylinder: axis_u {list(au)} must be a non-zero vector "
+                             f"perpendicular to the non-zero axis {list(aw)}")
+        au, aw = au / nu, aw / nw
+        av = np.cross(aw, au)
+        if axis_v is not None:
+            sign = np.sign(np.dot(np.asarray(axis_v, float).reshape(3), av))
+            av = av * (sign if sign != 0 else 1.0)
+        self.cylinders.append((b, au, av, aw, radius, height,
+                               1.0 if outward else -1.0, self._mat(material),
+                               None if emission is None else _rgb(emission)))
+
     def rectangle(self, to_world: np.ndarray, material, emission=None):
         """Mitsuba's ``rectangle``: [-1, 1]^2 in the z = 0 plane, normal +z, then ``to_world``."""
         o = xf.apply_point(to_world, [-1.0, -1.0, 0.0])
@@ -642,6 +694,18 @@ class SceneBuilder:
                 elements.append(dict(kind=AREA_TRIANGLE, p0=a_, e1=b_ - a_, e2=c_ - a_,
                                      emission=e, area=0.5 * a,
                                      normal=n / a if a > 0 else np.zeros(3)))
+        disk_emit, cyl_emit = [], []
+        for c, au, av, n, _, m, e in self.disks:
+            disk_emit.append(-1 if e is None else len(elements))
+            if e is not None:
+                elements.append(dict(kind=AREA_DISK, p0=c, e1=au, e2=av, normal=n, emission=e,
+                                     area=np.pi * float(np.linalg.norm(np.cross(au, av)))))
+        for b, au, av, aw, r, h, out, m, e in self.cylinders:
+            cyl_emit.append(-1 if e is None else len(elements))
+            if e is not None:   # see Lights: normal holds the axis, radius the side
+                elements.append(dict(kind=AREA_CYLINDER, p0=b, e1=au * r, e2=av * r,
+                                     normal=aw * h, radius=out, emission=e,
+                                     area=2 * np.pi * r * h))
         elements.extend(self.lights)
         center, radius = self._bounds()
         materials = self._build_materials()
@@ -655,6 +719,8 @@ class SceneBuilder:
             materials=materials,
             lights=_build_lights(elements, center, radius),
             name=self.name,
+            disks=self._build_disks(disk_emit) if self.disks else None,
+            cylinders=self._build_cylinders(cyl_emit) if self.cylinders else None,
         )
 
     def _material_name(self, m: int) -> str:
@@ -673,6 +739,12 @@ class SceneBuilder:
             pts += [a, b, c]
         for c, axes, half, _ in self.boxes:
             pts += [c - np.abs(axes.T) @ half, c + np.abs(axes.T) @ half]
+        for c, au, av, *_ in self.disks:
+            ext = np.sqrt(au * au + av * av)   # the ellipse's half extents along the axes
+            pts += [c - ext, c + ext]
+        for b, au, av, aw, r, h, *_ in self.cylinders:
+            ext = r * np.sqrt(np.maximum(1.0 - aw * aw, 0.0))
+            pts += [b - ext, b + ext, b + aw * h - ext, b + aw * h + ext]
         for l in self.lights:
             if "p0" in l:
                 pts.append(np.asarray(l["p0"], float))
@@ -786,6 +858,22 @@ class SceneBuilder:
         return Quads(_v3(o), _v3(u), _v3(v), _v3(nrm),
                      jnp.asarray([q[3] for q in qs], jnp.int32).reshape(-1),
                      jnp.asarray([emit[i] for i in keep], jnp.int32).reshape(-1))
+
+    def _build_disks(self, emit) -> Disks:
+        rows = self.disks
+        col = lambda k: np.array([r[k] for r in rows]).reshape(len(rows), 3)  # noqa: E731
+        return Disks(_v3(col(0)), _v3(col(1)), _v3(col(2)), _v3(col(3)),
+                     jnp.asarray([r[5] for r in rows], jnp.int32),
+                     jnp.asarray(emit, jnp.int32),
+                     jnp.asarray([r[4] for r in rows], bool) if self._textured() else None)
+
+    def _build_cylinders(self, emit) -> Cylinders:
+        rows = self.cylinders
+        col = lambda k: np.array([r[k] for r in rows]).reshape(len(rows), 3)  # noqa: E731
+        f32 = lambda k: jnp.asarray([r[k] for r in rows], jnp.float32)  # noqa: E731
+        return Cylinders(_v3(col(0)), _v3(col(1)), _v3(col(2)), _v3(col(3)), f32(4), f32(5),
+                         f32(6), jnp.asarray([r[7] for r in rows], jnp.int32),
+                         jnp.asarray(emit, jnp.int32))
 
     def _build_triangles(self, emit) -> Triangles:
         n = len(self.triangles)
@@ -947,7 +1035,7 @@ def light_power(el: dict, radius: float) -> float:
     """Emitted power (luminance), used for power-proportional light selection."""
     lum = luminance_np(el["emission"])
     k = el["kind"]
-    if k in (AREA_QUAD, AREA_TRIANGLE, AREA_SPHERE):
+    if k in (AREA_QUAD, AREA_TRIANGLE, AREA_SPHERE, AREA_DISK, AREA_CYLINDER):
         return np.pi * el["area"] * lum
     if k == POINT:
         return 4 * np.pi * lum

@@ -72,8 +72,9 @@ TEXTURED_PARAMS = {"diffuse": TEX_DIFFUSE, "specular": TEX_SPECULAR, "alpha": TE
 
 # Light element kinds (jgi.physics.lights implements each).
 AREA_QUAD, AREA_TRIANGLE, AREA_SPHERE, POINT, SPOT, DIRECTIONAL, ENVIRONMENT = range(7)
+AREA_DISK, AREA_CYLINDER = 7, 8
 LIGHT_KIND_NAMES = ("area_quad", "area_triangle", "area_sphere", "point", "spot", "directional",
-                    "environment")
+                    "environment", "area_disk", "area_cylinder")
 DELTA_POSITION_KINDS = (POINT, SPOT)
 DELTA_DIRECTION_KINDS = (DIRECTIONAL,)
 
@@ -143,6 +144,52 @@ class Boxes(eqx.Module):
     half: V3     # half extents along the axes
     material: Array
     emitter: Array  # always -1: emissive cubes are built from quads so they can be sampled
+
+    @property
+    def count(self) -> int:
+        return int(self.material.shape[0])
+
+
+class Disks(eqx.Module):
+    """Elliptic (usually circular) disks center + a * axis_u + b * axis_v, a^2 + b^2 <= 1:
+    Mitsuba 3's ``disk`` and pbrt-v4's full ``disk``, analytic (area pi |axis_u x axis_v|).
+
+    ``normal`` is the unit normal each renderer defines (Mitsuba: its to_world's normal
+    transform of +z; pbrt: +z's, reversed by ReverseOrientation or a handedness swap), already
+    negated by flip_normals; area emitters radiate on its side. Surface coordinates of the
+    point at polar (r, phi) in the (a, b) plane: Mitsuba's (r, phi / 2 pi), pbrt's
+    (phi / 2 pi, 1 - r) where ``pbrt_uv``."""
+
+    center: V3
+    axis_u: V3
+    axis_v: V3
+    normal: V3
+    material: Array
+    emitter: Array
+    pbrt_uv: Array | None = None   # bool [D], textured scenes only
+
+    @property
+    def count(self) -> int:
+        return int(self.material.shape[0])
+
+
+class Cylinders(eqx.Module):
+    """Open circular tubes base + radius (cos phi axis_u + sin phi axis_v) + z axis_w,
+    z in [0, height], with a unit frame (axis_u, axis_v, axis_w): Mitsuba 3's ``cylinder`` and
+    pbrt-v4's full ``cylinder``, analytic (area 2 pi radius height). ``outward`` is +1 where
+    the normal (the side an emitter radiates to) points away from the axis, -1 towards it
+    (flip_normals, ReverseOrientation). Surface coordinates (phi / 2 pi, z / height) in both
+    renderers."""
+
+    base: V3
+    axis_u: V3
+    axis_v: V3
+    axis_w: V3
+    radius: Array
+    height: Array
+    outward: Array
+    material: Array
+    emitter: Array
 
     @property
     def count(self) -> int:
@@ -294,11 +341,13 @@ class EnvironmentMap(eqx.Module):
 
 class Lights(eqx.Module):
     kind: Array         # int32 [K]
-    p0: V3              # quad/triangle corner, sphere centre, point/spot position
-    e1: V3              # quad/triangle edge 1
-    e2: V3              # quad/triangle edge 2
-    radius: Array       # sphere radius
-    normal: V3          # unit normal of quad/triangle emitters (emitting side)
+    p0: V3              # quad/triangle corner, sphere/disk centre, cylinder base, point/spot
+                        # position
+    e1: V3              # quad/triangle edge 1, disk semi-axis a, cylinder radius * axis_u
+    e2: V3              # quad/triangle edge 2, disk semi-axis b, cylinder radius * axis_v
+    radius: Array       # sphere radius; a cylinder's Cylinders.outward (+-1)
+    normal: V3          # unit normal of quad/triangle/disk emitters (emitting side); a
+                        # cylinder's height * axis_w
     direction: V3       # spot axis / directional travel direction (unit)
     emission: V3        # radiance L_e (area, environment), intensity I (point, spot),
                         # irradiance E (directional)
@@ -345,6 +394,10 @@ class Scene(eqx.Module):
     materials: Materials
     lights: Lights
     name: str = eqx.field(static=True, default="scene")
+    # analytic disks and cylinders (None in a scene without any: its kernels are those of a
+    # scene before them)
+    disks: Disks | None = None
+    cylinders: Cylinders | None = None
 
     @property
     def resolution(self) -> tuple[int, int]:

@@ -50,8 +50,10 @@ from .._xla import materialize
 from ..core import rng, warps
 from ..core.vec import EDGE_ON_COS, V3, dot, max_component, normalize, where
 from ..physics import bsdf, camera, geometry
-from ..physics.lights import LightSample, emitted, sample_emission, sample_li
+from ..physics.lights import LightSample, cylinder_normal, emitted, sample_emission, sample_li
 from ..scene.tables import (
+    AREA_CYLINDER,
+    AREA_DISK,
     AREA_QUAD,
     AREA_SPHERE,
     AREA_TRIANGLE,
@@ -253,6 +255,8 @@ def pdf_light_origin(lights, k: Array) -> Array:
     area = lights.area[kk]
     kind = lights.kind[kk]
     is_area = (kind == AREA_QUAD) | (kind == AREA_TRIANGLE) | (kind == AREA_SPHERE)
+    if AREA_DISK in lights.kinds or AREA_CYLINDER in lights.kinds:   # static: else as before
+        is_area = is_area | (kind == AREA_DISK) | (kind == AREA_CYLINDER)
     inv_area = jnp.where(area > 0, 1.0 / jnp.where(area > 0, area, 1.0), 0.0)
     return jnp.where(k >= 0, lights.pmf[kk] * jnp.where(is_area, inv_area, 1.0), 0.0)
 
@@ -285,6 +289,12 @@ def light_normal(lights, k: Array, y: V3) -> tuple[V3, Array]:
         c = V3(lights.p0.x[kk], lights.p0.y[kk], lights.p0.z[kk])
         n = where(kind == AREA_SPHERE, normalize(y - c), n)
     on = (kind == AREA_QUAD) | (kind == AREA_TRIANGLE) | (kind == AREA_SPHERE)
+    if AREA_DISK in lights.kinds:
+        on = on | (kind == AREA_DISK)
+    if AREA_CYLINDER in lights.kinds:
+        c = V3(lights.p0.x[kk], lights.p0.y[kk], lights.p0.z[kk])
+        n = where(kind == AREA_CYLINDER, cylinder_normal(c, n, lights.radius[kk], y), n)
+        on = on | (kind == AREA_CYLINDER)
     z = jnp.zeros_like(y.x)
     return where(on, n, V3(z, z, z)), on
 

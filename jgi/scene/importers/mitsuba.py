@@ -49,7 +49,9 @@ supported):
              texture_u, texture_v: Mitsuba's names; v as written), both Mitsuba's (0,0), (1,0),
              (0,1) per triangle without them. Textured cubes take Mitsuba's per-face uv
              (SceneBuilder.cube).
-  shape      rectangle, cube, sphere (center/radius or a uniform-scale to_world), obj, ply,
+  shape      rectangle, cube, sphere (center/radius or a uniform-scale to_world), disk
+             (to_world without shear), cylinder (p0, p1, radius; to_world keeping it
+             circular and upright), obj, ply,
              serialized (Mitsuba's compressed format, versions 3 and 4, one of several meshes
              by shape_index; its normals and uv as stored, vertex colours skipped and the
              face-normal flag ignored, as Mitsuba 3.9.1 does):
@@ -111,7 +113,7 @@ SUPPORTED = {
     "sensor": ("perspective",),
     "bsdf": ("diffuse", "conductor", "roughconductor", "dielectric", "roughdielectric",
              "roughplastic", "plastic", "twosided"),
-    "shape": ("rectangle", "cube", "sphere", "obj", "ply", "serialized"),
+    "shape": ("rectangle", "cube", "sphere", "disk", "cylinder", "obj", "ply", "serialized"),
     "emitter": ("area", "point", "spot", "directional", "constant", "envmap"),
 }
 IGNORED_TAGS = ("sampler", "rfilter")
@@ -140,6 +142,15 @@ TEXTURE_PARAMETERS = {
     "bitmap": ("filename", "filter_type", "wrap_mode", "raw", "to_uv"),
     "checkerboard": ("color0", "color1", "to_uv"),
 }
+
+
+def mitsuba_frame(n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Mitsuba 3's tangents (s, t) of unit n (``coordinate_system``, Duff et al. 2017)."""
+    sign = 1.0 if n[2] >= 0 else -1.0
+    a = -1.0 / (sign + n[2])
+    b = n[0] * n[1] * a
+    return (np.array([1.0 + sign * n[0] * n[0] * a, sign * b, -sign * n[0]]),
+            np.array([b, sign + n[1] * n[1] * a, -n[1]]))
 
 
 class IntegratorSettings(NamedTuple):
@@ -681,6 +692,10 @@ class _Importer:
                               "sphere uv is in the world frame)")
             center = xf.apply_point(m, p.get("center", np.zeros(3)))
             self.b.sphere(center, float(p.get("radius", 1.0)) * scales[0], material, emission)
+        elif kind == "disk":
+            self.disk(el, p, m, material, emission)
+        elif kind == "cylinder":
+            self.cylinder(el, p, m, material, emission)
         else:  # obj, ply, serialized
             fname = p.get("filename")
             if not fname:
@@ -750,6 +765,51 @@ class _Importer:
                               "rotation; give a unit axis, or face_normals=true")
             # (computed normals follow the flipped winding: negated as Mitsuba's are)
             self.b.mesh(v, f, material, emission, to_world=m, uv=uv, normals=normals)
+
+    def disk(self, el, p: dict, m: np.ndarray, material, emission):
+        """Mitsuba's ``disk``: the unit disk in z = 0 under to_world, its normal to_world's
+        normal transform of +z (negated by flip_normals), uv (r, phi / 2 pi)."""
+        lin = m[:3, :3]
+        du, dv = lin[:, 0], lin[:, 1]
+        if not abs(np.dot(du, dv)) <= 1e-6 * np.linalg.norm(du) * np.linalg.norm(dv):
+            self.fail(el, "disk: to_world shears the disk's plane (its x and y axes are not "
+                          "perpendicular); allowed: rotation, translation and scaling along x, y")
+        if abs(np.linalg.det(lin)) <= 0:
+            self.fail(el, "disk: to_world is singular")
+        n = np.linalg.inv(lin).T @ np.array([0.0, 0.0, 1.0])
+        if p.get("flip_normals", False):
+            n = -n
+        self.b.disk(xf.apply_point(m, [0.0, 0.0, 0.0]), du, dv, material, emission, normal=n)
+
+    def cylinder(self, el, p: dict, m: np.ndarray, material, emission):
+        """Mitsuba's ``cylinder``: the open tube of ``radius`` from p0 to p1 under to_world,
+        normal outwards (inwards with flip_normals), uv (phi / 2 pi, z) with phi measured in
+        Mitsuba's frame of p1 - p0 (Frame3f: Duff et al.'s basis)."""
+        p0 = np.broadcast_to(np.asarray(p.get("p0", np.zeros(3)), float), (3,))
+        p1 = np.broadcast_to(np.asarray(p.get("p1", [0.0, 0.0, 1.0]), float), (3,))
+        radius = p.get("radius", 1.0)
+        if isinstance(radius, (bool, str, np.ndarray)) or not radius > 0:
+            self.fail(el, f"cylinder: radius must be a <float> > 0, got {radius}")
+        axis = p1 - p0
+        length = float(np.linalg.norm(axis))
+        if not length > 0:
+            self.fail(el, "cylinder: p0 and p1 coincide")
+        w = axis / length
+        s_, t_ = mitsuba_frame(w)
+        local = np.eye(4)
+        local[:3, :3] = np.stack([s_ * radius, t_ * radius, w * length], 1)
+        local[:3, 3] = p0
+        full = m @ local
+        eu, ev, ew = full[:3, 0], full[:3, 1], full[:3, 2]
+        r_u, r_v, h = (float(np.linalg.norm(x)) for x in (eu, ev, ew))
+        gram = np.array([[np.dot(a, b) for b in (eu, ev, ew)] for a in (eu, ev, ew)])
+        if not (abs(r_u - r_v) <= 1e-6 * r_u and np.allclose(gram, np.diag(np.diag(gram)),
+                                                             atol=1e-6 * max(r_u, h) ** 2)):
+            self.fail(el, "cylinder: to_world must keep the tube circular and upright: "
+                          "rotation, translation, uniform scaling, and scaling along the axis "
+                          "only (no shear, no other non-uniform scale)")
+        self.b.cylinder(full[:3, 3], eu, ew, r_u, h, material, emission,
+                        outward=not p.get("flip_normals", False), axis_v=ev)
 
     def check_anisotropy_frame(self, el, kind, p, m, material, vertices=None, faces=None,
                                file_has_uv=None):

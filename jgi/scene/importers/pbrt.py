@@ -39,7 +39,10 @@ supported):
              texture_v or texture_s, texture_t; v as written). Other shapes with a textured
              material are refused (pbrt's sphere uv is not jgi's), as are meshes without uv
              (pbrt's default triangle uv is not jgi's).
-  shapes     "sphere" (radius), "trianglemesh" (P, indices, N: per-vertex shading normals,
+  shapes     "sphere" (radius), "disk" (radius, height; innerradius 0 and phimax 360 only),
+             "cylinder" (radius, zmin, zmax; phimax 360 only; a transform that keeps it
+             circular), both analytic with pbrt's normals and uv, "trianglemesh" (P,
+             indices, N: per-vertex shading normals,
              interpolated and normalised as pbrt-v4 does), "plymesh" (filename; its normals, if
              any, as N), inside AreaLightSource "diffuse" (L, scale, power; one-sided; N only
              where it equals the face normals: jgi's emitters radiate about the geometric
@@ -110,7 +113,7 @@ IGNORED = {"Sampler", "Integrator", "PixelFilter", "ColorSpace", "Option", "Acce
 SUPPORTED = {
     "Camera": ("perspective",), "Film": ("rgb", "gbuffer", "spectral"),
     "Material": ("diffuse", "conductor", "dielectric"),
-    "Shape": ("sphere", "trianglemesh", "plymesh"),
+    "Shape": ("sphere", "disk", "cylinder", "trianglemesh", "plymesh"),
     "LightSource": ("point", "spot", "distant", "uniform", "infinite"),
     "AreaLightSource": ("diffuse",),
 }
@@ -707,6 +710,57 @@ class _Importer:
         dielectric is outside."""
         return self.reverse != bool(np.linalg.det(self.ctm[:3, :3]) < 0)
 
+    def quadric(self, kind, p, where, mat, emission):
+        """pbrt-v4's full "disk" (radius, height) and "cylinder" (radius, zmin, zmax): analytic
+        jgi disks and cylinders in the object frame under the current transform, uv as pbrt's
+        (disk: (phi / 2 pi, 1 - r); cylinder: (phi / 2 pi, (z - zmin) / (zmax - zmin))), the
+        normal as pbrt's intersections give it (turned by ReverseOrientation xor a handedness
+        swap). Partial shapes (phimax < 360, innerradius > 0) are refused."""
+        phimax = float(self._get(p, "phimax", 360.0, where, 1))
+        if phimax < 360.0:
+            self.fail(where, f"{kind} with \"float phimax\" {phimax} < 360 is not supported: "
+                             "jgi's disks and cylinders are full (phimax 360)")
+        radius = float(self._get(p, "radius", 1.0, where, 1))
+        if not radius > 0:
+            self.fail(where, f"{kind}: \"float radius\" must be > 0, got {radius}")
+        m = self.ctm
+        lin = m[:3, :3]
+        ex, ey, ez = lin[:, 0], lin[:, 1], lin[:, 2]
+        if kind == "disk":
+            inner = float(self._get(p, "innerradius", 0.0, where, 1))
+            if inner != 0.0:
+                self.fail(where, f"disk with \"float innerradius\" {inner} is not supported: "
+                                 "jgi's disks are full (innerradius 0)")
+            center = xf.apply_point(m, [0.0, 0.0, float(self._get(p, "height", 0.0, where, 1))])
+            au, av = ex * radius, ey * radius
+            n = np.cross(au, av)
+            if not np.linalg.norm(n) > 0:
+                self.fail(where, "disk under a singular transform")
+            if self.reverse:
+                n = -n
+            if emission is not None and self.area[1] > 0:
+                emission = emission * self.area[1] / (math.pi * math.pi * np.linalg.norm(n)
+                                                      * _lum(emission))
+            self.b.disk(center, au, av, mat, emission, normal=n, uv="pbrt")
+            return
+        z0, z1 = (float(self._get(p, k, d, where, 1)) for k, d in (("zmin", -1.0),
+                                                                       ("zmax", 1.0)))
+        z0, z1 = min(z0, z1), max(z0, z1)
+        sx, sy, sz = (float(np.linalg.norm(e)) for e in (ex, ey, ez))
+        gram = lin.T @ lin
+        if not (z1 > z0 and abs(sx - sy) <= 1e-6 * sx and sz > 0
+                and np.allclose(gram, np.diag(np.diag(gram)), atol=1e-6 * max(sx, sz) ** 2)):
+            self.fail(where, "cylinder: zmax must exceed zmin, and the transform must keep it "
+                             "circular and upright (rotation, translation, uniform scale and "
+                             "scaling along z; no shear, no other non-uniform scale)")
+        height = (z1 - z0) * sz
+        r = radius * sx
+        if emission is not None and self.area[1] > 0:
+            emission = emission * self.area[1] / (math.pi * 2 * math.pi * r * height
+                                                  * _lum(emission))
+        self.b.cylinder(xf.apply_point(m, [0.0, 0.0, z0]), ex, ez, r, height, mat, emission,
+                        outward=not self.flips_normals(), axis_v=ey)
+
     def shape(self, kind, p, where):
         mat = self.material
         if mat is None:
@@ -717,11 +771,15 @@ class _Importer:
             L, power, _ = self.area
             emission = L
         textured = bool(self.b.materials[self.b.material_names[mat]].textures)
-        if textured and kind not in ("trianglemesh", "plymesh"):
+        if textured and kind not in ("trianglemesh", "plymesh", "disk", "cylinder"):
             self.fail(where, f"shape \"{kind}\" with a textured material: jgi imports textures "
-                             "of pbrt scenes on trianglemesh shapes with \"point2 uv\" and "
-                             "plymesh shapes whose file has texture coordinates only (pbrt's "
-                             "sphere parametrisation differs from jgi's, which is Mitsuba's)")
+                             "of pbrt scenes on disks, cylinders, trianglemesh shapes with "
+                             "\"point2 uv\" and plymesh shapes whose file has texture "
+                             "coordinates only (pbrt's sphere parametrisation differs from "
+                             "jgi's, which is Mitsuba's)")
+        if kind in ("disk", "cylinder"):
+            self.quadric(kind, p, where, mat, emission)
+            return
         if kind == "sphere":
             cols = self.ctm[:3, :3]
             s = np.linalg.norm(cols, axis=0)
