@@ -294,7 +294,7 @@ def test_toml_environment_map(tmp_path):
             jgi.load_scene(tmp_path / "bad.toml")
 
 
-@pytest.mark.parametrize("estimator", ["vcm", "mlt"])
+@pytest.mark.parametrize("estimator", ["mlt"])
 def test_estimators_without_environment_maps_refuse_it(estimator):
     scene = env_scene(8)
     with pytest.raises(ParameterError, match=estimator):

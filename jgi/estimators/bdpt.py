@@ -35,11 +35,19 @@ A smooth plastic vertex is connectable (its base), but a path that leaves it by 
 Dirac reflection is Dirac there: as in pbrt-v4, MIS reads the sampled lobe's flag
 (:func:`~jgi.transport.subpath.mis_delta`) and connectability the material's.
 Delta lights (point, spot: Dirac position; directional: Dirac direction) cannot be hit (no
-s = 0 strategy). Deliberate simplifications: light subpaths start only at lights with a
-position (area, point, spot); directional and environment lights are reached through the
-camera subpath only, so their paths are weighted between s = 0 and s = 1 alone (directional:
-s = 1, weight 1; environment: the path tracer's two-strategy weight). No Russian roulette:
-subpaths end at ``max_depth`` or at absorption.
+s = 0 strategy).
+
+Infinite lights (environment, directional) start light subpaths too (pbrt-v4's
+GenerateLightSubpath): y_0 stands for a direction at infinity and the subpath leaves a point
+of the disc covering the scene's bounding sphere. Its densities are solid-angle ones: p_fwd(y_0)
+the direction's light-sampling density with selection (pbrt's InfiniteLightDensity), p_rev(y_0)
+the BSDF's density at y_1 towards it, unconverted; p_fwd(y_1) is the disc's area density
+1 / (pi R^2) times |cos| at y_1. A camera subpath that escapes to the environment ends at such
+a vertex (s = 0): its p_fwd is the direction's BSDF density, its reverse density the map's
+light-sampling density, and z_{t-2}'s the disc's times |cos| (PdfLightOrigin, PdfLight); next
+event estimation (s = 1) gives y_0 the same solid-angle densities. So every (s, t) of a path
+from the environment is weighted by the full heuristic. Deliberate simplification: no Russian
+roulette; subpaths end at ``max_depth`` or at absorption.
 
 Parameters: ``max_depth`` (segments, the path tracer's convention), ``heuristic``
 ("balance" | "power"), ``power`` (power exponent), ``path_length`` (> 0: only paths of exactly
