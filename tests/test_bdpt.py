@@ -155,6 +155,63 @@ def test_mis_weights_sum_to_one_over_strategies(rng_np, n, power):
     np.testing.assert_allclose(total[any_valid], 1.0, rtol=1e-4)
 
 
+def infinite_endpoint_path(rng, n, N, directional: bool):
+    """Full paths x_0 .. x_{n-1} whose x_0 is a direction at infinity, with the densities BDPT
+    gives such a path (pbrt-v4's measure): p_L[0] the direction's solid-angle density with
+    selection, p_E[0] the BSDF's solid-angle density at x_1 towards it, p_L[1] the bounding
+    disc's area density times |cos| at x_1; the rest area densities. A directional light's
+    direction is Dirac (``delta_light``)."""
+    cos = rng.uniform(0.05, 1.0, (n, N))
+    d2 = rng.uniform(0.1, 4.0, (n, N))
+    pdf_dir = np.exp(rng.uniform(-3, 3, (n, N)))           # BSDF solid-angle densities
+    disc = 1.0 / (np.pi * 2.0 ** 2)
+    p_L = pdf_dir * cos / d2
+    p_E = np.roll(pdf_dir, 1, 0) * cos / d2
+    p_L[0] = 1.0 if directional else 0.3 * np.exp(rng.uniform(-4, 4, N))
+    p_E[0] = pdf_dir[0]
+    p_L[1] = disc * cos[1]
+    delta = rng.uniform(size=(n, N)) < 0.25
+    delta[0] = delta[-1] = False
+    return (p_L.astype(np.float32), p_E.astype(np.float32), delta,
+            np.full(N, directional))
+
+
+@pytest.mark.parametrize("directional", [False, True])
+@pytest.mark.parametrize("n", [3, 4, 5])
+def test_weights_with_an_infinite_light_endpoint_sum_to_one(n, directional):
+    """The scalar reference, the rendered ratio chains and the strategies' full path densities
+    p_s = prod_{i<s} p_L[i] prod_{i>=s} p_E[i] (float64) give the same weights (power 2), and
+    they sum to one over the strategies that can make the path (no s = 0 for a Dirac
+    direction; (1, 1) unused)."""
+    rng = np.random.default_rng(31 + n)
+    N = 1000
+    p_L, p_E, delta, delta_light = infinite_endpoint_path(rng, n, N, directional)
+    ref = _weights_reference(p_L, p_E, delta, delta_light, 2.0)
+    bat = _weights_rendered(p_L, p_E, delta, delta_light, 2.0)
+    L, E = p_L.astype(np.float64), p_E.astype(np.float64)
+    valid = {}
+    for s in range(n):
+        if n == 2 and s == 1:
+            valid[s] = np.zeros(N, bool)
+        elif s == 0:
+            valid[s] = ~delta_light
+        else:
+            valid[s] = ~delta[s - 1] & ~delta[s]
+    # Dirac vertices: remap0 (the zero density of a Dirac lobe counts as 1), as the chain does
+    p = {s: np.prod(L[:s], 0) * np.prod(E[s:], 0) for s in range(n)}
+    total = sum(np.where(valid[s], p[s] ** 2, 0.0) for s in range(n))
+    checked = 0
+    for s in range(n):
+        ok = valid[s] & (total > 0)
+        np.testing.assert_allclose(bat[s][ok], ref[s][ok], rtol=2e-5, atol=1e-7)
+        w_true = p[s][ok] ** 2 / total[ok]
+        np.testing.assert_allclose(ref[s][ok], w_true, rtol=1e-3, atol=1e-6)
+        checked += ok.sum()
+    assert checked > N
+    w_sum = sum(np.where(valid[s], ref[s], 0.0) for s in range(n))
+    np.testing.assert_allclose(w_sum[total > 0], 1.0, rtol=1e-4)
+
+
 @pytest.mark.parametrize("weight", [mis_weight_reference, mis_weight_rendered])
 def test_mis_weights_are_finite_for_extreme_and_zero_densities(weight):
     z = jnp.zeros(4)

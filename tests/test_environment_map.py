@@ -21,30 +21,12 @@ from jgi.physics import lights as LT
 from jgi.scene import SceneBuilder
 from jgi.scene.builder import SceneError
 from jgi.scene.importers.mitsuba import load_mitsuba_xml
+from tests.support.environment import env_scene, rotation, sky
 from tests.support.light_samplers import build, pdf_li, sample_emission, sample_li
 from tests.support.mitsuba import load_mitsuba
 from tests.support.stats import assert_agree
 
 X = np.array([0.1, -0.2, 0.3])
-
-
-def sky(H=16, W=32, sun=(4, 9), sun_rgb=(60.0, 50.0, 40.0)):
-    """A sky gradient (brighter and bluer towards +y) with a bright sun-like texel."""
-    theta = np.pi * np.arange(H) / (H - 1)
-    up = 0.5 * (1 + np.cos(theta))[:, None, None]
-    img = np.broadcast_to(0.1 + np.array([0.6, 0.8, 1.2]) * up, (H, W, 3)).copy()
-    img[:, : W // 3] *= 0.5            # a darker sector in azimuth
-    img[sun] = sun_rgb
-    return img
-
-
-def rotation(deg_y=30.0, deg_x=20.0):
-    a, b = np.radians(deg_y), np.radians(deg_x)
-    ry = np.array([[np.cos(a), 0, np.sin(a)], [0, 1, 0], [-np.sin(a), 0, np.cos(a)]])
-    rx = np.array([[1, 0, 0], [0, np.cos(b), -np.sin(b)], [0, np.sin(b), np.cos(b)]])
-    m = np.eye(4)
-    m[:3, :3] = ry @ rx
-    return m
 
 
 def unit_directions(n, seed=0):
@@ -196,19 +178,6 @@ def test_furnace_with_a_constant_map():
     assert np.all(np.abs(m - rho * L) < 5 * se + 1e-6), (m, rho * L, se)
 
 
-def env_scene(size=16):
-    """A red ball on a 6 x 6 floor seen from above (the floor fills the frame), lit by the sky
-    map: the ball's shadow, the sun's highlight and interreflections."""
-    b = SceneBuilder("env_lit")
-    b.material("white", "diffuse", diffuse=0.7)
-    b.material("red", "diffuse", diffuse=(0.7, 0.2, 0.2))
-    b.sphere((0.0, 0.0, 0.0), 0.8, "red")
-    b.quad((-3.0, -0.8, 3.0), (6.0, 0.0, 0.0), (0.0, 0.0, -6.0), "white")
-    b.environment_map(sky(), scale=1.0, to_world=rotation(40.0, 0.0))
-    b.camera(position=(0, 3, 1.5), look_at=(0, -0.8, 0), fov=40, width=size, height=size)
-    return b.build()
-
-
 def test_estimators_agree_on_an_environment_lit_scene():
     """PT (MIS with the map's sampling) against BDPT, SPPM and PT with BSDF sampling only."""
     scene = env_scene()
@@ -294,7 +263,7 @@ def test_toml_environment_map(tmp_path):
             jgi.load_scene(tmp_path / "bad.toml")
 
 
-@pytest.mark.parametrize("estimator", ["vcm", "mlt"])
+@pytest.mark.parametrize("estimator", ["mlt"])
 def test_estimators_without_environment_maps_refuse_it(estimator):
     scene = env_scene(8)
     with pytest.raises(ParameterError, match=estimator):

@@ -35,11 +35,19 @@ A smooth plastic vertex is connectable (its base), but a path that leaves it by 
 Dirac reflection is Dirac there: as in pbrt-v4, MIS reads the sampled lobe's flag
 (:func:`~jgi.transport.subpath.mis_delta`) and connectability the material's.
 Delta lights (point, spot: Dirac position; directional: Dirac direction) cannot be hit (no
-s = 0 strategy). Deliberate simplifications: light subpaths start only at lights with a
-position (area, point, spot); directional and environment lights are reached through the
-camera subpath only, so their paths are weighted between s = 0 and s = 1 alone (directional:
-s = 1, weight 1; environment: the path tracer's two-strategy weight). No Russian roulette:
-subpaths end at ``max_depth`` or at absorption.
+s = 0 strategy).
+
+Infinite lights (environment, directional) start light subpaths too (pbrt-v4's
+GenerateLightSubpath): y_0 stands for a direction at infinity and the subpath leaves a point
+of the disc covering the scene's bounding sphere. Its densities are solid-angle ones: p_fwd(y_0)
+the direction's light-sampling density with selection (pbrt's InfiniteLightDensity), p_rev(y_0)
+the BSDF's density at y_1 towards it, unconverted; p_fwd(y_1) is the disc's area density
+1 / (pi R^2) times |cos| at y_1. A camera subpath that escapes to the environment ends at such
+a vertex (s = 0): its p_fwd is the direction's BSDF density, its reverse density the map's
+light-sampling density, and z_{t-2}'s the disc's times |cos| (PdfLightOrigin, PdfLight); next
+event estimation (s = 1) gives y_0 the same solid-angle densities. So every (s, t) of a path
+from the environment is weighted by the full heuristic. Deliberate simplification: no Russian
+roulette; subpaths end at ``max_depth`` or at absorption.
 
 Parameters: ``max_depth`` (segments, the path tracer's convention), ``heuristic``
 ("balance" | "power"), ``power`` (power exponent), ``path_length`` (> 0: only paths of exactly
@@ -67,7 +75,6 @@ from ..drivers.splat import render_splats
 from ..physics import bsdf, camera, geometry
 from ..physics.lights import emitted, environment_pdf, environment_radiance, select_light
 from ..scene.tables import Scene
-from ..transport import mis
 from ..transport.connection import connect_camera, connect_vertices, occluded_many
 from ..transport.subpath import (
     CAMERA_DIMS0,
@@ -78,6 +85,7 @@ from ..transport.subpath import (
     camera_ray,
     concat_rows,
     convert_density,
+    has_infinite_lights,
     is_infinite,
     light_key,
     light_normal,
@@ -85,6 +93,7 @@ from ..transport.subpath import (
     mis_delta,
     next_event_value,
     no_uv,
+    pdf_bounding_disc,
     pdf_emission_dir,
     pdf_light_origin,
     random_walk,
@@ -277,15 +286,17 @@ def _camera_visit(scene: Scene, exponent: float):
         out["s0_rev_pt"] = pdf_light_origin(lights, e)               # as y_0 of a light path
         out["s0_rev_ptm"] = convert_density(pdf_emission_dir(lights, e, hit.n, wo), v.d2_prev,
                                             dot(s.prev_n, s.d), s.prev_surface)
-        # ---- s = 0 on the environment: the ray escaped (two-strategy MIS with s = 1) ----
+        # ---- s = 0 on the environment: the ray escaped to z_{t-1} at infinity, found with
+        # the solid-angle density of the direction at z_{t-2}; as y_0 of a light subpath it
+        # has the environment's direction density, and z_{t-2} the bounding disc's area
+        # density times |cos| (pbrt-v4's PdfLightOrigin and PdfLight for infinite lights) ----
         if lights.environment >= 0:
             escaped = s.alive & ~hit.valid
-            L_env = s.beta * environment_radiance(lights, s.d)
-            p_light = environment_pdf(lights, s.d)
-            w = mis.heuristic_weight(1.0, s.pdf_dir, [(1.0, p_light)], exponent)
-            w = jnp.where((v.step == 0) | s.prev_delta, 1.0, w)
-            out["env_value"] = where(escaped, L_env, Z)
-            out["env_weight"] = w
+            out["env_value"] = where(escaped, s.beta * environment_radiance(lights, s.d), Z)
+            out["env_fwd"] = s.pdf_dir
+            out["env_rev_pt"] = environment_pdf(lights, s.d)
+            out["env_rev_ptm"] = pdf_bounding_disc(lights) * jnp.where(
+                s.prev_surface, jnp.abs(dot(s.prev_n, s.d)), 1.0)
         # ---- s = 1: light sampling at z_{t-1} ----
         ne = sample_next_event(scene, mp, hit.p, hit.n, wo, u(3), u(4), u(5), v.valid, ns=hit.ns)
         ls, pdf_p_fwd = ne.light, ne.pdf_bsdf
@@ -295,8 +306,10 @@ def _camera_visit(scene: Scene, exponent: float):
         _, pdf_p_rev = bsdf.evaluate(kinds, mp, shading(hit), ls.wi, wo)
         visible = ~geometry.occluded(scene, *ne.shadow)
         out["s1_value"] = where(visible, next_event_value(ne, s.beta), Z)
-        infinite = is_infinite(lights, k)
-        dist = jnp.where(infinite, 0.0, ls.dist)
+        dist = ls.dist
+        if has_infinite_lights(lights):
+            infinite = is_infinite(lights, k)
+            dist = jnp.where(infinite, 0.0, ls.dist)
         d2 = dist * dist
         y = hit.p + ls.wi * dist
         n_y, y_surface = light_normal(lights, k, y)
@@ -304,14 +317,16 @@ def _camera_visit(scene: Scene, exponent: float):
         out["s1_rev_y"] = convert_density(pdf_p_fwd, d2, dot(n_y, ls.wi), y_surface)
         out["s1_rev_pt"] = convert_density(pdf_emission_dir(lights, k, n_y, -ls.wi), d2, cos_p,
                                            True)
+        if has_infinite_lights(lights):
+            # y_0 at infinity: its densities are solid-angle ones (light sampling's, with
+            # selection, and BSDF sampling's at z_{t-1}); z_{t-1} from the bounding disc
+            out["s1_fwd_y"] = jnp.where(infinite, ls.pdf, out["s1_fwd_y"])
+            out["s1_rev_y"] = jnp.where(infinite, pdf_p_fwd, out["s1_rev_y"])
+            out["s1_rev_pt"] = jnp.where(infinite, pdf_bounding_disc(lights) * cos_p,
+                                         out["s1_rev_pt"])
         out["s1_rev_ptm"] = convert_density(pdf_p_rev, v.d2_prev, dot(s.prev_n, s.d),
                                             s.prev_surface)
         out["s1_delta_light"] = ls.delta
-        # infinite lights: directional only by s = 1; environment against BSDF sampling
-        w_inf = jnp.where(ls.delta, 1.0, mis.heuristic_weight(1.0, ls.pdf, [(1.0, pdf_p_fwd)],
-                                                              exponent))
-        out["s1_infinite"] = infinite
-        out["s1_w_infinite"] = w_inf
         return out
 
     return visit
@@ -355,7 +370,20 @@ def _interior(scene: Scene, y: Vertices, ym: Vertices, z: Vertices, zm: Vertices
         qs=conn.pdf_y_from_z,
         qsm=convert_density(conn.pdf_y_rev, dot(vm_y, vm_y), dot(ym.n, y.wo), ym.on_surface),
     )
+    if has_infinite_lights(scene.lights):   # y_{s-2} may be y_0 at infinity
+        rev["qsm_solid"] = conn.pdf_y_rev
     return conn.value, conn.shadow, rev
+
+
+def _reverse_at_predecessor(lights, lp, light_rows, pdf_solid: Array, pdf_area: Array) -> Array:
+    """y_{s-2}'s reverse density under a connection at y_{s-1} (light rows ``light_rows`` =
+    s - 1): the area density ``pdf_area``, but where y_{s-2} = y_0 is a directional or
+    environment light the solid-angle density ``pdf_solid`` (pbrt-v4's ConvertDensity leaves
+    a density towards an infinite light unconverted)."""
+    if not has_infinite_lights(lights):
+        return pdf_area
+    at_y0 = jnp.asarray(np.asarray(light_rows) == 1)[:, None] & is_infinite(lights, lp.element)
+    return jnp.where(at_y0, pdf_solid, pdf_area)
 
 
 def contributions(scene: Scene, cfg: BDPTConfig, seed, pixel: Array, sample: Array,
@@ -364,11 +392,12 @@ def contributions(scene: Scene, cfg: BDPTConfig, seed, pixel: Array, sample: Arr
     value, unweighted value), each [N]. ``uniforms = (camera, light)``, two ``uniform(dim)``
     callables, replaces the hashed streams of (seed, pixel, sample) (Metropolis: MMLT)."""
     D = cfg.max_depth
+    lights = scene.lights
     u_cam, u_light = uniforms if uniforms is not None else (None, None)
     key = rng.path_key(seed, pixel, sample) if u_cam is None else None
     cam, rec = camera_subpath(scene, cfg, key, pixel, u_cam)      # z_0 .. z_D
     lkey = light_key(seed, pixel, sample) if u_light is None else None
-    lp = light_subpath(scene, lkey, D, uniform=u_light)           # y_0 .. y_{D-1}
+    lp = light_subpath(scene, lkey, D, infinite=True, uniform=u_light)  # y_0 .. y_{D-1}
     light = lp.vertices
     strategies = cfg.strategies()
     z = jnp.zeros_like(cam.pdf_fwd[0])
@@ -382,13 +411,16 @@ def contributions(scene: Scene, cfg: BDPTConfig, seed, pixel: Array, sample: Arr
         y, ym = rows(light, y_rows), rows(light, y_rows - 1)
         conn = materialize(connect_camera(scene, y))
         vm = ym.p - y.p
-        rev_qsm = convert_density(conn.pdf_y_rev, dot(vm, vm), dot(ym.n, y.wo), ym.on_surface)
+        rev_qsm = _reverse_at_predecessor(lights, lp, y_rows, conn.pdf_y_rev, convert_density(
+            conn.pdf_y_rev, dot(vm, vm), dot(ym.n, y.wo), ym.on_surface))
         rays.append(conn.shadow)
     if inner:
         ls = np.array([s - 1 for s, _ in inner])
         ts = np.array([t - 1 for _, t in inner])
         value_in, shadow_in, rev_in = materialize(_interior(
             scene, rows(light, ls), rows(light, ls - 1), rows(cam, ts), rows(cam, ts - 1)))
+        rev_in["qsm"] = _reverse_at_predecessor(lights, lp, ls, rev_in.get("qsm_solid"),
+                                                rev_in["qsm"])
         rays.append(shadow_in)
     occ = occluded_many(scene, rays) if rays else []
     occ_t1 = occ.pop(0) if t1 else None
@@ -405,6 +437,10 @@ def contributions(scene: Scene, cfg: BDPTConfig, seed, pixel: Array, sample: Arr
         t1_qs, t1_qsm = P.add(conn.pdf_cam), P.add(rev_qsm)
     if inner:
         in_rows = {k: P.add(rev_in[k]) for k in ("pt", "ptm", "qs", "qsm")}
+    env_strategies = [(s, t) for (s, t) in strategies if s == 0] if "env_value" in rec else []
+    if env_strategies:
+        env_fwd, env_pt = P.add(rec["env_fwd"]), P.add(rec["env_rev_pt"])
+        env_ptm = P.add(rec["env_rev_ptm"])
     P.add(z)                                    # last row: density 0 (log remap0 = 0)
     # Dirac flags of the sampled bounces (a plastic vertex left by its coating's reflection is
     # one, though connectable); the connection's own vertices count as non-Dirac (no_delta)
@@ -434,6 +470,11 @@ def contributions(scene: Scene, cfg: BDPTConfig, seed, pixel: Array, sample: Arr
             camera_v = with_connection(camera_v, in_rows["pt"] + j, in_rows["ptm"] + j, no_delta)
             light_v = with_connection(light_v, in_rows["qs"] + j, in_rows["qsm"] + j, no_delta)
         chains.append(ratio_chain(camera_v, light_v, at_light))
+    for (_, t) in env_strategies:   # s = 0 with z_{t-1} on the environment, at infinity
+        camera_v = with_connection(camera_rows.vertices(t), env_pt + t - 2, env_ptm + t - 2,
+                                   no_delta)
+        camera_v[-1] = camera_v[-1]._replace(fwd=env_fwd + t - 2)
+        chains.append(ratio_chain(camera_v, [], no_delta))
     weights = mis_weights([log_remap0(r) for r in P.rows], F.rows, chains, cfg.exponent)
 
     # ---- contributions C* and C = w C* per strategy ----
@@ -444,15 +485,14 @@ def contributions(scene: Scene, cfg: BDPTConfig, seed, pixel: Array, sample: Arr
         if s == 0:
             c = rows(rec["s0_value"], t - 2)
             weighted = c * w
-            if "env_value" in rec:        # camera rays that escaped to the environment
+            if env_strategies:            # camera rays that escaped to the environment
                 ce = rows(rec["env_value"], t - 2)
-                weighted = weighted + ce * rows(rec["env_weight"], t - 2)
+                weighted = weighted + ce * weights[len(strategies) + env_strategies.index((s, t))]
                 c = c + ce
             out[(s, t)] = (None, weighted, c)
             continue
         if s == 1:
             c = rows(rec["s1_value"], t - 2)
-            w = jnp.where(rows(rec["s1_infinite"], t - 2), rows(rec["s1_w_infinite"], t - 2), w)
         elif t == 1:
             k = t1.index((s, t))
             c = where(occ_t1[k], V3.full(0.0, w), rows(conn.value, k))

@@ -49,8 +49,14 @@ merging-only modes an emitter hit counts only after a purely specular camera sub
 be merged). Subpaths end at ``max_depth`` segments, at absorption, or by Russian roulette
 (SmallVCM's: at every vertex the subpath survives with the material's albedo q, and q enters
 both directional densities of the MIS; ``roulette=false`` keeps BDPT's random streams).
-Light subpaths start on lights with a position (area, point, spot); scenes with directional or
-environment lights are refused.
+Directional and environment lights start light subpaths as SmallVCM's background light does:
+y_0 is a direction, the subpath leaves a point of the disc covering the scene's bounding
+sphere, so dVCM starts as 1 / p_disc, the light has no cosine, and the first segment's
+arrival has no 1 / d^2 (solid-angle measure at infinity); next-event estimation compares
+solid-angle densities at x (light sampling's with selection, the BSDF's) and weighs the
+light subpaths by p_disc |cos x|; a camera subpath that escapes to the environment is the
+s = 0 technique with the direction's light-sampling density (SmallVCM's GetLightRadiance).
+A directional light is a Dirac direction: dVC = 0 and no s = 0.
 
 Merging reads light vertices from a hash grid rebuilt on the device every iteration
 (:func:`jgi.transport.hash_grid.index_cells`, the photon maps' hash and 27-cell query, cell =
@@ -83,12 +89,17 @@ from jax import Array
 from .._xla import materialize
 from ..core import rng
 from ..core.compaction import compact_map
-from ..core.errors import ParameterError
 from ..core.imageio import write_exr, write_png
 from ..core.vec import V3, dot, max_component, where
 from ..physics import bsdf, camera, geometry
-from ..physics.lights import emitted, sample_emission, select_light
-from ..scene.tables import DIELECTRIC, DIRECTIONAL, ENVIRONMENT, ROUGH_DIELECTRIC, Scene
+from ..physics.lights import (
+    emitted,
+    environment_pdf,
+    environment_radiance,
+    sample_emission,
+    select_light,
+)
+from ..scene.tables import DIELECTRIC, ROUGH_DIELECTRIC, Scene
 from ..transport import density, hash_grid
 from ..transport.connection import connect_camera, connect_vertices, occluded_many
 from ..transport.subpath import (
@@ -98,10 +109,13 @@ from ..transport.subpath import (
     LIGHT_DIMS_PER_STEP,
     Vertices,
     camera_ray,
+    has_infinite_lights,
+    is_infinite,
     light_key,
     light_normal,
     next_event_value,
     no_uv,
+    pdf_bounding_disc,
     pdf_emission_dir,
     pdf_light_origin,
     sample_next_event,
@@ -239,12 +253,18 @@ def mis_factors(radius, n_light: int, cfg: VCMConfig) -> MisFactors:
 
 
 def mis_light_start(pdf_dir: Array, pdf_pos: Array, cos_y: Array, delta_light: Array,
-                    f: MisFactors, b: float) -> Mis:
+                    f: MisFactors, b: float, pdf_disc: Array | None = None) -> Mis:
     """At y_0 (before the first segment): dVCM = 1 / p_dir (SmallVCM's directPdfA /
     emissionPdfW, light sampling and emission choosing y_0 alike), dVC = |cos y_0| / (p_A p_dir),
-    0 for a Dirac (point, spot) light, which no other technique can reach."""
+    0 for a Dirac (point, spot, directional) light, which no other technique can reach.
+
+    ``pdf_disc`` (directional and environment lights; elsewhere None): the area density of the
+    origin on the bounding disc. Light sampling then chooses the direction, emission the
+    direction and the disc point, so dVCM = directPdfW / emissionPdfW = 1 / p_disc; the light
+    has no cosine (|cos y_0| = 1, as SmallVCM's background light)."""
     dvc = jnp.where(delta_light, 0.0, mis_pow(cos_y * _inv(pdf_pos * pdf_dir), b))
-    return Mis(mis_pow(_inv(pdf_dir), b), dvc, dvc * f.vc)
+    dvcm = _inv(pdf_dir) if pdf_disc is None else _inv(pdf_disc)
+    return Mis(mis_pow(dvcm, b), dvc, dvc * f.vc)
 
 
 def mis_camera_start(pdf_film: Array, b: float) -> Mis:
@@ -276,7 +296,10 @@ def mis_scatter(m: Mis, cos_out: Array, pdf_fwd: Array, pdf_rev: Array, specular
 
 def weight_emission(m: Mis, pdf_pos: Array, pdf_emit_dir: Array, b: float) -> Array:
     """s = 0, the camera subpath z hit an emitter at y: against light sampling (p_A(y)) and the
-    light subpaths that start at y (p_A(y) p_dir)."""
+    light subpaths that start at y (p_A(y) p_dir). A camera subpath that escaped to the
+    environment (``m`` then as it left its last vertex, with no arrival: SmallVCM's
+    GetLightRadiance) passes the direction's light-sampling density for p_A and the bounding
+    disc's area density for p_dir."""
     w_camera = mis_pow(pdf_pos, b) * m.dvcm + mis_pow(pdf_pos * pdf_emit_dir, b) * m.dvc
     return 1.0 / (1.0 + w_camera)
 
@@ -345,7 +368,14 @@ def light_walk(scene: Scene, cfg: VCMConfig, key: Array, f: MisFactors):
     em = sample_emission(lights, u(0), u(1), u(2), u(3), u(4))
     ok = (em.pdf_pos > 0) & (max_component(em.weight) > 0)
     delta_light = em.delta_pos | em.delta_dir
-    mis = mis_light_start(em.pdf_dir, em.pdf_pos, jnp.abs(dot(em.n, em.d)), delta_light, f, b)
+    at_infinity = None
+    if has_infinite_lights(lights):   # y_0 a direction, the subpath leaves the bounding disc
+        at_infinity = is_infinite(lights, em.element)
+        pdf_disc = jnp.where(at_infinity, pdf_bounding_disc(lights), 0.0)
+        mis = mis_light_start(em.pdf_dir, em.pdf_pos, jnp.abs(dot(em.n, em.d)), delta_light, f,
+                              b, jnp.where(at_infinity, pdf_disc, em.pdf_dir))
+    else:
+        mis = mis_light_start(em.pdf_dir, em.pdf_pos, jnp.abs(dot(em.n, em.d)), delta_light, f, b)
     start = (geometry.offset_origin(em.p, em.n, em.d), em.d, em.weight, em.p, mis, ok)
     rr_dim0 = LIGHT_DIMS0 + (cfg.max_depth - 1) * LIGHT_DIMS_PER_STEP   # past BDPT's dimensions
 
@@ -355,7 +385,10 @@ def light_walk(scene: Scene, cfg: VCMConfig, key: Array, f: MisFactors):
         hit = geometry.intersect(scene, o, d)
         valid = alive & hit.valid
         v = hit.p - prev_p
-        m = mis_arrive(m, dot(v, v), dot(hit.n, d), b)
+        d2 = dot(v, v)
+        if at_infinity is not None:   # from infinity: solid angle, no 1 / d^2 (tech. rep. 5.1)
+            d2 = jnp.where(at_infinity & (j == 0), 1.0, d2)
+        m = mis_arrive(m, d2, dot(hit.n, d), b)
         mp = bsdf.lookup_specialised(mats, hit.material, hit.uv)
         wo = -d
         vert = LightVertices(hit.p, hit.n, wo, beta, m, valid & ~bsdf.is_delta(mp), hit.material,
@@ -460,6 +493,7 @@ def camera_walk(scene: Scene, cfg: VCMConfig, key: Array, pixel: Array,
         valid = alive & hit.valid
         v = hit.p - prev_p
         d2 = dot(v, v)
+        m_left = m            # as the subpath left its last vertex (an escaped ray's)
         m = mis_arrive(m, d2, dot(hit.n, d), b)
         mp = bsdf.lookup_specialised(mats, hit.material, hit.uv)
         wo = -d
@@ -472,9 +506,16 @@ def camera_walk(scene: Scene, cfg: VCMConfig, key: Array, pixel: Array,
         emission = beta * emitted(lights, e, hit.n, wo)
         if cfg.connects:
             w_e = weight_emission(m, pdf_pos, pdf_pos * pdf_emission_dir(lights, e, hit.n, wo), b)
+            if lights.environment >= 0:   # ... or the environment, the ray having escaped
+                escaped = alive & ~hit.valid
+                p_env = environment_pdf(lights, d)
+                w_env = weight_emission(m_left, p_env, pdf_bounding_disc(lights), b)
+                w_e = jnp.where(escaped, w_env, w_e)
             w_e = jnp.where(j == 0, 1.0, w_e)
         else:   # merging only: emitters count after purely specular subpaths alone
             w_e = jnp.where(specular_path, 1.0, 0.0)
+        if lights.environment >= 0:
+            emission = where(alive & ~hit.valid, beta * environment_radiance(lights, d), emission)
         # ---- s = 1: next-event estimation ----
         ns = shading(hit)       # BSDFs about the shading normal; densities convert with hit.n
         if cfg.connects and D >= 2:
@@ -490,9 +531,16 @@ def camera_walk(scene: Scene, cfg: VCMConfig, key: Array, pixel: Array,
             cos_y = jnp.where(y_surface, jnp.abs(dot(n_y, ls.wi)), 1.0)
             cos_x = jnp.abs(dot(ls.wi, hit.n))
             pdf_emit_x = pdf_emission_dir(lights, k, n_y, -ls.wi) * cos_x * inv_d2
-            w_ne = weight_next_event(m, pdf_light_origin(lights, k),
-                                     ne.pdf_bsdf * q * cos_y * inv_d2, pdf_emit_x,
-                                     pdf_bsdf_rev * q, ls.delta, f, b)
+            pdf_light_y, pdf_bsdf_y = pdf_light_origin(lights, k), ne.pdf_bsdf * q * cos_y * inv_d2
+            if has_infinite_lights(lights):
+                # a light at infinity: y_0 is a direction (solid-angle densities, selection
+                # included), x is reached from the bounding disc (SmallVCM's background light)
+                inf = is_infinite(lights, k)
+                pdf_light_y = jnp.where(inf, ls.pdf, pdf_light_y)
+                pdf_bsdf_y = jnp.where(inf, ne.pdf_bsdf * q, pdf_bsdf_y)
+                pdf_emit_x = jnp.where(inf, pdf_bounding_disc(lights) * cos_x, pdf_emit_x)
+            w_ne = weight_next_event(m, pdf_light_y, pdf_bsdf_y, pdf_emit_x, pdf_bsdf_rev * q,
+                                     ls.delta, f, b)
             Z = V3.full(0.0, z)
             ne_value = where(~geometry.occluded(scene, *ne.shadow), next_event_value(ne, beta), Z)
         else:
@@ -820,21 +868,12 @@ def _camera_stage(scene: Scene, cfg: VCMConfig, seed, iteration, radius, filter_
     return t if by_technique else _own_sum(t)
 
 
-def _check_scene(scene: Scene) -> None:
-    kinds = scene.lights.kinds
-    if DIRECTIONAL in kinds or ENVIRONMENT in kinds:
-        raise ParameterError("estimator 'vcm': the scene has a directional or environment light; "
-                             "vcm starts light subpaths on lights with a position (area, point, "
-                             "spot) only")
-
-
 class _Iterations:
     """The host loop shared by :func:`render` and :func:`render_techniques`: per iteration, the
     light stage, then the camera stage per chunk. Calls ``on_chunk(i, p0, result)`` and
     ``on_light(i, light stage outputs)``."""
 
     def __init__(self, scene: Scene, cfg: VCMConfig, chunk_limit: int):
-        _check_scene(scene)
         P = scene.camera.width * scene.camera.height
         self.scene, self.cfg, self.P = scene, cfg, P
         self.chunk = min(cfg.chunk, chunk_limit, 1 << max(8, int(np.ceil(np.log2(P)))))
@@ -999,7 +1038,6 @@ def iteration_image(scene: Scene, cfg: VCMConfig, seed, iteration, radius, filte
     fits photon radii). The merges read
     ``pairs_per_vertex`` times (max_depth x pixels) grid candidates in all (static; the image
     is NaN if the iteration's camera vertices have more: choose it large enough)."""
-    _check_scene(scene)
     W, H = scene.camera.width, scene.camera.height
     P = W * H
     ts = table_size_for(scene, cfg)

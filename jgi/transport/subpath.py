@@ -192,11 +192,17 @@ class Visit(NamedTuple):
 
 def random_walk(scene: Scene, key: Array, dim0: int, dims_per_step: int, n_steps: int,
                 start: WalkState, mode: int, visit: Callable[[Visit], object] | None = None,
-                uniform: Callable | None = None):
+                uniform: Callable | None = None, infinite_start: tuple | None = None):
     """Extend a subpath by ``n_steps`` BSDF-sampled segments (pbrt-v4's RandomWalk).
 
     Random numbers come from the hashed stream ``key``, or, if ``uniform`` is given, from
     ``uniform(dim)`` (explicit primary samples, e.g. Metropolis; ``key`` is then unused).
+
+    ``infinite_start = (flags, pdf_disc)`` (light subpaths of scenes with directional or
+    environment lights): where a flag is set, vertex 0 lies at infinity and the walk starts on
+    its bounding disc, so vertex 1's density is the disc's area density times |cos| at vertex 1
+    (no 1 / d^2), and vertex 0's reverse density stays a solid-angle density (pbrt-v4's
+    GenerateLightSubpath and ConvertDensity for infinite lights).
 
     Returns (vertices 1..n_steps as :class:`Vertices` [n_steps, N], pdf_rev of vertex 0 [N],
     the stacked outputs of ``visit``). Each vertex's ``pdf_rev`` is filled in by the next step
@@ -228,6 +234,10 @@ def random_walk(scene: Scene, key: Array, dim0: int, dims_per_step: int, n_steps
         pdf_rev_prev = jnp.where(valid & ~delta_s,
                                  convert_density(pdf_back, d2, dot(s.prev_n, s.d), s.prev_surface),
                                  0.0)
+        if infinite_start is not None:
+            at_infinity = infinite_start[0] & (j == 0) & valid
+            pdf_fwd = jnp.where(at_infinity, infinite_start[1] * jnp.abs(dot(hit.n, s.d)), pdf_fwd)
+            pdf_rev_prev = jnp.where(at_infinity & ~delta_s, pdf_back, pdf_rev_prev)
         vert = Vertices(hit.p, hit.n, wo, s.beta, pdf_fwd, pdf_rev_prev, delta, valid, valid,
                         hit.material, jnp.where(valid, hit.emitter, -1), hit.uv, hit.ns,
                         delta_s if PLASTIC in kinds else None)
@@ -299,6 +309,19 @@ def light_normal(lights, k: Array, y: V3) -> tuple[V3, Array]:
     return where(on, n, V3(z, z, z)), on
 
 
+def pdf_bounding_disc(lights) -> Array:
+    """Area density (without selection) of a light path's origin on the bounding disc of a
+    directional or environment light, 1 / (pi R^2) (pbrt-v4's PdfLight for infinite lights)."""
+    R = lights.bound_radius
+    return 1.0 / (jnp.pi * R * R)
+
+
+def has_infinite_lights(lights) -> bool:
+    """Whether the scene has a directional or environment light (static: scenes without one
+    compile to the programs they compiled to before infinite lights started subpaths)."""
+    return DIRECTIONAL in lights.kinds or ENVIRONMENT in lights.kinds
+
+
 def is_infinite(lights, k: Array) -> Array:
     """Element k is a directional or environment light (no position: y_0 would be a point of
     the scene's bounding disc)."""
@@ -319,8 +342,11 @@ def light_subpath(scene: Scene, key: Array, max_depth: int, infinite: bool = Fal
     ``uniform(dim)``, if given, replaces the hashed stream ``key`` (explicit primary samples).
 
     ``infinite=False`` drops subpaths that start on directional or environment lights (their
-    y_0 is a point of a bounding disc, not of the scene); BDPT reaches those lights through the
-    camera subpath only. Light tracing keeps them (``infinite=True``)."""
+    y_0 is a point of a bounding disc, not of the scene). ``infinite=True`` (BDPT, light
+    tracing) keeps them, as pbrt-v4 does: y_0 then stands for the direction at infinity, its
+    p_fwd the direction's solid-angle density with selection (pbrt's InfiniteLightDensity) and
+    its p_rev a solid-angle density too; y_1's p_fwd is the disc's area density times |cos| at
+    y_1 (:func:`random_walk`'s ``infinite_start``)."""
     lights = scene.lights
     u = (lambda k: rng.uniform(key, k)) if uniform is None else uniform  # noqa: E731
     em = sample_emission(lights, u(0), u(1), u(2), u(3), u(4))
@@ -332,7 +358,12 @@ def light_subpath(scene: Scene, key: Array, max_depth: int, infinite: bool = Fal
     z = jnp.zeros_like(em.pdf_pos)
     delta_light = em.delta_pos | em.delta_dir
     le = emitted(lights, jnp.where(on_surface, em.element, -1), em.n, em.d)
-    v0 = Vertices(em.p, em.n, V3(z, z, z), le, em.pdf_pos, z, z > 0, on_surface, ok,
+    pdf_y0 = em.pdf_pos
+    infinite_start = None
+    if infinite and has_infinite_lights(lights):
+        pdf_y0 = jnp.where(inf, lights.pmf[em.element] * em.pdf_dir, em.pdf_pos)
+        infinite_start = (inf, pdf_bounding_disc(lights))
+    v0 = Vertices(em.p, em.n, V3(z, z, z), le, pdf_y0, z, z > 0, on_surface, ok,
                   jnp.zeros_like(em.element), em.element, no_uv(scene, z), vertex_ns(scene, em.n),
                   vertex_lobe_delta(scene, z))
     v0 = jax.tree_util.tree_map(lambda x: x[None], v0)
@@ -341,7 +372,8 @@ def light_subpath(scene: Scene, key: Array, max_depth: int, infinite: bool = Fal
     start = WalkState(geometry.offset_origin(em.p, em.n, em.d), em.d, em.weight,
                       em.pdf_dir, em.p, em.n, on_surface, z > 0, ok)
     verts, pdf_rev0, _ = random_walk(scene, key, LIGHT_DIMS0, LIGHT_DIMS_PER_STEP, max_depth - 1,
-                                     start, bsdf.IMPORTANCE, uniform=uniform)
+                                     start, bsdf.IMPORTANCE, uniform=uniform,
+                                     infinite_start=infinite_start)
     v0 = v0._replace(pdf_rev=pdf_rev0[None])
     return LightPath(concat_rows(v0, verts), delta_light, em.element)
 

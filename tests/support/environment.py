@@ -1,0 +1,40 @@
+"""The environment-lit scenes that several test modules render: a sky map with a sun-like
+texel, its rotations, and a red ball on a floor under it."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from jgi.scene import SceneBuilder
+
+
+def sky(H=16, W=32, sun=(4, 9), sun_rgb=(60.0, 50.0, 40.0)):
+    """A sky gradient (brighter and bluer towards +y) with a bright sun-like texel."""
+    theta = np.pi * np.arange(H) / (H - 1)
+    up = 0.5 * (1 + np.cos(theta))[:, None, None]
+    img = np.broadcast_to(0.1 + np.array([0.6, 0.8, 1.2]) * up, (H, W, 3)).copy()
+    img[:, : W // 3] *= 0.5            # a darker sector in azimuth
+    img[sun] = sun_rgb
+    return img
+
+
+def rotation(deg_y=30.0, deg_x=20.0):
+    a, b = np.radians(deg_y), np.radians(deg_x)
+    ry = np.array([[np.cos(a), 0, np.sin(a)], [0, 1, 0], [-np.sin(a), 0, np.cos(a)]])
+    rx = np.array([[1, 0, 0], [0, np.cos(b), -np.sin(b)], [0, np.sin(b), np.cos(b)]])
+    m = np.eye(4)
+    m[:3, :3] = ry @ rx
+    return m
+
+
+def env_scene(size=16):
+    """A red ball on a 6 x 6 floor seen from above (the floor fills the frame), lit by the sky
+    map: the ball's shadow, the sun's highlight and interreflections."""
+    b = SceneBuilder("env_lit")
+    b.material("white", "diffuse", diffuse=0.7)
+    b.material("red", "diffuse", diffuse=(0.7, 0.2, 0.2))
+    b.sphere((0.0, 0.0, 0.0), 0.8, "red")
+    b.quad((-3.0, -0.8, 3.0), (6.0, 0.0, 0.0), (0.0, 0.0, -6.0), "white")
+    b.environment_map(sky(), scale=1.0, to_world=rotation(40.0, 0.0))
+    b.camera(position=(0, 3, 1.5), look_at=(0, -0.8, 0), fov=40, width=size, height=size)
+    return b.build()
