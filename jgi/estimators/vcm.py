@@ -505,7 +505,7 @@ def camera_walk(scene: Scene, cfg: VCMConfig, key: Array, pixel: Array,
         pdf_pos = pdf_light_origin(lights, e)
         emission = beta * emitted(lights, e, hit.n, wo)
         if cfg.connects:
-            w_e = weight_emission(m, pdf_pos, pdf_pos * pdf_emission_dir(lights, e, hit.n, wo), b)
+            w_e = weight_emission(m, pdf_pos, pdf_emission_dir(lights, e, hit.n, wo), b)
             if lights.environment >= 0:   # ... or the environment, the ray having escaped
                 escaped = alive & ~hit.valid
                 p_env = environment_pdf(lights, d)
