@@ -1,0 +1,354 @@
+"""Opacity masks (Mitsuba 3's ``mask`` BSDF, pbrt-v4's shape ``alpha``): a surface stops a ray
+with probability ``opacity`` and lets it through otherwise, tested inside ray traversal with
+a hash of the ray and the primitive, so every estimator and shadow ray sees it. Traversal
+frequencies per primitive table, a closed form, the estimators' agreement, Mitsuba 3's
+agreement, and the builder / TOML / importer rules."""
+
+from __future__ import annotations
+
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from scipy import stats
+
+import jgi
+from jgi.core import transform as xf
+from jgi.core.vec import V3
+from jgi.physics import geometry
+from jgi.scene import SceneBuilder, SceneError
+from jgi.scene.builtin import cornell_room
+from jgi.scene.importers import load_mitsuba_xml, load_pbrt
+from tests.support.mitsuba import load_mitsuba
+from tests.support.stats import assert_agree
+
+P_MIN = 1e-4        # goodness-of-fit tests fail below this p-value (fixed seeds: no flakes)
+
+
+def _stack(table: str, opacity, layers: int = 3) -> jgi.Scene:
+    """``layers`` masked surfaces crossing the z axis at z = 1, 2, ... (spheres: concentric,
+    two crossings each), of the primitive table ``table``."""
+    b = SceneBuilder("stack")
+    b.material("m", "diffuse", diffuse=0.5, opacity=opacity)
+    for k in range(layers):
+        z = 1.0 + k
+        if table == "rects":
+            b.quad((-1, -1, z), (2, 0, 0), (0, 2, 0), "m")
+        elif table == "quads":      # tilted: not axis-aligned
+            b.quad((-1, -1, z - 0.1), (2, 0, 0.2), (0, 2, 0), "m")
+        elif table == "spheres":
+            b.sphere((0, 0, 0), float(k + 1), "m")
+        else:                       # triangles, brute force or in a BVH
+            b.mesh([(-1, -1, z), (1, -1, z), (1, 1, z), (-1, 1, z)], [(0, 1, 2), (0, 2, 3)], "m")
+    b.bvh = {"triangles": False, "bvh": True}.get(table)
+    b.camera((0, 0, -3), (0, 0, 0), width=4, height=4)
+    return b.build()
+
+
+def _rays(n: int, seed: int = 0, z0: float = 0.0):
+    """n rays along +z from distinct origins in [-0.5, 0.5]^2 x {z0}."""
+    rng = np.random.default_rng(seed)
+    o = V3(*(jnp.asarray(a, jnp.float32) for a in (rng.uniform(-.5, .5, n),
+                                                   rng.uniform(-.5, .5, n), np.full(n, z0))))
+    return o, V3(jnp.zeros(n), jnp.zeros(n), jnp.ones(n))
+
+
+TABLES = ["rects", "quads", "triangles", "bvh", "spheres"]
+
+
+@pytest.mark.parametrize("table", TABLES)
+def test_rays_pass_each_layer_with_its_probability(table):
+    """Over 20000 rays with distinct origins through a stack of surfaces of opacity 0.35, the
+    first surface that stops a ray is the k-th crossing with probability 0.35 (0.65)^k and
+    none with 0.65^K: chi-square over the K + 1 outcomes of the closest hit (intersect and
+    closest_hit agree ray for ray); the any-hit query (occluded) is blocked exactly where the
+    closest hit lies before t_max (so it too follows 1 - 0.65^K)."""
+    a, n = 0.35, 20_000
+    scene = _stack(table, a)
+    o, d = _rays(n, z0=0.0 if table == "spheres" else 0.5)
+    if table == "spheres":   # from the centre the ray crosses each sphere once, at t = k + 1
+        o = V3(o.x * 0.01, o.y * 0.01, o.z)
+    crossings = 3
+    hit = geometry.intersect(scene, o, d)
+    t = np.asarray(hit.t)
+    t_ch, _, _ = geometry.closest_hit(scene, o, d)
+    np.testing.assert_array_equal(np.asarray(t_ch), t)
+    first = np.full(n, crossings)
+    z = np.asarray(o.z)
+    for k in range(crossings):
+        first[np.abs(z + t - (1.0 + k)) < 0.15] = k
+    assert np.all(first[np.isfinite(t)] < crossings) and np.all(first[~np.isfinite(t)] == 3)
+    counts = np.bincount(first, minlength=crossings + 1)
+    expect = np.array([a * (1 - a) ** k for k in range(crossings)] + [(1 - a) ** crossings]) * n
+    p = stats.chisquare(counts, expect).pvalue
+    assert p > P_MIN, (table, counts, expect.round(), p)
+    occ = np.asarray(geometry.occluded(scene, o, d, jnp.full(n, 10.0)))
+    np.testing.assert_array_equal(occ, np.isfinite(t))   # same ray, same hashes
+
+
+def test_sphere_far_side_counts_where_the_near_side_passes():
+    """A ray from outside crosses a masked sphere twice; each crossing stops it with
+    probability a on its own (not the same decision twice): first-hit frequencies
+    a, (1 - a) a, (1 - a)^2."""
+    a, n = 0.5, 20_000
+    scene = _stack("spheres", a, layers=1)
+    o, d = _rays(n, z0=-3.0)
+    o = V3(o.x * 0.1, o.y * 0.1, o.z)
+    t = np.asarray(geometry.intersect(scene, o, d).t)
+    near, far = np.abs(t - 2.0) < 0.1, np.abs(t - 4.0) < 0.1
+    counts = [near.sum(), far.sum(), (~np.isfinite(t)).sum()]
+    assert sum(counts) == n
+    p = stats.chisquare(counts, np.array([a, a * (1 - a), (1 - a) ** 2]) * n).pvalue
+    assert p > P_MIN, (counts, p)
+
+
+@pytest.mark.parametrize("table", ["quads", "bvh"])
+def test_opacity_one_is_opaque_and_zero_invisible(table):
+    o, d = _rays(2000, z0=0.5)
+    t1 = np.asarray(geometry.intersect(_stack(table, 1.0), o, d).t)
+    np.testing.assert_allclose(t1, 0.5 + (0.1 * np.asarray(o.x) if table == "quads" else 0.0),
+                               atol=1e-4)   # every ray stops at the first layer
+    assert not _stack(table, 1.0).materials.has_masks
+    t0 = np.asarray(geometry.intersect(_stack(table, 0.0), o, d).t)
+    assert np.all(np.isinf(t0))
+    assert not np.asarray(geometry.occluded(_stack(table, 0.0), o, d, jnp.full(2000, 9.0))).any()
+
+
+@pytest.mark.parametrize("table", ["rects", "quads", "triangles", "bvh"])
+def test_textured_opacity_is_read_at_the_hit(table):
+    """A checkerboard opacity of 1 and 0 (one period over the layer): rays stop at the first
+    layer exactly where its uv lies in an opaque square, and pass elsewhere."""
+    b = SceneBuilder("checker")
+    b.texture("cut", "checkerboard", color0=(1, 1, 1), color1=(0, 0, 0))
+    b.material("m", "diffuse", diffuse=0.5, opacity="cut")
+    if table in ("rects", "quads"):
+        b.quad((-1, -1, 1), (2, 0, 0.2 if table == "quads" else 0.0), (0, 2, 0), "m")
+    else:
+        b.mesh([(-1, -1, 1), (1, -1, 1), (1, 1, 1), (-1, 1, 1)], [(0, 1, 2), (0, 2, 3)], "m",
+               uv=[(0, 0), (1, 0), (1, 1), (0, 1)])
+        b.bvh = table == "bvh"
+    b.camera((0, 0, -3), (0, 0, 0), width=4, height=4)
+    scene = b.build()
+    assert scene.materials.opacity_texture is not None
+    o, d = _rays(4000, seed=1)
+    hit = np.isfinite(np.asarray(geometry.intersect(scene, o, d).t))
+    u, v = (np.asarray(o.x) + 1) / 2, (np.asarray(o.y) + 1) / 2
+    margin = (np.abs(u - 0.5) > 1e-3) & (np.abs(v - 0.5) > 1e-3)
+    opaque = (u > 0.5) == (v > 0.5)   # Mitsuba's checkerboard: color0 where the halves agree
+    np.testing.assert_array_equal(hit[margin], opaque[margin])
+
+
+# --- renders ------------------------------------------------------------------------------------
+
+def _shadow_scene(opacity: float | None, size: int = 12) -> jgi.Scene:
+    """A point light at height 2 over a diffuse floor (z = 0 plane seen from above), a black
+    quad at height 1 shadowing the middle of the floor, and a camera at height 0.6 (below the
+    quad) that sees only the shadowed part: every pixel's radiance is (1 - opacity) times the
+    unshadowed one, exactly in expectation (``opacity`` None: no quad)."""
+    b = SceneBuilder("shadow")
+    b.material("floor", "diffuse", diffuse=0.6)
+    b.quad((-4, 0, -4), (0, 0, 8), (8, 0, 0), "floor")           # y = 0, normal +y
+    if opacity is not None:
+        b.material("blocker", "diffuse", diffuse=0.0, opacity=opacity)
+        b.quad((-1, 1, -1), (2, 0, 0), (0, 0, 2), "blocker")
+    b.point_light((0.0, 2.0, 0.0), (3.0, 3.0, 3.0))
+    b.camera((0, 0.6, 0.001), (0, 0, 0), up=(0, 0, 1), fov=40.0, width=size, height=size)
+    return b.build()
+
+
+def test_shadow_of_a_masked_quad_is_one_minus_opacity():
+    """Closed form: under the point light the masked quad of opacity 0.4 leaves 0.6 of the
+    unshadowed irradiance, pixel region by pixel region (Welch's t over 3 x 3 regions, both
+    sides' standard errors from 8 seeds); PT and BDPT (whose light paths and connections are
+    tested by the same traversal) both."""
+    a = 0.4
+    clear = np.stack([jgi.render(_shadow_scene(None), "pt", spp=4, seed=s) for s in range(8)])
+    assert clear.min() > 0.0
+    for est in ("pt", "bdpt"):
+        masked = np.stack([jgi.render(_shadow_scene(a), est, spp=4, seed=20 + s)
+                           for s in range(8)])
+        t = assert_agree(masked, (1 - a) * clear, regions=3, label=f"{est}: masked vs 0.6 clear")
+        ratio = masked.mean() / clear.mean()
+        print(f"{est}: mean ratio {ratio:.4f} (expected {1 - a}), max |t| {t.max():.2f}")
+    full = np.stack([jgi.render(_shadow_scene(1.0), "pt", spp=4, seed=s) for s in range(2)])
+    assert full.max() == 0.0    # opacity 1: the whole view is in the quad's shadow
+
+
+def _masked_cornell(size: int = 16) -> jgi.Scene:
+    """The Cornell room with a quad across its middle whose opacity is a checkerboard of 0.9
+    and 0.2 (2 x 2 periods), in front of a white block."""
+    b = SceneBuilder("masked_cornell")
+    cornell_room(b, size)
+    b.texture("leaf", "checkerboard", color0=(0.9, 0.9, 0.9), color1=(0.2, 0.2, 0.2), scale=2)
+    b.material("leafy", "diffuse", diffuse=(0.2, 0.6, 0.2), opacity="leaf")
+    b.quad((-0.7, -1.0, 0.3), (1.4, 0.0, 0.0), (0.0, 1.6, -0.6), "leafy")
+    T, R, S = xf.translate, xf.rotate, xf.scale
+    b.cube(T([-0.3, -0.6, -0.4]) @ R([0, 1, 0], 18) @ S([0.3, 0.4, 0.3]), "white")
+    return b.build()
+
+
+@pytest.mark.slow
+def test_estimators_agree_on_a_textured_mask():
+    """PT, LT, BDPT, VCM and SPPM agree per 4 x 4 region (Welch's t, both sides' standard
+    errors from 4 seeds) on the Cornell room behind a checkerboard-masked quad: the mask is
+    in the traversal, so camera rays, light paths, connections and photons all see it."""
+    scene = _masked_cornell()
+    runs = {"pt": dict(spp=64), "bdpt": dict(spp=16), "lt": dict(spp=16), "vcm": dict(spp=8),
+            "sppm": dict(spp=4, photons=20_000, radius=0.05)}
+    imgs = {e: np.stack([jgi.render(scene, e, seed=10 * k + s, **kw) for s in range(4)])
+            for k, (e, kw) in enumerate(runs.items())}
+    ts = [assert_agree(imgs[e], imgs["pt"], regions=4, label=f"{e} vs pt").max()
+          for e in ("bdpt", "lt", "vcm", "sppm")]
+    print("max |t| vs pt (bdpt, lt, vcm, sppm):", np.round(ts, 2))
+
+
+MASK_XML = """<scene version="3.0.0">
+  <integrator type="path"><integer name="max_depth" value="6"/></integrator>
+  <sensor type="perspective"><float name="fov" value="40"/>
+    <transform name="to_world"><lookat origin="0,0.3,4" target="0,0,0" up="0,1,0"/></transform>
+    <film type="hdrfilm"><integer name="width" value="12"/><integer name="height" value="12"/>
+      <rfilter type="box"/></film></sensor>
+  <texture type="checkerboard" id="cut"><rgb name="color0" value="0.9"/>
+    <rgb name="color1" value="0.15"/>
+    <transform name="to_uv"><scale value="3"/></transform></texture>
+  <bsdf type="diffuse" id="floor"><rgb name="reflectance" value="0.6,0.5,0.4"/></bsdf>
+  <bsdf type="mask" id="screen"><ref name="opacity" id="cut"/>
+    <bsdf type="twosided"><bsdf type="diffuse"><rgb name="reflectance" value="0.3,0.6,0.3"/>
+    </bsdf></bsdf></bsdf>
+  <bsdf type="mask" id="veil"><float name="opacity" value="0.5"/><ref id="floor"/></bsdf>
+  <shape type="rectangle"><transform name="to_world"><scale value="3"/><rotate x="1" angle="-90"/>
+    <translate y="-1"/></transform><ref id="floor"/></shape>
+  <shape type="rectangle"><transform name="to_world"><scale value="0.8"/>
+    <translate z="0.5"/></transform><ref id="screen"/></shape>
+  <shape type="sphere"><point name="center" value="0.9,-0.6,-0.5"/><float name="radius" value="0.4"/>
+    <ref id="veil"/></shape>
+  <shape type="rectangle"><transform name="to_world"><scale value="0.5"/><rotate x="1" angle="90"/>
+    <translate y="1.5" z="0.8"/></transform>
+    <bsdf type="diffuse"><rgb name="reflectance" value="0,0,0"/></bsdf>
+    <emitter type="area"><rgb name="radiance" value="10,10,10"/></emitter></shape>
+</scene>
+"""
+
+
+def test_mask_scene_renders_like_mitsuba(tmp_path):
+    """Mitsuba's ``mask`` (a checkerboard opacity around a twosided diffuse; a constant 0.5
+    around a one-sided diffuse on a sphere) in front of a lit floor: jgi's path tracer agrees
+    with Mitsuba 3's per 3 x 3 region and over the image (Welch's t, both sides' standard
+    errors from 12 seeds). Mitsuba treats the mask as a BSDF (its shadow rays stop at it and
+    light through it arrives by the null BSDF sample), jgi in traversal: the expectations
+    agree."""
+    xml = tmp_path / "mask.xml"
+    xml.write_text(MASK_XML)
+    ours = load_mitsuba_xml(xml)
+    assert ours.materials.has_masks and ours.materials.opacity_texture is not None
+    mi = load_mitsuba()
+    if mi is None:
+        pytest.skip("mitsuba is not installed")
+    scene_mi = mi.load_file(str(xml))
+    seeds = range(12)
+    theirs = np.stack([np.asarray(mi.render(scene_mi, spp=64, seed=s))[..., :3] for s in seeds])
+    mine = np.stack([jgi.render(ours, "pt", spp=64, seed=100 + s, max_depth=6, rr_depth=5)
+                     for s in seeds])
+    t3 = assert_agree(mine, theirs, regions=3, label="jgi vs Mitsuba 3 (3 x 3 regions)")
+    t1 = assert_agree(mine, theirs, regions=1, label="jgi vs Mitsuba 3 (whole image)")
+    print(f"max |t| {t3.max():.2f} (regions), {t1.max():.2f} (image); means "
+          f"{mine.mean():.5f} vs {theirs.mean():.5f}")
+
+
+# --- scene rules --------------------------------------------------------------------------------
+
+def test_builder_and_toml(tmp_path):
+    b = SceneBuilder("bad")
+    for bad in (1.5, -0.1, float("nan"), True, "nowhere"):
+        with pytest.raises(SceneError, match="'opacity'"):
+            b.material(f"m{bad}", "diffuse", opacity=bad)
+    b.material("veil", "diffuse", opacity=0.5)
+    with pytest.raises(SceneError, match="'veil' has an opacity mask and is used by an emitting"):
+        b.quad((0, 0, 0), (1, 0, 0), (0, 1, 0), "veil", emission=(1, 1, 1))
+    b.material("glass", "dielectric", opacity=0.3)       # every type may be masked
+    head = ('[camera]\nposition = [0, 0, 4]\nlook_at = [0, 0, 0]\nwidth = 4\nheight = 4\n'
+            '[[shape]]\ntype = "sphere"\ncenter = [0, 0, 0]\nradius = 1\nmaterial = "m"\n'
+            '[[light]]\ntype = "point"\nposition = [0, 3, 0]\nintensity = [1, 1, 1]\n'
+            '[[texture]]\nname = "c"\ntype = "checkerboard"\n')
+    (tmp_path / "a.toml").write_text(head + '[[material]]\nname = "m"\ntype = "diffuse"\n'
+                                            'opacity = 0.25\n')
+    np.testing.assert_allclose(np.asarray(jgi.load_scene(tmp_path / "a.toml")
+                                          .materials.opacity), [0.25])
+    (tmp_path / "b.toml").write_text(head + '[[material]]\nname = "m"\ntype = "plastic"\n'
+                                            'opacity = "c"\n')
+    s = jgi.load_scene(tmp_path / "b.toml")
+    assert s.materials.has_masks and int(s.materials.opacity_texture[0]) == 0
+    (tmp_path / "c.toml").write_text(head + '[[material]]\nname = "m"\ntype = "diffuse"\n'
+                                            'opacity = 2\n')
+    with pytest.raises(SceneError, match=r"c\.toml.*opacity.*\[0, 1\]"):
+        jgi.load_scene(tmp_path / "c.toml")
+    (tmp_path / "d.toml").write_text(head + '[[material]]\nname = "m"\ntype = "diffuse"\n')
+    assert not jgi.load_scene(tmp_path / "d.toml").materials.has_masks
+
+
+XML_HEAD = ('<scene version="3.0.0"><sensor type="perspective"><film type="hdrfilm">'
+            '<integer name="width" value="4"/><integer name="height" value="4"/></film>'
+            '</sensor>\n')
+
+
+def test_mitsuba_mask_nesting_and_refusals(tmp_path):
+    def load(body):
+        (tmp_path / "m.xml").write_text(XML_HEAD + body + "\n</scene>")
+        return load_mitsuba_xml(tmp_path / "m.xml")
+    # default opacity 0.5; mask in a mask multiplies; twosided inside a mask is two-sided
+    s = load('<bsdf type="mask" id="a"><bsdf type="diffuse"/></bsdf>'
+             '<bsdf type="mask" id="b"><float name="opacity" value="0.5"/><ref id="a"/></bsdf>'
+             '<bsdf type="mask" id="c"><bsdf type="twosided"><bsdf type="diffuse"/></bsdf></bsdf>'
+             '<shape type="sphere"><ref id="a"/></shape><shape type="sphere"><ref id="b"/></shape>'
+             '<shape type="sphere"><ref id="c"/></shape>')
+    rows = np.asarray(s.spheres.material)
+    np.testing.assert_allclose(np.asarray(s.materials.opacity)[rows], [0.5, 0.25, 0.5])
+    np.testing.assert_array_equal(np.asarray(s.materials.one_sided)[rows], [True, True, False])
+    for body, message in [
+        ('<bsdf type="twosided"><bsdf type="mask"><bsdf type="diffuse"/></bsdf></bsdf>',
+         r"m\.xml:2: twosided: the nested bsdf is a 'mask'"),
+        ('<bsdf type="mask"><bsdf type="diffuse"/><bsdf type="diffuse"/></bsdf>',
+         r"m\.xml:2: mask needs exactly one nested BSDF"),
+        ('<bsdf type="mask"><string name="opacity" value="x"/><bsdf type="diffuse"/></bsdf>',
+         r"m\.xml:2: mask: 'opacity' must be"),
+        ('<bsdf type="mask"><float name="alpha" value="1"/><bsdf type="diffuse"/></bsdf>',
+         r"m\.xml:2: bsdf 'mask': unknown parameter 'alpha'"),
+        ('<shape type="rectangle"><bsdf type="mask"><bsdf type="diffuse"/></bsdf>'
+         '<emitter type="area"/></shape>',
+         r"m\.xml:2: rectangle: an area emitter on a shape whose bsdf is a 'mask'"),
+    ]:
+        with pytest.raises(SceneError, match=message):
+            load(body)
+
+
+PBRT_HEAD = """LookAt 0 0 -4  0 0 0  0 1 0
+Camera "perspective" "float fov" [40]
+Film "rgb" "integer xresolution" [4] "integer yresolution" [4]
+WorldBegin
+LightSource "point" "rgb I" [1 1 1]
+"""
+PBRT_QUAD = ('"point3 P" [-1 -1 0  1 -1 0  1 1 0  -1 1 0] "integer indices" [0 1 2 0 2 3] '
+             '"point2 uv" [0 0 1 0 1 1 0 1]')
+
+
+def test_pbrt_alpha(tmp_path):
+    def load(body):
+        (tmp_path / "s.pbrt").write_text(PBRT_HEAD + body + "\n")
+        return load_pbrt(tmp_path / "s.pbrt")
+    s = load(f'Shape "trianglemesh" "float alpha" [0.3] {PBRT_QUAD}\n'
+             f'Shape "trianglemesh" "float alpha" [1] {PBRT_QUAD}')
+    rows = np.asarray(s.triangles.material)
+    np.testing.assert_allclose(np.asarray(s.materials.opacity)[rows], [0.3, 0.3, 1, 1])
+    s = load('Texture "cut" "float" "checkerboard" "float tex1" [1] "float tex2" [0]\n'
+             f'Shape "trianglemesh" "texture alpha" "cut" {PBRT_QUAD}')
+    assert s.materials.opacity_texture is not None
+    assert int(s.materials.opacity_texture[int(s.triangles.material[0])]) >= 0
+    for body, message in [
+        (f'AttributeBegin\nAreaLightSource "diffuse"\nShape "trianglemesh" "float alpha" [0.5] '
+         f'{PBRT_QUAD}\nAttributeEnd', r"s\.pbrt:8: .*\"alpha\" inside an AreaLightSource"),
+        (f'Shape "trianglemesh" "texture alpha" "nope" {PBRT_QUAD}',
+         r"s\.pbrt:6: .*'nope' is not a \"float\" texture"),
+        ('Texture "cut" "float" "checkerboard"\nShape "sphere" "texture alpha" "cut"',
+         r"s\.pbrt:7: shape \"sphere\" with a textured material"),
+    ]:
+        with pytest.raises(SceneError, match=message):
+            load(body)
