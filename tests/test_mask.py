@@ -219,16 +219,21 @@ MASK_XML = """<scene version="3.0.0">
     <rgb name="color1" value="0.15"/>
     <transform name="to_uv"><scale value="3"/></transform></texture>
   <bsdf type="diffuse" id="floor"><rgb name="reflectance" value="0.6,0.5,0.4"/></bsdf>
-  <bsdf type="mask" id="screen"><ref name="opacity" id="cut"/>
-    <bsdf type="twosided"><bsdf type="diffuse"><rgb name="reflectance" value="0.3,0.6,0.3"/>
+  <bsdf type="twosided" id="screen"><bsdf type="diffuse">
+    <rgb name="reflectance" value="0.3,0.6,0.3"/></bsdf></bsdf>
+  <bsdf type="mask" id="veil"><float name="opacity" value="0.3"/>
+    <bsdf type="diffuse"><rgb name="reflectance" value="0"/></bsdf></bsdf>
+  <bsdf type="mask" id="leaf"><ref name="opacity" id="cut"/>
+    <bsdf type="twosided"><bsdf type="diffuse"><rgb name="reflectance" value="0"/>
     </bsdf></bsdf></bsdf>
-  <bsdf type="mask" id="veil"><float name="opacity" value="0.5"/><ref id="floor"/></bsdf>
   <shape type="rectangle"><transform name="to_world"><scale value="3"/><rotate x="1" angle="-90"/>
     <translate y="-1"/></transform><ref id="floor"/></shape>
   <shape type="rectangle"><transform name="to_world"><scale value="0.8"/>
     <translate z="0.5"/></transform><ref id="screen"/></shape>
-  <shape type="sphere"><point name="center" value="0.9,-0.6,-0.5"/>
-    <float name="radius" value="0.4"/><ref id="veil"/></shape>
+  <shape type="sphere"><point name="center" value="0.75,-0.4,0.9"/>
+    <float name="radius" value="0.6"/><ref id="veil"/></shape>
+  <shape type="sphere"><point name="center" value="-0.75,-0.3,0.9"/>
+    <float name="radius" value="0.7"/><ref id="leaf"/></shape>
   <shape type="rectangle"><transform name="to_world"><scale value="0.5"/><rotate x="1" angle="90"/>
     <translate y="1.5" z="0.8"/></transform>
     <bsdf type="diffuse"><rgb name="reflectance" value="0,0,0"/></bsdf>
@@ -238,12 +243,19 @@ MASK_XML = """<scene version="3.0.0">
 
 
 def test_mask_scene_renders_like_mitsuba(tmp_path):
-    """Mitsuba's ``mask`` (a checkerboard opacity around a twosided diffuse; a constant 0.5
-    around a one-sided diffuse on a sphere) in front of a lit floor: jgi's path tracer agrees
-    with Mitsuba 3's per 3 x 3 region and over the image (Welch's t, both sides' standard
-    errors from 12 seeds). Mitsuba treats the mask as a BSDF (its shadow rays stop at it and
-    light through it arrives by the null BSDF sample), jgi in traversal: the expectations
-    agree."""
+    """Mitsuba's ``mask`` on two black spheres between a light and a lit floor and screen (a
+    constant 0.3 around a one-sided diffuse; a checkerboard opacity around a twosided one):
+    jgi's path tracer agrees with Mitsuba 3's per 3 x 3 region and over the image (Welch's t,
+    both sides' standard errors from 12 seeds; measured max |t| 1.92). Mitsuba treats the mask
+    as a BSDF (its shadow rays stop at it and light through it arrives by the null BSDF
+    sample), jgi in traversal: the expectations agree. The same spheres unmasked in jgi differ
+    from Mitsuba's masked ones by t = 10.8, so the test sees the masks.
+
+    The spheres are black because Mitsuba 3.9.1's path integrator renders the light a masked
+    surface itself reflects as about opacity^2 times the unmasked one (measured: a screen of
+    opacity 0.5, direct light only: 0.0189 against an opaque 0.075), although its mask BSDF
+    evaluates to opacity times the nested one; jgi gives opacity times it (0.0368 against
+    0.0733), the mask's definition."""
     xml = tmp_path / "mask.xml"
     xml.write_text(MASK_XML)
     ours = load_mitsuba_xml(xml)
