@@ -206,6 +206,16 @@ def opacity(scene: Scene, material, uv_of) -> Array:
     return a
 
 
+def hit_opacity(scene: Scene, hit: Hit) -> Array:
+    """The opacity at a hit that stopped a ray (1 in a scene without masks). A hit stops only a
+    fraction ``opacity`` of the rays that reach the surface: a density estimate of the flux
+    arriving there divides what is stored there by it (photon maps)."""
+    if not scene.materials.has_masks:
+        return jnp.ones_like(hit.t)
+    a = opacity(scene, hit.material, lambda: hit.uv)
+    return jnp.where(hit.valid & (a > 0), a, 1.0)
+
+
 def mask_stops(scene: Scene, o: V3, d: V3, kind: int, i, material, uv_of,
                crossing: int = 0) -> Array:
     """Whether the crossing of primitive ``i`` of table ``kind`` by the ray (o, d) stops it:
