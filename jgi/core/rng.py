@@ -12,6 +12,7 @@ dimensions are then an additive counter with a Weyl increment before mixing.
 
 from __future__ import annotations
 
+import jax
 import jax.numpy as jnp
 from jax import Array
 
@@ -97,6 +98,8 @@ def ray_uniform(o, d, key: Array) -> Array:
     masks; the ray is itself random, so the number is a fresh uniform for every ray and
     primitive, with no stream to carry through the traversal."""
     h = lowbias32(jnp.asarray(key).astype(_U32) ^ _U32(0x2C1B3C6D))
-    for c in (*o, *d):
-        h = lowbias32(h ^ jnp.asarray(c, jnp.float32).view(_U32))
+    for c in (*o, *d):   # (bits have no derivative: the ray's gradient is stopped here)
+        bits = jax.lax.bitcast_convert_type(
+            jax.lax.stop_gradient(jnp.asarray(c, jnp.float32)), _U32)
+        h = lowbias32(h ^ bits)
     return (h >> 8).astype(jnp.float32) * jnp.float32(1.0 / 16777216.0)
