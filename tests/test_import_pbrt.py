@@ -189,8 +189,8 @@ def test_microfacet_materials_give_the_builder_rows(tmp_path):
      "reflectance names texture 'wood', which is not defined before it"),
     ('Texture "wood" "spectrum" "imagemap" "string filename" "wood.png"',
      "bitmap\\): cannot read '.*wood.png'"),
-    ('Texture "checks" "float" "checkerboard" "float uscale" 8',
-     'Texture "checks": only "spectrum" textures are supported'),
+    ('Texture "checks" "float" "scale" "float scale" 8',
+     'Texture "checks": only "spectrum" textures .* and "float" checkerboard and imagemap'),
     ('Texture "w" "spectrum" "imagemap" "string filename" "w.png" "string wrap" "clamp"',
      'wrap "clamp" is not supported'),
     ('LightSource "point" "spectrum I" "glass-BK7"', "'glass-BK7' is neither a named "

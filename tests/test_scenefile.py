@@ -677,7 +677,7 @@ BAD = {
                        "did you mean 'material'?"),
     "camera key": (camera(lookat="[0, 0, 0]"), "camera.lookat", "did you mean 'look_at'?"),
     "material key for its type": (material("type = 'mirror'\nior = 1.5\n"), "material[0].ior",
-                                  "allowed: name, one_sided, specular, type"),
+                                  "allowed: name, one_sided, opacity, specular, type"),
     "shape key": (sphere(centre="[0, 0, 0]", center=None), "shape[0].centre",
                   "allowed: center, emission, material, radius, transform, type"),
     "light key": (light("type = 'point'\nposition = [0, 1, 0]\nintensity = 1\npower = 3\n"),

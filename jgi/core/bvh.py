@@ -475,6 +475,11 @@ def solve_above(det_min) -> Callable[[Array], tuple[Array, Array]]:
 
 _NONE = -(2**30)      # "no reference": a finished lane, an empty leaf slot
 
+# An opacity mask tested in the leaves: ``mask(triangle, b1, b2, o, d) -> stops`` (bool [L]) for
+# the input triangle index and barycentrics of a crossing of the ray (o, d); a crossing that
+# does not stop the ray is skipped (jgi.physics.geometry's masks). None: every crossing stops.
+Mask = Callable[[Array, Array, Array, V3, V3], Array]
+
 
 class _Ray(NamedTuple):
     """The rays held by the lanes ([L] arrays)."""
@@ -524,7 +529,7 @@ def _take(v: V3, i) -> V3:
     return V3(v.x[i], v.y[i], v.z[i])
 
 
-def _step(bvh: BVH, ray: _Ray, s: _Lane, any_hit: bool) -> _Lane:
+def _step(bvh: BVH, ray: _Ray, s: _Lane, any_hit: bool, mask: Mask | None = None) -> _Lane:
     """One step of every lane: test the pending leaf's triangles, and visit one node.
 
     A visited internal node slab-tests its two children. Of the children hit, the nearest leaf
@@ -532,6 +537,9 @@ def _step(bvh: BVH, ray: _Ray, s: _Lane, any_hit: bool) -> _Lane:
     over is pushed. A visited leaf (popped from the stack) becomes the pending leaf. So, unlike
     a loop that visits one node or one leaf per step, a step usually does both kinds of work;
     in a batched loop every lane pays for both in every step anyway.
+
+    ``mask`` (see :data:`Mask`), if given, decides whether a triangle the ray crosses stops it;
+    one that does not is no hit, and the search goes on beyond it.
 
     Written for XLA's CPU backend: misses are carried as t = inf rather than as boolean
     arrays (boolean fusion outputs are not vectorised), and results used by many selects are
@@ -552,6 +560,8 @@ def _step(bvh: BVH, ray: _Ray, s: _Lane, any_hit: bool) -> _Lane:
         tk, b1k, b2k, inside = moller_trumbore(V3(c(0), c(1), c(2)), V3(c(3), c(4), c(5)),
                                                V3(c(6), c(7), c(8)), o, d,
                                                solve_above(c(9) * d_len))
+        if mask is not None:
+            inside = inside & mask(jnp.maximum(slots[:, k], 0), b1k, b2k, o, d)
         tk = jnp.where(inside, tk, jnp.inf)
         tk, b1k, b2k = materialize((jnp.where((tk > t_min) & (tk < t_hi), tk, jnp.inf),
                                     b1k, b2k))
@@ -628,7 +638,7 @@ def _check_rays(o: V3, d: V3, t_min, t_max):
 
 
 def _trace(bvh: BVH, o: V3, d: V3, t_min: Array, t_max: Array, any_hit: bool, lanes: int,
-           refill: float):
+           refill: float, mask: Mask | None = None):
     """All rays through a pool of ``lanes`` traversal lanes; a finished lane takes the next
     waiting ray ("persistent threads", Aila & Laine 2009), so the loop's length follows the
     rays' mean step count rather than the slowest ray of a fixed batch. Lanes are refilled
@@ -675,7 +685,7 @@ def _trace(bvh: BVH, o: V3, d: V3, t_min: Array, t_max: Array, any_hit: bool, la
 
     def body(c):
         ids, ray, lane, out, nxt, steps = c
-        lane = _step(bvh, ray, lane, any_hit)
+        lane = _step(bvh, ray, lane, any_hit, mask)
         c = (ids, ray, lane, out, nxt)
         n_free = lane.done.sum()
         c = jax.lax.cond((n_free >= threshold) & (nxt < n), refill_lanes, lambda c: c, c)
@@ -689,22 +699,24 @@ def _trace(bvh: BVH, o: V3, d: V3, t_min: Array, t_max: Array, any_hit: bool, la
 
 
 def intersect_closest(bvh: BVH, o: V3, d: V3, t_min=1e-6, t_max=jnp.inf, *,
-                      lanes: int = LANES, refill: float = REFILL) -> Closest:
+                      lanes: int = LANES, refill: float = REFILL,
+                      mask: Mask | None = None) -> Closest:
     """Nearest triangle hit with t_min < t < t_max for each ray o + t d (V3 of shape [N];
     t_min, t_max scalars or [N]). Returns :class:`Closest` (t, prim, b1, b2) with the input
     triangle index, and t = inf, prim = -1, b1 = b2 = 0 where nothing is hit. ``d`` need not
     be unit length (t is in units of |d|); a zero ``d`` hits nothing. ``lanes`` and ``refill``
-    tune the batched loop (see :func:`_trace`) and do not change results. Not differentiable
+    tune the batched loop (see :func:`_trace`) and do not change results; ``mask``: see
+    :data:`Mask`. Not differentiable
     (a while loop); differentiate through the hit triangle's own intersection instead."""
     o, d, t_min, t_max = _check_rays(o, d, t_min, t_max)
-    (t, tri, b1, b2), _ = _trace(bvh, o, d, t_min, t_max, False, lanes, refill)
+    (t, tri, b1, b2), _ = _trace(bvh, o, d, t_min, t_max, False, lanes, refill, mask)
     hit = tri >= 0
     return Closest(jnp.where(hit, t, jnp.inf), tri, b1, b2)
 
 
 def intersect_any(bvh: BVH, o: V3, d: V3, t_min=1e-6, t_max=jnp.inf, *,
-                  lanes: int = LANES, refill: float = REFILL) -> Array:
+                  lanes: int = LANES, refill: float = REFILL, mask: Mask | None = None) -> Array:
     """True where some triangle is hit with t_min < t < t_max (shadow rays). A ray stops at the
-    first hit found, which need not be the nearest."""
+    first hit found, which need not be the nearest; ``mask``: see :data:`Mask`."""
     o, d, t_min, t_max = _check_rays(o, d, t_min, t_max)
-    return _trace(bvh, o, d, t_min, t_max, True, lanes, refill)[0][1] >= 0
+    return _trace(bvh, o, d, t_min, t_max, True, lanes, refill, mask)[0][1] >= 0

@@ -12,6 +12,7 @@ dimensions are then an additive counter with a Weyl increment before mixing.
 
 from __future__ import annotations
 
+import jax
 import jax.numpy as jnp
 from jax import Array
 
@@ -88,3 +89,17 @@ def derive(key: Array, salt) -> Array:
     :data:`SALTS`."""
     return lowbias32(key ^ lowbias32(jnp.asarray(salt).astype(_U32) + _U32(0x68E31DA4)))
 
+
+
+def ray_uniform(o, d, key: Array) -> Array:
+    """A uniform float32 in [0, 1) that is a pure function of a ray (origin ``o``, direction
+    ``d``, each three float32 arrays) and an integer ``key`` (a primitive): the bits of the
+    seven numbers chained through the mixer. pbrt-v4's HashFloat(ray.o, ray.d) for alpha
+    masks; the ray is itself random, so the number is a fresh uniform for every ray and
+    primitive, with no stream to carry through the traversal."""
+    h = lowbias32(jnp.asarray(key).astype(_U32) ^ _U32(0x2C1B3C6D))
+    for c in (*o, *d):   # (bits have no derivative: the ray's gradient is stopped here)
+        bits = jax.lax.bitcast_convert_type(
+            jax.lax.stop_gradient(jnp.asarray(c, jnp.float32)), _U32)
+        h = lowbias32(h ^ bits)
+    return (h >> 8).astype(jnp.float32) * jnp.float32(1.0 / 16777216.0)

@@ -631,13 +631,21 @@ class MergeGrid(NamedTuple):
     where: Array          # [M, 4] float32: position, row
 
 
-def merge_grid(y_all: LightVertices, radius, table_size: int, n_light: int) -> MergeGrid:
+def merge_grid(y_all: LightVertices, radius, table_size: int, n_light: int,
+               scene: Scene | None = None) -> MergeGrid:
     # most slots are empty (absorbed, Dirac, ended by roulette): sort only the stored ones
     cells = hash_grid.index_cells(y_all.p, y_all.stored, radius, table_size,
                                   capacity=2 * n_light)
     o = cells.order
     row = (o // n_light).astype(jnp.float32)
-    cols = [*y_all.p, *y_all.n, *y_all.wo, *y_all.beta, *y_all.mis]
+    beta = y_all.beta
+    if scene is not None and scene.materials.has_masks:
+        # a masked surface stops a fraction opacity of the light arriving there: a merge
+        # (a density estimate of that arriving light) divides the vertex's throughput by it,
+        # as the photon maps do (connections need no factor: they start at the vertex)
+        a = geometry.opacity(scene, y_all.material, lambda: y_all.uv)
+        beta = beta * (1.0 / jnp.where(a > 0, a, 1.0))
+    cols = [*y_all.p, *y_all.n, *y_all.wo, *beta, *y_all.mis]
     rows = jnp.stack([c[o] for c in cols] + [row], -1)
     return MergeGrid(cells, rows, rows[:, jnp.array([0, 1, 2, 15])])
 
@@ -828,7 +836,7 @@ def _light_stage(scene: Scene, cfg: VCMConfig, seed, iteration, radius, table_si
     f = mis_factors(radius, n_light, cfg)
     y, t1 = light_pass(scene, cfg, seed, iteration, f, jnp.arange(n_light, dtype=jnp.int32))
     y_all = _flatten_light(y)
-    grid = merge_grid(y_all, radius, table_size, n_light) if cfg.merges else None
+    grid = merge_grid(y_all, radius, table_size, n_light, scene) if cfg.merges else None
     img = jnp.zeros((n_light, 3), jnp.float32)
     if t1 is not None:
         pix, wtd, _ = t1
@@ -1045,7 +1053,8 @@ def iteration_image(scene: Scene, cfg: VCMConfig, seed, iteration, radius, filte
     f = mis_factors(radius, P, cfg)
     y, t1 = light_pass(scene, cfg, seed, iteration, f, jnp.arange(P, dtype=jnp.int32))
     y_all = _flatten_light(y)
-    cells = (merge_grid(y_all, jax.lax.stop_gradient(radius), ts, P) if cfg.merges else None)
+    cells = (merge_grid(y_all, jax.lax.stop_gradient(radius), ts, P, scene)
+             if cfg.merges else None)
     img = jnp.zeros((P, 3), jnp.float32)
     if t1 is not None:
         img = _splat(img, t1[0], t1[1])

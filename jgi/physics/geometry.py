@@ -20,9 +20,10 @@ from jax import Array
 
 from .. import _xla
 from .._xla import materialize
-from ..core import bvh
+from ..core import bvh, rng
 from ..core.vec import EDGE_ON_COS, V3, cross, dot, normalize, where
 from ..scene.tables import Boxes, Cylinders, Disks, Quads, Rects, Scene, Spheres, Triangles
+from . import textures
 
 INF = jnp.float32(jnp.inf)
 T_MIN = 1e-6          # reject hits this close to the origin (origins are also offset, see spawn)
@@ -46,16 +47,22 @@ class Hit(NamedTuple):
 
 # --- single-primitive tests (scalar primitive, vector of rays) ---------------------------------
 
-def sphere_t(center: V3, radius, o: V3, d: V3) -> Array:
-    """Nearest t > T_MIN; discriminant in the form r^2 - |oc - (oc.d) d|^2 (pbrt-v4) so that it
-    stays accurate for small, distant spheres."""
+def sphere_roots(center: V3, radius, o: V3, d: V3) -> tuple[Array, Array, Array]:
+    """(hit, t0, t1): whether the line meets the sphere and its two crossings t0 <= t1, for a
+    unit d; discriminant in the form r^2 - |oc - (oc.d) d|^2 (pbrt-v4) so that it stays
+    accurate for small, distant spheres."""
     oc = o - center
     b = dot(oc, d)
     closest = oc - d * b
     disc = radius * radius - dot(closest, closest)
     hit = disc >= 0
     s = _xla.sqrt(jnp.where(hit, disc, 0.0))
-    t0, t1 = -b - s, -b + s
+    return hit, -b - s, -b + s
+
+
+def sphere_t(center: V3, radius, o: V3, d: V3) -> Array:
+    """Nearest t > T_MIN (:func:`sphere_roots`)."""
+    hit, t0, t1 = sphere_roots(center, radius, o, d)
     t = jnp.where(t0 > T_MIN, t0, t1)
     return jnp.where(hit & (t > T_MIN), t, INF)
 
@@ -251,6 +258,97 @@ def quad_duals(q: Quads) -> tuple[V3, V3]:
     return cross(q.edge_v, n) * inv, cross(n, q.edge_u) * inv
 
 
+# --- opacity masks --------------------------------------------------------------------------
+#
+# A masked surface (Mitsuba's ``mask``, pbrt-v4's shape ``alpha``) stops a ray with probability
+# opacity and lets it through unchanged otherwise. The test sits inside the traversal (every
+# scan below and the BVH's leaf test), so a closest hit is the nearest surface that stops the
+# ray and an occlusion test is blocked only by stopping surfaces: every estimator, shadow ray,
+# connection and photon sees the same stochastic pass-through with no code of its own.
+#
+# The random number is a pure hash of the ray (origin, direction) and the primitive
+# (rng.ray_uniform, as pbrt-v4's HashFloat(ray.o, ray.d)): the rays are themselves random, so
+# for each ray and primitive it is a uniform independent of everything the estimator decides,
+# and each crossing counts with probability opacity: the estimators stay unbiased in
+# expectation. Two crossings of one sphere hash differently (``crossing``). Visibility is then
+# not exactly symmetric (the ray x -> y and the ray y -> x hash differently), which the MIS
+# weights do not mind: no pdf depends on visibility. The hash has no derivative: gradients
+# with respect to opacity are not available.
+
+_MASK_KEY = {SPHERE: 0 << 28, QUAD: 1 << 28, TRIANGLE: 2 << 28, RECT: 3 << 28}
+
+
+def opacity(scene: Scene, material, uv_of) -> Array:
+    """The opacity of ``material`` rows at a hit; ``uv_of()`` gives the hit's surface
+    coordinates, evaluated only when some opacity is a texture (its luminance, as Mitsuba's
+    eval_1)."""
+    mats = scene.materials
+    a = mats.opacity[material]
+    if mats.opacity_texture is not None:
+        a = textures.textured_scalar(mats.textures, mats.opacity_texture[material], uv_of(), a)
+    return a
+
+
+def hit_opacity(scene: Scene, hit: Hit) -> Array:
+    """The opacity at a hit that stopped a ray (1 in a scene without masks). A hit stops only a
+    fraction ``opacity`` of the rays that reach the surface: a density estimate of the flux
+    arriving there divides what is stored there by it (photon maps)."""
+    if not scene.materials.has_masks:
+        return jnp.ones_like(hit.t)
+    a = opacity(scene, hit.material, lambda: hit.uv)
+    return jnp.where(hit.valid & (a > 0), a, 1.0)
+
+
+def mask_stops(scene: Scene, o: V3, d: V3, kind: int, i, material, uv_of,
+               crossing: int = 0) -> Array:
+    """Whether the crossing of primitive ``i`` of table ``kind`` by the ray (o, d) stops it:
+    hash(o, d, primitive) < opacity (so opacity 1 always, 0 never)."""
+    key = jnp.asarray(i).astype(jnp.uint32) + jnp.uint32(_MASK_KEY[kind] | (crossing << 27))
+    return rng.ray_uniform(o, d, key) < opacity(scene, material, uv_of)
+
+
+def _masked(scene: Scene, t: Array, o: V3, d: V3, kind: int, i, material, uv_of) -> Array:
+    """t where the crossing stops the ray, inf where it passes (t itself without masks)."""
+    if not scene.materials.has_masks:
+        return t
+    return jnp.where(mask_stops(scene, o, d, kind, i, material, uv_of), t, INF)
+
+
+def _sphere_t_masked(scene: Scene, sp: Spheres, i, o: V3, d: V3, hash_d: V3) -> Array:
+    """:func:`sphere_t` with the mask tested at both crossings (the far one counts where the
+    near one lets the ray through); ``hash_d`` is the direction the mask hashes (the caller's,
+    before normalisation)."""
+    center = _take(sp.center, i)
+    if not scene.materials.has_masks:
+        return sphere_t(center, sp.radius[i], o, d)
+    hit, t0, t1 = sphere_roots(center, sp.radius[i], o, d)
+    t = INF
+    for crossing, tc in ((1, t1), (0, t0)):   # the near crossing last: it wins where it stops
+        def uv_of(tc=tc):
+            return sphere_uv(normalize(o + d * tc - center))
+        stops = mask_stops(scene, o, hash_d, SPHERE, i, sp.material[i], uv_of, crossing)
+        t = jnp.where(hit & (tc > T_MIN) & stops, tc, t)
+    return t
+
+
+def _bvh_mask(scene: Scene):
+    """The BVH's leaf-test callback ``(triangle, b1, b2, o, d) -> stops`` (None without
+    masks)."""
+    if not scene.materials.has_masks:
+        return None
+    tr = scene.triangles
+
+    def stops(tri, b1, b2, o, d):
+        i = jnp.maximum(tri, 0)
+        return mask_stops(scene, o, d, TRIANGLE, i, tr.material[i],
+                          lambda: triangle_uv(tr.uv, i, b1, b2))
+    return stops
+
+
+def _rect_uv(r: Rects, i, p: V3):
+    return parallelogram_uv(_take(r.origin, i), _take(r.dual_u, i), _take(r.dual_v, i), p)
+
+
 # --- closest hit over the scene --------------------------------------------------------------
 
 def _take(v: V3, i) -> V3:
@@ -329,13 +427,15 @@ def closest_hit(scene: Scene, o: V3, d: V3, t_max: Array | None = None):
     sp: Spheres = scene.spheres
     if sp.count:
         def body(i, c):
-            return update(c, sphere_t(_take(sp.center, i), sp.radius[i], o, d), SPHERE, i)
+            return update(c, _sphere_t_masked(scene, sp, i, o, d, d), SPHERE, i)
         carry = _scan(sp.count, body, carry)
     r: Rects = scene.rects
     if r.count:
-        carry = _scan_rects(r, o, d, safe_reciprocal(d),
-                            lambda i, c, t, hit, _: update(c, jnp.where(hit, t, INF), RECT, i),
-                            carry)
+        def rect_body(i, c, t, hit, _):
+            t = _masked(scene, jnp.where(hit, t, INF), o, d, RECT, i, r.material[i],
+                        lambda: _rect_uv(r, i, o + d * t))
+            return update(c, t, RECT, i)
+        carry = _scan_rects(r, o, d, safe_reciprocal(d), rect_body, carry)
     bx: Boxes = scene.boxes
     if bx.count:
         def body(i, c):
@@ -346,7 +446,10 @@ def closest_hit(scene: Scene, o: V3, d: V3, t_max: Array | None = None):
         du, dv = quad_duals(q)
 
         def body(i, c):
-            t = quad_t(_take(q.origin, i), _take(q.normal, i), _take(du, i), _take(dv, i), o, d)
+            origin = _take(q.origin, i)
+            t = quad_t(origin, _take(q.normal, i), _take(du, i), _take(dv, i), o, d)
+            t = _masked(scene, t, o, d, QUAD, i, q.material[i],
+                        lambda: parallelogram_uv(origin, _take(du, i), _take(dv, i), o + d * t))
             return update(c, t, QUAD, i)
         carry = _scan(q.count, body, carry)
     dk: Disks | None = scene.disks
@@ -360,12 +463,14 @@ def closest_hit(scene: Scene, o: V3, d: V3, t_max: Array | None = None):
                                                                      d)[0], CYLINDER, i), carry)
     tr: Triangles = scene.triangles
     if tr.count and tr.bvh is not None:
-        t, prim = _bvh_closest(tr, o, d, carry[0])
+        t, prim = _bvh_closest(tr, o, d, carry[0], _bvh_mask(scene))
         carry = update(carry, jnp.where(prim >= 0, t, INF), TRIANGLE, prim)
     elif tr.count:
         def body(i, c):
-            t, _, _ = triangle_t(_take(tr.v0, i), _take(tr.edge1, i), _take(tr.edge2, i),
-                                 _take(tr.normal, i), o, d)
+            t, b1, b2 = triangle_t(_take(tr.v0, i), _take(tr.edge1, i), _take(tr.edge2, i),
+                                   _take(tr.normal, i), o, d)
+            t = _masked(scene, t, o, d, TRIANGLE, i, tr.material[i],
+                        lambda: triangle_uv(tr.uv, i, b1, b2))
             return update(c, t, TRIANGLE, i)
         carry = _scan(tr.count, body, carry)
     return materialize(carry)
@@ -375,17 +480,18 @@ def _flat(a: Array) -> Array:
     return jnp.reshape(a, (-1,))
 
 
-def _bvh_closest(tr: Triangles, o: V3, d: V3, t_max: Array) -> tuple[Array, Array]:
+def _bvh_closest(tr: Triangles, o: V3, d: V3, t_max: Array, mask=None
+                 ) -> tuple[Array, Array]:
     """(t, triangle) of the nearest BVH triangle with T_MIN < t < t_max (t_max, -1 on a miss).
 
     The traversal is a while loop, which reverse-mode differentiation cannot enter, so it runs
     on stopped gradients; t's gradient is that of the hit triangle's own Moller-Trumbore
-    solution (its value is the traversal's, exactly)."""
+    solution (its value is the traversal's, exactly). ``mask``: :func:`_bvh_mask`'s callback."""
     shape = o.x.shape
     sg = jax.lax.stop_gradient
     of, df = V3(*(_flat(sg(a)) for a in o)), V3(*(_flat(sg(a)) for a in d))
     tm = _flat(jnp.broadcast_to(sg(t_max), shape))
-    h = bvh.intersect_closest(tr.bvh, of, df, T_MIN, tm)
+    h = bvh.intersect_closest(tr.bvh, of, df, T_MIN, tm, mask=mask)
     prim = jnp.reshape(h.prim, shape)
     t = jnp.reshape(h.t, shape)
     # t = e2 . ((o - v0) x e1) / (e1 . (d x e2)) of the hit triangle, for its gradient only
@@ -494,7 +600,7 @@ def intersect(scene: Scene, o: V3, d: V3, stored: bool = True) -> Hit:
     if sp.count:
         def body(i, c):
             center = _take(sp.center, i)
-            t = sphere_t(center, sp.radius[i], o, d)
+            t = _sphere_t_masked(scene, sp, i, o, d, d)
             return update(c, t < c.t, t, center, sp.material[i], sp.emitter[i], True)
         carry = _scan(sp.count, body, carry)
     r: Rects = scene.rects
@@ -506,8 +612,10 @@ def intersect(scene: Scene, o: V3, d: V3, stored: bool = True) -> Hit:
             # values are kept in registers or reloaded in the kernel's loop, and there are many)
             n = [jnp.float32(0.0)] * 3
             n[axis] = r.normal[axis][i]
-            uv = (parallelogram_uv(_take(r.origin, i), _take(r.dual_u, i), _take(r.dual_v, i),
-                                   o + d * t) if with_uv else None)
+            uv = _rect_uv(r, i, o + d * t) if with_uv else None
+            if scene.materials.has_masks:
+                hit = hit & mask_stops(scene, o, d, RECT, i, r.material[i],
+                                       lambda: _rect_uv(r, i, o + d * t))
             return update(c, hit & (t < c.t), t, V3(*n), r.material[i], r.emitter[i], uv=uv)
         carry = _scan_rects(r, o, d, inv_d, rect_body, carry)
     bx: Boxes = scene.boxes
@@ -525,6 +633,8 @@ def intersect(scene: Scene, o: V3, d: V3, stored: bool = True) -> Hit:
             t = quad_t(origin, _take(q.normal, i), _take(du, i), _take(dv, i), o, d)
             uv = (parallelogram_uv(origin, _take(du, i), _take(dv, i), o + d * t)
                   if with_uv else None)
+            t = _masked(scene, t, o, d, QUAD, i, q.material[i],
+                        lambda: parallelogram_uv(origin, _take(du, i), _take(dv, i), o + d * t))
             return update(c, t < c.t, t, _take(q.normal, i), q.material[i], q.emitter[i], uv=uv)
         carry = _scan(q.count, body, carry)
     dk: Disks | None = scene.disks
@@ -549,7 +659,7 @@ def intersect(scene: Scene, o: V3, d: V3, stored: bool = True) -> Hit:
         carry = _scan(cy.count, body, carry)
     tr: Triangles = scene.triangles
     if tr.count and tr.bvh is not None:
-        t, prim = _bvh_closest(tr, o, d, carry.t)
+        t, prim = _bvh_closest(tr, o, d, carry.t, _bvh_mask(scene))
         i = jnp.maximum(prim, 0)
         uv = ns = None
         if with_uv or with_ns:   # the hit triangle's barycentrics, from its own test
@@ -565,6 +675,8 @@ def intersect(scene: Scene, o: V3, d: V3, stored: bool = True) -> Hit:
                                    _take(tr.normal, i), o, d)
             uv = triangle_uv(tr.uv, i, b1, b2) if with_uv else None
             ns = triangle_normal(tr.normals, i, b1, b2) if with_ns else None
+            t = _masked(scene, t, o, d, TRIANGLE, i, tr.material[i],
+                        lambda: triangle_uv(tr.uv, i, b1, b2))
             return update(c, t < c.t, t, _take(tr.normal, i), tr.material[i], tr.emitter[i],
                           uv=uv, ns=ns)
         carry = _scan(tr.count, body, carry)
@@ -605,21 +717,29 @@ def occluded(scene: Scene, o: V3, d: V3, t_max: Array) -> Array:
         n2 = dot(d, d)
         inv_length = _xla.rsqrt(jnp.where(n2 > 0, n2, 1.0))
         du, t_max_u = d * inv_length, _xla.div(t_max, inv_length)
-        occ = _scan(sp.count, lambda i, a: a | (sphere_t(_take(sp.center, i), sp.radius[i], o,
-                                                         du) < t_max_u), occ)
+        occ = _scan(sp.count, lambda i, a: a | (_sphere_t_masked(scene, sp, i, o, du, d)
+                                                < t_max_u), occ)
     r: Rects = scene.rects
     if r.count:
-        occ = _scan_rects(r, o, d, safe_reciprocal(d),
-                          lambda i, a, t, hit, _: a | (hit & (t < t_max)), occ)
+        def rect_body(i, a, t, hit, _):
+            if scene.materials.has_masks:
+                hit = hit & mask_stops(scene, o, d, RECT, i, r.material[i],
+                                       lambda: _rect_uv(r, i, o + d * t))
+            return a | (hit & (t < t_max))
+        occ = _scan_rects(r, o, d, safe_reciprocal(d), rect_body, occ)
     bx: Boxes = scene.boxes
     if bx.count:
         occ = _scan(bx.count, lambda i, a: a | (box_t(*_box_row(bx, i), o, d)[0] < t_max), occ)
     q: Quads = scene.quads
     if q.count:
         du, dv = quad_duals(q)
-        occ = _scan(q.count, lambda i, a: a | (quad_t(_take(q.origin, i), _take(q.normal, i),
-                                                      _take(du, i), _take(dv, i), o, d) < t_max),
-                    occ)
+        def quad_body(i, a):
+            origin = _take(q.origin, i)
+            t = quad_t(origin, _take(q.normal, i), _take(du, i), _take(dv, i), o, d)
+            t = _masked(scene, t, o, d, QUAD, i, q.material[i],
+                        lambda: parallelogram_uv(origin, _take(du, i), _take(dv, i), o + d * t))
+            return a | (t < t_max)
+        occ = _scan(q.count, quad_body, occ)
     dk: Disks | None = scene.disks
     if dk is not None:
         ddu, ddv = disk_duals(dk)
@@ -635,13 +755,17 @@ def occluded(scene: Scene, o: V3, d: V3, t_max: Array) -> Array:
         sg = jax.lax.stop_gradient
         tm = _flat(jnp.where(occ, 0.0, sg(t_max)))
         hit = bvh.intersect_any(tr.bvh, V3(*(_flat(sg(a)) for a in o)),
-                              V3(*(_flat(sg(a)) for a in d)), T_MIN, tm)
+                                V3(*(_flat(sg(a)) for a in d)), T_MIN, tm,
+                                mask=_bvh_mask(scene))
         occ = occ | jnp.reshape(hit, shape)
     elif tr.count:
-        occ = _scan(tr.count, lambda i, a: a | (triangle_t(_take(tr.v0, i), _take(tr.edge1, i),
-                                                           _take(tr.edge2, i), _take(tr.normal, i),
-                                                           o, d)[0] < t_max),
-                    occ)
+        def triangle_body(i, a):
+            t, b1, b2 = triangle_t(_take(tr.v0, i), _take(tr.edge1, i), _take(tr.edge2, i),
+                                   _take(tr.normal, i), o, d)
+            t = _masked(scene, t, o, d, TRIANGLE, i, tr.material[i],
+                        lambda: triangle_uv(tr.uv, i, b1, b2))
+            return a | (t < t_max)
+        occ = _scan(tr.count, triangle_body, occ)
     return occ
 
 

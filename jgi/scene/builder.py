@@ -244,6 +244,8 @@ class _Material:
     nonlinear: bool = False
     transmission: tuple | None = None   # dielectrics' k_t (None: specular)
     one_sided: bool = False             # reflects on the normal's side only (Mitsuba's)
+    opacity: float = 1.0                # probability that a ray stops at the surface
+    opacity_texture: int = -1           # texture row of a textured opacity, -1: constant
     textures: dict = dc_field(default_factory=dict)  # TEX_* column -> texture row
 
 
@@ -354,7 +356,7 @@ class SceneBuilder:
                  alpha_v: float | None = None, distribution: str = "ggx", eta=None, k=None,
                  metal: str | None = None, int_ior: float | None = None,
                  ext_ior: float | None = None, nonlinear: bool = False,
-                 transmittance=None, one_sided: bool = False) -> int:
+                 transmittance=None, one_sided: bool = False, opacity=1.0) -> int:
         """Define material ``name``; returns its row. Parameters by ``kind``:
 
         * ``"diffuse"``: ``diffuse`` (k_d).
@@ -392,6 +394,14 @@ class SceneBuilder:
         Mitsuba 3's reflective BSDFs without ``twosided``: seen or lit from the back it is
         black (f = 0, no sample). Not for the dielectrics (two-sided by nature). Default
         False: two-sided, as pbrt's materials.
+
+        ``opacity`` (any type): an opacity mask (Mitsuba 3's ``mask`` BSDF around this one,
+        pbrt-v4's shape ``alpha``): the probability in [0, 1] that a ray meeting the surface
+        stops there and scatters; otherwise it passes straight through. A number, or a
+        texture's name (its luminance at the hit). Default 1: opaque, no mask. Tested inside
+        ray traversal (:mod:`jgi.physics.geometry`), so every estimator and shadow ray sees
+        it. Emitting shapes must be opaque (their light sampling takes the whole surface to
+        emit): a masked material on one is refused.
 
         Raises :class:`SceneError` naming the material and what is allowed; the rules per
         type are :data:`MATERIAL_RULES`."""
@@ -442,6 +452,17 @@ class SceneBuilder:
             fail("cannot be one-sided (a dielectric is two-sided by nature); one-sided types: "
                  + ", ".join(k for k, r in MATERIAL_RULES.items() if r.one_sided))
         m.one_sided = bool(one_sided)
+        if isinstance(opacity, str):
+            if opacity not in self.texture_names:
+                fail(f"'opacity' names texture '{opacity}', which is not defined; defined: "
+                     f"{', '.join(self.texture_names) or '(none)'}")
+            m.opacity_texture = self.texture_names[opacity]
+        elif (isinstance(opacity, (bool, np.bool_))
+              or not isinstance(opacity, (int, float, np.integer, np.floating))
+              or not 0.0 <= float(opacity) <= 1.0):
+            fail(f"'opacity' must be a number in [0, 1] or a texture name, got {opacity!r}")
+        else:
+            m.opacity = float(opacity)
         if "diffuse" not in rule.colours:
             m.diffuse = (0.0, 0.0, 0.0)
         if "specular" not in rule.colours:
@@ -475,14 +496,34 @@ class SceneBuilder:
                              f"{', '.join(self.material_names) or '(none)'}")
         return self.material_names[material]
 
+    def _unmasked_mat(self, material, shape: str) -> int:
+        """The material row of a shape whose ray tests take no opacity mask (yet)."""
+        m = self._mat(material)
+        if _masked(self.materials[m]):
+            raise SceneError(f"material '{self._material_name(m)}' has an opacity mask; jgi's "
+                             f"{shape} shapes take none (masks work on spheres, rectangles, "
+                             "cubes and meshes)")
+        return m
+
+    def _shape_mat(self, material, emission) -> int:
+        """The material row of a shape; an emitting shape's must be opaque: light sampling
+        takes the whole surface to emit, so a mask that lets rays through an emitter would
+        make the strategies disagree."""
+        m = self._mat(material)
+        if emission is not None and _masked(self.materials[m]):
+            raise SceneError(f"material '{self._material_name(m)}' has an opacity mask and is "
+                             "used by an emitting shape; emitters must be opaque (opacity 1)")
+        return m
+
     # --- shapes -----------------------------------------------------------------------------
     def sphere(self, center, radius: float, material, emission=None):
-        self.spheres.append((np.asarray(center, float), float(radius), self._mat(material),
+        self.spheres.append((np.asarray(center, float), float(radius),
+                             self._shape_mat(material, emission),
                              None if emission is None else _rgb(emission)))
 
     def quad(self, origin, edge_u, edge_v, material, emission=None):
         self.quads.append((np.asarray(origin, float), np.asarray(edge_u, float),
-                           np.asarray(edge_v, float), self._mat(material),
+                           np.asarray(edge_v, float), self._shape_mat(material, emission),
                            None if emission is None else _rgb(emission)))
 
     def disk(self, center, axis_u, axis_v, material, emission=None, normal=None,
@@ -501,7 +542,8 @@ class SceneBuilder:
             raise SceneError(f"disk: normal {list(n)} is zero")
         if uv not in ("mitsuba", "pbrt"):
             raise SceneError(f"disk: uv must be 'mitsuba' or 'pbrt', got {uv!r}")
-        self.disks.append((c, au, av, n / np.linalg.norm(n), uv == "pbrt", self._mat(material),
+        self.disks.append((c, au, av, n / np.linalg.norm(n), uv == "pbrt",
+                           self._unmasked_mat(material, "disk"),
                            None if emission is None else _rgb(emission)))
 
     def cylinder(self, base, axis_u, axis_w, radius: float, height: float, material,
@@ -526,7 +568,7 @@ class SceneBuilder:
             sign = np.sign(np.dot(np.asarray(axis_v, float).reshape(3), av))
             av = av * (sign if sign != 0 else 1.0)
         self.cylinders.append((b, au, av, aw, radius, height,
-                               1.0 if outward else -1.0, self._mat(material),
+                               1.0 if outward else -1.0, self._unmasked_mat(material, "cylinder"),
                                None if emission is None else _rgb(emission)))
 
     def rectangle(self, to_world: np.ndarray, material, emission=None):
@@ -541,8 +583,10 @@ class SceneBuilder:
         stored as one oriented box; otherwise as six outward-facing quads. A cube whose
         material is textured is Mitsuba's cube mesh itself (:data:`CUBE_VERTICES`: twelve
         triangles, each face's uv spanning [0, 1]^2 as in Mitsuba's), so that its surface
-        coordinates are Mitsuba's."""
-        if self.materials[self._mat(material)].textures:
+        coordinates are Mitsuba's. So is a cube with an opacity mask (a box is one crossing
+        per ray, where a mask needs the entry and the exit face)."""
+        row = self.materials[self._mat(material)]
+        if row.textures or _masked(row):
             self.mesh(CUBE_VERTICES, CUBE_FACES, material, emission, to_world=to_world,
                       uv=CUBE_UV)
             return
@@ -601,7 +645,7 @@ class SceneBuilder:
             length = np.linalg.norm(normals, axis=1, keepdims=True)
             # a zero normal stays zero: hits there fall back to the geometric normal
             normals = np.where(length > 0, normals / np.where(length > 0, length, 1.0), 0.0)
-        m = self._mat(material)
+        m = self._shape_mat(material, emission)
         e = None if emission is None else _rgb(emission)
         for i, (a, b, c) in enumerate(v[f]):
             self.triangles.append((a, b, c, m, e))
@@ -727,7 +771,9 @@ class SceneBuilder:
         return next((k for k, v in self.material_names.items() if v == m), str(m))
 
     def _textured(self) -> bool:
-        return any(m.textures for m in self.materials)
+        """Whether hits need surface coordinates: a texture in some material's BSDF or
+        opacity."""
+        return any(m.textures or m.opacity_texture >= 0 for m in self.materials)
 
     def _bounds(self):
         pts = []
@@ -925,7 +971,7 @@ class SceneBuilder:
                 table[i], internal[i] = cache[key]
         f32 = lambda x: jnp.asarray(np.asarray(x, np.float32))  # noqa: E731
         tex = {}
-        if any(m.textures for m in ms):
+        if any(m.textures or m.opacity_texture >= 0 for m in ms):
             index = np.full((len(ms), len(TEXTURED_PARAMS)), -1, np.int32)
             for i, m in enumerate(ms):
                 for col, t in m.textures.items():
@@ -957,6 +1003,10 @@ class SceneBuilder:
             distributions=tuple(sorted({m.distribution for m in ms if m.kind in ROUGH_KINDS})),
             one_sided=(jnp.asarray([m.one_sided for m in ms], bool)
                        if any(m.one_sided for m in ms) else None),
+            # None without masks: such scenes compile to the programs from before masks
+            opacity=f32([m.opacity for m in ms]) if any(map(_masked, ms)) else None,
+            opacity_texture=(jnp.asarray([m.opacity_texture for m in ms], jnp.int32)
+                             if any(m.opacity_texture >= 0 for m in ms) else None),
             **tex,
         )
 
@@ -979,6 +1029,11 @@ class SceneBuilder:
             height=jnp.asarray([size(t, 0) for t in ts], jnp.int32),
             atlas=jnp.asarray(atlas, jnp.float32),
             kinds=tuple(sorted({t.kind for t in ts})))
+
+
+def _masked(m: _Material) -> bool:
+    """Whether a material row has an opacity mask (a constant below 1, or a texture)."""
+    return m.opacity < 1.0 or m.opacity_texture >= 0
 
 
 def smooth_vertex_normals(vertices, faces) -> np.ndarray:

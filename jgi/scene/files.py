@@ -78,6 +78,8 @@ MATERIAL_KEYS = {
 for _kind, _keys in MATERIAL_KEYS.items():
     if _kind not in ("dielectric", "roughdielectric"):
         _keys["one_sided"] = "bool"
+    # an opacity mask (Mitsuba's mask, pbrt-v4's alpha): a probability, or a texture
+    _keys["opacity"] = "number|texture"
 del _kind, _keys
 # [[texture]] tables: Mitsuba's checkerboard and bitmap (SceneBuilder.texture).
 TEXTURE_KEYS = {
@@ -491,6 +493,9 @@ class _TomlLoader:
                                                        + mm["specular"] > 1):
             self.fail(f"{key}.specular", "diffuse + specular must be <= 1 in every channel "
                                          "(energy conservation of the modified Phong BSDF)")
+        if "opacity" in mm and not 0 <= mm["opacity"] <= 1:
+            self.fail(f"{key}.opacity", f"must be in [0, 1] (the probability that a ray stops "
+                                        f"at the surface), got {mm['opacity']}")
         if "exponent" in mm and mm["exponent"] < 0:
             self.fail(f"{key}.exponent", f"must be >= 0, got {mm['exponent']}")
         for k in ("ior", "int_ior", "ext_ior"):

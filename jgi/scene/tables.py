@@ -284,6 +284,13 @@ class Materials(eqx.Module):
     # bool [M]: reflects on its normal's side only (Mitsuba's BSDFs without ``twosided``);
     # None in a scene without one-sided materials (its kernels are those before the flag)
     one_sided: Array | None = None
+    # Opacity masks (Mitsuba's ``mask``, pbrt-v4's shape ``alpha``): float32 [M], the
+    # probability that a ray meeting the surface stops there (1: opaque); tested inside ray
+    # traversal (jgi.physics.geometry). None in a scene without masks (its kernels are those
+    # before masks); ``opacity_texture``: int32 [M] texture row of a textured opacity, -1 =
+    # constant, None where no opacity is textured.
+    opacity: Array | None = None
+    opacity_texture: Array | None = None
 
     @property
     def has_textures(self) -> bool:
@@ -294,6 +301,11 @@ class Materials(eqx.Module):
     def has_one_sided(self) -> bool:
         """Static: some material is one-sided (the BSDFs then test the side of the normal)."""
         return self.one_sided is not None
+
+    @property
+    def has_masks(self) -> bool:
+        """Static: some material has an opacity mask (traversal then tests it per hit)."""
+        return self.opacity is not None
 
 
 class EnvironmentMap(eqx.Module):

@@ -92,7 +92,12 @@ def trace_photon_paths(scene: Scene, seed, photon_index: Array, n_emitted, max_d
         # the normal of the side the photon arrived on: a query (whose normal faces its viewer)
         # then takes no photon that reached the other side of a thin surface
         n_arrival = where(dot(hit.n, d) > 0, -hit.n, hit.n)
-        record = (hit.p, pw, -d, n_arrival, store & ~through & spec_seen & only_spec, store)
+        # on a masked surface only a fraction opacity of the arriving photons stop: their
+        # stored power is divided by it, so the map estimates the flux arriving there (the
+        # flux the surface scatters where it stops a ray), unbiased in expectation
+        stored_pw = pw if not mats.has_masks else pw * (1.0 / geometry.hit_opacity(scene, hit))
+        record = (hit.p, stored_pw, -d, n_arrival, store & ~through & spec_seen & only_spec,
+                  store)
         base = 5 + depth * DIMS_PER_BOUNCE
         ns = hit.n if hit.ns is None else hit.ns
         bs = bsdf.sample(mats.kinds, mp, ns, -d, u(base), u(base + 1), u(base + 2),

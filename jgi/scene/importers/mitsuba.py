@@ -22,7 +22,10 @@ supported):
              of the surface (jgi's ``one_sided`` material flag); twosided around any of them
              (nested or a <ref>; one BSDF, or the same one twice, for front and back;
              Mitsuba refuses transmissive ones, and jgi two different ones) is that BSDF on
-             both sides.
+             both sides. mask (opacity: float, rgb, spectrum or texture, default 0.5) around
+             any of them, twosided included: jgi's ``opacity`` on a copy of the nested row,
+             tested in ray traversal (a mask in a mask multiplies constant opacities; a mask
+             in twosided is refused, as by Mitsuba; so is a mask on an area emitter's shape).
              rough plugins: distribution beckmann | ggx, alpha or alpha_u / alpha_v (not for
              roughplastic; anisotropic only where Mitsuba's shading frame is jgi's, see
              check_anisotropy_frame: rectangles whose to_world x axis, and meshes whose
@@ -95,7 +98,7 @@ import numpy as np
 
 from ...core import transform as xf
 from .. import spectra
-from ..builder import SceneBuilder, SceneError, smooth_vertex_normals
+from ..builder import SceneBuilder, SceneError, luminance_np, smooth_vertex_normals
 from ..tables import Scene
 from ._common import (
     NAMED_IOR,
@@ -112,7 +115,7 @@ from ._common import (
 SUPPORTED = {
     "sensor": ("perspective",),
     "bsdf": ("diffuse", "conductor", "roughconductor", "dielectric", "roughdielectric",
-             "roughplastic", "plastic", "twosided"),
+             "roughplastic", "plastic", "twosided", "mask"),
     "shape": ("rectangle", "cube", "sphere", "disk", "cylinder", "obj", "ply", "serialized"),
     "emitter": ("area", "point", "spot", "directional", "constant", "envmap"),
 }
@@ -135,6 +138,7 @@ BSDF_PARAMETERS = {
                      "nonlinear") + _ROUGH,   # alpha_u / alpha_v: refused as Mitsuba does
     "plastic": ("diffuse_reflectance", "specular_reflectance", "int_ior", "ext_ior", "nonlinear"),
     "twosided": (),
+    "mask": ("opacity",),
 }
 DISTRIBUTIONS = ("beckmann", "ggx")
 # Texture plugins and their parameters (Mitsuba's names).
@@ -434,7 +438,7 @@ class _Importer:
         kind = self.check_type(el)
         p = self.props(el)
         for c in el:
-            if kind == "twosided" and c.tag == "ref" and not c.get("name"):
+            if kind in ("twosided", "mask") and c.tag == "ref" and not c.get("name"):
                 continue   # a nested BSDF by reference
             if c.tag == "ref" and c.get("name") and c.get("id") not in self.b.texture_names:
                 self.fail(c, f"bsdf '{kind}': parameter '{c.get('name')}' refers to "
@@ -445,6 +449,9 @@ class _Importer:
                               f"{', '.join(BSDF_PARAMETERS[kind]) or '(none)'}")
         name = el.get("id") or f"_bsdf{self.n_anon}"
         self.n_anon += 1
+        if kind == "mask":
+            self.mask(el, name, p)
+            return name
         if kind == "twosided":
             inner_name = self.twosided(el)
             nested = [c for c in el if c.tag == "bsdf"]
@@ -517,6 +524,9 @@ class _Importer:
         if len(names) not in (1, 2):
             self.fail(el, f"twosided needs one or two nested BSDFs (or <ref>s), got {len(names)}")
         for n in names:
+            if self.bsdfs[n][0] == "mask":
+                self.fail(el, "twosided: the nested bsdf is a 'mask', which lets light through "
+                              "(Mitsuba refuses it too); put the twosided inside the mask")
             if self.bsdfs[n][0] in ("dielectric", "roughdielectric"):
                 self.fail(el, f"twosided: the nested bsdf '{self.bsdfs[n][0]}' transmits light; "
                               "Mitsuba nests only materials without transmission")
@@ -525,6 +535,45 @@ class _Importer:
             self.fail(el, "twosided with two different BSDFs (front, back) is not supported: "
                           "a jgi surface has one material on both sides; give one nested bsdf")
         return names[0]
+
+    def mask(self, el, name: str, p: dict):
+        """Mitsuba's ``mask``: its nested BSDF (nested or a <ref>) with an opacity (a <float>,
+        <rgb> or <spectrum>, whose luminance is taken, or a texture, read as Mitsuba's eval_1;
+        default 0.5, clamped to [0, 1] as Mitsuba does): a copy of the nested BSDF's row with
+        jgi's ``opacity``. A mask inside a mask multiplies constant opacities."""
+        names = []
+        for c in el:
+            if c.tag == "bsdf":
+                names.append(self.bsdf(c))
+            elif c.tag == "ref" and not c.get("name"):
+                if c.get("id") not in self.b.material_names:
+                    self.fail(c, f"mask: reference to unknown bsdf '{c.get('id')}'")
+                names.append(c.get("id"))
+        if len(names) != 1:
+            self.fail(el, f"mask needs exactly one nested BSDF (or <ref>), got {len(names)}")
+        inner = names[0]
+        row = self.b.material_names[inner]
+        m = self.b.materials[row]
+        v = p.get("opacity", 0.5)
+        if isinstance(v, TextureRef):
+            if m.opacity < 1.0 or m.opacity_texture >= 0:
+                self.fail(el, "mask: a textured opacity around another mask is not supported "
+                              "(jgi's opacity is one texture or a constant); nest constants only")
+            opacity, texture = 1.0, self.b.texture_names[self.scalar_texture(str(v))]
+        elif isinstance(v, (str, bool)):
+            self.fail(el, "mask: 'opacity' must be a <float>, <rgb>, <spectrum> or <texture>")
+        else:
+            a = float(np.clip(luminance_np(np.broadcast_to(np.asarray(v, float), (3,))), 0, 1))
+            if m.opacity_texture >= 0 and a < 1.0:
+                self.fail(el, "mask: a mask around a mask with a textured opacity is not "
+                              "supported (jgi's opacity is one texture or a constant)")
+            opacity, texture = a * m.opacity, m.opacity_texture
+        self.b.material_names[name] = len(self.b.materials)
+        self.b.materials.append(dataclasses.replace(m, opacity=opacity,
+                                                    opacity_texture=texture))
+        if inner in self.anisotropic:
+            self.anisotropic.add(name)
+        self.bsdfs[name] = ("mask", p)
 
     def two_sided_row(self, inner_name: str) -> int:
         """The material row of ``inner_name`` made two-sided: the row itself if it is (an
@@ -669,6 +718,11 @@ class _Importer:
             material = f"_default{self.n_anon}"
             self.n_anon += 1
             self.b.material(material, "diffuse", diffuse=(0.5, 0.5, 0.5), one_sided=True)
+        row = self.b.materials[self.b.material_names[material]]
+        if emission is not None and (row.opacity < 1.0 or row.opacity_texture >= 0):
+            self.fail(el, f"{kind}: an area emitter on a shape whose bsdf is a 'mask' is not "
+                          "supported (jgi's emitters are opaque: they are sampled over their "
+                          "whole surface); remove the mask or the emitter")
         if p.get("flip_normals", False) and kind in ("cube", "sphere"):
             # the side matters to one-sided BSDFs, area emitters and dielectrics
             self.fail(el, f"{kind}: flip_normals is not supported on a {kind} (it turns "
@@ -686,7 +740,7 @@ class _Importer:
             if not np.allclose(scales, scales[0], rtol=1e-6) or not np.allclose(
                     cols.T @ cols, np.diag(scales**2), atol=1e-9 * scales[0] ** 2 + 1e-12):
                 self.fail(el, "sphere: to_world must be a uniform scale, rotation and translation")
-            if self.b.materials[self.b.material_names[material]].textures and not np.allclose(
+            if (row.textures or row.opacity_texture >= 0) and not np.allclose(
                     cols / scales[0], np.eye(3), atol=1e-9):
                 self.fail(el, "sphere: a textured sphere's to_world must not rotate (jgi's "
                               "sphere uv is in the world frame)")

@@ -47,7 +47,12 @@ supported):
              any, as N), inside AreaLightSource "diffuse" (L, scale, power; one-sided; N only
              where it equals the face normals: jgi's emitters radiate about the geometric
              normal). pbrt-v4 also turns the geometric normal towards N; jgi keeps it as
-             wound (it decides only which side an emitter lights)
+             wound (it decides only which side an emitter lights). "float alpha" or
+             "texture alpha" (a "float" checkerboard or imagemap texture, the image's first
+             channel as pbrt-v4 reads it): jgi's opacity mask, tested in ray traversal with
+             a hash of the ray as pbrt-v4 does; refused inside an AreaLightSource (pbrt-v4
+             masks the light's emission by a hash of the point, which jgi's light sampling
+             does not model)
   lights     LightSource "point" (I, from, scale, power), "spot" (I, from, to, coneangle,
              conedelta, scale, power), "distant" (L, from, to, scale, illuminance),
              "uniform" / "infinite" (L, scale, illuminance; or filename: a square equal-area
@@ -88,6 +93,7 @@ grazing angles.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import re
 from pathlib import Path
@@ -206,6 +212,8 @@ class _Importer:
         # ("checker", rgb0, rgb1, to_uv) or ("image", (path, linear, scale) or array, to_uv)
         self.texture_recipes: dict[str, tuple] = {}
         self.constant_textures: dict[str, np.ndarray] = {}  # scale / mix of constants
+        self.float_textures: dict[str, str] = {}   # pbrt float texture -> builder texture
+        self.alpha_materials: dict[tuple, str] = {}  # (material, alpha) -> masked copy
         self.camera_seen = False
         self.film = (1280, 720)
         self.cam = None
@@ -274,9 +282,13 @@ class _Importer:
         (t = 1 - (vscale v + vdelta)) and its checkerboard has squares of size 1 in (s, t)
         (tex1 where floor(s) + floor(t) is even): both become the affine to_uv of a jgi
         texture."""
+        if typ == "float" and cls in ("checkerboard", "imagemap"):
+            self.float_texture(name, cls, p, where)
+            return
         if typ != "spectrum":
-            self.fail(where, f"Texture \"{name}\": only \"spectrum\" textures are supported "
-                             f"(for diffuse reflectance), got \"{typ}\"")
+            self.fail(where, f"Texture \"{name}\": only \"spectrum\" textures (for diffuse "
+                             "reflectance) and \"float\" checkerboard and imagemap textures "
+                             f"(for a shape's alpha) are supported, got \"{typ}\" \"{cls}\"")
         allowed = TEXTURE_PARAMETERS.get(cls)
         if allowed is None:
             self.fail(where, f"Texture \"{name}\": class \"{cls}\" is not supported; supported: "
@@ -329,6 +341,79 @@ class _Importer:
         except SceneError as e:
             self.fail(where, str(e))
         self.textures[name] = tex
+
+    def float_texture(self, name, cls, p, where):
+        """A "float" checkerboard (float tex1 / tex2) or imagemap, for shapes' "texture alpha":
+        a jgi texture whose three channels hold the float (its luminance is then the float).
+        pbrt-v4's float imagemap reads the image's first channel; so does this."""
+        allowed = TEXTURE_PARAMETERS[cls]
+        for key in p:
+            if key not in allowed:
+                self.fail(where, f"Texture \"{name}\" (\"float\" \"{cls}\"): parameter '{key}' "
+                                 f"is not supported; supported: {', '.join(allowed)}")
+        if self._get(p, "mapping", ["uv"], where)[0] != "uv":
+            self.fail(where, f"Texture \"{name}\": only the \"uv\" mapping is supported")
+        su, sv = (float(self._get(p, k, 1.0, where, 1)) for k in ("uscale", "vscale"))
+        du, dv = (float(self._get(p, k, 0.0, where, 1)) for k in ("udelta", "vdelta"))
+        tex = f"_pbrt_float_texture_{name}"
+        try:
+            if cls == "checkerboard":
+                if int(self._get(p, "dimension", 2, where, 1)) != 2:
+                    self.fail(where, f"Texture \"{name}\": only 2D checkerboards are supported")
+                c0, c1 = (float(self._get(p, k, d, where, 1))
+                          for k, d in (("tex1", 1.0), ("tex2", 0.0)))
+                self.b.texture(tex, "checkerboard", color0=(c0,) * 3, color1=(c1,) * 3,
+                               to_uv=[[su / 2, 0, du / 2], [0, sv / 2, dv / 2], [0, 0, 1]])
+            else:
+                for key, ok in (("filter", "bilinear"), ("wrap", "repeat")):
+                    v = self._get(p, key, [ok], where)[0]
+                    if v != ok:
+                        self.fail(where, f"Texture \"{name}\": {key} \"{v}\" is not supported; "
+                                         f"supported: \"{ok}\"")
+                enc = self._get(p, "encoding", ["sRGB"], where)[0]
+                if enc not in ("sRGB", "linear"):
+                    self.fail(where, f"Texture \"{name}\": encoding \"{enc}\" is not "
+                                     "supported; supported: \"sRGB\", \"linear\"")
+                fname = self._get(p, "filename", None, where)
+                if not fname:
+                    self.fail(where, f"Texture \"{name}\": imagemap needs \"string filename\"")
+                scale = float(self._get(p, "scale", 1.0, where, 1))
+                img = self.image_texels((self.resolve(fname[0]), enc == "linear", scale), name,
+                                        where)
+                self.b.texture(tex, "bitmap", data=np.repeat(img[:, :, :1], 3, axis=2),
+                               to_uv=[[su, 0, du], [0, -sv, 1 - dv], [0, 0, 1]])
+        except SceneError as e:
+            self.fail(where, str(e))
+        self.float_textures[name] = tex
+
+    def alpha_material(self, mat: str, p, where) -> str:
+        """The material of a shape with pbrt-v4's "float alpha" or "texture alpha" (a float
+        texture): a copy of ``mat`` with jgi's opacity (pbrt-v4: alpha 1, the default, is no
+        mask)."""
+        typ, vals = p.pop("alpha")
+        if typ == "float" and len(vals) == 1:
+            if not 0.0 <= vals[0] <= 1.0:   # pbrt-v4 compares a hash in [0, 1) with it
+                vals = [float(np.clip(vals[0], 0.0, 1.0))]
+            if vals[0] == 1.0:
+                return mat
+            key, opacity = (mat, vals[0]), dict(opacity=vals[0])
+        elif typ == "texture" and len(vals) == 1:
+            if vals[0] not in self.float_textures:
+                self.fail(where, f"shape \"alpha\": '{vals[0]}' is not a \"float\" texture "
+                                 f"defined before it; defined: "
+                                 f"{', '.join(self.float_textures) or '(none)'}")
+            key, opacity = (mat, vals[0]), dict(opacity_texture=self.b.texture_names[
+                self.float_textures[vals[0]]])
+        else:
+            self.fail(where, "shape \"alpha\" must be one \"float\" or a \"texture\" name")
+        if key not in self.alpha_materials:
+            name = f"{mat}_alpha{len(self.alpha_materials)}"
+            self.b.material_names[name] = len(self.b.materials)
+            self.b.materials.append(dataclasses.replace(
+                self.b.materials[self.b.material_names[mat]], **opacity))
+            self.material_kind[name] = self.material_kind.get(mat)
+            self.alpha_materials[key] = name
+        return self.alpha_materials[key]
 
     def image_texels(self, source, name, where) -> np.ndarray:
         """An imagemap's linear texels ([H, W, 3]) times its scale, as the builder reads them."""
@@ -770,7 +855,15 @@ class _Importer:
         if self.area is not None:
             L, power, _ = self.area
             emission = L
-        textured = bool(self.b.materials[self.b.material_names[mat]].textures)
+        if "alpha" in p:
+            if emission is not None:
+                # pbrt-v4 masks an area light's emission too, by a hash of the point (not of
+                # the ray): a light jgi could not sample consistently
+                self.fail(where, f"shape \"{kind}\" with \"alpha\" inside an AreaLightSource is "
+                                 "not supported: jgi's emitters are opaque; remove the alpha")
+            mat = self.alpha_material(mat, p, where)
+        row = self.b.materials[self.b.material_names[mat]]
+        textured = bool(row.textures) or row.opacity_texture >= 0
         if textured and kind not in ("trianglemesh", "plymesh", "disk", "cylinder"):
             self.fail(where, f"shape \"{kind}\" with a textured material: jgi imports textures "
                              "of pbrt scenes on disks, cylinders, trianglemesh shapes with "
