@@ -15,34 +15,22 @@ import jgi
 from jgi.analysis.chi2 import SphereDomain, assert_chi2
 from jgi.core.errors import ParameterError
 from jgi.core.imageio import read_hdr, write_exr
-from jgi.core.vec import V3
 from jgi.estimators.path_tracer import PathTracerConfig, trace_pixels
-from jgi.physics import lights as LT
 from jgi.scene import SceneBuilder
 from jgi.scene.builder import SceneError
 from jgi.scene.importers.mitsuba import load_mitsuba_xml
-from tests.support.environment import env_scene, rotation, sky
+from tests.support.environment import (
+    env_scene,
+    radiance_and_pdf,
+    rotation,
+    sky,
+    unit_directions,
+)
 from tests.support.light_samplers import build, pdf_li, sample_emission, sample_li
 from tests.support.mitsuba import load_mitsuba
 from tests.support.stats import assert_agree
 
 X = np.array([0.1, -0.2, 0.3])
-
-
-def unit_directions(n, seed=0):
-    d = np.random.default_rng(seed).normal(size=(n, 3))
-    return d / np.linalg.norm(d, axis=1, keepdims=True)
-
-
-@jax.jit
-def _radiance_and_pdf(lights, d):
-    v = V3(d[:, 0], d[:, 1], d[:, 2])
-    return LT.environment_radiance(lights, v).stack(), LT.environment_pdf(lights, v)
-
-
-def radiance_and_pdf(lights, d):
-    L, p = _radiance_and_pdf(lights, jnp.asarray(d, jnp.float32))
-    return np.asarray(L, np.float64), np.asarray(p, np.float64)
 
 
 def map_lights(img=None, scale=1.5, to_world=None):

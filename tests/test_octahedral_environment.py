@@ -23,9 +23,9 @@ from jgi.core.vec import V3
 from jgi.physics import lights as LT
 from jgi.scene import SceneBuilder, SceneError
 from jgi.scene.importers import load_pbrt
+from tests.support.environment import radiance_and_pdf, rotation, unit_directions
 from tests.support.light_samplers import build, pdf_li, sample_emission, sample_li
 from tests.support.stats import assert_agree
-from tests.test_environment_map import radiance_and_pdf, rotation, unit_directions
 
 X = np.array([0.1, -0.2, 0.3])
 

@@ -1,11 +1,32 @@
-"""The environment-lit scenes that several test modules render: a sky map with a sun-like
-texel, its rotations, and a red ball on a floor under it."""
+"""The environment-lit scenes that several test modules render (a sky map with a sun-like
+texel, its rotations, a red ball on a floor under it) and the look-ups they share."""
 
 from __future__ import annotations
 
+import jax
+import jax.numpy as jnp
 import numpy as np
 
+from jgi.core.vec import V3
+from jgi.physics import lights as LT
 from jgi.scene import SceneBuilder
+
+
+def unit_directions(n, seed=0):
+    d = np.random.default_rng(seed).normal(size=(n, 3))
+    return d / np.linalg.norm(d, axis=1, keepdims=True)
+
+
+@jax.jit
+def _radiance_and_pdf(lights, d):
+    v = V3(d[:, 0], d[:, 1], d[:, 2])
+    return LT.environment_radiance(lights, v).stack(), LT.environment_pdf(lights, v)
+
+
+def radiance_and_pdf(lights, d):
+    """(radiance [N, 3], solid-angle pdf [N]) of a scene's environment in directions d."""
+    L, p = _radiance_and_pdf(lights, jnp.asarray(d, jnp.float32))
+    return np.asarray(L, np.float64), np.asarray(p, np.float64)
 
 
 def sky(H=16, W=32, sun=(4, 9), sun_rgb=(60.0, 50.0, 40.0)):
