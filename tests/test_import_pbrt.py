@@ -157,13 +157,18 @@ def test_microfacet_materials_give_the_builder_rows(tmp_path):
 @pytest.mark.parametrize("body, message", [
     ('Shape "disk" "float radius" 1',
      'Shape "disk" is not supported.*sphere, trianglemesh, plymesh'),
-    ('Material "coateddiffuse"', "material 'coateddiffuse' is not supported: pbrt-v4's "
-     "coateddiffuse is a stochastic layered BSDF.*Use a Mitsuba XML or TOML scene with a "
-     "roughplastic \\(or, for a smooth coating, a plastic\\) instead"),
-    ('Material "coateddiffuse" "float roughness" 0 "float thickness" 0.0001',
-     "no choice of its parameters equals a jgi material"),
-    ('Material "coatedconductor"', "material 'coatedconductor' is not supported; supported: "
-     "diffuse, conductor, dielectric"),
+    ('Material "coateddiffuse"', "'roughness' 0.0 makes a smooth coating \\(pbrt-v4's "
+     "default roughness 0; alpha below 1e-3\\), which is not supported"),
+    ('Material "coatedconductor" "float conductor.roughness" 0.1',
+     "'interface.roughness' 0.0 makes a smooth coating"),
+    ('Material "coateddiffuse" "float roughness" 0.1 "float sigma" 0.5',
+     "material 'coateddiffuse': unknown parameter 'sigma'; coateddiffuse takes: reflectance"),
+    ('Material "coateddiffuse" "float roughness" 0.1 "integer nsamples" 0',
+     "nsamples must be an integer in \\[1, 1000\\]"),
+    ('Material "coatedconductor" "float interface.roughness" 0.1 "rgb reflectance" [.5 .5 .5] '
+     '"rgb conductor.eta" [1 1 1]', "give either reflectance or conductor.eta"),
+    ('Material "coateddiffuse" "float uroughness" 0.1 "float vroughness" 0.2',
+     "anisotropic roughness \\(uroughness != vroughness\\) is not supported"),
     ('Material "conductor" "spectrum eta" "metal-CuZn-eta" "spectrum k" "metal-CuZn-k"',
      "named spectrum 'metal-CuZn-eta' is not supported; supported: metal-Ag-eta/-k"),
     ('Material "conductor" "spectrum eta" "metal-Au-eta" "spectrum k" "metal-Ag-k"',

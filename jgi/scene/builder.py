@@ -25,11 +25,14 @@ from .tables import (
     AREA_SPHERE,
     AREA_TRIANGLE,
     BVH_MIN_TRIANGLES,
+    COATED_CONDUCTOR,
+    COATED_DIFFUSE,
     DIELECTRIC,
     DIFFUSE,
     DIRECTIONAL,
     ENVIRONMENT,
     GGX,
+    LAYERED_KINDS,
     MATERIAL_KINDS,
     MICROFACET_DISTRIBUTIONS,
     MIRROR,
@@ -49,6 +52,7 @@ from .tables import (
     Boxes,
     Camera,
     EnvironmentMap,
+    Layers,
     Lights,
     Materials,
     Quads,
@@ -83,7 +87,23 @@ CUBE_FACES = np.array([[4 * k + i for i in tri] for k in range(6)
 
 # The optional material parameters that only some types take, in the order they are checked.
 OPTIONAL_KEYS = ("alpha", "alpha_u", "alpha_v", "metal", "eta", "k", "int_ior", "ext_ior",
-                 "nonlinear", "transmittance")
+                 "nonlinear", "transmittance", "thickness", "albedo", "g", "max_depth",
+                 "samples", "base_alpha", "base_alpha_u", "base_alpha_v")
+_LAYER = ("thickness", "albedo", "g", "max_depth", "samples")
+_BASE_ROUGHNESS = ("base_alpha", "base_alpha_u", "base_alpha_v")
+# pbrt-v4's defaults of its coated materials (materials.cpp)
+LAYER_DEFAULTS = dict(thickness=0.01, albedo=0.0, g=0.0, max_depth=10, samples=1)
+IOR_COATED = 1.5
+_PBRT_LAYER = ("thickness", "albedo", "g", "maxdepth", "nsamples", "remaproughness")
+PBRT_COATED_KEYS = {
+    "coateddiffuse": ("reflectance", "roughness", "uroughness", "vroughness", "eta",
+                      *_PBRT_LAYER),
+    "coatedconductor": ("interface.roughness", "interface.uroughness", "interface.vroughness",
+                        "interface.eta", "conductor.eta", "conductor.k", "reflectance",
+                        "conductor.roughness", "conductor.uroughness", "conductor.vroughness",
+                        *_PBRT_LAYER),
+}
+SMOOTH_COATING_ALPHA = 1e-3   # pbrt-v4's EffectivelySmooth: max(alpha_u, alpha_v) below it
 _ROUGHNESS = ("alpha", "alpha_u", "alpha_v")
 _CONDUCTOR = ("metal", "eta", "k")
 _IOR = ("int_ior", "ext_ior")
@@ -131,6 +151,11 @@ MATERIAL_RULES = {
         untextured_why={"alpha": " (its coating tables are precomputed from one alpha)"}),
     "plastic": MaterialRule(PLASTIC, keys=(*_IOR, "nonlinear"), colours=("diffuse", "specular"),
                             textured=("diffuse", "specular"), interface="coating"),
+    "coateddiffuse": MaterialRule(COATED_DIFFUSE, keys=(*_ROUGHNESS, *_LAYER),
+                                  colours=("diffuse",), textured=("diffuse",), interface="layer"),
+    "coatedconductor": MaterialRule(COATED_CONDUCTOR,
+                                    keys=(*_ROUGHNESS, *_CONDUCTOR, *_BASE_ROUGHNESS, *_LAYER),
+                                    colours=(), textured=(), interface="layer"),
 }
 assert {k: r.kind for k, r in MATERIAL_RULES.items()} == MATERIAL_KINDS
 
@@ -170,6 +195,41 @@ def _roughness(rule: MaterialRule, alpha, alpha_u, alpha_v, fail) -> tuple[float
     return float(au), float(av)
 
 
+def _layer(m: _Material, given: dict, fail) -> None:
+    """The layered kinds' slab, walk and base roughness into ``m``, checked."""
+    if max(m.alpha_u, m.alpha_v) < SMOOTH_COATING_ALPHA:
+        fail(f"the coating's roughness alpha must be at least {SMOOTH_COATING_ALPHA} (got "
+             f"{max(m.alpha_u, m.alpha_v)}): a smooth coating (pbrt-v4's roughness 0) adds a "
+             "Dirac reflection lobe, which jgi's estimators support for 'plastic' only")
+    v = {k: LAYER_DEFAULTS[k] if given[k] is None else given[k] for k in _LAYER}
+    t = float(v["thickness"])
+    if not (np.isfinite(t) and t >= 0):
+        fail(f"thickness must be a finite number >= 0, got {v['thickness']}")
+    albedo = _rgb(v["albedo"])
+    if not all(0 <= c <= 1 for c in albedo):
+        fail(f"albedo must be in [0, 1] in every channel, got {list(albedo)}")
+    g = float(v["g"])
+    if not -1 <= g <= 1:
+        fail(f"g must be in [-1, 1], got {v['g']}")
+    for key in ("max_depth", "samples"):
+        x = v[key]
+        if isinstance(x, (bool, np.bool_)) or not float(x).is_integer() or not 1 <= x <= 1000:
+            fail(f"{key} must be an integer in [1, 1000], got {x!r}")
+    if given["base_alpha"] is not None and (given["base_alpha_u"] is not None
+                                            or given["base_alpha_v"] is not None):
+        fail("give either base_alpha or base_alpha_u and base_alpha_v, not both")
+    bu = given["base_alpha_u"] if given["base_alpha"] is None else given["base_alpha"]
+    bv = given["base_alpha_v"] if given["base_alpha"] is None else given["base_alpha"]
+    if (bu is None) != (bv is None):
+        fail("give both base_alpha_u and base_alpha_v (or base_alpha)")
+    bu, bv = (0.0, 0.0) if bu is None else (float(bu), float(bv))
+    if not (np.isfinite(bu) and np.isfinite(bv) and bu >= 0 and bv >= 0):
+        fail(f"the base's roughness must be finite and >= 0, got {bu}, {bv}")
+    m.thickness, m.albedo, m.g = t, albedo, g
+    m.max_depth, m.samples = int(v["max_depth"]), int(v["samples"])
+    m.base_alpha_u, m.base_alpha_v = bu, bv
+
+
 def _conductor_index(metal, eta, k, fail) -> tuple[tuple, tuple]:
     """A conductor's (eta, k): a named metal, or eta (default 0) and k (default 1); neither is
     Mitsuba's "none", a perfect mirror."""
@@ -190,11 +250,11 @@ def _conductor_index(metal, eta, k, fail) -> tuple[tuple, tuple]:
 
 def _relative_ior(interface: str, ior, int_ior, ext_ior, fail) -> float:
     """inside / outside, from ior or int_ior / ext_ior (defaults by ``interface``)."""
-    coating = interface == "coating"
+    coating = interface in ("coating", "layer")
     if ior is not None and (int_ior is not None or ext_ior is not None):
         fail("give either ior or int_ior / ext_ior, not both")
     if ior is None and int_ior is None and ext_ior is None:
-        out = IOR_POLYPROPYLENE / IOR_AIR if coating else 1.5
+        out = IOR_POLYPROPYLENE / IOR_AIR if interface == "coating" else 1.5
     elif ior is not None:
         out = float(ior)
     else:
@@ -239,6 +299,14 @@ class _Material:
     nonlinear: bool = False
     transmission: tuple | None = None   # dielectrics' k_t (None: specular)
     one_sided: bool = False             # reflects on the normal's side only (Mitsuba's)
+    # the layered kinds' slab and base (pbrt-v4's defaults)
+    thickness: float = 0.01
+    albedo: tuple = (0.0, 0.0, 0.0)
+    g: float = 0.0
+    max_depth: int = 10
+    samples: int = 1
+    base_alpha_u: float = 0.0
+    base_alpha_v: float = 0.0
     textures: dict = dc_field(default_factory=dict)  # TEX_* column -> texture row
 
 
@@ -345,7 +413,9 @@ class SceneBuilder:
                  alpha_v: float | None = None, distribution: str = "ggx", eta=None, k=None,
                  metal: str | None = None, int_ior: float | None = None,
                  ext_ior: float | None = None, nonlinear: bool = False,
-                 transmittance=None, one_sided: bool = False) -> int:
+                 transmittance=None, one_sided: bool = False, thickness=None, albedo=None,
+                 g=None, max_depth=None, samples=None, base_alpha=None, base_alpha_u=None,
+                 base_alpha_v=None) -> int:
         """Define material ``name``; returns its row. Parameters by ``kind``:
 
         * ``"diffuse"``: ``diffuse`` (k_d).
@@ -371,6 +441,17 @@ class SceneBuilder:
           ``distribution``, ``nonlinear``.
         * ``"plastic"`` (Mitsuba's smooth plastic): as ``"roughplastic"`` without the roughness:
           ``diffuse``, ``specular``, ``ior`` or ``int_ior`` / ``ext_ior``, ``nonlinear``.
+        * ``"coateddiffuse"`` / ``"coatedconductor"`` (pbrt-v4's layered BSDFs,
+          :mod:`jgi.physics.bsdf.layered`): a rough GGX dielectric coating (``alpha`` or
+          ``alpha_u`` / ``alpha_v``, at least 1e-3: a smooth coating is refused; ``ior``,
+          default 1.5, not 1) over a slab of ``thickness`` (default 0.01, >= 0) holding a
+          medium of ``albedo`` (RGB in [0, 1], default 0: none) and Henyey-Greenstein ``g``
+          (in [-1, 1], default 0), followed by a random walk of ``max_depth`` steps (default
+          10) averaged over ``samples`` walks (default 1). The base: ``diffuse`` (the
+          coateddiffuse's reflectance), or a conductor (``metal`` or ``eta`` / ``k``, against
+          the outside medium, as for ``"conductor"``; default copper) of roughness
+          ``base_alpha`` or ``base_alpha_u`` / ``base_alpha_v`` (default 0: smooth).
+          :meth:`coated_material` takes pbrt-v4's parameter names instead.
 
         Textured parameters take a texture's name instead of a value: ``diffuse``,
         ``specular`` (a dielectric's one tint, reflection and transmission alike: a textured
@@ -398,7 +479,9 @@ class SceneBuilder:
 
         given = dict(alpha=alpha, alpha_u=alpha_u, alpha_v=alpha_v, metal=metal, eta=eta, k=k,
                      int_ior=int_ior, ext_ior=ext_ior, nonlinear=nonlinear,
-                     transmittance=transmittance)
+                     transmittance=transmittance, thickness=thickness, albedo=albedo, g=g,
+                     max_depth=max_depth, samples=samples, base_alpha=base_alpha,
+                     base_alpha_u=base_alpha_u, base_alpha_v=base_alpha_v)
         for key in OPTIONAL_KEYS:
             if given[key] is not None and given[key] is not False and key not in rule.keys:
                 fail(f"'{key}' does not apply to this type")
@@ -421,7 +504,11 @@ class SceneBuilder:
         m.distribution = MICROFACET_DISTRIBUTIONS[distribution]
         m.alpha_u, m.alpha_v = _roughness(rule, alpha, alpha_u, alpha_v, fail)
         if "metal" in rule.keys:
+            if rule.kind == COATED_CONDUCTOR and metal is None and eta is None and k is None:
+                metal = "Cu"   # pbrt-v4's default: metal-Cu-eta / metal-Cu-k
             m.eta, m.k = _conductor_index(metal, eta, k, fail)
+        if rule.kind in LAYERED_KINDS:
+            _layer(m, given, fail)
         if rule.interface is not None:
             m.ior = _relative_ior(rule.interface, ior, int_ior, ext_ior, fail)
         elif ior is not None:   # stored and unused, as before
@@ -440,6 +527,91 @@ class SceneBuilder:
         self.material_names[name] = len(self.materials)
         self.materials.append(m)
         return self.material_names[name]
+
+    def coated_material(self, name: str, kind: str, params: dict, *, metal: str | None = None,
+                        one_sided: bool = False) -> int:
+        """Define a ``"coateddiffuse"`` or ``"coatedconductor"`` from pbrt-v4's parameter
+        names and defaults (materials.cpp; :data:`PBRT_COATED_KEYS`), values already plain
+        (numbers, RGB triples, a texture's name for coateddiffuse's reflectance):
+        roughness / uroughness / vroughness (coatedconductor: interface.*, and the base's
+        conductor.*) remapped to alpha = sqrt(roughness) unless remaproughness is false;
+        eta (interface.eta), thickness, albedo, g, maxdepth, nsamples; coateddiffuse's
+        reflectance (default 0.5); coatedconductor's conductor.eta / conductor.k (default
+        copper) or reflectance r (eta 1, k = 2 sqrt(r) / sqrt(1 - r), r clamped to 0.9999, as
+        pbrt-v4); ``metal`` names the base's metal instead (an importer's named spectra).
+        Raises :class:`SceneError` naming the material and the key."""
+        if kind not in PBRT_COATED_KEYS:
+            raise SceneError(f"material '{name}': unknown type '{kind}'; coated types: "
+                             f"{', '.join(PBRT_COATED_KEYS)}")
+
+        def fail(msg):
+            raise SceneError(f"material '{name}' ({kind}): {msg}")
+
+        for key in params:
+            if key not in PBRT_COATED_KEYS[kind]:
+                fail(f"unknown parameter '{key}'; {kind} takes: "
+                     f"{', '.join(PBRT_COATED_KEYS[kind])}")
+        remap = params.get("remaproughness", True)
+        if not isinstance(remap, (bool, np.bool_)):
+            fail(f"'remaproughness' must be true or false, got {remap!r}")
+
+        def alphas(prefix):
+            r = params.get(prefix + "roughness", 0.0)
+            u, v = (params.get(prefix + c + "roughness", r) for c in "uv")
+            out = []
+            for key, x in ((prefix + "uroughness", u), (prefix + "vroughness", v)):
+                if isinstance(x, (bool, np.bool_, str)) or not np.isfinite(float(x)) or x < 0:
+                    fail(f"'{key}' must be a finite number >= 0, got {x!r}")
+                out.append(float(np.sqrt(x)) if remap else float(x))
+            return out
+
+        top = "interface." if kind == "coatedconductor" else ""
+        au, av = alphas(top)
+        if max(au, av) < SMOOTH_COATING_ALPHA:
+            fail(f"'{top}roughness' {params.get(top + 'roughness', 0.0)} makes a smooth "
+                 "coating (pbrt-v4's default roughness 0; alpha below 1e-3), which is not "
+                 "supported: its Dirac reflection lobe beside the layered one is carried by "
+                 "jgi's estimators for 'plastic' only. Give a rough coating (alpha = "
+                 "sqrt(roughness) >= 1e-3, e.g. roughness 1e-4 or more)")
+        au, av = max(au, 1e-4), max(av, 1e-4)   # pbrt-v4's floor for a rough distribution
+        eta = params.get(top + "eta", IOR_COATED)
+        if isinstance(eta, (bool, np.bool_, str)) or not np.isfinite(float(eta)) or eta < 0:
+            fail(f"'{top}eta' must be a finite number > 0, got {eta!r}")
+        eta = 1.0 if float(eta) == 0 else float(eta)   # pbrt-v4 reads eta 0 as 1
+        for key in ("maxdepth", "nsamples"):
+            x = params.get(key, 1)
+            if isinstance(x, (bool, np.bool_, str)) or not float(x).is_integer() \
+                    or not 1 <= x <= 1000:
+                fail(f"{key} must be an integer in [1, 1000], got {x!r}")
+        layer = dict(thickness=params.get("thickness", LAYER_DEFAULTS["thickness"]),
+                     albedo=params.get("albedo", LAYER_DEFAULTS["albedo"]),
+                     g=params.get("g", LAYER_DEFAULTS["g"]),
+                     max_depth=params.get("maxdepth", LAYER_DEFAULTS["max_depth"]),
+                     samples=params.get("nsamples", LAYER_DEFAULTS["samples"]))
+        if kind == "coateddiffuse":
+            refl = params.get("reflectance", 0.5)
+            if not isinstance(refl, str):
+                refl = tuple(float(np.clip(c, 0.0, 1.0)) for c in _rgb(refl))  # pbrt clamps
+            return self.material(name, kind, diffuse=refl, alpha_u=au, alpha_v=av, ior=eta,
+                                 one_sided=one_sided, **layer)
+        if "reflectance" in params and ("conductor.eta" in params or "conductor.k" in params):
+            fail("give either reflectance or conductor.eta and conductor.k, not both")
+        if isinstance(params.get("reflectance"), str):
+            fail("'reflectance' cannot be textured for coatedconductor (it sets the metal's "
+                 "complex index); give a constant")
+        cond = {} if metal is None else {"metal": metal}
+        if "reflectance" in params:
+            r = np.clip(np.asarray(_rgb(params["reflectance"])), 0.0, 0.9999)
+            cond = dict(eta=(1.0, 1.0, 1.0), k=tuple(2 * np.sqrt(r) / np.sqrt(1 - r)))
+        elif "conductor.eta" in params or "conductor.k" in params:
+            if "conductor.eta" not in params or "conductor.k" not in params:
+                fail("give both conductor.eta and conductor.k (pbrt-v4's default for a "
+                     "missing one is copper's spectrum: give metal names through the "
+                     "importer)")
+            cond = dict(eta=params["conductor.eta"], k=params["conductor.k"])
+        bu, bv = alphas("conductor.")
+        return self.material(name, kind, alpha_u=au, alpha_v=av, ior=eta, base_alpha_u=bu,
+                             base_alpha_v=bv, one_sided=one_sided, **cond, **layer)
 
     def _texture_columns(self, rule: MaterialRule, fail, **params) -> dict:
         """TEX_* column -> texture row of the parameters that name a texture (by name)."""
@@ -865,8 +1037,26 @@ class SceneBuilder:
             distributions=tuple(sorted({m.distribution for m in ms if m.kind in ROUGH_KINDS})),
             one_sided=(jnp.asarray([m.one_sided for m in ms], bool)
                        if any(m.one_sided for m in ms) else None),
+            layers=self._build_layers(ms),
             **tex,
         )
+
+    @staticmethod
+    def _build_layers(ms) -> Layers | None:
+        """The layered kinds' columns, or None in a scene without them (unchanged programs)."""
+        lay = [m for m in ms if m.kind in LAYERED_KINDS]
+        if not lay:
+            return None
+        f32 = lambda x: jnp.asarray(np.asarray(x, np.float32))  # noqa: E731
+        return Layers(
+            thickness=f32([m.thickness for m in ms]), albedo=_v3([m.albedo for m in ms]),
+            g=f32([m.g for m in ms]),
+            max_depth=jnp.asarray([m.max_depth for m in ms], jnp.int32),
+            samples=jnp.asarray([m.samples for m in ms], jnp.int32),
+            base_alpha_u=f32([m.base_alpha_u for m in ms]),
+            base_alpha_v=f32([m.base_alpha_v for m in ms]),
+            depth_bound=max(m.max_depth for m in lay), samples_bound=max(m.samples for m in lay),
+            has_medium=any(max(m.albedo) > 0 for m in lay))
 
     def _build_textures(self) -> Textures:
         ts = self.textures

@@ -74,6 +74,17 @@ MATERIAL_KEYS = {
                      "nonlinear": "bool", "alpha": "number", "distribution": "str"},
     "plastic": {"diffuse": "rgb|texture", "specular": "rgb|texture", **_IOR, "nonlinear": "bool"},
 }
+# pbrt-v4's layered types take pbrt-v4's parameter names (SceneBuilder.coated_material); the
+# dotted ones are TOML's dotted keys (interface.roughness = 0.1), i.e. sub-tables
+_LAYER_KEYS = {"thickness": "number", "albedo": "rgb", "g": "number", "maxdepth": "int",
+               "nsamples": "int", "remaproughness": "bool"}
+_PBRT_ROUGH = {"roughness": "number", "uroughness": "number", "vroughness": "number"}
+COATED_SUBTABLES = {"interface": {**_PBRT_ROUGH, "eta": "number"},
+                    "conductor": {**_PBRT_ROUGH, "eta": "rgb", "k": "rgb"}}
+MATERIAL_KEYS["coateddiffuse"] = {"reflectance": "rgb|texture", **_PBRT_ROUGH, "eta": "number",
+                                  **_LAYER_KEYS}
+MATERIAL_KEYS["coatedconductor"] = {"interface": "table", "conductor": "table",
+                                    "reflectance": "rgb", **_LAYER_KEYS}
 # the reflective types may be one-sided (Mitsuba's default; jgi's is two-sided, as pbrt's)
 for _kind, _keys in MATERIAL_KEYS.items():
     if _kind not in ("dielectric", "roughdielectric"):
@@ -461,6 +472,8 @@ class _TomlLoader:
             self.fail(f"{key}.type", f"{MATERIAL_ALTERNATIVES[m['type']]}; allowed: "
                                      f"{', '.join(MATERIAL_KINDS)}")
         kind = self.type_of(key, m, tuple(MATERIAL_KINDS))
+        if kind in ("coateddiffuse", "coatedconductor"):
+            return self.coated_material(b, key, kind, m)
         allowed = {"name": "str", "type": "str", **MATERIAL_KEYS[kind]}
         mm = self.table(key, m, allowed, ("name",) + MATERIAL_REQUIRED.get(kind, ()),
                         f" for type '{kind}'")
@@ -511,6 +524,33 @@ class _TomlLoader:
         try:
             b.material(mm["name"], kind, **p)   # p keeps the texture names
         except SceneError as e:  # the checks above should catch everything; a safety net
+            self.fail(key, str(e))
+
+    def coated_material(self, b: SceneBuilder, key: str, kind: str, m: dict):
+        """pbrt-v4's coateddiffuse / coatedconductor with pbrt-v4's keys and defaults; the
+        dotted ones (interface.*, conductor.*) as sub-tables."""
+        allowed = {"name": "str", "type": "str", **MATERIAL_KEYS[kind]}
+        mm = self.table(key, m, allowed, ("name",), f" for type '{kind}'")
+        if mm["name"] in b.material_names:
+            self.fail(f"{key}.name", f"material '{mm['name']}' is defined twice; names must be "
+                                     "unique")
+        flat = {}
+        for k, v in mm.items():
+            if k in COATED_SUBTABLES:
+                sub = self.table(f"{key}.{k}", m[k], COATED_SUBTABLES[k])
+                flat.update({f"{k}.{kk}": vv for kk, vv in sub.items()})
+            elif k not in ("name", "type", "one_sided"):
+                flat[k] = v
+        refl = flat.get("reflectance")
+        if isinstance(refl, str) and refl not in b.texture_names:
+            self.fail(f"{key}.reflectance", f"unknown texture '{refl}'; defined: "
+                                            f"{', '.join(b.texture_names) or '(none)'}")
+        if refl is not None and not isinstance(refl, str) and np.any(np.asarray(refl) > 1):
+            self.fail(f"{key}.reflectance", f"reflectance must be in [0, 1], got "
+                                            f"{np.asarray(refl).tolist()}")
+        try:
+            b.coated_material(mm["name"], kind, flat, one_sided=mm.get("one_sided", False))
+        except SceneError as e:
             self.fail(key, str(e))
 
     def metal(self, key: str, mm: dict):

@@ -49,11 +49,16 @@ BVH_MIN_TRIANGLES = 1400
 # Mitsuba's smooth "plastic" is the one kind with both a Dirac lobe and a non-Dirac one.
 DIFFUSE, MIRROR, DIELECTRIC, PHONG, ROUGH_CONDUCTOR, ROUGH_DIELECTRIC, ROUGH_PLASTIC = range(7)
 PLASTIC = 7
+# pbrt-v4's stochastic layered BSDFs (jgi.physics.bsdf.layered): a rough dielectric coating over
+# a diffuse base, or over a (rough) conductor, with a scattering medium between them.
+COATED_DIFFUSE, COATED_CONDUCTOR = 8, 9
 MATERIAL_KINDS = {"diffuse": DIFFUSE, "mirror": MIRROR, "dielectric": DIELECTRIC, "phong": PHONG,
                   "conductor": MIRROR, "roughconductor": ROUGH_CONDUCTOR,
                   "roughdielectric": ROUGH_DIELECTRIC, "roughplastic": ROUGH_PLASTIC,
-                  "plastic": PLASTIC}
+                  "plastic": PLASTIC, "coateddiffuse": COATED_DIFFUSE,
+                  "coatedconductor": COATED_CONDUCTOR}
 ROUGH_KINDS = (ROUGH_CONDUCTOR, ROUGH_DIELECTRIC, ROUGH_PLASTIC)
+LAYERED_KINDS = (COATED_DIFFUSE, COATED_CONDUCTOR)
 # Microfacet normal distributions of the rough kinds (jgi.physics.bsdf.microfacet).
 GGX, BECKMANN = 0, 1
 MICROFACET_DISTRIBUTIONS = {"ggx": GGX, "beckmann": BECKMANN}
@@ -206,6 +211,27 @@ class Textures(eqx.Module):
         return int(self.kind.shape[0])
 
 
+class Layers(eqx.Module):
+    """The columns only the layered kinds (coateddiffuse, coatedconductor; pbrt-v4's
+    LayeredBxDF) read, one row per material (other rows hold inert values). The coating is
+    the material's rough dielectric interface: ``ior`` and ``alpha_u`` / ``alpha_v`` (GGX);
+    the base is ``diffuse`` (coateddiffuse's reflectance) or the conductor ``eta`` / ``k``
+    (outside the coating: the BSDF divides them by the coating's ior, as pbrt-v4 does) with
+    the roughness below. The random walk's bounds are static (the largest over the rows), so
+    that the loop is one compiled program; each row stops at its own ``max_depth``."""
+
+    thickness: Array     # [M] the medium's optical thickness (sigma_t = 1, as pbrt-v4)
+    albedo: V3           # the medium's single-scattering albedo (0: no medium)
+    g: Array             # [M] its Henyey-Greenstein asymmetry
+    max_depth: Array     # int32 [M] pbrt's maxdepth: random-walk steps
+    samples: Array       # int32 [M] pbrt's nsamples: walks averaged per estimate
+    base_alpha_u: Array  # [M] the conductor base's GGX roughness (below 1e-3: smooth)
+    base_alpha_v: Array
+    depth_bound: int = eqx.field(static=True, default=10)
+    samples_bound: int = eqx.field(static=True, default=1)
+    has_medium: bool = eqx.field(static=True, default=False)   # some row's albedo > 0
+
+
 class Materials(eqx.Module):
     """One row per material. Every float is a pytree leaf (differentiable), except the
     roughplastic tables, which are computed from alpha and ior at build time."""
@@ -237,6 +263,9 @@ class Materials(eqx.Module):
     # bool [M]: reflects on its normal's side only (Mitsuba's BSDFs without ``twosided``);
     # None in a scene without one-sided materials (its kernels are those before the flag)
     one_sided: Array | None = None
+    # the layered kinds' own columns (None in a scene without them: its kernels are those
+    # before layered materials)
+    layers: Layers | None = None
 
     @property
     def has_textures(self) -> bool:

@@ -41,6 +41,7 @@ from ...core.vec import V3, dot, where
 from ...scene.tables import (
     DIELECTRIC,
     DIFFUSE,
+    LAYERED_KINDS,
     MIRROR,
     PHONG,
     PLASTIC,
@@ -49,7 +50,16 @@ from ...scene.tables import (
     ROUGH_KINDS,
     ROUGH_PLASTIC,
 )
-from . import diffuse, phong, plastic, roughconductor, roughdielectric, roughplastic, specular
+from . import (
+    diffuse,
+    layered,
+    phong,
+    plastic,
+    roughconductor,
+    roughdielectric,
+    roughplastic,
+    specular,
+)
 from . import microfacet as mf
 from .common import (
     GLOSSY_ALPHA,
@@ -61,6 +71,7 @@ from .common import (
     facing,
     is_delta,
     is_glossy,
+    is_layered,
     is_rough,
     lit,
     lookup,
@@ -76,7 +87,7 @@ from .phong import specular_probability
 from .specular import mirror_reflectance
 
 __all__ = ["RADIANCE", "IMPORTANCE", "GLOSSY_ALPHA", "MaterialParams", "BSDFSample", "lookup",
-           "lookup_specialised", "is_delta", "sampled_delta", "is_glossy", "is_rough",
+           "lookup_specialised", "is_delta", "sampled_delta", "is_glossy", "is_rough", "is_layered",
            "facing", "side", "lit", "specular_probability", "fresnel_dielectric", "refract",
            "fresnel_conductor", "fresnel_conductor_rgb", "mirror_reflectance",
            "adjoint_correction", "shading_ratio", "evaluate", "sample", "transmission_tint",
@@ -149,6 +160,12 @@ def evaluate(kinds, mp: MaterialParams, n: V3, wo: V3, wi: V3,
         f_r, pdf_r = _rough(kinds, mp, flipped, wo_l, wi_l, mode)
         rough = is_rough(mp)
         f, pdf = where(rough, f_r, f), jnp.where(rough, pdf_r, pdf)
+    if any(k in kinds for k in LAYERED_KINDS):
+        s, t, wo_l = _local(n, nf, cos_o, wo)
+        wi_l = V3(dot(wi, s), dot(wi, t), cos_i)
+        f_l, pdf_l = layered.evaluate(kinds, mp, wo_l, wi_l, mode)
+        lay = is_layered(mp)
+        f, pdf = where(lay, f_l, f), jnp.where(lay, pdf_l, pdf)
     if mp.one_sided is not None:
         back = back_side(mp, n, wo) | back_side(mp, n, wi)
         f, pdf = where(back, V3(zero, zero, zero), f), jnp.where(back, 0.0, pdf)
@@ -189,6 +206,9 @@ def sample(kinds, mp: MaterialParams, n: V3, wo: V3, u_lobe: Array, u1: Array, u
     if any(k in kinds for k in ROUGH_KINDS):
         out = choose(is_rough(mp), _sample_rough(kinds, mp, n, nf, cos_o, flipped, wo, u_lobe,
                                                  u1, u2, mode), out)
+    if any(k in kinds for k in LAYERED_KINDS):
+        out = choose(is_layered(mp), _sample_layered(kinds, mp, n, nf, cos_o, wo, u_lobe, u1, u2,
+                                                     mode), out)
     if mp.one_sided is not None:   # seen from the back, or scattered to it: nothing
         out = choose(back_side(mp, n, wo) | back_side(mp, n, out.wi), no_sample(u1), out)
     return out
@@ -224,3 +244,19 @@ def _sample_rough(kinds, mp: MaterialParams, n: V3, nf: V3, cos_o: Array, flippe
     w = where(pass_ok, transmission_tint(mp), w)
     wi = where(pass_ok, -wo, where(ok, wi, nf))
     return BSDFSample(wi, w, jnp.where(ok, pdf, 0.0), pass_ok, ok | pass_ok)
+
+
+def _sample_layered(kinds, mp: MaterialParams, n: V3, nf: V3, cos_o: Array, wo: V3,
+                    u_lobe: Array, u1: Array, u2: Array, mode: int) -> BSDFSample:
+    """A direction from the layered BSDF's random walk with the walk's own weight f cos / pdf
+    (pbrt-v4's pdfIsProportional: the walk's product of densities is not wi's density), and
+    for MIS the pdf estimate at wi (as pbrt-v4's integrators call PDF for such samples)."""
+    s, t, wo_l = _local(n, nf, cos_o, wo)
+    wi_l, weight, ok = layered.sample_walk(kinds, mp, wo_l, u_lobe, u1, u2, mode)
+    wi = mf.from_local(wi_l, s, t, nf)
+    wi_l = V3(dot(wi, s), dot(wi, t), dot(wi, nf))
+    pdf = layered.pdf(kinds, mp, wo_l, wi_l, mode)
+    ok = ok & lit(cos_o) & (pdf > 0)
+    zero = jnp.zeros_like(cos_o)
+    return BSDFSample(where(ok, wi, nf), where(ok, weight, V3(zero, zero, zero)),
+                      jnp.where(ok, pdf, 0.0), zero > 0, ok)

@@ -13,9 +13,12 @@ from ..._xla import take
 from ...core.vec import EDGE_ON_COS, V3, dot, where
 from ...scene.rough_coating import TABLE_SIZE
 from ...scene.tables import (
+    COATED_CONDUCTOR,
+    COATED_DIFFUSE,
     DIELECTRIC,
     DIFFUSE,
     GGX,
+    LAYERED_KINDS,
     MIRROR,
     PHONG,
     PLASTIC,
@@ -68,6 +71,23 @@ class MaterialParams(NamedTuple):
                                       # specular_transmittance); None: ks tints both lobes
     one_sided: Array | None = None    # bool: reflects on n's side only; None: the scene has
                                       # no one-sided material
+    layer: LayerParams | None = None  # the layered kinds' columns; None: the scene has none
+
+
+class LayerParams(NamedTuple):
+    """A layered material's own columns per lane (:class:`jgi.scene.tables.Layers`); the
+    coating's ior and roughness and the base's reflectance or eta / k are MaterialParams'."""
+
+    thickness: Array
+    albedo: V3
+    g: Array
+    max_depth: Array
+    samples: Array
+    base_alpha_u: Array
+    base_alpha_v: Array
+    depth_bound: int      # static loop bounds (the scene's largest max_depth and samples)
+    samples_bound: int
+    has_medium: bool      # static: some row has a medium (else its code is not traced)
 
 
 def transmission_tint(mp: MaterialParams) -> V3:
@@ -95,7 +115,19 @@ def lookup(mats: Materials, m: Array, uv=None) -> MaterialParams:
                           mats.distribution[m], row3(mats.eta), row3(mats.k), m,
                           mats.transmittance, mats.internal_reflectance[m], mats.nonlinear[m],
                           row3(mats.transmission_tint),
-                          mats.one_sided[m] if mats.has_one_sided else None))
+                          mats.one_sided[m] if mats.has_one_sided else None,
+                          _layer(mats, m, lambda a: a[m])))
+
+
+def _layer(mats: Materials, m: Array, row) -> LayerParams | None:
+    """Rows ``m`` of the layered columns (``row`` reads one column), or None without them."""
+    lay = mats.layers
+    if lay is None:
+        return None
+    return LayerParams(row(lay.thickness), V3(*(row(c) for c in lay.albedo)), row(lay.g),
+                       row(lay.max_depth), row(lay.samples), row(lay.base_alpha_u),
+                       row(lay.base_alpha_v), lay.depth_bound, lay.samples_bound,
+                       lay.has_medium)
 
 
 def textured(mats: Materials, m: Array, uv, mp: MaterialParams) -> MaterialParams:
@@ -144,18 +176,20 @@ def lookup_specialised(mats: Materials, m: Array, uv=None) -> MaterialParams:
     zero3 = V3(zero, zero, zero)
     has = lambda *ks: any(k in kinds for k in ks)  # noqa: E731
     col3 = lambda v: V3(*(take(c, m) for c in v))  # noqa: E731
-    kd = col3(mats.diffuse) if has(DIFFUSE, PHONG, ROUGH_PLASTIC, PLASTIC) else zero3
+    kd = (col3(mats.diffuse) if has(DIFFUSE, PHONG, ROUGH_PLASTIC, PLASTIC, COATED_DIFFUSE)
+          else zero3)
     ks = col3(mats.specular) if has(MIRROR, DIELECTRIC, PHONG, PLASTIC, *ROUGH_KINDS) else zero3
     exponent = take(mats.exponent, m) if PHONG in kinds else zero
-    ior = (take(mats.ior, m) if has(DIELECTRIC, ROUGH_DIELECTRIC, ROUGH_PLASTIC, PLASTIC)
+    ior = (take(mats.ior, m) if has(DIELECTRIC, ROUGH_DIELECTRIC, ROUGH_PLASTIC, PLASTIC,
+                                    *LAYERED_KINDS)
            else zero + 1.0)
-    rough = has(*ROUGH_KINDS)
+    rough = has(*ROUGH_KINDS, *LAYERED_KINDS)
     alpha_u = take(mats.alpha_u, m) if rough else zero + 0.1
     alpha_v = take(mats.alpha_v, m) if rough else zero + 0.1
     # one distribution in the scene: a Python int, so that microfacet code traces only it
     dists = mats.distributions
     distribution = take(mats.distribution, m) if len(dists) > 1 else (dists or (GGX,))[0]
-    conductor = has(MIRROR, ROUGH_CONDUCTOR)
+    conductor = has(MIRROR, ROUGH_CONDUCTOR, COATED_CONDUCTOR)
     eta = col3(mats.eta) if conductor else zero3
     k = col3(mats.k) if conductor else zero3
     plastic = ROUGH_PLASTIC in kinds
@@ -167,7 +201,8 @@ def lookup_specialised(mats: Materials, m: Array, uv=None) -> MaterialParams:
         take(mats.internal_reflectance, m) if coated else zero,
         take(mats.nonlinear, m) if coated else zero > 0,
         col3(mats.transmission_tint) if has(DIELECTRIC, ROUGH_DIELECTRIC) else None,
-        take(mats.one_sided, m) if mats.has_one_sided else None))
+        take(mats.one_sided, m) if mats.has_one_sided else None,
+        _layer(mats, m, lambda a: take(a, m))))
 
 
 def is_delta(mp: MaterialParams) -> Array:
@@ -192,12 +227,26 @@ def is_rough(mp: MaterialParams) -> Array:
     return (mp.kind == ROUGH_CONDUCTOR) | (mp.kind == ROUGH_DIELECTRIC) | (mp.kind == ROUGH_PLASTIC)
 
 
+def is_layered(mp: MaterialParams) -> Array:
+    """True for the layered kinds (coateddiffuse, coatedconductor)."""
+    return (mp.kind == COATED_DIFFUSE) | (mp.kind == COATED_CONDUCTOR)
+
+
 def is_glossy(mp: MaterialParams) -> Array:
     """True for microfacet materials whose larger roughness is below ``GLOSSY_ALPHA``: lobes so
     sharp that density estimation (photon lookups) there is hopeless and sampling through them
     is better. roughplastic counts too (its diffuse base would allow lookups; callers that want
-    them can test the kind)."""
-    return is_rough(mp) & (jnp.maximum(mp.alpha_u, mp.alpha_v) < GLOSSY_ALPHA)
+    them can test the kind). Of the layered kinds, a coatedconductor without a medium whose
+    coating and base are both that sharp (its lobes are the two interfaces' lobes, convolved);
+    a coateddiffuse never (its base is Lambertian)."""
+    glossy = is_rough(mp) & (jnp.maximum(mp.alpha_u, mp.alpha_v) < GLOSSY_ALPHA)
+    if mp.layer is None:
+        return glossy
+    lay = mp.layer
+    sharp = jnp.maximum(jnp.maximum(mp.alpha_u, mp.alpha_v),
+                        jnp.maximum(lay.base_alpha_u, lay.base_alpha_v)) < GLOSSY_ALPHA
+    no_medium = jnp.maximum(jnp.maximum(lay.albedo.x, lay.albedo.y), lay.albedo.z) <= 0
+    return glossy | ((mp.kind == COATED_CONDUCTOR) & sharp & no_medium)
 
 
 def facing(n: V3, w: V3) -> V3:

@@ -49,6 +49,16 @@ def evaluate(mp: MaterialParams, wo: V3, wi: V3, eta: Array, ok: Array,
              mode: int) -> tuple[V3, Array]:
     """(f, pdf) where ``ok`` (wo and wi lit, on either side), else finite junk the caller
     masks."""
+    f, pdf, _ = evaluate_lobes(mp, wo, wi, eta, ok, mode)
+    return f, pdf
+
+
+def evaluate_lobes(mp: MaterialParams, wo: V3, wi: V3, eta: Array, ok: Array,
+                   mode: int) -> tuple[V3, Array, Array]:
+    """(f, pdf, the pdf of wi's lobe alone): the last is the density of a sampler that always
+    takes wi's lobe (reflection or transmission) instead of choosing it with probability F or
+    1 - F (pbrt-v4's PDF with BxDFReflTransFlags Reflection or Transmission), what the layered
+    BSDF's random walk uses."""
     au, av = mf.alphas(mp.alpha_u, mp.alpha_v)
     refl = wi.z > 0
     h = normalize(wo + wi * jnp.where(refl, 1.0, eta))
@@ -74,7 +84,10 @@ def evaluate(mp: MaterialParams, wo: V3, wi: V3, eta: Array, ok: Array,
     p_m = mf.pdf_normal(mp.distribution, wo, h, au, av)
     f = jnp.where(side_ok, jnp.where(refl, f_r, f_t), 0.0)
     pdf = jnp.where(side_ok, p_m * jnp.where(refl, F * jac_r, (1.0 - F) * jac_t), 0.0)
-    return where(refl, mp.ks, transmission_tint(mp)) * f, pdf
+    # (no transmission lobe under total internal reflection, F = 1)
+    pdf_lobe = jnp.where(side_ok, p_m * jnp.where(refl, jac_r, jnp.where(F < 1.0, jac_t, 0.0)),
+                         0.0)
+    return where(refl, mp.ks, transmission_tint(mp)) * f, pdf, pdf_lobe
 
 
 def sample_direction(mp: MaterialParams, wo: V3, eta: Array, u_lobe: Array, u1: Array,

@@ -24,10 +24,11 @@ supported):
              pbrt-v4's TrowbridgeReitzDistribution::RoughnessToAlpha): GGX (Trowbridge-Reitz)
              microfacets, jgi's roughconductor / roughdielectric; where pbrt treats the surface
              as smooth (the smaller alpha below 1e-3) jgi's smooth conductor / dielectric.
-             Refused: "coateddiffuse" (a stochastic layered BSDF that no jgi material equals;
-             use a Mitsuba or TOML roughplastic, or plastic for a smooth coating), the other
-             materials, displacement and normal
-             maps.
+             "coateddiffuse" and "coatedconductor" (pbrt-v4's stochastic layered BSDFs, jgi's
+             kinds of those names: jgi.physics.bsdf.layered), with pbrt-v4's parameters and
+             defaults (SceneBuilder.coated_material); a texture for coateddiffuse's
+             reflectance only; a smooth coating (roughness 0, pbrt's default) is refused.
+             Refused: the other materials, displacement and normal maps.
   textures   Texture "name" "spectrum" "imagemap" (filename, filter bilinear, wrap repeat,
              encoding sRGB | linear, scale) and "checkerboard" (dimension 2, rgb tex1 / tex2),
              "scale" (tex x float scale) and "mix" ((1 - float amount) tex1 + amount tex2) of
@@ -92,7 +93,7 @@ import numpy as np
 from ...core import transform as xf
 from ...core.imageio import read_image
 from .. import spectra
-from ..builder import SceneBuilder, SceneError
+from ..builder import PBRT_COATED_KEYS, SceneBuilder, SceneError
 from ..tables import Scene
 from ._common import (
     PBRT_PLY_UV,
@@ -107,7 +108,7 @@ IGNORED = {"Sampler", "Integrator", "PixelFilter", "ColorSpace", "Option", "Acce
            "WorldEnd", "Attribute", "MakeNamedMedium", "MediumInterface"}
 SUPPORTED = {
     "Camera": ("perspective",), "Film": ("rgb", "gbuffer", "spectral"),
-    "Material": ("diffuse", "conductor", "dielectric"),
+    "Material": ("diffuse", "conductor", "dielectric", "coateddiffuse", "coatedconductor"),
     "Shape": ("sphere", "trianglemesh", "plymesh"),
     "LightSource": ("point", "spot", "distant", "uniform", "infinite"),
     "AreaLightSource": ("diffuse",),
@@ -135,14 +136,6 @@ TEXTURE_PARAMETERS = {
 # illuminants (normalised to luminance 1) or as reflectances (seen under D65)
 SPECTRUM_PARAMETERS = {"L": True, "I": True, "reflectance": False, "tex1": False,
                        "tex2": False}
-COATEDDIFFUSE_REFUSAL = (
-    "material 'coateddiffuse' is not supported: pbrt-v4's coateddiffuse is a stochastic "
-    "layered BSDF (a random walk, truncated at maxdepth, between a dielectric coating and a "
-    "diffuse base through a medium of the given thickness and albedo), and no choice of its "
-    "parameters equals a jgi material: Mitsuba's roughplastic and smooth plastic (jgi's "
-    "'roughplastic' and 'plastic') are analytic approximations of such a layer. Use a Mitsuba "
-    "XML or TOML scene with a roughplastic (or, for a smooth coating, a plastic) instead.")
-
 
 def _lum(rgb) -> float:
     r, g, b = rgb
@@ -444,8 +437,8 @@ class _Importer:
         name = f"_pbrt_material{self.n_mat}"
         self.n_mat += 1
         self.material_kind[name] = kind
-        if kind == "coateddiffuse":
-            self.fail(where, COATEDDIFFUSE_REFUSAL)
+        if kind in PBRT_COATED_KEYS:
+            return self.coated(name, kind, p, where)
         if kind not in MATERIAL_PARAMETERS:
             self.fail(where, f"material '{kind}' is not supported; supported: "
                              f"{', '.join(SUPPORTED['Material'])}")
@@ -476,6 +469,67 @@ class _Importer:
                 self.b.material(name, "dielectric", ior=eta)
             else:
                 self.b.material(name, "roughdielectric", ior=eta, **rough)
+        return name
+
+    def coated(self, name, kind, p, where) -> str:
+        """pbrt-v4's coateddiffuse / coatedconductor (jgi's layered kinds, same parameters:
+        SceneBuilder.coated_material): values as the other materials read them, a texture for
+        coateddiffuse's reflectance only, the base metal's eta / k as rgb or pbrt's named
+        metal spectra (default copper); anisotropic roughness refused as for the others."""
+        plain = {}
+        for key in p:
+            if key in ("displacement", "normalmap"):
+                self.fail(where, f"material '{kind}': {key} is not supported (jgi shades with "
+                                 "geometric normals)")
+            if key != "type" and key not in PBRT_COATED_KEYS[kind]:
+                self.fail(where, f"material '{kind}': unknown parameter '{key}'; {kind} takes: "
+                                 f"{', '.join(PBRT_COATED_KEYS[kind])}")
+        for key in p:
+            if key == "type" or key.startswith("conductor.e") or key == "conductor.k":
+                continue
+            typ = p[key][0]
+            if key == "reflectance" and kind == "coateddiffuse":
+                if typ == "texture" and p[key][1][0] not in {**self.textures,
+                                                             **self.constant_textures}:
+                    self.fail(where, f"material '{kind}': reflectance names texture "
+                                     f"'{p[key][1][0]}', which is not defined before it")
+                plain[key] = self._get(p, key, None, where, None if typ == "texture" else 3)
+            elif key == "reflectance":
+                plain[key] = self.spectrum(p, key, where)
+                if isinstance(plain[key], str):
+                    self.fail(where, f"material '{kind}': \"reflectance\" must be rgb or a "
+                                     "constant spectrum")
+            elif key.endswith("eta"):
+                plain[key] = self.dielectric_eta({"eta": p[key]}, where)
+            elif key == "albedo":
+                if typ == "texture":
+                    self.fail(where, f"material '{kind}': albedo cannot be textured in jgi; "
+                                     "give rgb")
+                plain[key] = np.broadcast_to(np.asarray(self._get(p, key, None, where, None),
+                                                        float), (3,))
+            elif key == "remaproughness":
+                plain[key] = bool(self._get(p, key, [True], where)[0])
+            else:   # roughnesses, thickness, g, maxdepth, nsamples: one number
+                plain[key] = self._get(p, key, None, where, 1)
+        metal = None
+        if kind == "coatedconductor" and "reflectance" not in p:
+            sub = {k.split(".")[1]: v for k, v in p.items() if k in ("conductor.eta",
+                                                                      "conductor.k")}
+            cond = self.conductor_ior(sub, where)
+            metal = cond.get("metal")
+            if metal is None:
+                plain["conductor.eta"], plain["conductor.k"] = cond["eta"], cond["k"]
+        for prefix in ("interface.", "conductor.") if kind == "coatedconductor" else ("",):
+            r = plain.get(prefix + "roughness", 0.0)
+            if plain.get(prefix + "uroughness", r) != plain.get(prefix + "vroughness", r):
+                self.fail(where, f"material '{kind}': anisotropic roughness ({prefix}uroughness "
+                                 f"!= {prefix}vroughness) is not supported: pbrt orients it "
+                                 "along the shape's dp/du, jgi along a frame built from the "
+                                 "normal; give one roughness")
+        try:
+            self.b.coated_material(name, kind, plain, metal=metal)
+        except SceneError as e:
+            self.fail(where, str(e))
         return name
 
     def roughness(self, kind, p, where) -> dict | None:
