@@ -167,6 +167,8 @@ def photon_reflectance(scene: Scene, material, n: V3, wo: V3, wi: V3, uv=None,
         n_p = col(n) if n_photon is None else n_photon
         f_rough = f_rough * bsdf.shading_ratio(col(ns), n_p, wi)
     whole = bsdf.is_rough(mp)
+    if mp.layer is not None:
+        whole = whole | bsdf.is_layered(mp)
     if PLASTIC in mats.kinds:
         whole = whole | (mp.kind == PLASTIC)
     return where(whole, f_rough, V3(*(jnp.broadcast_to(c, wi.x.shape) for c in f)))

@@ -23,7 +23,15 @@ from ..core import rng
 from ..core.vec import V3, where
 from ..physics import bsdf, geometry
 from ..physics.lights import emitted, environment_radiance
-from ..scene.tables import DIFFUSE, PHONG, PLASTIC, ROUGH_DIELECTRIC, ROUGH_KINDS, Scene
+from ..scene.tables import (
+    DIFFUSE,
+    LAYERED_KINDS,
+    PHONG,
+    PLASTIC,
+    ROUGH_DIELECTRIC,
+    ROUGH_KINDS,
+    Scene,
+)
 from .subpath import (
     camera_ray,
     next_event_value,
@@ -45,11 +53,16 @@ def samples_through(mp: bsdf.MaterialParams, lookup_rough: bool = True, kinds=()
     may end, so every path is counted once (:func:`is_lookup_surface`). With lookups, a smooth
     plastic vertex is a lookup surface for its base and is sampled through by its coating's
     Dirac lobe alone, a choice per sample (:func:`trace_to_diffuse`). ``kinds``: the scene's
-    (static), to test for plastic only in scenes that have it."""
+    (static), to test for plastic only in scenes that have it. The layered kinds count as
+    microfacet ones: a coateddiffuse is a lookup surface (its base is Lambertian; density
+    estimates use its whole BSDF), a coatedconductor too unless ``bsdf.is_glossy`` (both its
+    interfaces sharp); Jensen's split and the irradiance cache sample through both."""
     through = bsdf.is_delta(mp) | bsdf.is_glossy(mp) | (mp.kind == ROUGH_DIELECTRIC)
     if lookup_rough:
         return through
     through = through | bsdf.is_rough(mp)
+    if mp.layer is not None:
+        through = through | bsdf.is_layered(mp)
     return (through | (mp.kind == PLASTIC)) if PLASTIC in kinds else through
 
 
@@ -61,12 +74,15 @@ def is_lookup_surface(mp: bsdf.MaterialParams, kinds=()) -> Array:
     kd_max = jnp.maximum(jnp.maximum(mp.kd.x, mp.kd.y), mp.kd.z)
     out = ((mp.kind == DIFFUSE) | ((mp.kind == PHONG) & (kd_max > 0))
            | (bsdf.is_rough(mp) & ~samples_through(mp)))
+    if mp.layer is not None:
+        out = out | (bsdf.is_layered(mp) & ~samples_through(mp))
     return (out | (mp.kind == PLASTIC)) if PLASTIC in kinds else out
 
 
 def has_rough(kinds) -> bool:
-    """The static kinds of a scene include a microfacet material."""
-    return any(k in kinds for k in ROUGH_KINDS)
+    """The static kinds of a scene include a microfacet material (or a layered one, whose
+    interfaces are microfacet ones: sampled with (u1, u2), evaluated whole)."""
+    return any(k in kinds for k in ROUGH_KINDS + LAYERED_KINDS)
 
 
 def evaluates_whole(kinds) -> bool:
