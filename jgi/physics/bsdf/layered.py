@@ -380,6 +380,7 @@ def sample_walk(kinds, mp: MaterialParams, wo: V3, uc: Array, u1: Array, u2: Arr
     sample leaves through the coating."""
     lay = mp.layer
     top = coating(mp)
+    (wo,) = _broadcast(wo, V3(uc, u1, u2))[:1]
     zero = jnp.zeros_like(wo.z)
     Z = V3(zero, zero, zero)
     thick = jnp.maximum(lay.thickness, _FLT_MIN)
@@ -474,12 +475,20 @@ def pdf_estimate(kinds, mp: MaterialParams, wo: V3, wi: V3, seed: Array, mode: i
 
 # --- what the dispatch calls ------------------------------------------------------------------------
 
+def _broadcast(*vs: V3) -> list[V3]:
+    """The directions' components broadcast to one shape (the walks' loop carries need it:
+    density estimates pass wo as [N, 1] beside wi as [N, K])."""
+    shape = jnp.broadcast_shapes(*(jnp.shape(c) for v in vs for c in v))
+    return [V3(*(jnp.broadcast_to(c, shape) for c in v)) for v in vs]
+
+
 _F_SALT, _PDF_SALT = 0x1B873593, 0xCC9E2D51
 
 
 def evaluate(kinds, mp: MaterialParams, wo: V3, wi: V3, mode: int) -> tuple[V3, Array]:
     """(f estimate, pdf estimate) for local directions; 0 unless both are lit on one side.
     The streams are seeded by the directions (f: wo then wi; pdf: wi then wo, as pbrt)."""
+    wo, wi = _broadcast(wo, wi)
     same = lit(wo.z) & lit(wi.z)
     up = lambda v: V3(v.x, v.y, jnp.where(same, v.z, 1.0))  # noqa: E731
     wo_u, wi_u = up(wo), up(wi)
@@ -493,6 +502,7 @@ def evaluate(kinds, mp: MaterialParams, wo: V3, wi: V3, mode: int) -> tuple[V3, 
 
 def pdf(kinds, mp: MaterialParams, wo: V3, wi: V3, mode: int) -> Array:
     """The pdf estimate alone (what a sample's MIS weight needs), seeded as :func:`evaluate`'s."""
+    wo, wi = _broadcast(wo, wi)
     same = lit(wo.z) & lit(wi.z)
     up = lambda v: V3(v.x, v.y, jnp.where(same, v.z, 1.0))  # noqa: E731
     sp = seed_of(wi.x, wi.y, wi.z, wo.x, wo.y, wo.z) ^ np.uint32(_PDF_SALT)
