@@ -115,7 +115,8 @@ def _fresnel(cos_i, eta):
     return np.where(tir, 1.0, 0.5 * (rs**2 + rp**2))
 
 
-@pytest.mark.parametrize("theta_deg", [30.0, pytest.param(70.0, marks=pytest.mark.slow)])
+@pytest.mark.slow
+@pytest.mark.parametrize("theta_deg", [30.0, 70.0])
 def test_nearly_smooth_coating_matches_the_closed_form(theta_deg):
     eta, rho = 1.5, 0.8
     mu = (np.arange(200000) + 0.5) / 200000
@@ -184,6 +185,7 @@ def test_white_layer_reflects_at_most_all_energy():
         assert mean - 4 * se <= 1.0 and mean > 0.8, (deg, mean, se)   # measured 0.89 at 80
 
 
+@pytest.mark.slow
 def test_pdf_is_the_same_function_when_sampled_or_evaluated():
     """MIS needs the pdf of a direction to be one function of (wo, wi): sample()'s pdf equals
     evaluate()'s at the sampled direction, and evaluate is deterministic."""
@@ -353,6 +355,10 @@ type = "sphere"
 center = [1, 0, 0]
 radius = 0.5
 material = "cc"
+[[light]]
+type = "point"
+position = [0, 2, 2]
+intensity = 5
 """
 
 
