@@ -512,6 +512,10 @@ class _Importer:
             else:   # roughnesses, thickness, g, maxdepth, nsamples: one number
                 plain[key] = self._get(p, key, None, where, 1)
         metal = None
+        if kind == "coatedconductor" and "reflectance" in p and ("conductor.eta" in p
+                                                              or "conductor.k" in p):
+            self.fail(where, "material 'coatedconductor': give either reflectance or "
+                             "conductor.eta and conductor.k, not both (pbrt refuses both)")
         if kind == "coatedconductor" and "reflectance" not in p:
             sub = {k.split(".")[1]: v for k, v in p.items() if k in ("conductor.eta",
                                                                       "conductor.k")}
