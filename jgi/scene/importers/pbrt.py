@@ -316,31 +316,35 @@ class _Importer:
                 self.texture_recipes[name] = ("checker", np.asarray(c0, float),
                                               np.asarray(c1, float), to_uv)
             else:
-                for key, ok in (("filter", "bilinear"), ("wrap", "repeat")):
-                    v = self._get(p, key, [ok], where)[0]
-                    if v != ok:
-                        self.fail(where, f"Texture \"{name}\": {key} \"{v}\" is not supported; "
-                                         f"supported: \"{ok}\"")
-                enc = self._get(p, "encoding", ["sRGB"], where)[0]
-                if enc not in ("sRGB", "linear"):
-                    self.fail(where, f"Texture \"{name}\": encoding \"{enc}\" is not "
-                                     "supported; supported: \"sRGB\", \"linear\"")
-                fname = self._get(p, "filename", None, where)
-                if not fname:
-                    self.fail(where, f"Texture \"{name}\": imagemap needs \"string filename\"")
-                scale = float(self._get(p, "scale", 1.0, where, 1))
-                path = self.resolve(fname[0])
+                path, linear, scale = self.imagemap_source(name, p, where)
                 to_uv = [[su, 0, du], [0, -sv, 1 - dv], [0, 0, 1]]
                 if scale == 1.0:
-                    self.b.texture(tex, "bitmap", filename=path, raw=enc == "linear",
-                                   to_uv=to_uv)
+                    self.b.texture(tex, "bitmap", filename=path, raw=linear, to_uv=to_uv)
                 else:   # pbrt's imagemap "scale" multiplies the texels
                     self.b.texture(tex, "bitmap", data=self.image_texels(
-                        (path, enc == "linear", scale), name, where), to_uv=to_uv)
-                self.texture_recipes[name] = ("image", (path, enc == "linear", scale), to_uv)
+                        (path, linear, scale), name, where), to_uv=to_uv)
+                self.texture_recipes[name] = ("image", (path, linear, scale), to_uv)
         except SceneError as e:
             self.fail(where, str(e))
         self.textures[name] = tex
+
+    def imagemap_source(self, name, p, where) -> tuple:
+        """(file path, linear encoding?, texel scale) of an "imagemap", whose filter and wrap
+        must be jgi's (bilinear, repeat)."""
+        for key, ok in (("filter", "bilinear"), ("wrap", "repeat")):
+            v = self._get(p, key, [ok], where)[0]
+            if v != ok:
+                self.fail(where, f"Texture \"{name}\": {key} \"{v}\" is not supported; "
+                                 f"supported: \"{ok}\"")
+        enc = self._get(p, "encoding", ["sRGB"], where)[0]
+        if enc not in ("sRGB", "linear"):
+            self.fail(where, f"Texture \"{name}\": encoding \"{enc}\" is not supported; "
+                             "supported: \"sRGB\", \"linear\"")
+        fname = self._get(p, "filename", None, where)
+        if not fname:
+            self.fail(where, f"Texture \"{name}\": imagemap needs \"string filename\"")
+        return (self.resolve(fname[0]), enc == "linear",
+                float(self._get(p, "scale", 1.0, where, 1)))
 
     def float_texture(self, name, cls, p, where):
         """A "float" checkerboard (float tex1 / tex2) or imagemap, for shapes' "texture alpha":
@@ -365,21 +369,8 @@ class _Importer:
                 self.b.texture(tex, "checkerboard", color0=(c0,) * 3, color1=(c1,) * 3,
                                to_uv=[[su / 2, 0, du / 2], [0, sv / 2, dv / 2], [0, 0, 1]])
             else:
-                for key, ok in (("filter", "bilinear"), ("wrap", "repeat")):
-                    v = self._get(p, key, [ok], where)[0]
-                    if v != ok:
-                        self.fail(where, f"Texture \"{name}\": {key} \"{v}\" is not supported; "
-                                         f"supported: \"{ok}\"")
-                enc = self._get(p, "encoding", ["sRGB"], where)[0]
-                if enc not in ("sRGB", "linear"):
-                    self.fail(where, f"Texture \"{name}\": encoding \"{enc}\" is not "
-                                     "supported; supported: \"sRGB\", \"linear\"")
-                fname = self._get(p, "filename", None, where)
-                if not fname:
-                    self.fail(where, f"Texture \"{name}\": imagemap needs \"string filename\"")
-                scale = float(self._get(p, "scale", 1.0, where, 1))
-                img = self.image_texels((self.resolve(fname[0]), enc == "linear", scale), name,
-                                        where)
+                path, linear, scale = self.imagemap_source(name, p, where)
+                img = self.image_texels((path, linear, scale), name, where)
                 self.b.texture(tex, "bitmap", data=np.repeat(img[:, :, :1], 3, axis=2),
                                to_uv=[[su, 0, du], [0, -sv, 1 - dv], [0, 0, 1]])
         except SceneError as e:
