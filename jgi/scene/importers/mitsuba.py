@@ -513,14 +513,7 @@ class _Importer:
         BSDF (or the same one twice) is that BSDF; two different ones are refused (a jgi
         surface has one material on both sides), and so are transmissive ones, which Mitsuba
         refuses too."""
-        names = []
-        for c in el:
-            if c.tag == "bsdf":
-                names.append(self.bsdf(c))
-            elif c.tag == "ref" and not c.get("name"):
-                if c.get("id") not in self.b.material_names:
-                    self.fail(c, f"twosided: reference to unknown bsdf '{c.get('id')}'")
-                names.append(c.get("id"))
+        names = self.nested_bsdfs(el, "twosided")
         if len(names) not in (1, 2):
             self.fail(el, f"twosided needs one or two nested BSDFs (or <ref>s), got {len(names)}")
         for n in names:
@@ -536,19 +529,24 @@ class _Importer:
                           "a jgi surface has one material on both sides; give one nested bsdf")
         return names[0]
 
-    def mask(self, el, name: str, p: dict):
-        """Mitsuba's ``mask``: its nested BSDF (nested or a <ref>) with an opacity (a <float>,
-        <rgb> or <spectrum>, whose luminance is taken, or a texture, read as Mitsuba's eval_1;
-        default 0.5, clamped to [0, 1] as Mitsuba does): a copy of the nested BSDF's row with
-        jgi's ``opacity``. A mask inside a mask multiplies constant opacities."""
+    def nested_bsdfs(self, el, plugin: str) -> list[str]:
+        """The material names of a wrapper BSDF's nested <bsdf>s and unnamed <ref>s, in order."""
         names = []
         for c in el:
             if c.tag == "bsdf":
                 names.append(self.bsdf(c))
             elif c.tag == "ref" and not c.get("name"):
                 if c.get("id") not in self.b.material_names:
-                    self.fail(c, f"mask: reference to unknown bsdf '{c.get('id')}'")
+                    self.fail(c, f"{plugin}: reference to unknown bsdf '{c.get('id')}'")
                 names.append(c.get("id"))
+        return names
+
+    def mask(self, el, name: str, p: dict):
+        """Mitsuba's ``mask``: its nested BSDF (nested or a <ref>) with an opacity (a <float>,
+        <rgb> or <spectrum>, whose luminance is taken, or a texture, read as Mitsuba's eval_1;
+        default 0.5, clamped to [0, 1] as Mitsuba does): a copy of the nested BSDF's row with
+        jgi's ``opacity``. A mask inside a mask multiplies constant opacities."""
+        names = self.nested_bsdfs(el, "mask")
         if len(names) != 1:
             self.fail(el, f"mask needs exactly one nested BSDF (or <ref>), got {len(names)}")
         inner = names[0]
