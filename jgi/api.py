@@ -4,6 +4,8 @@ Dispatches to a registered estimator (:mod:`jgi.estimators.registry`) after chec
 parameter against its declared schema, so a typo is an error naming the key and what is allowed.
 :func:`render` returns the image; :func:`render_result` the image and the estimator's
 statistics (acceptance rates, photon counts, ...) as a :class:`~jgi.estimators.registry.Render`.
+With ``progress=True`` the render is tracked by :func:`jgi.core.progress.tracking`: a bar (or the
+study's display) shows compilation apart from rendering, and rates and ETA from render time.
 """
 
 from __future__ import annotations
@@ -12,6 +14,7 @@ import numpy as np
 
 from . import estimators  # noqa: F401  (registers every estimator)
 from .core.errors import ParameterError
+from .core.progress import tracking
 from .estimators import registry
 from .estimators.registry import Render
 from .scene.files import load_scene
@@ -31,7 +34,10 @@ def render_result(scene: Scene | str, estimator: str = "pt", spp: int = 16, seed
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or not 0 <= seed < 2**32:
         raise ParameterError(f"seed must be an integer in [0, 2^32), got {seed!r}")
     cfg = est.resolve(params)
-    return est.run(scene, cfg, spp=int(spp), seed=int(seed), progress=progress)
+    if not progress:
+        return est.run(scene, cfg, spp=int(spp), seed=int(seed), progress=False)
+    with tracking(f"{estimator} {spp} spp"):   # compiling shown apart from rendering
+        return est.run(scene, cfg, spp=int(spp), seed=int(seed), progress=True)
 
 
 def render(scene: Scene | str, estimator: str = "pt", spp: int = 16, seed: int = 0,

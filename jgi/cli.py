@@ -2,6 +2,8 @@
 
     jgi render cornell_box --estimator pt --spp 64 --seed 0 --out out/cb.exr --strategy mis
     jgi render scenes/my_scene.toml -e pt --spp 16 -p heuristic=power -p power=2
+    jgi render cornell_box -e bdpt --spp 4096 --checkpoint ref/ --chunk-spp 256 [--workers 2]
+                                           # seeded chunks kept in ref/: resumable, spreadable
     jgi render --list                      # every estimator with its parameters and defaults
     jgi run configs/quickstart.toml [--dry-run]
 """
@@ -19,6 +21,7 @@ from .core.errors import ParameterError
 from .core.imageio import write_exr, write_png
 from .estimators.registry import REGISTRY, get
 from .experiment import main_run
+from .experiment.checkpoint import CheckpointError, render_checkpointed
 from .scene.builder import SceneError
 from .scene.files import load_scene
 
@@ -55,6 +58,16 @@ def _render(argv) -> int:
                     help="estimator parameter (repeatable); '--KEY VALUE' works too")
     ap.add_argument("--list", action="store_true", help="list estimators and their parameters")
     ap.add_argument("--quiet", action="store_true", help="no progress bar")
+    ap.add_argument("--checkpoint", metavar="DIR", default=None,
+                    help="render in seeded chunks, each saved in DIR: an interrupted render "
+                         "resumes from them (with --chunk-spp)")
+    ap.add_argument("--chunk-spp", type=int, default=None, metavar="N",
+                    help="samples per chunk of a checkpointed render (at least two chunks); "
+                         "the chunks' spread gives a variance image, written as *_variance.exr")
+    ap.add_argument("--workers", type=int, default=None,
+                    help="render a checkpointed render's chunks on N local Dask workers")
+    ap.add_argument("--scheduler", default=None, metavar="ADDRESS",
+                    help="render a checkpointed render's chunks on this Dask cluster")
     args, rest = ap.parse_known_args(argv)
 
     if args.list:
@@ -92,22 +105,42 @@ def _render(argv) -> int:
         params[key] = _convert(param, val)
 
 
+    chunked = args.checkpoint is not None or args.chunk_spp is not None
+    if chunked and (args.checkpoint is None or args.chunk_spp is None):
+        raise SystemExit("jgi: --checkpoint DIR and --chunk-spp N go together")
+    if (args.workers or args.scheduler) and not chunked:
+        raise SystemExit("jgi: --workers / --scheduler spread a checkpointed render's chunks; "
+                         "add --checkpoint DIR --chunk-spp N")
+    if chunked and not 1 <= args.chunk_spp <= args.spp // 2:
+        raise SystemExit(f"jgi: --chunk-spp must be from 1 to spp / 2 = {args.spp // 2} (at "
+                         f"least two chunks), got {args.chunk_spp}")
+    variance = None
     try:
         scene = load_scene(args.scene)
+        size = None
         if args.width or args.height:
-            w = args.width or scene.camera.width
-            h = args.height or scene.camera.height
-            scene = scene.with_resolution(w, h)
+            size = (args.width or scene.camera.width, args.height or scene.camera.height)
+            scene = scene.with_resolution(*size)
         t0 = time.perf_counter()
-        image = render(scene, args.estimator, spp=args.spp, seed=args.seed,
-                       progress=not args.quiet, **params)
-    except (SceneError, ParameterError) as e:
+        if chunked:
+            est.resolve(params)   # a bad parameter is refused here, not on a worker
+            image, variance = render_checkpointed(
+                args.scene, args.estimator, spp=args.spp, seed=args.seed,
+                folder=args.checkpoint, chunk_spp=args.chunk_spp, params=params,
+                resolution=size, workers=args.workers, scheduler=args.scheduler,
+                progress=not args.quiet)
+        else:
+            image = render(scene, args.estimator, spp=args.spp, seed=args.seed,
+                           progress=not args.quiet, **params)
+    except (SceneError, ParameterError, CheckpointError) as e:
         raise SystemExit(f"jgi: {e}") from None
     dt = time.perf_counter() - t0
     out = Path(args.out)
     if out.suffix.lower() != ".exr":
         out = out.with_suffix(".exr")
     write_exr(out, image)
+    if variance is not None:
+        write_exr(out.with_name(out.stem + "_variance.exr"), variance)
     write_png(out.with_suffix(".png"), image, args.exposure)
     h, w, _ = image.shape
     print(f"wrote {out} and {out.with_suffix('.png')} ({w}x{h}, {args.spp} spp, {dt:.1f} s)")

@@ -18,7 +18,9 @@ import pytest
 PACKAGE = Path(__file__).resolve().parents[1] / "jgi"
 LAYERS = ["jgi._xla", "jgi.core", "jgi.scene", "jgi.physics", "jgi.transport", "jgi.drivers",
           "jgi.estimators", "jgi.analysis", "jgi.api", "jgi", "jgi.experiment", "jgi.cli"]
-OPTIONAL = {"mitsuba", "drjit"}   # may be imported inside functions: not installed by default
+# may be imported inside functions: not installed by default (mitsuba, drjit), or Dask's
+# distributed, which only a study on a cluster needs and which costs ~0.7 s to import
+OPTIONAL = {"mitsuba", "drjit", "distributed"}
 
 
 def _modules() -> dict[str, tuple[Path, ast.Module]]:

@@ -12,6 +12,7 @@ import pytest
 
 import jgi
 from jgi.experiment import ConfigError, load_config, plan, run, smoke
+from tests.support.renders import CountingRender
 
 ROOT = Path(__file__).resolve().parents[1]
 CONFIGS = sorted((ROOT / "configs").glob("*.toml"))
@@ -29,20 +30,6 @@ name = "pt"
 params = { rr_depth = -1 }
 sweep = { spp = [1, 4], strategy = ["bsdf", "light"] }
 """
-
-
-class CountingRender:
-    """jgi.render that counts its calls and can simulate an interruption after n of them."""
-
-    def __init__(self, fail_after: int | None = None):
-        self.calls = 0
-        self.fail_after = fail_after
-
-    def __call__(self, *args, **kwargs):
-        if self.fail_after is not None and self.calls >= self.fail_after:
-            raise KeyboardInterrupt("simulated interruption")
-        self.calls += 1
-        return jgi.render(*args, **kwargs)
 
 
 def write(tmp_path, text, name="exp.toml") -> Path:
@@ -201,10 +188,10 @@ END_TO_END = ("furnace", "quickstart", "path_lengths", "photon_count_vs_k", "pt_
 
 @pytest.mark.parametrize("config", CONFIGS, ids=[c.stem for c in CONFIGS])
 def test_bundled_config_is_valid_and_plans(config):
-    from jgi.experiment import _scene
+    from jgi.experiment import study_scene
 
     doc = load_config(config)  # the full-size config is valid as shipped
-    scene, _ = _scene(smoke(doc), config)
+    scene, _ = study_scene(smoke(doc), config)
     assert scene.camera.width <= 8 and plan(smoke(doc))
 
 

@@ -128,6 +128,23 @@ def pixel_mean_and_se(per_pixel) -> tuple[float, float]:
     return float(v.mean()), float(v.std(ddof=1) / np.sqrt(v.size)) if v.size > 1 else 0.0
 
 
+def combine_chunks(images, samples) -> tuple[np.ndarray, np.ndarray]:
+    """One render from independent chunks: ``images`` [n, ...] of ``samples`` [n] samples each.
+
+    The mean weights each chunk by its samples, m = sum(s_i x_i) / S, which is exactly the
+    image of S samples. With var(x_i) = sigma^2 / s_i per pixel, sum(s_i (x_i - m)^2) / (n - 1)
+    estimates sigma^2 without bias, so the variance of m is that over S. Returns (m, var(m)) per
+    pixel; n >= 2."""
+    x = np.asarray(images, np.float64)
+    s = np.asarray(samples, np.float64).reshape((-1,) + (1,) * (x.ndim - 1))
+    if x.shape[0] < 2:
+        raise ValueError("combine_chunks needs at least two chunks to estimate a variance")
+    total = s.sum()
+    mean = (s * x).sum(0) / total
+    sigma2 = (s * (x - mean) ** 2).sum(0) / (x.shape[0] - 1)
+    return mean.astype(np.float32), (sigma2 / total).astype(np.float32)
+
+
 def region_stats(images: np.ndarray, regions: int = 4):
     """Per-region means of each repetition -> (mean over repetitions, standard error).
 

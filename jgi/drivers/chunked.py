@@ -24,8 +24,6 @@ sample's own pixel; :func:`jgi.drivers.splat.render_splats` for splatting ones.
 
 from __future__ import annotations
 
-import sys
-import time
 import warnings
 from dataclasses import dataclass
 from functools import partial
@@ -36,6 +34,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..core import calls
+from ..core.progress import advance
 from ..core.sharding import device_mesh, sharded_calls
 from ..core.vec import V3
 from ..scene.tables import Scene
@@ -104,7 +103,6 @@ def sum_path_chunks(scene: Scene, path_fn: Callable, *, seed: int, total: int, c
     (n_images, P, 3), summed in call order, and the number of dropped contributions."""
     P = scene.camera.width * scene.camera.height
     per_call = chunk * CHUNKS_PER_CALL
-    t0 = time.perf_counter()
 
     def call(i):
         sample0, pixel0 = divmod(i * per_call, P)
@@ -114,12 +112,9 @@ def sum_path_chunks(scene: Scene, path_fn: Callable, *, seed: int, total: int, c
 
     def report(i):
         if progress:
-            progress_line(min((i + 1) * per_call, total), total, time.perf_counter() - t0)
+            advance(min((i + 1) * per_call, total), total)
 
-    img, bad = calls.sum_calls(call, -(-total // per_call), on_done=report)
-    if progress:
-        sys.stderr.write("\n")
-    return img, bad
+    return calls.sum_calls(call, -(-total // per_call), on_done=report)
 
 
 def render_paths(scene: Scene, radiance: Callable[..., V3], *, spp: int, seed: int,
@@ -134,15 +129,6 @@ def render_paths(scene: Scene, radiance: Callable[..., V3], *, spp: int, seed: i
     if bad:
         warnings.warn(f"{bad} path samples were not finite and were dropped", RuntimeWarning)
     return img.reshape(H, W, 3) / np.float32(spp)
-
-
-def progress_line(done: int, total: int, elapsed: float) -> None:
-    frac = done / total
-    eta = elapsed / frac - elapsed if frac > 0 else 0.0
-    bar = "#" * int(30 * frac)
-    rate = done / max(elapsed, 1e-9) / 1e6
-    sys.stderr.write(f"\r[{bar:<30}] {100 * frac:5.1f}%  {rate:6.2f} Mpaths/s  ETA {eta:6.1f}s")
-    sys.stderr.flush()
 
 
 @dataclass(frozen=True)

@@ -15,8 +15,6 @@ functions, or :class:`jgi.core.configured.Configured` for a step with its settin
 
 from __future__ import annotations
 
-import sys
-import time
 import warnings
 from functools import partial
 from typing import Callable, NamedTuple
@@ -28,9 +26,9 @@ import numpy as np
 from .._xla import materialize
 from ..core import calls
 from ..core.errors import ParameterError
+from ..core.progress import advance
 from ..core.vec import V3
 from ..scene.tables import Scene
-from .chunked import progress_line
 
 # two loops of 2^12 lanes in flight beat one of 2^14 (perf: docs/performance.md#wavefront-lanes)
 WAVEFRONT_LANES = 1 << 12   # lanes per loop
@@ -191,7 +189,6 @@ def render_wavefront(scene: Scene, start_fn: Callable, step_fn: Callable, *, spp
     bounds = [n_slots * i // n_calls for i in range(n_calls + 1)]
     args = (jnp.int32(spp), jnp.int32(per_slot), jnp.int32(n_inner))
     scenes = [jax.device_put(scene, d) for d in devices]   # call i runs on device i mod D
-    t0 = time.perf_counter()
 
     def call(i):
         return wavefront_call(scenes[i % D], jnp.uint32(seed), jnp.int32(bounds[i]),
@@ -200,12 +197,10 @@ def render_wavefront(scene: Scene, start_fn: Callable, step_fn: Callable, *, spp
 
     def report(i):
         if progress:
-            progress_line(int(bounds[i + 1] / n_slots * P * spp), P * spp, time.perf_counter() - t0)
+            advance(int(bounds[i + 1] / n_slots * P * spp), P * spp)
 
     img, bad = calls.sum_calls(call, n_calls, streams=streams, on_done=report)
     out = np.asarray(img, np.float32).reshape(H, W, 3) / np.float32(spp)
-    if progress:
-        sys.stderr.write("\n")
     bad = int(bad)
     if bad:
         warnings.warn(f"{bad} path samples were not finite and were dropped", RuntimeWarning)

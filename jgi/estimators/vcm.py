@@ -90,6 +90,7 @@ from .._xla import materialize
 from ..core import rng
 from ..core.compaction import compact_map
 from ..core.imageio import write_exr, write_png
+from ..core.progress import advance
 from ..core.vec import V3, dot, max_component, where
 from ..physics import bsdf, camera, geometry
 from ..physics.lights import (
@@ -901,9 +902,7 @@ class _Iterations:
                                     jnp.int32(p0), ts, by_technique)
                 on_chunk(i, p0, out)
             if progress:
-                print(f"\rvcm iteration {i}/{spp}", end="", flush=True)
-        if progress:
-            print()
+                advance(i, spp, "iterations")
 
 
 def render(scene: Scene, cfg: VCMConfig = VCMConfig(), *, spp: int, seed: int,
