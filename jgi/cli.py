@@ -17,11 +17,9 @@ from pathlib import Path
 
 from . import estimators  # noqa: F401  (registers the estimators)
 from .api import render
-from .core.errors import ParameterError
+from .core.errors import CheckpointError, ParameterError
 from .core.imageio import write_exr, write_png
 from .estimators.registry import REGISTRY, get
-from .experiment import main_run
-from .experiment.checkpoint import CheckpointError, render_checkpointed
 from .scene.builder import SceneError
 from .scene.files import load_scene
 
@@ -123,6 +121,9 @@ def _render(argv) -> int:
             scene = scene.with_resolution(*size)
         t0 = time.perf_counter()
         if chunked:
+            # the studies' modules (Dask, plots, statistics) load only for a checkpointed render
+            from .experiment.checkpoint import render_checkpointed
+
             est.resolve(params)   # a bad parameter is refused here, not on a worker
             image, variance = render_checkpointed(
                 args.scene, args.estimator, spp=args.spp, seed=args.seed,
@@ -148,6 +149,8 @@ def _render(argv) -> int:
 
 
 def _run(argv) -> int:
+    from .experiment import main_run
+
     return main_run(argv) or 0
 
 

@@ -15,9 +15,10 @@ import pytest
 
 from jgi.analysis.stats import combine_chunks
 from jgi.core import progress
+from jgi.core.errors import CheckpointError
 from jgi.experiment import run
 from jgi.experiment import study as study_module
-from jgi.experiment.checkpoint import CheckpointError, render_checkpointed
+from jgi.experiment.checkpoint import render_checkpointed
 from jgi.experiment.display import StudyDisplay
 from jgi.experiment.tasks import TMP_SUFFIX
 from tests.support.renders import CountingRender, KillingRender, worker_pid_killed
@@ -131,3 +132,40 @@ def test_progress_counts_compiling_apart_from_rendering():
     assert final.compile_s > 0                       # the compile was seen ...
     assert final.render_s >= 0                       # ... and not counted as rendering
     assert ticks[-2].rate > 0 and ticks[-2].eta == 0
+
+
+def test_checkpointed_render_from_the_command_line(tmp_path):
+    from jgi.cli import main
+    from jgi.core.imageio import read_exr
+
+    args = ["render", "cornell_box", "-e", "pt", "--spp", "4", "--width", "8", "--height", "8",
+            "--checkpoint", str(tmp_path / "ck"), "--chunk-spp", "2", "--quiet",
+            "--out", str(tmp_path / "img.exr")]
+    assert main(args) == 0
+    image, var = render_checkpointed("cornell_box", "pt", spp=4, seed=0, chunk_spp=2,
+                                     resolution=(8, 8), folder=tmp_path / "ck", progress=False)
+    assert np.array_equal(read_exr(tmp_path / "img.exr"), image)
+    assert np.array_equal(read_exr(tmp_path / "img_variance.exr"), var) and var.max() > 0
+    for bad, says in ((["--spp", "8"], "render.json"), (["--chunk-spp", "3"], "chunk-spp"),
+                      (["--checkpoint"], "go together")):
+        argv = list(args)
+        if bad == ["--checkpoint"]:
+            i = argv.index("--checkpoint")
+            del argv[i: i + 2]
+        else:
+            argv[argv.index(bad[0]) + 1] = bad[1]
+        with pytest.raises(SystemExit, match=says):
+            main(argv)
+
+
+def test_render_command_starts_without_the_study_modules():
+    """`jgi render` imports neither the studies (Dask, plots, scipy.stats) nor colour-science
+    or trimesh: a cached program then starts rendering in a few seconds."""
+    import subprocess
+    import sys
+
+    code = ("import sys, jgi.cli; print(sorted(m for m in ('jgi.experiment', 'distributed', "
+            "'colour', 'trimesh', 'scipy.stats') if m in sys.modules))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         check=True).stdout.strip()
+    assert out == "[]", out

@@ -19,14 +19,11 @@ import numpy as np
 
 from .. import __version__
 from ..analysis.stats import combine_chunks
+from ..core.errors import CheckpointError
 from .display import StudyDisplay
 from .executors import executor as make_executor
 from .plan import chunk_seed, chunk_sizes, content_hash
 from .tasks import StudyJob, remove_temporaries
-
-
-class CheckpointError(ValueError):
-    """A checkpoint folder that holds another render."""
 
 
 def chunk_tasks(scene_id: str, resolution, estimator: str, spp: int, seed: int, params: dict,

@@ -28,7 +28,6 @@
 from __future__ import annotations
 
 import numpy as np
-import trimesh
 
 from ..core import transform as xf
 from .builder import SceneBuilder
@@ -177,6 +176,7 @@ def metal_ring(resolution: int = 256, segments: int = 96) -> Scene:
 
 def ring_mesh(radius: float, height: float, segments: int):
     """Open cylinder (both faces reflect: the mirror material is two-sided) built with trimesh."""
+    import trimesh  # on use: its import costs every start-up 0.4 s
 
     ann = trimesh.creation.cylinder(radius=radius, height=height, sections=segments)
     # keep only the side wall: drop the caps (faces whose normal is along the axis)

@@ -28,26 +28,22 @@ tabulate) from CIE 15 (the values Mitsuba's and pbrt's tables hold).
 
 from __future__ import annotations
 
+import functools
 import math
 import re
 from pathlib import Path
+from types import SimpleNamespace
 
-import colour
 import numpy as np
 
 CIE_MIN, CIE_MAX = 360, 830
-_CMFS = colour.MSDS_CMFS["CIE 1931 2 Degree Standard Observer"]
 CIE_NM = np.arange(CIE_MIN, CIE_MAX + 1, dtype=float)          # 1 nm, pbrt's sampling
-CIE_XYZ = np.asarray(_CMFS[CIE_NM], float)                      # [471, 3]
 _CIE_5NM = CIE_NM[::5]                                          # Mitsuba's 95-sample table
-_CIE_XYZ_5NM = CIE_XYZ[::5]
+D65_NM = np.arange(300, 831, 5, dtype=float)
 
 # CIE D65 at 785..830 nm (5 nm): CIE 15, table T.1; colour-science's D65 stops at 780 nm
 _D65_TAIL = (63.8434, 64.304, 61.8779, 59.4519, 55.7054, 51.959, 54.6998, 57.4406, 58.8765,
              60.3125)
-_D65_SD = colour.SDS_ILLUMINANTS["D65"]
-D65_NM = np.arange(300, 831, 5, dtype=float)
-D65 = np.concatenate([np.asarray(_D65_SD[np.arange(300, 781, 5)], float), _D65_TAIL])
 
 # Mitsuba 3 (include/mitsuba/core/spectrum.h)
 MITSUBA_CIE_Y_NORMALIZATION = 1.0 / 106.7502593994140625
@@ -138,7 +134,7 @@ def _check_temperature(temperature: float):
 def mitsuba_cie_xyz(wavelength_nm) -> np.ndarray:
     """Mitsuba's cie1931_xyz: its 5 nm table, linearly interpolated, 0 outside [360, 830]."""
     w = np.asarray(wavelength_nm, float)
-    return np.stack([np.interp(w, _CIE_5NM, _CIE_XYZ_5NM[:, i], left=0.0, right=0.0)
+    return np.stack([np.interp(w, _CIE_5NM, _cie().CIE_XYZ_5NM[:, i], left=0.0, right=0.0)
                      for i in range(3)], -1)
 
 
@@ -146,7 +142,7 @@ def mitsuba_d65(wavelength_nm) -> np.ndarray:
     """Mitsuba's cie_d65: D65 (5 nm, linear) times MI_CIE_D65_NORMALIZATION in [360, 830]."""
     w = np.asarray(wavelength_nm, float)
     inside = (w >= CIE_MIN) & (w <= CIE_MAX)
-    return np.where(inside, np.interp(w, D65_NM, D65) * MITSUBA_D65_NORMALIZATION, 0.0)
+    return np.where(inside, np.interp(w, D65_NM, _cie().D65) * MITSUBA_D65_NORMALIZATION, 0.0)
 
 
 def mitsuba_rgb(spectrum, emitter: bool = False, unbounded: bool = False) -> np.ndarray:
@@ -206,11 +202,35 @@ def pbrt_sample(spectrum) -> np.ndarray:
     return np.where(inside, np.interp(CIE_NM, wl, val), 0.0)
 
 
-PBRT_D65 = pbrt_sample((D65_NM, D65))
 PBRT_CIE_Y_INTEGRAL = 106.856895
-_PBRT_WHITE = (CIE_XYZ * PBRT_D65[:, None]).sum(0) / (CIE_XYZ[:, 1] * PBRT_D65).sum()
-PBRT_XYZ_FROM_SRGB = _xyz_from_primaries(_PBRT_WHITE)
-PBRT_SRGB_FROM_XYZ = np.linalg.inv(PBRT_XYZ_FROM_SRGB)
+
+# The CIE tables come from colour-science, whose import takes half a second: they are built on
+# first use (every jgi start-up would pay otherwise), and read as module attributes
+# (spectra.CIE_XYZ, spectra.D65, ...) or, inside this module, as _cie().NAME.
+_LAZY = ("CIE_XYZ", "D65", "PBRT_D65", "PBRT_XYZ_FROM_SRGB", "PBRT_SRGB_FROM_XYZ")
+
+
+@functools.cache
+def _cie() -> SimpleNamespace:
+    import colour  # imported here: see above
+
+    cmfs = colour.MSDS_CMFS["CIE 1931 2 Degree Standard Observer"]
+    t = SimpleNamespace(colour=colour)
+    t.CIE_XYZ = np.asarray(cmfs[CIE_NM], float)                      # [471, 3]
+    t.CIE_XYZ_5NM = t.CIE_XYZ[::5]
+    d65 = colour.SDS_ILLUMINANTS["D65"]
+    t.D65 = np.concatenate([np.asarray(d65[np.arange(300, 781, 5)], float), _D65_TAIL])
+    t.PBRT_D65 = pbrt_sample((D65_NM, t.D65))
+    white = (t.CIE_XYZ * t.PBRT_D65[:, None]).sum(0) / (t.CIE_XYZ[:, 1] * t.PBRT_D65).sum()
+    t.PBRT_XYZ_FROM_SRGB = _xyz_from_primaries(white)
+    t.PBRT_SRGB_FROM_XYZ = np.linalg.inv(t.PBRT_XYZ_FROM_SRGB)
+    return t
+
+
+def __getattr__(name: str):
+    if name in _LAZY:
+        return getattr(_cie(), name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
 def pbrt_rgb(spectrum, illuminant: bool) -> np.ndarray:
@@ -220,15 +240,17 @@ def pbrt_rgb(spectrum, illuminant: bool) -> np.ndarray:
     the tables' rounding). ``spectrum`` is a constant, (wavelengths, values) or sampled
     values at 360..830 nm."""
     s = spectrum if isinstance(spectrum, np.ndarray) else pbrt_sample(spectrum)
+    cie = _cie()
     if illuminant:
-        y = float((s * CIE_XYZ[:, 1]).sum())
+        y = float((s * cie.CIE_XYZ[:, 1]).sum())
         if not y > 0:
             raise SpectrumError("an emission spectrum must have a positive luminance "
                                 "(pbrt divides it by its photometric integral)")
-        xyz = (CIE_XYZ * s[:, None]).sum(0) / y
+        xyz = (cie.CIE_XYZ * s[:, None]).sum(0) / y
     else:
-        xyz = (CIE_XYZ * (s * PBRT_D65)[:, None]).sum(0) / (CIE_XYZ[:, 1] * PBRT_D65).sum()
-    return PBRT_SRGB_FROM_XYZ @ xyz
+        xyz = ((cie.CIE_XYZ * (s * cie.PBRT_D65)[:, None]).sum(0)
+               / (cie.CIE_XYZ[:, 1] * cie.PBRT_D65).sum())
+    return cie.PBRT_SRGB_FROM_XYZ @ xyz
 
 
 def pbrt_blackbody(temperature: float) -> np.ndarray:
@@ -257,17 +279,17 @@ def pbrt_named(name: str) -> np.ndarray | None:
     """pbrt-v4's named illuminant spectrum ``name`` at 360..830 nm (luminance 1: pbrt's
     normalisation), or None if jgi does not carry it."""
     if name == "stdillum-D65":
-        s = PBRT_D65
+        s = _cie().PBRT_D65
     elif name == "stdillum-A":
         s = cie_illuminant_a(CIE_NM)
     elif name in _PBRT_ILLUMINANTS:
-        sd = colour.SDS_ILLUMINANTS[_PBRT_ILLUMINANTS[name]]
+        sd = _cie().colour.SDS_ILLUMINANTS[_PBRT_ILLUMINANTS[name]]
         lo, hi = sd.shape.start, sd.shape.end
         wl = np.arange(lo, hi + 1e-9, sd.shape.interval)
         s = pbrt_sample((wl, np.asarray(sd[wl], float)))
     else:
         return None
-    return s * PBRT_CIE_Y_INTEGRAL / float((s * CIE_XYZ[:, 1]).sum())
+    return s * PBRT_CIE_Y_INTEGRAL / float((s * _cie().CIE_XYZ[:, 1]).sum())
 
 
 def pbrt_named_illuminants() -> tuple[str, ...]:

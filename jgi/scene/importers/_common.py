@@ -6,7 +6,6 @@ import zlib
 from pathlib import Path
 
 import numpy as np
-import trimesh
 
 from ..builder import SceneError
 from ..tables import NAMED_METALS
@@ -154,6 +153,8 @@ def _read_ply(path: Path, where: str, uv_names=MITSUBA_PLY_UV):
     or None) and vertex normals (or None) of a PLY file, all in the file's vertex order:
     trimesh's parser without its re-indexing of textured vertices (``fix_texture``), so that
     the uv and normals stay with their vertices."""
+    import trimesh  # on use: its import costs every start-up 0.4 s
+
     try:
         with open(path, "rb") as fh:
             kw = trimesh.exchange.ply.load_ply(fh, fix_texture=False, skip_materials=True)
@@ -283,6 +284,8 @@ def load_mesh(path: Path, where: str, allow_vertex_normals: bool = True, with_uv
     if path.suffix.lower() == ".ply":
         v, f, uv, _ = _read_ply(path, where, ply_uv)
         return (v, f, uv) if with_uv else (v, f)
+    import trimesh  # on use: its import costs every start-up 0.4 s
+
     try:
         mesh = trimesh.load(str(path), force="mesh", process=False)
     except Exception as e:  # trimesh raises many kinds
