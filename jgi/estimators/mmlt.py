@@ -32,12 +32,20 @@ with Kelemen's small steps (every coordinate, the strategy choice included, move
 min(1, f'/f), and expected-value splatting of the current state (weight 1 - a) and the proposal
 (weight a), all in the Metropolis kernel :func:`jgi.transport.mcmc.metropolis`.
 
-Cost: every mutation evaluates all strategies of its length and keeps one (simple, not
-pbrt's single-strategy evaluation). Compilation dominates small renders: one chain kernel per
-path length (the bootstrap runs through it too), about 150-170 s for lengths 1..5 on two shared
-CPU cores. Measured on cornell_box_caustics, 32x32, 2048 chains: acceptance 0.62 (depth 3)
-and 0.61 (depth 5); 4e5 (depth 3) and 2e5 (depth 5) mutations/s after compilation, beside
-BDPT's 2-4e5 samples/s on the same (shared, noisy) machine.
+Cost: every mutation evaluates all strategies of its length with subpaths of L and L - 1
+segments (a BDPT sample restricted to length L: a next-event shadow ray at every camera vertex,
+every interior connection, MIS of all L + 1 strategies) and keeps one (simple, not pbrt's
+single-strategy evaluation); at equal lane counts that costs what a BDPT sample of max_depth L
+does (measured, L = 5, 4096 lanes: 1.1e6 evaluations/s beside BDPT's 1.07e6 samples/s), and the
+Metropolis step (mutation of 9 L + 5 coordinates, splats) about as much again. The chains are
+shared by the path lengths (``chains // max_depth`` lanes each: 128 at max_depth 16, where XLA's
+CPU backend is far from full speed), and the bootstrap costs ``bootstrap_samples`` evaluations
+per length whatever the spp. Compilation dominates small renders: one chain kernel per path
+length (the bootstrap runs through it too). ``experiments/bench/mmlt_vs_bdpt.py``, Cornell box
+64^2, 16 spp, two shared CPU cores: max_depth 16, 4.2-4.9e4 mutations/s (the whole render,
+bootstrap included) beside BDPT's 5.6-6.2e4 samples/s (ratio 0.67-0.87), compile 284 s beside
+63 s; max_depth 5, 1.7-2.4e5 mutations/s beside 8.2-9.7e5 samples/s (ratio 0.17-0.26), compile
+63 s beside 21 s.
 """
 
 from __future__ import annotations
