@@ -53,6 +53,17 @@ def counter(key: Array, dim) -> Array:
 def uniform_at(c: Array, k: int) -> Array:
     """Uniform number ``k`` dimensions after the counter ``c`` (see :func:`counter`)."""
     h = lowbias32(c + _U32((k * _WEYL) & 0xFFFFFFFF)) if k else lowbias32(c)
+    return unit(h)
+
+
+def bits(key: Array, dim) -> Array:
+    """The 32 hashed bits of dimension ``dim`` of stream ``key`` (``uniform`` = ``unit(bits)``),
+    for a caller that takes a uniform and a coin from one hash."""
+    return lowbias32(counter(key, dim))
+
+
+def unit(h: Array) -> Array:
+    """The top 24 bits of a hash as a uniform float32 in [0, 1)."""
     return (h >> 8).astype(jnp.float32) * jnp.float32(1.0 / 16777216.0)
 
 
@@ -81,7 +92,8 @@ SALTS: dict[str, int] = {
     "mlt": 0x1B873593,
 }
 # Sub-streams of one step's key (``derive(key, k)``, k small), in pssmlt's, mmlt's and mlt's
-# chain steps: 7 the small step's signs, 11 the large step's fresh sample, 3 the mutation.
+# chain steps: 3 the mutation (Veach's MLT). The Kelemen mutation of pssmlt and mmlt reads
+# dimensions of the step's key itself, no sub-stream (see pssmlt.kelemen_mutation).
 
 
 def derive(key: Array, salt) -> Array:

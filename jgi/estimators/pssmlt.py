@@ -95,14 +95,21 @@ def kelemen_small_step(u, xi_size, xi_sign, s1: float, s2: float):
 def kelemen_mutation(u, key, p_large, s1: float, s2: float):
     """Kelemen's mutation of primary samples u [d, chains], from the step's stream ``key`` of
     :func:`jgi.transport.mcmc.metropolis`: with probability p_large (dimension 0) a large step,
-    a fresh vector (sub-stream 11); else a small step of every coordinate, sizes from dimensions
-    3 .. d + 2 and directions from sub-stream 7. Both are symmetric, so T cancels in
-    a(u -> v)."""
+    a fresh vector; else a small step of every coordinate. Both are symmetric, so T cancels in
+    a(u -> v).
+
+    A chain takes one of the two steps, never both, so one 32-bit hash per coordinate
+    (dimensions 3 .. d + 2 of ``key``) serves either: its top 24 bits are the fresh uniform of
+    the large step or the uniform xi of the small step's size s2 exp(-log(s2/s1) xi), and its
+    bit 0 the small step's sign (independent of the top bits: lowbias32 avalanches). One hash
+    instead of three per coordinate: the mutation costs about as much as the path otherwise
+    (perf: docs/performance.md#mcmc-mutation)."""
     d = u.shape[0]
     large = rng.uniform(key, 0) < p_large
-    small = kelemen_small_step(u, rng.uniforms(key, 3, d), rng.uniforms(rng.derive(key, 7), 0, d),
-                               s1, s2)
-    return jnp.where(large[None, :], rng.uniforms(rng.derive(key, 11), 0, d), small)
+    h = jnp.stack([rng.bits(key, 3 + k) for k in range(d)])
+    xi = rng.unit(h)
+    small = kelemen_small_step(u, xi, (h & jnp.uint32(1)).astype(jnp.float32), s1, s2)
+    return jnp.where(large[None, :], xi, small)
 
 
 class PrimarySample(NamedTuple):
