@@ -24,6 +24,7 @@ from tests.support.environment import (
     radiance_and_pdf,
     rotation,
     sky,
+    sphere_midpoints,
     unit_directions,
 )
 from tests.support.light_samplers import build, pdf_li, sample_emission, sample_li
@@ -91,13 +92,9 @@ def test_pdf_integrates_to_one_and_follows_the_image():
     """Midpoint rule over a fine (theta, phi) grid; the pdf is proportional to the cells'
     luminance, so L / pdf is flat where the map is flat over a cell."""
     lights = map_lights(to_world=rotation())
-    n = 800
-    th = (np.arange(n) + 0.5) * np.pi / n
-    ph = (np.arange(2 * n) + 0.5) * np.pi / n
-    T, P = np.meshgrid(th, ph, indexing="ij")
-    d = np.stack([np.sin(T) * np.cos(P), np.sin(T) * np.sin(P), np.cos(T)], -1).reshape(-1, 3)
+    d, dw = sphere_midpoints(800)
     _, p = radiance_and_pdf(lights, d)
-    integral = (p.reshape(T.shape) * np.sin(T)).sum() * (np.pi / n) ** 2
+    integral = (p * dw).sum()
     assert abs(integral - 1.0) < 2e-3, integral
     # pdf_li (the MIS path) is environment_pdf
     k = lights.environment
@@ -116,14 +113,9 @@ def test_emission_directions_and_power():
     assert_chi2(w, lambda v: radiance_and_pdf(lights, v)[1], SphereDomain(n_a=32, n_phi=32),
                 "environment map emission", total=1.0, nodes=16)
     # power pi R^2 \int L dw: the integral by a fine midpoint rule over the sphere
-    n = 600
-    th = (np.arange(n) + 0.5) * np.pi / n
-    ph = (np.arange(2 * n) + 0.5) * np.pi / n
-    T, P = np.meshgrid(th, ph, indexing="ij")
-    d = np.stack([np.sin(T) * np.cos(P), np.sin(T) * np.sin(P), np.cos(T)], -1).reshape(-1, 3)
+    d, dw = sphere_midpoints(600)
     L, _ = radiance_and_pdf(lights, d)
-    power = np.pi * R * R * (L.reshape(T.shape + (3,)) * np.sin(T)[..., None]).sum((0, 1)) \
-        * (np.pi / n) ** 2
+    power = np.pi * R * R * (L * dw[:, None]).sum(0)
     m = e["weight"].mean(0)
     se = e["weight"].std(0) / np.sqrt(len(e["weight"]))
     assert np.all(np.abs(m - power) < 5 * se + 2e-3 * power), (m, power, se)

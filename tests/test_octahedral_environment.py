@@ -23,7 +23,12 @@ from jgi.core.vec import V3
 from jgi.physics import lights as LT
 from jgi.scene import SceneBuilder, SceneError
 from jgi.scene.importers import load_pbrt
-from tests.support.environment import radiance_and_pdf, rotation, unit_directions
+from tests.support.environment import (
+    radiance_and_pdf,
+    rotation,
+    sphere_midpoints,
+    unit_directions,
+)
 from tests.support.light_samplers import build, pdf_li, sample_emission, sample_li
 from tests.support.stats import assert_agree
 
@@ -152,13 +157,9 @@ def test_pdf_integrates_to_one_and_is_proportional_to_the_texels():
     over texels) / (4 pi): pbrt's distribution (channel mean, equal solid angles)."""
     img = octa_sky()
     lights = octa_lights(img, to_world=rotation())
-    n = 800
-    th = (np.arange(n) + 0.5) * np.pi / n
-    ph = (np.arange(2 * n) + 0.5) * np.pi / n
-    T, P = np.meshgrid(th, ph, indexing="ij")
-    d = np.stack([np.sin(T) * np.cos(P), np.sin(T) * np.sin(P), np.cos(T)], -1).reshape(-1, 3)
+    d, dw = sphere_midpoints(800)
     L, p = radiance_and_pdf(lights, d)
-    integral = (p.reshape(T.shape) * np.sin(T)).sum() * (np.pi / n) ** 2
+    integral = (p * dw).sum()
     assert abs(integral - 1.0) < 2e-3, integral
     expected = img.mean(2) / img.mean() / (4 * np.pi)
     _, sN, tN = pbrt_lookup(img, 1.0, rotation(), d)
@@ -297,14 +298,10 @@ def test_pbrt_illuminance_scales_as_pbrt_does(tmp_path):
     write_exr(tmp_path / "sky.exr", octa_sky())
     scene = load(tmp_path, 'LightSource "infinite" "string filename" "sky.exr" '
                            '"float illuminance" 5')
-    n = 600
-    th = (np.arange(n) + 0.5) * (np.pi / 2) / n
-    ph = (np.arange(4 * n) + 0.5) * (np.pi / 2) / n
-    T, P = np.meshgrid(th, ph, indexing="ij")
-    d = np.stack([np.sin(T) * np.cos(P), np.sin(T) * np.sin(P), np.cos(T)], -1).reshape(-1, 3)
+    d, dw = sphere_midpoints(600, hemisphere=True)
     L, _ = radiance_and_pdf(scene.lights, d)
     lum = L @ np.array([0.2126, 0.7152, 0.0722])
-    got = (lum.reshape(T.shape) * np.cos(T) * np.sin(T)).sum() * (np.pi / 2 / n) ** 2
+    got = (lum * d[:, 2] * dw).sum()
     assert abs(got - 2 * E) < 0.1 * E, got
 
 

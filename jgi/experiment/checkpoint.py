@@ -20,20 +20,9 @@ import numpy as np
 from .. import __version__
 from ..analysis.stats import combine_chunks
 from ..core.errors import CheckpointError
-from .display import StudyDisplay
-from .executors import executor as make_executor
-from .plan import chunk_seed, chunk_sizes, content_hash
-from .tasks import StudyJob, remove_temporaries
-
-
-def chunk_tasks(scene_id: str, resolution, estimator: str, spp: int, seed: int, params: dict,
-                chunk_spp: int) -> list[dict]:
-    sizes = chunk_sizes(spp, chunk_spp)
-    base = content_hash(dict(scene=scene_id, res=resolution, est=estimator, spp=spp, seed=seed,
-                             params=params, chunks=sizes, v=__version__))
-    return [dict(kind="chunk", estimator=estimator, spp=n, params=params,
-                 seed=chunk_seed(seed, c), label=f"{estimator} chunk {c + 1}/{len(sizes)}",
-                 key=f"{base}-{c:04d}") for c, n in enumerate(sizes)]
+from .executors import run_tasks
+from .plan import chunk_tasks, content_hash
+from .tasks import StudyJob
 
 
 def render_checkpointed(scene_src: str, estimator: str, *, spp: int, seed: int, folder,
@@ -61,20 +50,11 @@ def render_checkpointed(scene_src: str, estimator: str, *, spp: int, seed: int, 
                                   f"{', '.join(changed)} differ); use a new folder or delete it")
     else:
         manifest.write_text(json.dumps(what, indent=2))
-    todo = chunk_tasks(scene_id, resolution, estimator, spp, seed, params, chunk_spp)
+    todo = chunk_tasks(dict(scene=scene_id, res=resolution), estimator, spp, seed, params,
+                       chunk_spp, estimator)
     job = StudyJob(str(scene_src), resolution, {"chunk": str(folder)}, render)
-    ex = make_executor(workers, scheduler)
-    display = StudyDisplay(f"{estimator} {spp} spp in {len(todo)} chunks", todo, ex.workers,
-                           enabled=progress)
-    try:
-        for t in todo:
-            if job.path(t).exists():
-                display.skip(t)
-        ex.run(job, [t for t in todo if not job.path(t).exists()], display.tick, display.done)
-    finally:
-        display.close()
-        ex.close()
-    remove_temporaries(folder)
+    run_tasks(job, todo, f"{estimator} {spp} spp in {len(todo)} chunks", workers=workers,
+              scheduler=scheduler, progress=progress)
     return combine(job, todo)
 
 

@@ -78,3 +78,4 @@ class StudyDisplay:
     def close(self) -> None:
         if self.enabled:
             self.bar.stop()
+

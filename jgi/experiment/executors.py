@@ -1,4 +1,5 @@
-"""Where a study's tasks run: in this process, one after another (the default), or on a Dask
+"""Where a study's tasks run (:func:`run_tasks`, the one loop of ``jgi run`` and of a
+checkpointed ``jgi render``): in this process, one after another (the default), or on a Dask
 cluster (``jgi run CONFIG --workers N`` or ``--scheduler ADDRESS``).
 
 Either way the study's process only plans and aggregates: a task is
@@ -23,10 +24,12 @@ from __future__ import annotations
 
 import time
 from dataclasses import asdict
+from pathlib import Path
 from typing import Callable, Iterable
 
 from ..core.progress import Tick
-from .tasks import StudyJob, execute
+from .display import StudyDisplay
+from .tasks import StudyJob, execute, remove_temporaries
 
 PROGRESS_TOPIC = "jgi-progress"
 TICK_INTERVAL = 0.5       # seconds between a worker's progress events for one task
@@ -134,3 +137,22 @@ def executor(workers: int | None = None, scheduler: str | None = None):
     if workers is not None and workers < 1:
         raise SystemExit(f"jgi: --workers must be at least 1, got {workers}")
     return DaskCluster(workers=workers, scheduler=scheduler)
+
+
+def run_tasks(job: StudyJob, tasks: list[dict], name: str, *, workers: int | None = None,
+              scheduler: str | None = None, progress: bool = True) -> None:
+    """Run every task of ``tasks`` whose file is missing, in this process or on Dask
+    (:func:`jgi.experiment.executors.executor`), showing their progress; then remove what
+    killed writers left behind."""
+    done = [t for t in tasks if job.path(t).exists()]
+    ex = executor(workers, scheduler)
+    display = StudyDisplay(name, tasks, ex.workers, enabled=progress)
+    try:
+        for t in done:
+            display.skip(t)
+        ex.run(job, [t for t in tasks if t not in done], display.tick, display.done)
+    finally:
+        display.close()
+        ex.close()
+    for folder in set(job.folders.values()):
+        remove_temporaries(Path(folder))

@@ -1,7 +1,7 @@
 """What a study renders, as independent tasks: every (estimator, sweep point, repetition) and
 every chunk of every reference, each with its own seed and a content key naming its result file.
 
-A task is a plain dict (it travels to Dask workers as it is): ``kind`` ("run" or "reference"),
+A task is a plain dict (it travels to Dask workers as it is): ``kind`` ("run" or "chunk"),
 ``estimator``, ``spp``, ``params``, ``seed`` and ``key``. Its image depends on nothing else (the
 scene comes from the config), so it is the same bit for bit wherever and whenever it runs, and a
 study that finds a task's file already written does not run it again.
@@ -24,7 +24,8 @@ from .config import sweep_points
 REFERENCE_CHUNK_SPP = 256
 _CHUNK_STREAM = 2**31 - 1     # spawn key of chunks: apart from every (estimator, point, rep)
 # A study's reference chunks are seeded from this, not from the study's seed: studies of one
-# scene with different seeds share their references (jgi.experiment.study caches them).
+# scene with different seeds share their references (jgi.experiment.study keeps them in
+# <out>/.cache/references).
 REFERENCE_SEED = 900_001
 
 
@@ -51,6 +52,19 @@ def chunk_sizes(spp: int, chunk_spp: int) -> list[int]:
     """``spp`` split into ceil(spp / chunk_spp) chunks as equal as possible (at least two)."""
     n = max(2, -(-spp // chunk_spp))
     return [spp // n + (1 if i < spp % n else 0) for i in range(n)]
+
+
+def chunk_tasks(ident: dict, estimator: str, spp: int, seed: int, params: dict, chunk_spp: int,
+                label: str) -> list[dict]:
+    """The tasks of one render of ``spp`` samples as seeded chunks (:func:`chunk_sizes`, chunk c
+    seeded :func:`chunk_seed` (seed, c)); ``ident`` names the scene (and film size) in the
+    keys."""
+    sizes = chunk_sizes(spp, chunk_spp)
+    base = content_hash(dict(ident, est=estimator, spp=spp, seed=seed, params=params,
+                             chunks=sizes, v=__version__))
+    return [dict(kind="chunk", estimator=estimator, spp=n, params=params,
+                 seed=chunk_seed(seed, c), label=f"{label} chunk {c + 1}/{len(sizes)}",
+                 key=f"{base}-{c:04d}") for c, n in enumerate(sizes)]
 
 
 def plan(doc: dict) -> list[dict]:
@@ -114,13 +128,10 @@ def tasks(doc: dict, runs: list[dict], scene_id: str) -> tuple[list[dict], dict]
         rkey = json.dumps(matched, sort_keys=True)
         if "closed_form" in cfg or rkey in references:
             continue
-        sizes = chunk_sizes(cfg["spp"], cfg.get("chunk_spp", REFERENCE_CHUNK_SPP))
-        base = content_hash(dict(scene=scene_id, res=res, est=cfg["estimator"], spp=cfg["spp"],
-                                 params=params, chunks=sizes, v=__version__))
-        chunks = [dict(kind="reference", estimator=cfg["estimator"], spp=n, params=params,
-                       seed=chunk_seed(REFERENCE_SEED, c), label=f"reference {c + 1}/"
-                       f"{len(sizes)}", key=f"{base}-{c:04d}") for c, n in enumerate(sizes)]
-        references[rkey] = dict(matched=matched, key=base, chunks=chunks)
+        chunks = chunk_tasks(dict(scene=scene_id, res=res), cfg["estimator"], cfg["spp"],
+                             REFERENCE_SEED, params, cfg.get("chunk_spp", REFERENCE_CHUNK_SPP),
+                             "reference")
+        references[rkey] = dict(matched=matched, chunks=chunks)
         out += chunks
     for r in runs:
         params = {k: v for k, v in r["point"].items() if k != "spp"}

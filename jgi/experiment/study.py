@@ -56,11 +56,10 @@ from ..analysis import closed_form, stats
 from ..core.imageio import write_exr
 from .checkpoint import combine
 from .config import ConfigError, load_config, smoke
-from .display import StudyDisplay
-from .executors import executor as make_executor
+from .executors import run_tasks
 from .outputs import error_maps, plots, slug
 from .plan import content_hash, plan, reference_params, scene_source, study_scene, tasks
-from .tasks import StudyJob, remove_temporaries
+from .tasks import StudyJob
 
 
 def run(config_path, *, out_root="runs", dry_run: bool = False, reduced: bool = False,
@@ -95,22 +94,8 @@ def run(config_path, *, out_root="runs", dry_run: bool = False, reduced: bool = 
     scene_src, scene_id = scene_source(doc, config_path)
     todo, references = tasks(doc, runs, scene_id)
     job = StudyJob(scene_src, exp.get("resolution"),
-                   {"run": str(out / "results"), "reference": str(chunk_folder)}, render)
-    pending = [t for t in todo if not job.path(t).exists()]
-
-    executor = make_executor(workers, scheduler)
-    display = StudyDisplay(exp["name"], todo, executor.workers, enabled=progress)
-    try:
-        for t in todo:
-            if not job.path(t).exists():
-                continue
-            display.skip(t)
-        executor.run(job, pending, display.tick, display.done)
-    finally:
-        display.close()
-        executor.close()
-    for folder in job.folders.values():   # what workers killed mid-write left
-        remove_temporaries(Path(folder))
+                   {"run": str(out / "results"), "chunk": str(chunk_folder)}, render)
+    run_tasks(job, todo, exp["name"], workers=workers, scheduler=scheduler, progress=progress)
     return aggregate(doc, config_path, out, runs, references, job, reduced, t_start)
 
 

@@ -57,8 +57,7 @@ def execute(job: StudyJob, task: dict, sink: Sink | None = None) -> dict:
     path = job.path(task)
     if path.exists():
         return dict(key=task["key"], ran=False)
-    res = job.resolution
-    scene = _scene(job.scene_src, tuple(res) if isinstance(res, list) else res)
+    scene = _scene(job.scene_src, job.resolution)
     render = job.render or render_image
     ticks: list[Tick] = []
 

@@ -17,6 +17,18 @@ def unit_directions(n, seed=0):
     return d / np.linalg.norm(d, axis=1, keepdims=True)
 
 
+def sphere_midpoints(n, hemisphere: bool = False):
+    """The midpoints of an n x 2n (theta, phi) grid over the sphere (n x 4n over the upper
+    hemisphere, z >= 0): directions [N, 3] and the solid angle each stands for [N] (midpoint
+    rule: sin(theta) dtheta dphi), for integrals over directions."""
+    span = np.pi / 2 if hemisphere else np.pi
+    th = (np.arange(n) + 0.5) * span / n
+    ph = (np.arange((4 if hemisphere else 2) * n) + 0.5) * span / n
+    T, P = np.meshgrid(th, ph, indexing="ij")
+    d = np.stack([np.sin(T) * np.cos(P), np.sin(T) * np.sin(P), np.cos(T)], -1).reshape(-1, 3)
+    return d, (np.sin(T) * (span / n) ** 2).reshape(-1)
+
+
 @jax.jit
 def _radiance_and_pdf(lights, d):
     v = V3(d[:, 0], d[:, 1], d[:, 2])
