@@ -216,8 +216,18 @@ def index_cells(p: V3, valid: Array, cell, table_size: int, capacity: int | None
     return CellIndex(order, start, count.astype(jnp.int32), origin, jnp.asarray(cell))
 
 
+def stable_order(keys: Array) -> Array:
+    """``jnp.argsort(keys, stable=True)`` for non-negative int32 keys, as int32: each key and
+    its index packed into one uint64 (key high, index low) and the packed values sorted alone."""
+    # perf: docs/performance.md#cell-sort
+    with jax.enable_x64(True):
+        idx = jnp.arange(keys.shape[0], dtype=jnp.uint64)
+        packed = (keys.astype(jnp.uint64) << jnp.uint64(32)) | idx
+        return (jnp.sort(packed) & jnp.uint64(0xFFFFFFFF)).astype(jnp.int32)
+
+
 def _sort_all(h: Array) -> Array:
-    return jnp.argsort(h, stable=True).astype(jnp.int32)
+    return stable_order(h)
 
 
 def _sort_valid(h: Array, valid: Array, n_valid, capacity: int, table_size: int) -> Array:
@@ -225,7 +235,7 @@ def _sort_valid(h: Array, valid: Array, n_valid, capacity: int, table_size: int)
     M = valid.shape[0]
     (idx,) = jnp.nonzero(valid, size=capacity, fill_value=M - 1)
     hv = jnp.where(jnp.arange(capacity) < n_valid, h[idx], table_size)
-    order = idx[jnp.argsort(hv, stable=True)].astype(jnp.int32)
+    order = idx[stable_order(hv)].astype(jnp.int32)
     return jnp.concatenate([order, jnp.full((M - capacity,), M - 1, jnp.int32)])
 
 
