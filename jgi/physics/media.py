@@ -1,0 +1,98 @@
+"""Homogeneous participating media: transmittance and free-flight sampling with spectral MIS.
+
+A medium is described per RGB channel c by its extinction sigma_t,c = sigma_a,c + sigma_s,c and
+its single-scattering albedo rho_c = sigma_s,c / sigma_t,c (Mitsuba's parametrisation), with a
+phase function (:mod:`jgi.physics.phase`). Along a ray x(t) = o + t d in a homogeneous medium:
+
+    transmittance     T_c(t) = exp(-sigma_t,c t)                               (Beer-Lambert)
+    RTE, integrated   L(o, -d) = int_0^s T(t) sigma_s int p L_i dw dt + T(s) L_surface(x(s))
+
+Free-flight sampling picks the distance of the next interaction. With RGB extinction no single
+exponential matches all three channels, so a channel c is chosen with probability q_c (the
+path's throughput in each channel, normalised: Mitsuba's ``volpathmis`` and pbrt-v4's hero
+channel) and t is drawn from sigma_t,c exp(-sigma_t,c t). The estimator divides by the
+one-sample MIS (balance) density over the channel choice,
+
+    p(t)   = sum_c q_c sigma_t,c exp(-sigma_t,c t)           (an interaction at t < s)
+    P(s)   = sum_c q_c exp(-sigma_t,c s)                     (no interaction before the surface)
+
+so a medium interaction weighs T(t) sigma_s / p(t) and reaching the surface weighs T(s) / P(s)
+(both RGB): unbiased in every channel, and exactly 1 (resp. the albedo) in the grey case.
+Channels of zero extinction are never chosen to sample (they would put t at infinity) unless
+all are zero (vacuum: no interaction ever).
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import jax.numpy as jnp
+from jax import Array
+
+from ..core.vec import V3
+
+
+class FreeFlight(NamedTuple):
+    t: Array          # distance of the sampled interaction (= t_max where it reached it)
+    scattered: Array  # bool: a medium interaction before t_max
+    weight: V3        # T(t) sigma_s / p(t) if scattered, else T(t_max) / P(t_max)
+    pdf: Array        # p(t) if scattered, else P(t_max) (the MIS density of the sample)
+
+
+def transmittance(sigma_t: V3, t: Array) -> V3:
+    """T_c(t) = exp(-sigma_t,c t) per channel (t may be inf for an escaping ray: T = 0 where
+    sigma_t > 0, 1 in vacuum)."""
+    return V3(*(jnp.exp(-jnp.where(s > 0, s * t, 0.0)) for s in sigma_t))
+
+
+def channel_probabilities(sigma_t: V3, throughput: V3) -> V3:
+    """q_c: proportional to the path throughput in channels that can interact; uniform over
+    those if the throughput is zero there; all zero in vacuum."""
+    can = [s > 0 for s in sigma_t]
+    w = [jnp.where(ok, jnp.abs(b), 0.0) for ok, b in zip(can, throughput)]
+    total = w[0] + w[1] + w[2]
+    n_can = sum(ok.astype(jnp.float32) for ok in can)
+    uniform = [jnp.where(ok, 1.0 / jnp.maximum(n_can, 1.0), 0.0) for ok in can]
+    return V3(*(jnp.where(total > 0, wc / jnp.where(total > 0, total, 1.0), uc)
+                for wc, uc in zip(w, uniform)))
+
+
+def sample_free_flight(sigma_t: V3, albedo: V3, throughput: V3, t_max: Array, u_channel: Array,
+                       u_distance: Array) -> FreeFlight:
+    """Sample the next interaction along a ray segment of length t_max (inf: unbounded) in a
+    homogeneous medium, with spectral MIS over the channel choice (see the module)."""
+    q = channel_probabilities(sigma_t, throughput)
+    # the channel: the first whose cumulative probability exceeds u_channel
+    c0 = u_channel < q.x
+    c1 = ~c0 & (u_channel < q.x + q.y)
+    sig = jnp.where(c0, sigma_t.x, jnp.where(c1, sigma_t.y, sigma_t.z))
+    any_medium = (q.x + q.y + q.z) > 0
+    sig_safe = jnp.where(sig > 0, sig, 1.0)
+    # -log(1 - u) / sigma: u < 1 in float32, so t is finite
+    t = jnp.where(any_medium & (sig > 0), -jnp.log1p(-u_distance) / sig_safe, jnp.inf)
+    scattered = t < t_max
+    t = jnp.where(scattered, t, t_max)
+    tr = transmittance(sigma_t, t)
+    # p(t) and P(t_max): the channel mixture (terms with q_c = 0 vanish)
+    p_int = sum(qc * jnp.where(s > 0, s, 0.0) * trc for qc, s, trc in zip(q, sigma_t, tr))
+    p_pass = sum(qc * trc for qc, trc in zip(q, tr))
+    p_pass = jnp.where(any_medium, p_pass, 1.0)
+    pdf = jnp.where(scattered, p_int, p_pass)
+    safe = jnp.where(pdf > 0, pdf, 1.0)
+    sigma_s = V3(*(a * s for a, s in zip(albedo, sigma_t)))
+    w_int = V3(*(jnp.where(pdf > 0, trc * ss / safe, 0.0) for trc, ss in zip(tr, sigma_s)))
+    w_pass = V3(*(jnp.where(pdf > 0, trc / safe, 0.0) for trc in tr))
+    weight = V3(*(jnp.where(scattered, a, b) for a, b in zip(w_int, w_pass)))
+    return FreeFlight(t, scattered, weight, pdf)
+
+
+def free_flight_pdf(sigma_t: V3, throughput: V3, t: Array, scattered: Array,
+                    t_max: Array) -> Array:
+    """The density :func:`sample_free_flight` draws (t, scattered) with: p(t) for an
+    interaction at t, P(t_max) for none before t_max (for tests and MIS)."""
+    q = channel_probabilities(sigma_t, throughput)
+    tr = transmittance(sigma_t, jnp.where(scattered, t, t_max))
+    p_int = sum(qc * jnp.where(s > 0, s, 0.0) * trc for qc, s, trc in zip(q, sigma_t, tr))
+    p_pass = sum(qc * trc for qc, trc in zip(q, tr))
+    any_medium = (q.x + q.y + q.z) > 0
+    return jnp.where(scattered, p_int, jnp.where(any_medium, p_pass, 1.0))
