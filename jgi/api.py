@@ -34,6 +34,7 @@ def render_result(scene: Scene | str, estimator: str = "pt", spp: int = 16, seed
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or not 0 <= seed < 2**32:
         raise ParameterError(f"seed must be an integer in [0, 2^32), got {seed!r}")
     cfg = est.resolve(params)
+    est.refuse_media(scene)
     if not progress:
         return est.run(scene, cfg, spp=int(spp), seed=int(seed), progress=False)
     with tracking(f"{estimator} {spp} spp"):   # compiling shown apart from rendering

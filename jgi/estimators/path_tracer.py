@@ -22,7 +22,15 @@ the full image (the lecture's "contributions of different path lengths").
 
 On meshes with vertex normals the BSDF is evaluated and sampled about the interpolated shading
 normal (cosines too); rays leave with offsets along the geometric normal (Mitsuba 3's and
-pbrt-v4's conventions). Not included, deliberately: participating media.
+pbrt-v4's conventions).
+
+Participating media (a scene filled by a homogeneous medium, ``Scene.medium``): each segment
+first samples a free flight (:func:`jgi.physics.media.sample_free_flight`, spectral MIS over the
+RGB channels). A medium vertex before the surface takes the surface vertex's place: next-event
+estimation with the phase function in place of f |cos| (its density in MIS), the transmittance
+of the shadow ray evaluated exactly, and the continuation sampled from the phase function
+(:mod:`jgi.physics.phase`); reaching the surface weighs the throughput by T / P. Two more
+random numbers per bounce (the channel, the distance) follow the bounce's own.
 
 Derivatives (``gradient``): with ``"attached"`` (default) ``jax.grad`` differentiates the
 estimate itself, the sampled directions moving with the parameters (reparametrised sampling;
@@ -53,8 +61,9 @@ from .._xla import materialize
 from ..core import rng
 from ..core.configured import Configured
 from ..core.vec import V3, max_component, where
+from ..core.vec import length as length_of
 from ..drivers.wavefront import render_wavefront
-from ..physics import bsdf, geometry
+from ..physics import bsdf, geometry, media, phase
 from ..physics.lights import emitted, environment_pdf, environment_radiance, pdf_li
 from ..scene.tables import Scene
 from ..transport import mis
@@ -88,6 +97,12 @@ class PathTracerConfig:
     @property
     def exponent(self) -> float:
         return 1.0 if self.heuristic == "balance" else float(self.power)
+
+
+def dims_per_bounce(cfg: PathTracerConfig, scene: Scene) -> int:
+    """Random numbers per bounce: the configuration's, and two more for free flight (channel,
+    distance) in a scene filled by a medium (scenes without one keep their streams)."""
+    return cfg.dims_per_bounce + (2 if scene.has_medium else 0)
 
 
 class PathState(NamedTuple):
@@ -138,6 +153,21 @@ def _shade(scene: Scene, cfg: PathTracerConfig, s: PathState, hit: geometry.Hit,
     wo = -s.d
     length = depth + 1  # segments of the path ending at this hit
 
+    # ---- Free flight in the scene's medium: a medium vertex before the surface, or the surface
+    # reached, weighted T sigma_s / p(t) or T / P(s) (jgi.physics.media; spectral MIS) ----
+    medium = scene.medium
+    if medium is not None:
+        dm = cfg.dims_per_bounce
+        ff = media.sample_free_flight(medium.sigma_t, medium.albedo, s.beta,
+                                      jnp.where(hit.valid, hit.t, jnp.inf), u(dm), u(dm + 1))
+        in_medium = s.active & ff.scattered
+        reached = ~ff.scattered
+        t_m = jnp.where(in_medium, ff.t, 0.0)          # finite where used
+        p_m = s.o + s.d * t_m
+        beta_in = s.beta * ff.weight
+    else:
+        in_medium, reached, beta_in = None, True, s.beta
+
     def counts(length):
         return (length == cfg.path_length) if cfg.path_length > 0 else (length <= max_depth)
 
@@ -156,17 +186,19 @@ def _shade(scene: Scene, cfg: PathTracerConfig, s: PathState, hit: geometry.Hit,
     if has_lights:
         Le = emitted(lights, hit.emitter, hit.n, wo)
         pdf_light = pdf_li(lights, hit.emitter, s.prev_p, hit.p, hit.n)
-        take_e = s.active & hit.valid & counts(length)
-        L = s.L + where(take_e, s.beta * Le * bsdf_hit_weight(pdf_light), Z)
+        take_e = s.active & hit.valid & reached & counts(length)
+        L = s.L + where(take_e, beta_in * Le * bsdf_hit_weight(pdf_light), Z)
         if lights.environment >= 0:
             Lenv = environment_radiance(lights, s.d)
             w_env = bsdf_hit_weight(environment_pdf(lights, s.d))
-            take_env = s.active & ~hit.valid & counts(length)
-            L = L + where(take_env, s.beta * Lenv * w_env, Z)
+            take_env = s.active & ~hit.valid & reached & counts(length)
+            L = L + where(take_env, beta_in * Lenv * w_env, Z)
     else:
         L = s.L
-    active = s.active & hit.valid & (length < max_depth)
+    live = hit.valid if in_medium is None else hit.valid | in_medium
+    active = s.active & live & (length < max_depth)
     mp = bsdf.lookup_specialised(mats, hit.material, hit.uv)
+    p_vertex = hit.p if in_medium is None else where(in_medium, p_m, hit.p)
 
     # ---- Light sampling (next-event estimation): shadow rays and their unoccluded values ----
     shadow = []  # (origin, direction, t_max, contribution if visible)
@@ -174,8 +206,10 @@ def _shade(scene: Scene, cfg: PathTracerConfig, s: PathState, hit: geometry.Hit,
         nee_active = active & counts(length + 1)
         for j in range(cfg.light_samples):
             dj = 4 + 3 * j
-            ne = sample_next_event(scene, mp, hit.p, hit.n, wo, u(dj), u(dj + 1), u(dj + 2),
+            ne = sample_next_event(scene, mp, p_vertex, hit.n, wo, u(dj), u(dj + 1), u(dj + 2),
                                    nee_active, ns=hit.ns)
+            if in_medium is not None:
+                ne = _medium_next_event(medium, ne, in_medium, p_m, s.d, nee_active)
             if cfg.strategy == "mis":
                 w_g = mis.heuristic_weight(n_g, ne.light.pdf, [(n_f, ne.pdf_bsdf)], cfg.exponent)
                 w_g = jnp.where(ne.light.delta, 1.0, w_g)
@@ -183,7 +217,11 @@ def _shade(scene: Scene, cfg: PathTracerConfig, s: PathState, hit: geometry.Hit,
                     w_g = jax.lax.stop_gradient(w_g)
             else:
                 w_g = jnp.ones_like(z)
-            shadow.append((*ne.shadow, next_event_value(ne, s.beta, w_g, n_g)))
+            value = next_event_value(ne, beta_in, w_g, n_g)
+            if medium is not None:   # exact transmittance along the shadow ray
+                o_s, d_s, t_s = ne.shadow
+                value = value * media.transmittance(medium.sigma_t, t_s * length_of(d_s))
+            shadow.append((*ne.shadow, value))
 
     # ---- BSDF sampling: extend the path ----
     # the BSDF about the shading normal (meshes with vertex normals); the geometric normal
@@ -191,7 +229,13 @@ def _shade(scene: Scene, cfg: PathTracerConfig, s: PathState, hit: geometry.Hit,
     bs = bsdf.sample(kinds, mp, shading(hit), wo, u(0), u(1), u(2))
     if detached:
         bs = detach_sample(kinds, mp, shading(hit), wo, bs)
-    beta = s.beta * bs.weight
+    if in_medium is not None:   # a medium vertex scatters by the phase function (weight 1)
+        ps = phase.sample(medium.g, s.d, u(0), u(1))
+        one = jnp.ones_like(z)
+        bs = bsdf.BSDFSample(*(where(in_medium, a, b) if isinstance(a, V3) else
+                               jnp.where(in_medium, a, b) for a, b in zip(
+                                   _as_bsdf_sample(bs, ps, one), bs)))
+    beta = beta_in * bs.weight
     active = active & bs.valid
 
     # ---- Russian roulette ----
@@ -204,6 +248,8 @@ def _shade(scene: Scene, cfg: PathTracerConfig, s: PathState, hit: geometry.Hit,
         active = active & (~roulette | survive)
         beta = where(roulette, beta * _xla.recip(jnp.where(q > 0, q, 1.0)), beta)
     o_next = geometry.offset_origin(hit.p, hit.n, bs.wi)
+    if in_medium is not None:
+        o_next = where(in_medium, p_m, o_next)
 
     # ---- Shadow rays: add the light samples that are unoccluded ----
     # kept out of the light-sampling kernel (vectorisation; perf: docs/performance.md#shadow-rays)
@@ -215,7 +261,28 @@ def _shade(scene: Scene, cfg: PathTracerConfig, s: PathState, hit: geometry.Hit,
     # computed once; downstream reads the path's fate (perf: docs/performance.md#vertex-results)
     wi, pdf, delta, beta, active, o_next, L = materialize(
         (bs.wi, bs.pdf, bs.delta, beta, active, o_next, L))
-    return PathState(o_next, wi, beta, L, active, pdf, delta, hit.p)
+    return PathState(o_next, wi, beta, L, active, pdf, delta, p_vertex)
+
+
+def _medium_next_event(medium, ne, in_medium, p_m: V3, d: V3, active):
+    """The light sample ``ne`` (drawn at the medium vertex p_m where ``in_medium``) with the
+    phase function in place of the BSDF: f = pdf = p(d, wi), no cosine, a shadow ray from p_m."""
+    f = phase.evaluate(medium.g, d, ne.light.wi)
+    o_m, d_m, t_m = geometry.shadow_ray(p_m, ne.light.wi, ne.light.wi, ne.light.dist)
+    ok_m = active & ne.light.valid & (ne.light.pdf > 0)
+    pick = lambda a, b: where(in_medium, a, b)  # noqa: E731
+    o_s, d_s, t_s = ne.shadow
+    return ne._replace(f=pick(V3(f, f, f), ne.f), pdf_bsdf=jnp.where(in_medium, f, ne.pdf_bsdf),
+                       cos=jnp.where(in_medium, 1.0, ne.cos),
+                       shadow=(pick(o_m, o_s), pick(d_m, d_s), jnp.where(in_medium, t_m, t_s)),
+                       ok=jnp.where(in_medium, ok_m, ne.ok))
+
+
+def _as_bsdf_sample(bs: bsdf.BSDFSample, ps: phase.PhaseSample, one) -> tuple:
+    """A phase sample in the fields of a BSDF sample (the same order as ``bs``'s)."""
+    values = dict(wi=ps.d_out, weight=V3(one, one, one), pdf=ps.pdf, delta=one < 0,
+                  valid=one > 0)
+    return tuple(values.get(k, getattr(bs, k)) for k in bs._fields)
 
 
 def _camera_state(o: V3, d: V3) -> PathState:
@@ -234,7 +301,7 @@ def radiance(scene: Scene, cfg: PathTracerConfig, uniform: Callable[[Array], Arr
     max_depth = cfg.path_length if cfg.path_length > 0 else cfg.max_depth
 
     def bounce(depth, s: PathState) -> PathState:
-        base = 2 + depth * cfg.dims_per_bounce
+        base = 2 + depth * dims_per_bounce(cfg, scene)
         hit = geometry.intersect(scene, s.o, s.d)
         return _shade(scene, cfg, s, hit, depth, lambda k: uniform(base + k))
 
@@ -278,7 +345,7 @@ def _step(scene: Scene, cfg: PathTracerConfig, lane: _Lane):
         hit = geometry.intersect(scene, s.o, s.d, stored=False)
         hit, d, key = materialize((hit, s.d, lane.key))
     s, lane = s._replace(d=d), lane._replace(key=key)
-    c = rng.counter(lane.key, 2 + lane.depth * cfg.dims_per_bounce)
+    c = rng.counter(lane.key, 2 + lane.depth * dims_per_bounce(cfg, scene))
     s = _shade(scene, cfg, s, hit, lane.depth, lambda k: rng.uniform_at(c, k))
     depth = lane.depth + 1
     alive = s.active & (depth < max_depth)
@@ -294,4 +361,4 @@ def render(scene: Scene, cfg: PathTracerConfig = PathTracerConfig(), *, spp: int
 
 
 register(Estimator("pt", "path tracing with BSDF sampling, light sampling or MIS", render,
-                   PathTracerConfig, renamed={"beta": "power"}))
+                   PathTracerConfig, renamed={"beta": "power"}, media=True))

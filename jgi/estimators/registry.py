@@ -126,6 +126,7 @@ class Estimator:
     config: type
     renamed: Mapping[str, str] = field(default_factory=dict, hash=False)
     check: Callable[[Any], None] | None = field(default=None, compare=False)
+    media: bool = False      # renders scenes filled by a participating medium
     params: tuple[Param, ...] = field(init=False)
 
     def __post_init__(self):
@@ -138,6 +139,15 @@ class Estimator:
             if old in names or new not in names:
                 raise ValueError(f"estimator '{self.name}': renamed {old!r} -> {new!r} must map a "
                                  "former name to a current parameter")
+
+    def refuse_media(self, scene) -> None:
+        """A :class:`ParameterError` if the scene has a participating medium this estimator
+        does not render (rather than an image that silently ignores the medium)."""
+        if getattr(scene, "has_medium", False) and not self.media:
+            able = ", ".join(e.name for e in REGISTRY.values() if e.media) or "none"
+            raise ParameterError(
+                f"estimator '{self.name}' does not render participating media (yet), and the "
+                f"scene '{scene.name}' is filled by a medium; estimators that do: {able}")
 
     def lookup(self, key: str) -> Param:
         """The parameter ``key``; a former name or an unknown key is a :class:`ParameterError`

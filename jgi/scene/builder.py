@@ -56,6 +56,7 @@ from .tables import (
     EnvironmentMap,
     Lights,
     Materials,
+    Medium,
     Quads,
     Rects,
     Scene,
@@ -295,6 +296,35 @@ class SceneBuilder:
     disks: list = dc_field(default_factory=list)
     # (base, axis_u, axis_v, axis_w, radius, height, outward, material, emission|None)
     cylinders: list = dc_field(default_factory=list)
+    medium_args: dict | None = None   # the homogeneous medium filling the scene, if any
+
+    # --- participating medium ----------------------------------------------------------------
+    def medium(self, *, sigma_t=None, albedo=None, sigma_a=None, sigma_s=None, g=0.0,
+               scale=1.0):
+        """Fill the scene's space (the camera's medium, both sides of every surface) with a
+        homogeneous medium: Mitsuba's ``sigma_t`` and ``albedo``, or pbrt-v4's ``sigma_a`` and
+        ``sigma_s`` (RGB or grey), times ``scale``; Henyey-Greenstein asymmetry ``g``."""
+        if (sigma_t is None) == (sigma_a is None and sigma_s is None):
+            raise SceneError("a medium takes sigma_t (and albedo) or sigma_a and sigma_s; "
+                             "allowed: one of the two forms")
+        if sigma_t is not None:
+            st = np.asarray(_rgb(sigma_t)) * float(scale)
+            alb = np.asarray(_rgb(1.0 if albedo is None else albedo))
+        else:
+            sa = np.asarray(_rgb(0.0 if sigma_a is None else sigma_a)) * float(scale)
+            ss = np.asarray(_rgb(0.0 if sigma_s is None else sigma_s)) * float(scale)
+            if np.any(sa < 0) or np.any(ss < 0):
+                raise SceneError(f"medium sigma_a {sa.tolist()} and sigma_s {ss.tolist()} "
+                                 "must be >= 0")
+            st = sa + ss
+            alb = np.where(st > 0, ss / np.where(st > 0, st, 1.0), 0.0)
+        if np.any(st < 0):
+            raise SceneError(f"medium sigma_t {st.tolist()} must be >= 0")
+        if np.any(alb < 0) or np.any(alb > 1):
+            raise SceneError(f"medium albedo {alb.tolist()} must lie in [0, 1]")
+        if not -1.0 < float(g) < 1.0:
+            raise SceneError(f"medium g = {g} must lie in (-1, 1) (Henyey-Greenstein)")
+        self.medium_args = dict(sigma_t=tuple(st), albedo=tuple(alb), g=float(g))
 
     # --- textures ---------------------------------------------------------------------------
     def texture(self, name: str, kind: str, *, color0=(0.4, 0.4, 0.4), color1=(0.2, 0.2, 0.2),
@@ -765,7 +795,15 @@ class SceneBuilder:
             name=self.name,
             disks=self._build_disks(disk_emit) if self.disks else None,
             cylinders=self._build_cylinders(cyl_emit) if self.cylinders else None,
+            medium=self._build_medium(),
         )
+
+    def _build_medium(self) -> Medium | None:
+        m = self.medium_args
+        if m is None:
+            return None
+        f = lambda v: V3(*(jnp.float32(c) for c in v))  # noqa: E731
+        return Medium(f(m["sigma_t"]), f(m["albedo"]), jnp.float32(m["g"]))
 
     def _material_name(self, m: int) -> str:
         return next((k for k, v in self.material_names.items() if v == m), str(m))

@@ -2,6 +2,7 @@
 
 * ``cornell_box``: the classic box, with the geometry, albedos and light of Mitsuba 3's
   ``cornell_box()`` (so benchmarks compare like with like).
+* ``cornell_box_fog``: the same box filled with a homogeneous fog (participating medium).
 * ``cornell_box_caustics``: the same room with a mirror sphere and a glass sphere (caustics).
 * ``glass_sphere``: a glass sphere on a diffuse plane under a small area light.
 * ``mirror_caustic``: a small lamp facing up at a mirror ceiling, so the floor is lit only by
@@ -73,6 +74,19 @@ def cornell_box(resolution: int = 256) -> Scene:
     T, R, S = xf.translate, xf.rotate, xf.scale
     b.cube(T([0.335, -0.7, 0.38]) @ R([0, 1, 0], -17) @ S(0.3), "white")
     b.cube(T([-0.33, -0.4, -0.28]) @ R([0, 1, 0], 18.25) @ S([0.3, 0.61, 0.3]), "white")
+    return b.build()
+
+
+def cornell_box_fog(resolution: int = 256, sigma_t=0.6, albedo=0.8, g=0.0) -> Scene:
+    """The Cornell box (:func:`cornell_box`) filled with a homogeneous fog: RGB-constant
+    extinction ``sigma_t`` (about 1.2 mean free paths across the 2-unit room at 0.6), albedo
+    and Henyey-Greenstein g. The camera and every surface sit in the fog."""
+    b = SceneBuilder("cornell_box_fog")
+    cornell_room(b, resolution)
+    T, R, S = xf.translate, xf.rotate, xf.scale
+    b.cube(T([0.335, -0.7, 0.38]) @ R([0, 1, 0], -17) @ S(0.3), "white")
+    b.cube(T([-0.33, -0.4, -0.28]) @ R([0, 1, 0], 18.25) @ S([0.3, 0.61, 0.3]), "white")
+    b.medium(sigma_t=sigma_t, albedo=albedo, g=g)
     return b.build()
 
 
@@ -375,6 +389,7 @@ BUILTINS = {
     "mirror_caustic": mirror_caustic,
     "mirror_sds": mirror_sds,
     "smallvcm_box": smallvcm_box,
+    "cornell_box_fog": cornell_box_fog,
 }
 
 

@@ -383,6 +383,16 @@ class Lights(eqx.Module):
         return int(self.kind.shape[0])
 
 
+class Medium(eqx.Module):
+    """A homogeneous participating medium (:mod:`jgi.physics.media`, :mod:`jgi.physics.phase`):
+    extinction sigma_t and single-scattering albedo per RGB channel, Henyey-Greenstein asymmetry
+    g (0: isotropic). Every float is a leaf (differentiable)."""
+
+    sigma_t: V3     # 1 / scene length unit
+    albedo: V3      # sigma_s / sigma_t, in [0, 1]
+    g: Array        # in (-1, 1)
+
+
 class Camera(eqx.Module):
     """Pinhole camera. ``forward`` is unit; ``right``/``up`` are scaled to the image-plane
     half-extents at distance 1, so a film point (sx, sy) in [-1, 1]^2 maps to the direction
@@ -410,6 +420,14 @@ class Scene(eqx.Module):
     # scene before them)
     disks: Disks | None = None
     cylinders: Cylinders | None = None
+    # the medium filling the scene's space: the camera's, and both sides of every surface
+    # (pbrt-v4 with one MediumInterface for all shapes). None: vacuum (kernels as before media)
+    medium: Medium | None = None
+
+    @property
+    def has_medium(self) -> bool:
+        """Static: the scene's space is filled by a participating medium."""
+        return self.medium is not None
 
     @property
     def resolution(self) -> tuple[int, int]:
