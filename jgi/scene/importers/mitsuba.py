@@ -118,6 +118,8 @@ SUPPORTED = {
              "roughplastic", "plastic", "twosided", "mask"),
     "shape": ("rectangle", "cube", "sphere", "disk", "cylinder", "obj", "ply", "serialized"),
     "emitter": ("area", "point", "spot", "directional", "constant", "envmap"),
+    "medium": ("homogeneous",),
+    "phase": ("isotropic", "hg"),
 }
 IGNORED_TAGS = ("sampler", "rfilter")
 # Mitsuba 3's integrators that wrap others (their nested <integrator>s): read through to the
@@ -217,6 +219,7 @@ class _Importer:
         # a rotation as if it were one (its inverse transpose taken as itself)
         self.nonunit_rotations: set[int] = set()
         self.area_emitters: dict[str, ET.Element] = {}   # top-level area emitters by id
+        self.media: dict[str, ET.Element] = {}            # top-level media by id
         # Mitsuba's file resolver: the scene file's folder, then each <path> prepended
         self.search_paths: list[Path] = [path.parent]
 
@@ -696,6 +699,11 @@ class _Importer:
         for c in el:
             if c.tag == "bsdf":
                 material = self.bsdf(c)
+            elif c.tag == "medium" or (c.tag == "ref" and c.get("name") in ("interior",
+                                                                          "exterior")):
+                self.fail(c, "media attached to shapes (interior / exterior) are not supported "
+                             "yet; supported: one medium on the <sensor>, which then fills the "
+                             "whole scene (both sides of every surface)")
             elif c.tag == "ref" and c.get("id") in self.area_emitters:
                 # a top-level area emitter with an id, referenced (before or after it)
                 emission = self.emitted(self.area_emitters[c.get("id")], "radiance")
@@ -988,6 +996,41 @@ class _Importer:
             self.fail(el, f"fov_axis '{axis}' unknown; supported: x, y, smaller, larger, diagonal")
         pos = m[:3, 3]
         self.b.camera(pos, pos + m[:3, 2], up=m[:3, 1], fov=fov, width=w, height=h, fov_axis=axis)
+        media = [c for c in el if c.tag == "medium"]
+        for c in el:
+            if c.tag == "ref" and (c.get("name") == "medium" or c.get("id") in self.media):
+                if c.get("id") not in self.media:
+                    self.fail(c, f"reference to unknown medium '{c.get('id')}'; defined: "
+                                 f"{', '.join(self.media) or '(none)'}")
+                media.append(self.media[c.get("id")])
+        if len(media) > 1:
+            self.fail(el, "a sensor takes one medium")
+        if media:
+            self.medium(media[0])
+
+    def medium(self, el):
+        """Mitsuba's homogeneous medium (sigma_t, albedo, scale; an isotropic or hg phase), as
+        the medium that fills the scene (the sensor's: jgi has no per-shape media yet)."""
+        self.check_type(el)
+        p = self.props(el)
+        for k in p:
+            if k not in ("sigma_t", "albedo", "scale", "sample_emitted"):
+                self.fail(el, f"homogeneous medium: unknown parameter '{k}'; allowed: sigma_t, "
+                              "albedo, scale, sample_emitted")
+            if isinstance(p[k], TextureRef):
+                self.fail(el, f"homogeneous medium: '{k}' must be a constant (a value or an "
+                              "rgb), not a texture")
+        g = 0.0
+        for c in el:
+            if c.tag == "phase":
+                kind = self.check_type(c)
+                if kind == "hg":
+                    g = float(self.props(c).get("g", 0.8))    # Mitsuba's default g
+        try:
+            self.b.medium(sigma_t=p.get("sigma_t", 1.0), albedo=p.get("albedo", 0.75), g=g,
+                          scale=float(p.get("scale", 1.0)))
+        except SceneError as e:
+            self.fail(el, str(e))
 
     def read_integrator(self, el):
         """Record the settings of the integrator ``el``, reading through ``moment`` and ``aov``
@@ -1048,11 +1091,16 @@ class _Importer:
                 if not el.get("id"):
                     self.fail(el, "a top-level <texture> needs an id")
                 self.texture(el)
+            elif tag == "medium":
+                if not el.get("id"):
+                    self.fail(el, "a top-level <medium> needs an id (the sensor refers to it)")
+                self.check_type(el)
+                self.media.setdefault(el.get("id"), el)
             elif tag in IGNORED_TAGS:
                 continue
             else:
                 self.fail(el, f"<{tag}> is not supported; supported elements: default, path, "
-                              "include, bsdf, shape, emitter, sensor, texture (integrator, "
+                              "include, bsdf, shape, emitter, sensor, texture, medium (integrator, "
                               "sampler and rfilter are ignored)")
 
     def run(self, settings_only: bool = False) -> Scene | None:
@@ -1063,6 +1111,7 @@ class _Importer:
         # defined at the top level after it
         self.area_emitters = {el.get("id"): el for el in root if el.tag == "emitter"
                               and el.get("type") == "area" and el.get("id")}
+        self.media = {el.get("id"): el for el in root if el.tag == "medium" and el.get("id")}
         self.children(root, self.path, settings_only)
         if settings_only:
             return None
