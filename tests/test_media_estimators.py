@@ -192,3 +192,53 @@ def test_mitsuba_media_refusals(tmp_path):
     (tmp_path / "c.xml").write_text(g_out)
     with pytest.raises(ImportError_, match=r"c\.xml.*g = 1.2 must lie in \(-1, 1\)"):
         load_mitsuba_xml(tmp_path / "c.xml")
+
+
+TOML_HEAD = """[camera]
+position = [0, 0, 4]
+look_at = [0, 0, 0]
+width = 4
+height = 4
+{camera_extra}
+[[shape]]
+type = "sphere"
+center = [0, 0, 0]
+radius = 1
+material = "m"
+[[material]]
+name = "m"
+type = "diffuse"
+[[light]]
+type = "point"
+position = [0, 3, 0]
+intensity = [1, 1, 1]
+"""
+
+
+def test_toml_medium(tmp_path):
+    def load(camera_extra, media):
+        f = tmp_path / "s.toml"
+        f.write_text(TOML_HEAD.format(camera_extra=camera_extra) + media)
+        return jgi.load_scene(f)
+
+    fog = '[[medium]]\nname = "fog"\ntype = "homogeneous"\n'
+    s = load('medium = "fog"', fog + 'sigma_t = [0.5, 1, 2]\nalbedo = 0.8\ng = 0.3\nscale = 2\n')
+    np.testing.assert_allclose([float(c) for c in s.medium.sigma_t], [1, 2, 4])
+    np.testing.assert_allclose([float(c) for c in s.medium.albedo], 0.8, rtol=1e-6)
+    s = load('medium = "fog"', fog + 'sigma_a = 0.1\nsigma_s = [0.3, 0.1, 0]\n')
+    np.testing.assert_allclose([float(c) for c in s.medium.sigma_t], [0.4, 0.2, 0.1], rtol=1e-6)
+    np.testing.assert_allclose([float(c) for c in s.medium.albedo], [0.75, 0.5, 0], rtol=1e-6)
+    assert load("", "").medium is None
+    cases = [
+        ('medium = "fog"', fog + "sigma_t = 1\nsigma_a = 1\n", r"medium\[0\].*one of the two"),
+        ('medium = "haze"', fog + "sigma_t = 1\n", r"camera\.medium.*unknown medium 'haze'.*fog"),
+        ("", fog + "sigma_t = 1\n", r"medium\[0\].*nothing uses.*camera\.medium"),
+        ('medium = "fog"', fog + "sigma_t = 1\nalbedo = 1.5\n", r"medium\[0\].*albedo.*\[0, 1\]"),
+        ('medium = "fog"', fog + "sigma_t = 1\ng = -1\n", r"medium\[0\].*g = -1.*\(-1, 1\)"),
+        ('medium = "fog"', fog + "sigma_t = 1\ndensity = 3\n", r"medium\[0\]\.density.*unknown"),
+        ('medium = "fog"', fog.replace("homogeneous", "grid") + "sigma_t = 1\n",
+         r"medium\[0\]\.type.*'grid'.*homogeneous"),
+    ]
+    for cam, media, message in cases:
+        with pytest.raises(jgi.SceneError, match=r"s\.toml.*" + message):
+            load(cam, media)

@@ -48,12 +48,18 @@ class SceneWarning(UserWarning):
 # Schema: key -> value kind, per table and per type
 # ------------------------------------------------------------------------------------------------
 
-TOP_KEYS = ("name", "camera", "texture", "material", "shape", "light")
+TOP_KEYS = ("name", "camera", "texture", "material", "shape", "light", "medium")
 
 CAMERA_KEYS = {"position": "vec3", "look_at": "vec3", "up": "vec3", "fov": "number",
-               "fov_axis": "str", "width": "int", "height": "int"}
+               "fov_axis": "str", "width": "int", "height": "int", "medium": "str"}
 CAMERA_REQUIRED = ("position", "look_at")
 FOV_AXES = ("x", "y", "smaller")
+
+# [[medium]] tables (SceneBuilder.medium): Mitsuba's sigma_t and albedo, or pbrt-v4's sigma_a
+# and sigma_s, times scale; Henyey-Greenstein g. The camera's medium fills the scene.
+MEDIUM_KEYS = {"homogeneous": {"name": "str", "type": "str", "sigma_t": "rgb", "albedo": "rgb",
+                               "sigma_a": "rgb", "sigma_s": "rgb", "g": "number",
+                               "scale": "number"}}
 
 # Each material type accepts only the parameters its BSDF uses (a key another type uses is a
 # likely mistake, e.g. `ior` on a mirror). Defaults are filled in by `_material`.
@@ -401,6 +407,7 @@ class _TomlLoader:
             self.fail("camera", "missing: a scene needs a [camera] table with at least "
                                 "position and look_at")
         self.camera(b, doc["camera"])
+        self.media(b, self.array_of_tables(doc, "medium"), doc["camera"].get("medium"))
         for i, t in enumerate(self.array_of_tables(doc, "texture")):
             self.texture(b, f"texture[{i}]", t)
         for i, m in enumerate(self.array_of_tables(doc, "material")):
@@ -438,6 +445,46 @@ class _TomlLoader:
             if v <= 0:
                 self.fail(f"camera.{k}", f"must be a positive number of pixels, got {v}")
         b.camera(pos, look, up=up, fov=fov, width=w, height=h, fov_axis=axis)
+
+    def media(self, b: SceneBuilder, tables: list, camera_medium):
+        """The [[medium]] tables; the one named by camera.medium fills the scene (per-shape
+        media are not supported yet, so a medium the camera does not name is refused)."""
+        names = {}
+        for i, t in enumerate(tables):
+            key = f"medium[{i}]"
+            kind = self.type_of(key, t, tuple(MEDIUM_KEYS))
+            m = self.table(key, t, MEDIUM_KEYS[kind], ("name", "type"))
+            if m["name"] in names:
+                self.fail(f"{key}.name",
+                          f"'{m['name']}' is already the name of {names[m['name']][0]}")
+            names[m["name"]] = (key, m)
+        if camera_medium is None:
+            if names:
+                key = next(iter(names.values()))[0]
+                self.fail(key, "a medium that nothing uses; allowed: name it as the camera's "
+                               "(camera.medium), which fills the scene (per-shape media are not "
+                               "supported yet)")
+            return
+        if camera_medium not in names:
+            self.fail("camera.medium", f"unknown medium {camera_medium!r}; defined: "
+                                       f"{', '.join(names) or '(none: add a [[medium]])'}")
+        for name, (key, m) in names.items():
+            if name != camera_medium:
+                self.fail(key, f"medium '{name}' is not used; only the camera's medium "
+                               f"('{camera_medium}') is supported, and it fills the scene")
+        key, m = names[camera_medium]
+        has_t = "sigma_t" in m or "albedo" in m
+        has_as = "sigma_a" in m or "sigma_s" in m
+        if has_t == has_as:
+            self.fail(key, "give sigma_t (and albedo), or sigma_a and sigma_s; allowed: one of "
+                           "the two forms")
+        if has_t and "sigma_t" not in m:
+            self.fail(f"{key}.sigma_t", "missing (required with albedo)")
+        try:
+            b.medium(sigma_t=m.get("sigma_t"), albedo=m.get("albedo"), sigma_a=m.get("sigma_a"),
+                     sigma_s=m.get("sigma_s"), g=m.get("g", 0.0), scale=m.get("scale", 1.0))
+        except SceneError as e:
+            self.fail(key, str(e))
 
     def texture(self, b: SceneBuilder, key: str, t):
         kind = self.type_of(key, t, tuple(TEXTURE_KEYS))
