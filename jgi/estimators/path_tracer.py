@@ -30,7 +30,12 @@ RGB channels). A medium vertex before the surface takes the surface vertex's pla
 estimation with the phase function in place of f |cos| (its density in MIS), the transmittance
 of the shadow ray evaluated exactly, and the continuation sampled from the phase function
 (:mod:`jgi.physics.phase`); reaching the surface weighs the throughput by T / P. Two more
-random numbers per bounce (the channel, the distance) follow the bounce's own.
+random numbers per bounce (the channel, the distance) follow the bounce's own. Medium sampling
+is always detached for derivatives (Zeltner et al. 2021, as ``gradient="detached"`` does for
+BSDFs): free-flight distances, events and phase directions are constants, their weights
+T sigma_s / p, T / P and p_g / p carry the dependence on sigma_t, the albedo and g, so jax.grad
+estimates the derivative of the expected image without the boundary term that moving sampled
+distances across surfaces would need.
 
 Derivatives (``gradient``): with ``"attached"`` (default) ``jax.grad`` differentiates the
 estimate itself, the sampled directions moving with the parameters (reparametrised sampling;
@@ -158,13 +163,14 @@ def _shade(scene: Scene, cfg: PathTracerConfig, s: PathState, hit: geometry.Hit,
     medium = scene.medium
     if medium is not None:
         dm = cfg.dims_per_bounce
-        ff = media.sample_free_flight(medium.sigma_t, medium.albedo, s.beta,
-                                      jnp.where(hit.valid, hit.t, jnp.inf), u(dm), u(dm + 1))
+        sg = jax.lax.stop_gradient   # medium sampling is detached (see the module)
+        ff = media.sample_free_flight(sg(medium.sigma_t), sg(medium.albedo), sg(s.beta),
+                                      sg(jnp.where(hit.valid, hit.t, jnp.inf)), u(dm), u(dm + 1))
         in_medium = s.active & ff.scattered
         reached = ~ff.scattered
         t_m = jnp.where(in_medium, ff.t, 0.0)          # finite where used
         p_m = s.o + s.d * t_m
-        beta_in = s.beta * ff.weight
+        beta_in = s.beta * media.free_flight_weight(medium.sigma_t, medium.albedo, ff)
     else:
         in_medium, reached, beta_in = None, True, s.beta
 
@@ -230,8 +236,11 @@ def _shade(scene: Scene, cfg: PathTracerConfig, s: PathState, hit: geometry.Hit,
     if detached:
         bs = detach_sample(kinds, mp, shading(hit), wo, bs)
     if in_medium is not None:   # a medium vertex scatters by the phase function (weight 1)
-        ps = phase.sample(medium.g, s.d, u(0), u(1))
-        one = jnp.ones_like(z)
+        sg = jax.lax.stop_gradient
+        ps = phase.sample(sg(medium.g), sg(s.d), u(0), u(1))
+        # weight p_g / p with p a constant: 1, with the derivative of p_g (detached sampling)
+        p_g = phase.henyey_greenstein(ps.mu, medium.g)
+        one = 1.0 + (p_g - sg(p_g)) / jnp.where(sg(p_g) > 0, sg(p_g), 1.0)
         bs = bsdf.BSDFSample(*(where(in_medium, a, b) if isinstance(a, V3) else
                                jnp.where(in_medium, a, b) for a, b in zip(
                                    _as_bsdf_sample(bs, ps, one), bs)))

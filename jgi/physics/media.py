@@ -26,6 +26,7 @@ from __future__ import annotations
 
 from typing import NamedTuple
 
+import jax
 import jax.numpy as jnp
 from jax import Array
 
@@ -96,3 +97,18 @@ def free_flight_pdf(sigma_t: V3, throughput: V3, t: Array, scattered: Array,
     p_pass = sum(qc * trc for qc, trc in zip(q, tr))
     any_medium = (q.x + q.y + q.z) > 0
     return jnp.where(scattered, p_int, jnp.where(any_medium, p_pass, 1.0))
+
+
+def free_flight_weight(sigma_t: V3, albedo: V3, flight: FreeFlight) -> V3:
+    """The weight of a sampled free flight (its t, event and density held fixed) as a function
+    of the medium's parameters: T(t) sigma_s / p(t) or T(t_max) / P(t_max) with p and P
+    constants, so derivatives with respect to sigma_t and the albedo are those of the integrand
+    alone (detached sampling, Zeltner et al. 2021): an unbiased estimate of the derivative of
+    the expectation, where differentiating the sampled distance would miss the jump of the
+    event (interaction or surface) as t crosses the surface. Its value is ``flight.weight``."""
+    pdf = jax.lax.stop_gradient(flight.pdf)
+    safe = jnp.where(pdf > 0, pdf, 1.0)
+    tr = transmittance(sigma_t, flight.t)
+    sigma_s = V3(*(a * s for a, s in zip(albedo, sigma_t)))
+    return V3(*(jnp.where(pdf > 0, jnp.where(flight.scattered, trc * ss, trc) / safe, 0.0)
+                for trc, ss in zip(tr, sigma_s)))
