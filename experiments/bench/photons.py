@@ -42,7 +42,7 @@ from pathlib import Path
 import numpy as np
 
 from . import smallvcm
-from .vcm import REGIONS, scene_radius
+from .vcm import agreement_summary, scene_radius
 
 MODES = ("pm", "ppm", "sppm", "vcm_ppm")
 ALPHA = 0.75
@@ -89,18 +89,12 @@ def bench_jgi(scene, mode: str, max_depth: int, radius: float, photons: int,
 def agreement(peer: smallvcm.SmallVCM, scene, mode: str, max_depth: int, radius: float,
               photons: int, seeds: int) -> dict:
     import jgi
-    from jgi.analysis.stats import region_agreement
 
     est, params, spp = jgi_estimator(mode, max_depth, radius, photons, 1)
     ours = np.stack([jgi.render(scene, est, spp=spp, seed=100 + s, **params)
                      for s in range(seeds)])
     theirs = peer.images("ppm", 1, seeds=range(1, seeds + 1))
-    r = region_agreement(ours, theirs, REGIONS)
-    w = r.worst
-    return dict(agree=r.agree, max_t=float(r.t.max()), worst_region=[int(i) for i in w],
-                worst_t=float(r.t[w]), critical_t=float(r.critical[w]),
-                mean_jgi=ours.reshape(-1, 3).mean(0).tolist(),
-                mean_smallvcm=theirs.reshape(-1, 3).mean(0).tolist())
+    return agreement_summary(ours, theirs)
 
 
 def main(argv=None) -> int:

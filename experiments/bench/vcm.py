@@ -69,7 +69,6 @@ def bench_jgi(scene, estimator: str, params: dict, iterations: int) -> dict:
 def agreement(peer: smallvcm.SmallVCM, scene, mode: str, estimator: str, params: dict,
               seeds: int, iterations: int) -> dict:
     import jgi
-    from jgi.analysis.stats import region_agreement
 
     ours = np.stack([jgi.render(scene, estimator, spp=iterations, seed=100 + s, **params)
                      for s in range(seeds)])
@@ -79,6 +78,14 @@ def agreement(peer: smallvcm.SmallVCM, scene, mode: str, estimator: str, params:
         # black in its image); jgi's does: both leave out the pixels that see an emitter
         seen = jgi.render(scene, "pt", spp=16, seed=0, max_depth=1).max(-1) > 0
         ours, theirs = ours * ~seen[..., None], theirs * ~seen[..., None]
+    return agreement_summary(ours, theirs)
+
+
+def agreement_summary(ours: np.ndarray, theirs: np.ndarray) -> dict:
+    """Per-region agreement of two stacks of seeds (:func:`jgi.analysis.stats.region_agreement`)
+    as the benchmark's JSON reports it."""
+    from jgi.analysis.stats import region_agreement
+
     r = region_agreement(ours, theirs, REGIONS)
     w = r.worst
     return dict(agree=r.agree, max_t=float(r.t.max()), worst_region=[int(i) for i in w],

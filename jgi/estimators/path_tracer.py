@@ -170,7 +170,8 @@ def _shade(scene: Scene, cfg: PathTracerConfig, s: PathState, hit: geometry.Hit,
         reached = ~ff.scattered
         t_m = jnp.where(in_medium, ff.t, 0.0)          # finite where used
         p_m = s.o + s.d * t_m
-        beta_in = s.beta * media.free_flight_weight(medium.sigma_t, medium.albedo, ff)
+        beta_in = s.beta * media.free_flight_weight(medium.sigma_t, medium.albedo, ff.t,
+                                                     ff.scattered, ff.pdf)
     else:
         in_medium, reached, beta_in = None, True, s.beta
 
@@ -289,8 +290,8 @@ def _medium_next_event(medium, ne, in_medium, p_m: V3, d: V3, active):
 
 def _as_bsdf_sample(bs: bsdf.BSDFSample, ps: phase.PhaseSample, one) -> tuple:
     """A phase sample in the fields of a BSDF sample (the same order as ``bs``'s)."""
-    values = dict(wi=ps.d_out, weight=V3(one, one, one), pdf=ps.pdf, delta=one < 0,
-                  valid=one > 0)
+    values = dict(wi=ps.d_out, weight=V3(one, one, one), pdf=ps.pdf,
+                  delta=jnp.zeros(one.shape, bool), valid=jnp.ones(one.shape, bool))
     return tuple(values.get(k, getattr(bs, k)) for k in bs._fields)
 
 

@@ -73,42 +73,30 @@ def sample_free_flight(sigma_t: V3, albedo: V3, throughput: V3, t_max: Array, u_
     t = jnp.where(any_medium & (sig > 0), -jnp.log1p(-u_distance) / sig_safe, jnp.inf)
     scattered = t < t_max
     t = jnp.where(scattered, t, t_max)
+    pdf = _mixture_pdf(q, sigma_t, t, scattered)
+    return FreeFlight(t, scattered, free_flight_weight(sigma_t, albedo, t, scattered, pdf), pdf)
+
+
+def _mixture_pdf(q: V3, sigma_t: V3, t: Array, scattered: Array) -> Array:
+    """p(t) = sum_c q_c sigma_t,c T_c(t) where ``scattered``, else P(t) = sum_c q_c T_c(t) (1 in
+    vacuum, where no channel is chosen)."""
     tr = transmittance(sigma_t, t)
-    # p(t) and P(t_max): the channel mixture (terms with q_c = 0 vanish)
-    p_int = sum(qc * jnp.where(s > 0, s, 0.0) * trc for qc, s, trc in zip(q, sigma_t, tr))
-    p_pass = sum(qc * trc for qc, trc in zip(q, tr))
-    p_pass = jnp.where(any_medium, p_pass, 1.0)
-    pdf = jnp.where(scattered, p_int, p_pass)
-    safe = jnp.where(pdf > 0, pdf, 1.0)
-    sigma_s = V3(*(a * s for a, s in zip(albedo, sigma_t)))
-    w_int = V3(*(jnp.where(pdf > 0, trc * ss / safe, 0.0) for trc, ss in zip(tr, sigma_s)))
-    w_pass = V3(*(jnp.where(pdf > 0, trc / safe, 0.0) for trc in tr))
-    weight = V3(*(jnp.where(scattered, a, b) for a, b in zip(w_int, w_pass)))
-    return FreeFlight(t, scattered, weight, pdf)
-
-
-def free_flight_pdf(sigma_t: V3, throughput: V3, t: Array, scattered: Array,
-                    t_max: Array) -> Array:
-    """The density :func:`sample_free_flight` draws (t, scattered) with: p(t) for an
-    interaction at t, P(t_max) for none before t_max (for tests and MIS)."""
-    q = channel_probabilities(sigma_t, throughput)
-    tr = transmittance(sigma_t, jnp.where(scattered, t, t_max))
     p_int = sum(qc * jnp.where(s > 0, s, 0.0) * trc for qc, s, trc in zip(q, sigma_t, tr))
     p_pass = sum(qc * trc for qc, trc in zip(q, tr))
     any_medium = (q.x + q.y + q.z) > 0
     return jnp.where(scattered, p_int, jnp.where(any_medium, p_pass, 1.0))
 
 
-def free_flight_weight(sigma_t: V3, albedo: V3, flight: FreeFlight) -> V3:
-    """The weight of a sampled free flight (its t, event and density held fixed) as a function
-    of the medium's parameters: T(t) sigma_s / p(t) or T(t_max) / P(t_max) with p and P
-    constants, so derivatives with respect to sigma_t and the albedo are those of the integrand
-    alone (detached sampling, Zeltner et al. 2021): an unbiased estimate of the derivative of
-    the expectation, where differentiating the sampled distance would miss the jump of the
-    event (interaction or surface) as t crosses the surface. Its value is ``flight.weight``."""
-    pdf = jax.lax.stop_gradient(flight.pdf)
+def free_flight_weight(sigma_t: V3, albedo: V3, t: Array, scattered: Array, pdf: Array) -> V3:
+    """The weight of a sampled free flight (distance t, event, density pdf) as a function of
+    the medium's parameters: T(t) sigma_s / p(t) if scattered, else T(t_max) / P(t_max), with
+    the density a constant for derivatives, so those with respect to sigma_t and the albedo are
+    the integrand's alone (detached sampling, Zeltner et al. 2021): an unbiased estimate of the
+    derivative of the expectation, where differentiating the sampled distance would miss the
+    jump of the event (interaction or surface) as t crosses the surface."""
+    pdf = jax.lax.stop_gradient(pdf)
     safe = jnp.where(pdf > 0, pdf, 1.0)
-    tr = transmittance(sigma_t, flight.t)
+    tr = transmittance(sigma_t, t)
     sigma_s = V3(*(a * s for a, s in zip(albedo, sigma_t)))
-    return V3(*(jnp.where(pdf > 0, jnp.where(flight.scattered, trc * ss, trc) / safe, 0.0)
+    return V3(*(jnp.where(pdf > 0, jnp.where(scattered, trc * ss, trc) / safe, 0.0)
                 for trc, ss in zip(tr, sigma_s)))
