@@ -36,6 +36,7 @@ from __future__ import annotations
 import jax.numpy as jnp
 from jax import Array
 
+from ... import _xla
 from ..._xla import materialize
 from ...core.vec import V3, dot, where
 from ...scene.tables import (
@@ -218,7 +219,7 @@ def _sample_rough(kinds, mp: MaterialParams, n: V3, nf: V3, cos_o: Array, flippe
     wi_l = V3(dot(wi, s), dot(wi, t), dot(wi, nf))
     f, pdf = _rough(kinds, mp, flipped, wo_l, wi_l, mode)
     ok = (pdf > 0) & ~through
-    w = f * (jnp.abs(wi_l.z) / jnp.where(ok, pdf, 1.0))
+    w = f * _xla.div(jnp.abs(wi_l.z), jnp.where(ok, pdf, 1.0))   # (perf: docs/performance.md#glossy-path-tracer)
     w = where(ok, w, V3(zero, zero, zero))
     pass_ok = through & lit(cos_o)
     w = where(pass_ok, transmission_tint(mp), w)
