@@ -155,7 +155,9 @@ def lookup_specialised(mats: Materials, m: Array, uv=None) -> MaterialParams:
     # one distribution in the scene: a Python int, so that microfacet code traces only it
     dists = mats.distributions
     distribution = take(mats.distribution, m) if len(dists) > 1 else (dists or (GGX,))[0]
-    conductor = has(MIRROR, ROUGH_CONDUCTOR)
+    # eta = 0 constants where every conductor is a perfect mirror: F = 1 folds at compile time
+    # (perf: docs/performance.md#glossy-path-tracer)
+    conductor = has(MIRROR, ROUGH_CONDUCTOR) and mats.conductor_fresnel
     eta = col3(mats.eta) if conductor else zero3
     k = col3(mats.k) if conductor else zero3
     plastic = ROUGH_PLASTIC in kinds
