@@ -174,8 +174,10 @@ def _shade(scene: Scene, cfg: PathTracerConfig, s: PathState, hit: geometry.Hit,
         nee_active = active & counts(length + 1)
         for j in range(cfg.light_samples):
             dj = 4 + 3 * j
+            # the light sample is stored: the BSDF evaluation towards it and the shadow ray are
+            # in different kernels (perf: docs/performance.md#glossy-path-tracer)
             ne = sample_next_event(scene, mp, hit.p, hit.n, wo, u(dj), u(dj + 1), u(dj + 2),
-                                   nee_active, ns=hit.ns)
+                                   nee_active, ns=hit.ns, stored=True)
             if cfg.strategy == "mis":
                 w_g = mis.heuristic_weight(n_g, ne.light.pdf, [(n_f, ne.pdf_bsdf)], cfg.exponent)
                 w_g = jnp.where(ne.light.delta, 1.0, w_g)
