@@ -34,13 +34,10 @@ def fresnel_dielectric_reflectance(cos_i, cos_t, eta, xp):
     return 0.5 * (r_parl * r_parl + r_perp * r_perp)
 
 
-def smith_lambda_ggx(t2, xp, div=None, sqrt=None):
+def smith_lambda_ggx(t2, xp):
     """GGX's Smith Lambda from t2 = tan^2(theta) scaled by the roughness:
-    (sqrt(1 + t2) - 1) / 2, written without cancellation. ``div`` and ``sqrt`` replace the
-    namespace's division and square root (jgi._xla's in kernels)."""
-    div = div or (lambda a, b: a / b)
-    sqrt = sqrt or xp.sqrt
-    return div(t2, 2.0 + 2.0 * sqrt(1.0 + t2))
+    (sqrt(1 + t2) - 1) / 2, written without cancellation."""
+    return t2 / (2.0 + 2.0 * xp.sqrt(1.0 + t2))
 
 
 def smith_lambda_beckmann(a, xp, erfc):

@@ -56,7 +56,7 @@ from ..core.vec import V3, max_component, where
 from ..drivers.wavefront import render_wavefront
 from ..physics import bsdf, geometry
 from ..physics.lights import emitted, environment_pdf, environment_radiance, pdf_li
-from ..scene.tables import Scene
+from ..scene.tables import ROUGH_KINDS, Scene
 from ..transport import mis
 from ..transport.subpath import camera_ray, next_event_value, sample_next_event, shading
 from .registry import Estimator, Render, param, register
@@ -166,7 +166,11 @@ def _shade(scene: Scene, cfg: PathTracerConfig, s: PathState, hit: geometry.Hit,
     else:
         L = s.L
     active = s.active & hit.valid & (length < max_depth)
-    mp = bsdf.lookup_specialised(mats, hit.material, hit.uv)
+    # with rough materials, whose (f, pdf) are kernels of their own (bsdf._rough), the material
+    # row and the light sample are stored once rather than recomputed by each of those kernels
+    # (perf: docs/performance.md#glossy-path-tracer)
+    store = any(k in kinds for k in ROUGH_KINDS)
+    mp = bsdf.lookup_specialised(mats, hit.material, hit.uv, stored=store)
 
     # ---- Light sampling (next-event estimation): shadow rays and their unoccluded values ----
     shadow = []  # (origin, direction, t_max, contribution if visible)
@@ -174,10 +178,8 @@ def _shade(scene: Scene, cfg: PathTracerConfig, s: PathState, hit: geometry.Hit,
         nee_active = active & counts(length + 1)
         for j in range(cfg.light_samples):
             dj = 4 + 3 * j
-            # the light sample is stored: the BSDF evaluation towards it and the shadow ray are
-            # in different kernels (perf: docs/performance.md#glossy-path-tracer)
             ne = sample_next_event(scene, mp, hit.p, hit.n, wo, u(dj), u(dj + 1), u(dj + 2),
-                                   nee_active, ns=hit.ns, stored=True)
+                                   nee_active, ns=hit.ns, stored=store)
             if cfg.strategy == "mis":
                 w_g = mis.heuristic_weight(n_g, ne.light.pdf, [(n_f, ne.pdf_bsdf)], cfg.exponent)
                 w_g = jnp.where(ne.light.delta, 1.0, w_g)

@@ -36,7 +36,6 @@ from __future__ import annotations
 import jax.numpy as jnp
 from jax import Array
 
-from ... import _xla
 from ..._xla import materialize
 from ...core.vec import V3, dot, where
 from ...scene.tables import (
@@ -108,7 +107,8 @@ def _rough(kinds, mp: MaterialParams, flipped: Array, wo_l: V3, wi_l: V3,
     # computed once: f and pdf feed several consumers (value, MIS weight, reverse density), and
     # XLA would otherwise copy the whole microfacet evaluation into each
     # (perf: docs/performance.md#microfacet-evaluation)
-    return materialize((f, pdf))
+    packed = materialize(jnp.stack([f.x, f.y, f.z, pdf]))
+    return V3(packed[0], packed[1], packed[2]), packed[3]
 
 
 def _local(n: V3, nf: V3, cos_o: Array, wo: V3) -> tuple[V3, V3, V3]:
@@ -221,7 +221,7 @@ def _sample_rough(kinds, mp: MaterialParams, n: V3, nf: V3, cos_o: Array, flippe
     wi_l = V3(dot(wi, s), dot(wi, t), dot(wi, nf))
     f, pdf = _rough(kinds, mp, flipped, wo_l, wi_l, mode)
     ok = (pdf > 0) & ~through
-    w = f * _xla.div(jnp.abs(wi_l.z), jnp.where(ok, pdf, 1.0))   # (perf: docs/performance.md#glossy-path-tracer)
+    w = f * (jnp.abs(wi_l.z) / jnp.where(ok, pdf, 1.0))
     w = where(ok, w, V3(zero, zero, zero))
     pass_ok = through & lit(cos_o)
     w = where(pass_ok, transmission_tint(mp), w)

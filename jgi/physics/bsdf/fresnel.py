@@ -6,15 +6,14 @@ from __future__ import annotations
 import jax.numpy as jnp
 from jax import Array
 
-from ... import _xla
 from ...core.optics import cos2_transmitted, fresnel_dielectric_reflectance
 from ...core.vec import V3, dot
 
 
-def _sqrt0(x: Array, sqrt=jnp.sqrt) -> Array:
+def _sqrt0(x: Array) -> Array:
     """sqrt(max(x, 0)) with a finite gradient at 0 (inner where)."""
     pos = x > 0
-    return jnp.where(pos, sqrt(jnp.where(pos, x, 1.0)), 0.0)
+    return jnp.where(pos, jnp.sqrt(jnp.where(pos, x, 1.0)), 0.0)
 
 
 def fresnel_dielectric(cos_i: Array, eta: Array) -> Array:
@@ -47,16 +46,14 @@ def fresnel_conductor(cos_i: Array, eta: Array, k: Array) -> Array:
     c2 = c * c
     s2 = 1.0 - c2
     t0 = eta * eta - k * k - s2
-    # jgi._xla's square root and division: exact ones split the glossy bounce kernel
-    # (perf: docs/performance.md#glossy-path-tracer)
-    a2b2 = _sqrt0(t0 * t0 + 4.0 * eta * eta * k * k, _xla.sqrt)
-    a = _sqrt0(0.5 * (a2b2 + t0), _xla.sqrt)
+    a2b2 = _sqrt0(t0 * t0 + 4.0 * eta * eta * k * k)
+    a = _sqrt0(0.5 * (a2b2 + t0))
     t1 = a2b2 + c2
     t2 = 2.0 * c * a
-    rs = _xla.div(t1 - t2, jnp.where(t1 + t2 > 0, t1 + t2, 1.0))
+    rs = (t1 - t2) / jnp.where(t1 + t2 > 0, t1 + t2, 1.0)
     t3 = a2b2 * c2 + s2 * s2
     t4 = t2 * s2
-    rp = rs * _xla.div(t3 - t4, jnp.where(t3 + t4 > 0, t3 + t4, 1.0))
+    rp = rs * (t3 - t4) / jnp.where(t3 + t4 > 0, t3 + t4, 1.0)
     mirror = eta == 0
     return jnp.where(mirror, 1.0, jnp.clip(0.5 * (rs + rp), 0.0, 1.0))
 

@@ -82,15 +82,13 @@ def ndf(dist, m: V3, au: Array, av: Array) -> Array:
     """D(m) for a local microfacet normal m (0 for m_z <= 0)."""
     z2 = m.z * m.z
     up = m.z > 0
-    # au, av >= MIN_ALPHA: normal reciprocals (perf: docs/performance.md#glossy-path-tracer)
-    ia, ib = _xla.recip_normal(au), _xla.recip_normal(av)
-    xa, yb = m.x * ia, m.y * ib
-    inv_norm = _INV_PI * (ia * ib)
+    xa, yb = m.x / au, m.y / av
+    inv_norm = _INV_PI / (au * av)
 
     def ggx():
         q = xa * xa + yb * yb + z2
         q = jnp.where(up, q, 1.0)
-        return jnp.where(up, _xla.div(inv_norm, q * q), 0.0)
+        return jnp.where(up, inv_norm / (q * q), 0.0)
 
     def beckmann():
         e = (xa * xa + yb * yb) / jnp.where(up, z2, 1.0)
@@ -104,10 +102,10 @@ def ndf(dist, m: V3, au: Array, av: Array) -> Array:
 def smith_lambda(dist, v: Array, au: Array, av: Array) -> Array:
     """Smith's Lambda(v) for a local direction v with v_z != 0 (callers mask v_z = 0)."""
     z2 = v.z * v.z
-    t2 = _xla.div((au * v.x) ** 2 + (av * v.y) ** 2, jnp.where(z2 > 0, z2, 1.0))
+    t2 = ((au * v.x) ** 2 + (av * v.y) ** 2) / jnp.where(z2 > 0, z2, 1.0)
 
     def ggx():
-        return optics.smith_lambda_ggx(t2, jnp, _xla.div, _xla.sqrt)
+        return optics.smith_lambda_ggx(t2, jnp)
 
     def beckmann():
         pos = t2 > 1e-30   # below it Lambda = 0 (a > 1e15); also keeps rsqrt normal
@@ -122,7 +120,7 @@ def smith_g1(dist, v: V3, m: V3, au: Array, av: Array) -> Array:
     """G1(v, m) = 1 / (1 + Lambda(v)); 0 where v sees the back of m (v.m and v_z of opposite
     signs) or lies in the surface."""
     ok = (dot(v, m) * v.z > 0) & (v.z != 0)
-    return jnp.where(ok, _xla.recip(1.0 + smith_lambda(dist, v, au, av)), 0.0)
+    return jnp.where(ok, 1.0 / (1.0 + smith_lambda(dist, v, au, av)), 0.0)
 
 
 def smith_g(dist, wo: V3, wi: V3, m: V3, au: Array, av: Array) -> Array:
@@ -144,8 +142,8 @@ def sample_vndf_ggx(wo: V3, au: Array, av: Array, u1: Array, u2: Array) -> V3:
     t2 = cross(vh, t1)
     p1, p2, _ = warps.concentric_disc_polar(u1, u2)
     s = 0.5 * (1.0 + vh.z)
-    p2 = (1.0 - s) * _xla.sqrt(jnp.maximum(1.0 - p1 * p1, 0.0)) + s * p2
-    nh = t1 * p1 + t2 * p2 + vh * _xla.sqrt(jnp.maximum(1.0 - p1 * p1 - p2 * p2, 0.0))
+    p2 = (1.0 - s) * jnp.sqrt(jnp.maximum(1.0 - p1 * p1, 0.0)) + s * p2
+    nh = t1 * p1 + t2 * p2 + vh * jnp.sqrt(jnp.maximum(1.0 - p1 * p1 - p2 * p2, 0.0))
     return normalize(V3(au * nh.x, av * nh.y, jnp.maximum(nh.z, 0.0)))
 
 
@@ -153,8 +151,8 @@ def pdf_vndf(dist, wo: V3, m: V3, au: Array, av: Array) -> Array:
     """D_wo(m) = G1(wo, m) max(0, wo.m) D(m) / wo_z, the density of visible normals."""
     cos_o = jnp.where(wo.z > 0, wo.z, 1.0)
     g1 = smith_g1(dist, wo, m, au, av)
-    return jnp.where(wo.z > 0, _xla.div(g1 * jnp.maximum(dot(wo, m), 0.0) * ndf(dist, m, au, av),
-                                        cos_o), 0.0)
+    return jnp.where(wo.z > 0, g1 * jnp.maximum(dot(wo, m), 0.0) * ndf(dist, m, au, av) / cos_o,
+                     0.0)
 
 
 # --- sampling: D(m) cos(theta_m) (either distribution) ------------------------------------------
@@ -168,7 +166,7 @@ def sample_dcos(dist, au: Array, av: Array, u1: Array, u2: Array) -> V3:
     r2 = jnp.minimum(rho * rho, _ONE_MINUS)
 
     def ggx():   # slope scale 1 / sqrt(1 - rho^2), multiplied through to keep m finite
-        return normalize(V3(au * x, av * y, _xla.sqrt((1.0 - rho) * (1.0 + rho))))
+        return normalize(V3(au * x, av * y, jnp.sqrt((1.0 - rho) * (1.0 + rho))))
 
     def beckmann():
         pos = r2 > 0

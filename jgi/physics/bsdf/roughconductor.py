@@ -12,7 +12,6 @@ from __future__ import annotations
 import jax.numpy as jnp
 from jax import Array
 
-from ... import _xla
 from ...core.vec import V3, dot, normalize, reflect
 from . import microfacet as mf
 from .common import MaterialParams
@@ -29,10 +28,7 @@ def evaluate(mp: MaterialParams, wo: V3, wi: V3, ok: Array) -> tuple[V3, Array]:
     g = mf.smith_g(mp.distribution, wo, wi, h, au, av)
     den = jnp.where(ok, 4.0 * wo.z * wi.z, 1.0)
     F = fresnel_conductor_rgb(cos_oh, mp.eta, mp.k)
-    # fast division: an exact one splits the kernel (perf: docs/performance.md#glossy-path-tracer);
-    # not the pdf's last one (one consumer, so it fuses): that keeps sample's pdf equal to
-    # evaluate's bit for bit (tests/test_microfacet.py)
-    f = mp.ks * F * _xla.div(d * g, den)
+    f = mp.ks * F * (d * g / den)
     pdf = mf.pdf_normal(mp.distribution, wo, h, au, av) / jnp.where(ok & (cos_oh > 0),
                                                                      4.0 * cos_oh, 1.0)
     return f, jnp.where(cos_oh > 0, pdf, 0.0)
