@@ -107,8 +107,7 @@ def _rough(kinds, mp: MaterialParams, flipped: Array, wo_l: V3, wi_l: V3,
     # computed once: f and pdf feed several consumers (value, MIS weight, reverse density), and
     # XLA would otherwise copy the whole microfacet evaluation into each
     # (perf: docs/performance.md#microfacet-evaluation)
-    packed = materialize(jnp.stack([f.x, f.y, f.z, pdf]))
-    return V3(packed[0], packed[1], packed[2]), packed[3]
+    return materialize((f, pdf))
 
 
 def _local(n: V3, nf: V3, cos_o: Array, wo: V3) -> tuple[V3, V3, V3]:
