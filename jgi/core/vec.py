@@ -13,7 +13,6 @@ from typing import NamedTuple
 import jax.numpy as jnp
 from jax import Array
 
-from .._xla import recip_normal as _recip_normal
 from .._xla import rsqrt as _rsqrt  # fusion-friendly 1/sqrt (jgi._xla, item 5)
 
 # A cosine within EDGE_ON_COS of zero counts as zero: the direction is edge-on to the surface,
@@ -126,10 +125,7 @@ def coordinate_system(n: V3) -> tuple[V3, V3]:
     south pole seam, where it stays orthonormal.
     """
     sign = jnp.where(n.z >= 0, 1.0, -1.0)
-    # |sign + n_z| is in [1, 2]: a Newton-step reciprocal; an exact division with several
-    # consumers (a frame used to evaluate and to sample) splits the kernel around it
-    # (perf: docs/performance.md#glossy-path-tracer)
-    a = -_recip_normal(sign + n.z)
+    a = -1.0 / (sign + n.z)
     b = n.x * n.y * a
     s = V3(1.0 + sign * n.x * n.x * a, sign * b, -sign * n.x)
     t = V3(b, sign + n.y * n.y * a, -n.y)
