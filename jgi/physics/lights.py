@@ -155,17 +155,9 @@ def _sphere_cone(center: V3, radius, x: V3):
     to_c = center - x
     dc2 = dot(to_c, to_c)
     outside = dc2 > radius * radius * 1.0001
-    # jgi._xla's division and square root: exact ones split the light-sampling kernel
-    # (perf: docs/performance.md#glossy-path-tracer)
-    sin2 = jnp.where(outside, _xla.div(radius * radius, jnp.where(dc2 > 0, dc2, 1.0)), 1.0)
-    cos_max = _xla.sqrt(jnp.maximum(1.0 - sin2, 0.0))
-    return normalize(to_c), cos_max, sin2 * _xla.recip_normal(1.0 + cos_max), outside
-
-
-def _cone_pdf(one_minus):
-    """1 / (2 pi (1 - cos_max)), the uniform cone's density; 0 for an empty cone."""
-    pos = one_minus > 0
-    return jnp.where(pos, _xla.recip(2.0 * jnp.pi * jnp.where(pos, one_minus, 1.0)), 0.0)
+    sin2 = jnp.where(outside, radius * radius / jnp.where(dc2 > 0, dc2, 1.0), 1.0)
+    cos_max = jnp.sqrt(jnp.maximum(1.0 - sin2, 0.0))
+    return normalize(to_c), cos_max, sin2 / (1.0 + cos_max), outside
 
 
 # --- environment maps (see jgi.scene.tables.EnvironmentMap for the layout) --------------------
@@ -350,8 +342,9 @@ def sample_li(lights: Lights, x: V3, u_sel: Array, u1: Array, u2: Array) -> Ligh
         b = dot(oc, d_cone)
         closest = oc - d_cone * b
         disc = jnp.maximum(r * r - dot(closest, closest), 0.0)
-        t = -b - _xla.sqrt(disc)
-        pdf_cone = _cone_pdf(one_minus)
+        t = -b - jnp.sqrt(disc)
+        pdf_cone = jnp.where(one_minus > 0,
+                             1.0 / (2.0 * jnp.pi * jnp.where(one_minus > 0, one_minus, 1.0)), 0.0)
         ok = outside & (pdf_cone > 0)
         cone = LightSample(d_cone, t, where(ok, emission, V3(zero, zero, zero)), pdf_cone * pmf,
                            zero > 0, ok)
@@ -411,7 +404,9 @@ def pdf_li(lights: Lights, k: Array, x: V3, y: V3, n_y: V3) -> Array:
     kinds = lights.kinds
     if AREA_SPHERE in kinds:
         _, _, one_minus, outside = _sphere_cone(_take(lights.p0, kk), take(lights.radius, kk), x)
-        pdf = jnp.where(kind == AREA_SPHERE, jnp.where(outside, _cone_pdf(one_minus), 0.0), pdf)
+        pdf_cone = jnp.where(one_minus > 0,
+                             1.0 / (2.0 * jnp.pi * jnp.where(one_minus > 0, one_minus, 1.0)), 0.0)
+        pdf = jnp.where(kind == AREA_SPHERE, jnp.where(outside, pdf_cone, 0.0), pdf)
     if ENVIRONMENT in kinds:   # y is then a point along the direction to the environment
         env = (warps.INV_4PI if lights.envmap is None
                else _env_pdf(lights.envmap, normalize(y - x)))
