@@ -215,3 +215,21 @@ def test_bad_parameters_are_refused_with_names():
         jgi.render(scene, "pt", spp=0)
     with pytest.raises(jgi.ParameterError, match="max_depth.*below the minimum"):
         jgi.render(scene, "pt", max_depth=0)
+
+
+def test_mirror_conductors_fold_the_fresnel_factor():
+    """Veach's GGX plates are perfect-mirror conductors (eta = 0, F = 1): the builder marks the
+    scene ``conductor_fresnel = False`` and its kernels skip the Fresnel code; the image equals
+    the one rendered with the Fresnel code in, to float rounding."""
+    import dataclasses
+
+    import equinox as eqx
+
+    scene = scenes.veach_plates_ggx(resolution=16)
+    assert not scene.materials.conductor_fresnel
+    assert scenes.cornell_box_rough(resolution=8).materials.conductor_fresnel   # Cu and Au
+    mats = dataclasses.replace(scene.materials, conductor_fresnel=True)
+    full = eqx.tree_at(lambda s: s.materials, scene, mats)
+    a = jgi.render(scene, "pt", spp=4, seed=3, max_depth=4)
+    b = jgi.render(full, "pt", spp=4, seed=3, max_depth=4)
+    np.testing.assert_allclose(a, b, rtol=1e-4, atol=1e-6)

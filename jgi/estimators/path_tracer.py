@@ -70,7 +70,7 @@ from ..core.vec import length as length_of
 from ..drivers.wavefront import render_wavefront
 from ..physics import bsdf, geometry, media, phase
 from ..physics.lights import emitted, environment_pdf, environment_radiance, pdf_li
-from ..scene.tables import Scene
+from ..scene.tables import ROUGH_KINDS, Scene
 from ..transport import mis
 from ..transport.subpath import camera_ray, next_event_value, sample_next_event, shading
 from .registry import Estimator, Render, param, register
@@ -204,7 +204,11 @@ def _shade(scene: Scene, cfg: PathTracerConfig, s: PathState, hit: geometry.Hit,
         L = s.L
     live = hit.valid if in_medium is None else hit.valid | in_medium
     active = s.active & live & (length < max_depth)
-    mp = bsdf.lookup_specialised(mats, hit.material, hit.uv)
+    # with rough materials, whose (f, pdf) are kernels of their own (bsdf._rough), the material
+    # row and the light sample are stored once rather than recomputed by each of those kernels
+    # (perf: docs/performance.md#glossy-path-tracer)
+    store = any(k in kinds for k in ROUGH_KINDS)
+    mp = bsdf.lookup_specialised(mats, hit.material, hit.uv, stored=store)
     p_vertex = hit.p if in_medium is None else where(in_medium, p_m, hit.p)
 
     # ---- Light sampling (next-event estimation): shadow rays and their unoccluded values ----
@@ -214,7 +218,7 @@ def _shade(scene: Scene, cfg: PathTracerConfig, s: PathState, hit: geometry.Hit,
         for j in range(cfg.light_samples):
             dj = 4 + 3 * j
             ne = sample_next_event(scene, mp, p_vertex, hit.n, wo, u(dj), u(dj + 1), u(dj + 2),
-                                   nee_active, ns=hit.ns)
+                                   nee_active, ns=hit.ns, stored=store)
             if in_medium is not None:
                 ne = _medium_next_event(medium, ne, in_medium, p_m, s.d, nee_active)
             if cfg.strategy == "mis":

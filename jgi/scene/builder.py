@@ -1039,6 +1039,8 @@ class SceneBuilder:
                                    for m in ms]),
             kinds=tuple(sorted({m.kind for m in ms})),
             distributions=tuple(sorted({m.distribution for m in ms if m.kind in ROUGH_KINDS})),
+            conductor_fresnel=any(m.kind in (MIRROR, ROUGH_CONDUCTOR)
+                                  and bool(np.any(np.asarray(m.eta) != 0)) for m in ms),
             one_sided=(jnp.asarray([m.one_sided for m in ms], bool)
                        if any(m.one_sided for m in ms) else None),
             # None without masks: such scenes compile to the programs from before masks

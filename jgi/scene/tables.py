@@ -277,6 +277,11 @@ class Materials(eqx.Module):
     kinds: tuple[int, ...] = eqx.field(static=True)  # kinds present, to skip dead code
     # distributions used by rough rows (empty without rough materials), to skip the absent one
     distributions: tuple[int, ...] = eqx.field(static=True, default=())
+    # some conductor row (mirror, roughconductor) has eta != 0, so a Fresnel factor other than
+    # 1; False: every conductor is a perfect mirror (eta = 0, F = 1) and kernels skip the
+    # conductor Fresnel (perf: docs/performance.md#glossy-path-tracer). A scene whose eta is
+    # changed after build (eqx.tree_at) from all zeros must set it True.
+    conductor_fresnel: bool = eqx.field(static=True, default=True)
     # Textures (None in a scene without any: its kernels are those of a scene before textures)
     textures: Textures | None = None
     texture: Array | None = None   # int32 [M, 3]: texture row per TEX_* column, -1 = constant

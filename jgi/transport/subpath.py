@@ -392,14 +392,19 @@ class NextEvent(NamedTuple):
 
 
 def sample_next_event(scene: Scene, mp: bsdf.MaterialParams, p: V3, n: V3, wo: V3, u_select: Array,
-                      u1: Array, u2: Array, active: Array, ns: V3 | None = None) -> NextEvent:
+                      u1: Array, u2: Array, active: Array, ns: V3 | None = None,
+                      stored: bool = False) -> NextEvent:
     """Sample a light for the point p (geometric normal n, shading normal ``ns`` if not n,
     ``wo`` towards the previous vertex) with ``lights.sample_li``, and evaluate the BSDF mp
     towards it (about ns, as its cosine). Usable where ``active``, the BSDF has a non-Dirac
     lobe, and the sample has a positive density; the caller tests the shadow ray (now, or
-    batched with others) and chooses the MIS weight."""
+    batched with others) and chooses the MIS weight. ``stored``: the light sample is computed
+    once and stored (``jgi._xla.materialize``) for a caller whose BSDF evaluation and shadow
+    ray land in different kernels, which would each compute it."""
     nb = n if ns is None else ns
     ls = sample_li(scene.lights, p, u_select, u1, u2)
+    if stored:
+        ls = materialize(ls)
     f, pdf_bsdf = bsdf.evaluate(scene.materials.kinds, mp, nb, wo, ls.wi)
     ok = active & ~bsdf.is_delta(mp) & ls.valid & (ls.pdf > 0)
     return NextEvent(ls, f, pdf_bsdf, jnp.abs(dot(ls.wi, nb)),

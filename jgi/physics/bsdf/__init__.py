@@ -214,7 +214,9 @@ def _sample_rough(kinds, mp: MaterialParams, n: V3, nf: V3, cos_o: Array, flippe
         eta = roughdielectric.relative_eta(mp, flipped)
         wi_l = where(sel, roughdielectric.sample_direction(mp, wo_l, eta, u_lobe, u1, u2), wi_l)
         through = sel & roughdielectric.passes_through(mp)
-    wi = mf.from_local(wi_l, s, t, nf)
+    # stored: the lobe samplers (GGX's visible normals above all) were otherwise recomputed in
+    # each kernel reading a component of wi (perf: docs/performance.md#glossy-path-tracer)
+    wi = materialize(mf.from_local(wi_l, s, t, nf))
     wi_l = V3(dot(wi, s), dot(wi, t), dot(wi, nf))
     f, pdf = _rough(kinds, mp, flipped, wo_l, wi_l, mode)
     ok = (pdf > 0) & ~through

@@ -9,7 +9,8 @@ import jax.numpy as jnp
 import numpy as np
 from jax import Array
 
-from ..._xla import take
+from ..._xla import materialize
+from ..._xla import take as _take
 from ...core.vec import EDGE_ON_COS, V3, dot, where
 from ...scene.rough_coating import TABLE_SIZE
 from ...scene.tables import (
@@ -130,15 +131,24 @@ def textured(mats: Materials, m: Array, uv, mp: MaterialParams) -> MaterialParam
     return mp._replace(kd=kd, ks=ks, alpha_u=au, alpha_v=av, kt=kt)
 
 
-def lookup_specialised(mats: Materials, m: Array, uv=None) -> MaterialParams:
+def lookup_specialised(mats: Materials, m: Array, uv=None, stored: bool = False) -> MaterialParams:
     """:func:`lookup` for inner loops, specialised to the kinds the scene uses (``mats.kinds``):
     small material tables are read with selects instead of gathers (see jgi._xla.take), a kind
     that is the only one present is a constant, and the parameters no present kind reads are
     constants too, so the BSDF code of the absent kinds folds away; likewise the microfacet
     distribution is a Python int when the scene's rough materials use one
     (``mats.distributions``), so the other one's code is not traced. Values that a present
-    kind's BSDF reads are those of :func:`lookup`."""
+    kind's BSDF reads are those of :func:`lookup`. ``stored``: the values read from the table
+    are computed once and stored (``jgi._xla.materialize``), for callers whose BSDF code spans
+    several kernels, each of which would otherwise repeat the select chains."""
     kinds = mats.kinds
+    reads = []
+
+    def take(table, idx):
+        v = _take(table, idx)
+        reads.append(v)
+        return v
+
     kind = (jnp.full(m.shape, kinds[0], jnp.int32) if len(kinds) == 1 else take(mats.kind, m))
     zero = jnp.zeros(m.shape, jnp.float32)
     zero3 = V3(zero, zero, zero)
@@ -155,19 +165,26 @@ def lookup_specialised(mats: Materials, m: Array, uv=None) -> MaterialParams:
     # one distribution in the scene: a Python int, so that microfacet code traces only it
     dists = mats.distributions
     distribution = take(mats.distribution, m) if len(dists) > 1 else (dists or (GGX,))[0]
-    conductor = has(MIRROR, ROUGH_CONDUCTOR)
+    # eta = 0 constants where every conductor is a perfect mirror: F = 1 folds at compile time
+    # (perf: docs/performance.md#glossy-path-tracer)
+    conductor = has(MIRROR, ROUGH_CONDUCTOR) and mats.conductor_fresnel
     eta = col3(mats.eta) if conductor else zero3
     k = col3(mats.k) if conductor else zero3
     plastic = ROUGH_PLASTIC in kinds
     coated = has(ROUGH_PLASTIC, PLASTIC)   # both read Ri and nonlinear
-    return textured(mats, m, uv, MaterialParams(
+    mp = MaterialParams(
         kind, kd, ks, exponent, ior, alpha_u, alpha_v, distribution, eta, k,
         m if plastic else jnp.zeros(m.shape, jnp.int32),
         mats.transmittance if plastic else _NO_TABLE,
         take(mats.internal_reflectance, m) if coated else zero,
         take(mats.nonlinear, m) if coated else zero > 0,
         col3(mats.transmission_tint) if has(DIELECTRIC, ROUGH_DIELECTRIC) else None,
-        take(mats.one_sided, m) if mats.has_one_sided else None))
+        take(mats.one_sided, m) if mats.has_one_sided else None)
+    if stored and reads:   # the constants stay constants (they fold away)
+        swap = {id(a): b for a, b in zip(reads, materialize(tuple(reads)))}
+        mp = MaterialParams(*(V3(*(swap.get(id(c), c) for c in x)) if isinstance(x, V3)
+                              else swap.get(id(x), x) for x in mp))
+    return textured(mats, m, uv, mp)
 
 
 def is_delta(mp: MaterialParams) -> Array:
