@@ -50,6 +50,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from .._xla import materialize
 from ..core import rng
 from ..core.vec import V3, dot, luminance, where
 from ..physics import bsdf
@@ -326,8 +327,10 @@ def run_chains(scene: Scene, cfg: MMLTConfig, seed, state, lengths, step0, n_ste
     W, H = scene.camera.width, scene.camera.height
 
     def mutation(x: PrimarySample, key) -> mcmc.Move:
+        # the proposal and its evaluation stored once, row by row (perf: docs/performance.md#mmlt)
         v = kelemen_mutation(x.u, key, p_large, cfg.s1, cfg.s2)
-        y = PrimarySample(v, *evaluate(scene, cfg, v, lengths))
+        v = jnp.stack(materialize([v[i] for i in range(v.shape[0])]))
+        y = PrimarySample(v, *materialize(evaluate(scene, cfg, v, lengths)))
         return mcmc.Move(y, x.f, y.f)
 
     x, img, tally, proposals = mcmc.metropolis(
