@@ -51,7 +51,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._xla import materialize
-from ..core import rng
+from ..core import calls, rng
 from ..core.vec import V3, dot, luminance, where
 from ..physics import bsdf
 from ..scene.tables import Scene
@@ -341,6 +341,7 @@ def run_chains(scene: Scene, cfg: MMLTConfig, seed, state, lengths, step0, n_ste
 
 
 _BOOT_STEP0 = 1 << 30     # bootstrap proposals: step indices no chain reaches
+_GROUP_STEPS = 1 << 26    # chain group g runs steps g * _GROUP_STEPS + ...: its own streams
 
 
 def _empty_state(d: int, chains: int):
@@ -348,31 +349,44 @@ def _empty_state(d: int, chains: int):
     return (jnp.zeros((d, chains), jnp.float32), V3(z, z, z), z, jnp.zeros((chains,), jnp.int32))
 
 
-def bootstrap(scene: Scene, cfg: MMLTConfig, seed: int, n: int, chains: int, steps_per_call: int):
+def _lanes(chains: int, max_depth: int, streams: int) -> int:
+    """Lanes per kernel call: the chains shared by ``streams`` concurrent calls, and at least one
+    lane per path length (the bootstrap's round-robin)."""
+    return max(-(-chains // streams), max_depth)
+
+
+def bootstrap(scene: Scene, cfg: MMLTConfig, seed: int, n: int, lanes: int, steps_per_call: int,
+              streams: int = 1):
     """At least n independent samples of every path length 1 .. cfg.max_depth, made by the chain
-    kernel with p_large = 1 (each step a fresh vector, accepted whatever its f), the lanes'
-    lengths assigned round-robin. Returns {L: (u [dims, n_L], value, f, pixel)} and
-    {L: numpy f as float64}."""
+    kernel (``lanes`` lanes) with p_large = 1 (each step a fresh vector, accepted whatever its
+    f), the lanes' lengths assigned round-robin; the calls are independent and run
+    ``streams`` at a time (perf: docs/performance.md#concurrent-calls). Returns
+    {L: (u [samples, dims, lanes], value, f, pixel [samples, lanes], lanes of length L)} and
+    {L: numpy f of those lanes, flat, as float64}."""
     D = cfg.max_depth
-    lengths = 1 + np.arange(chains) % D
-    calls = max(1, -(-n // ((chains // D) * steps_per_call)))
-    parts = []
-    for c in range(calls):
-        *_, prop = run_chains(scene, cfg, jnp.uint32(seed), _empty_state(dims(D), chains),
-                              jnp.asarray(lengths, jnp.int32),
-                              jnp.int32(_BOOT_STEP0 + c * steps_per_call), steps_per_call,
-                              jnp.zeros((chains,), jnp.float32), jnp.float32(1.0))
-        parts.append(prop)
-    u = jnp.concatenate([p_[0] for p_ in parts], 0)               # [calls * steps, d, C]
+    lengths = 1 + np.arange(lanes) % D
+    calls_n = max(1, -(-n // ((lanes // D) * steps_per_call)))
+    empty = _empty_state(dims(D), lanes)
+    lengths_j = jnp.asarray(lengths, jnp.int32)
+    zero = jnp.zeros((lanes,), jnp.float32)
+
+    def call(c):
+        *_, prop = run_chains(scene, cfg, jnp.uint32(seed), empty, lengths_j,
+                              jnp.int32(_BOOT_STEP0 + c * steps_per_call), steps_per_call, zero,
+                              jnp.float32(1.0))
+        return jax.block_until_ready(prop)
+
+    parts = list(calls.ordered_calls(call, calls_n, streams=streams))
+    u = jnp.concatenate([p_[0] for p_ in parts], 0)               # [calls * steps, d, lanes]
     val = V3(*(jnp.concatenate([p_[1][k] for p_ in parts], 0) for k in range(3)))
     f = jnp.concatenate([p_[2] for p_ in parts], 0)
     pix = jnp.concatenate([p_[3] for p_ in parts], 0)
     f_np = np.asarray(f, np.float64)
     out, f_out = {}, {}
     for L in range(1, D + 1):
-        lanes = np.flatnonzero(lengths == L)
-        f_out[L] = f_np[:, lanes].reshape(-1)
-        out[L] = (u, val, f, pix, lanes)
+        sel = np.flatnonzero(lengths == L)
+        f_out[L] = f_np[:, sel].reshape(-1)
+        out[L] = (u, val, f, pix, sel)
     return out, f_out
 
 
@@ -402,10 +416,12 @@ def render(scene: Scene, cfg: MMLTConfig = MMLTConfig(), *, spp: int, seed: int,
            progress: bool = False) -> Render:
     """MMLT image with at least spp * W * H mutations in total. Every chain has one path length;
     the chains are shared between lengths in proportion to b_L (each length with b_L > 0 gets
-    at least one) and all run in one kernel; the image weighs each length's splats by
-    b_L W H / M_L with M_L its exact mutation count, so it stays unbiased.
+    at least one) and all run in one kernel, as ``CALL_STREAMS`` groups of lanes, each group's
+    calls in its own thread (perf: docs/performance.md#mmlt); the image weighs each length's
+    splats by b_L W H / M_L with M_L its exact mutation count, so it stays unbiased. The groups'
+    images are added in group order: nothing depends on timing.
 
-    Stats: ``b`` (sum of b_L), ``b_per_length``, ``chains_per_length``, ``calls``,
+    Stats: ``b`` (sum of b_L), ``b_per_length``, ``chains_per_length``, ``calls`` (per group),
     ``acceptance`` (accepted / proposed mutations), ``mutations``, ``seconds``."""
     W, H = scene.camera.width, scene.camera.height
     img = np.zeros((W * H, 3), np.float64)
@@ -413,13 +429,15 @@ def render(scene: Scene, cfg: MMLTConfig = MMLTConfig(), *, spp: int, seed: int,
     if scene.lights.count == 0:
         return Render(img.reshape(H, W, 3).astype(np.float32), {})
     D = cfg.max_depth
-    chains = max(cfg.chains, D)
+    streams = calls.CALL_STREAMS
+    lanes = _lanes(cfg.chains, D, streams)
+    chains = lanes * streams
     steps = cfg.steps_per_call
     p_large = jnp.float32(cfg.p_large)
     # the kernel sees neither p_large (a traced argument) nor the counts: one compilation per
-    # max_depth serves every p_large, chain and bootstrap count
+    # max_depth (and lane count) serves every p_large, chain and bootstrap count
     kcfg = replace(cfg, p_large=0.0, chains=0, bootstrap_samples=0, steps_per_call=0)
-    boot, f_boot = bootstrap(scene, kcfg, seed, cfg.bootstrap_samples, chains, steps)
+    boot, f_boot = bootstrap(scene, kcfg, seed, cfg.bootstrap_samples, lanes, steps, streams)
     b = {L: float(f_boot[L].mean()) for L in boot}
     counts = _chain_counts(b, chains)
     live = [L for L in counts if counts[L] > 0]
@@ -430,27 +448,40 @@ def render(scene: Scene, cfg: MMLTConfig = MMLTConfig(), *, spp: int, seed: int,
     n_calls = max(1, -(-spp * W * H // (chains * steps)))
     lane_len, picks_step, picks_lane, scale = [], [], [], []
     for L in live:
-        u_b, v_b, f_b, p_b, lanes = boot[L]
+        *_, sel = boot[L]
         f_np = f_boot[L]
         cdf = np.cumsum(f_np) / f_np.sum()
         r = (np.arange(counts[L]) + 0.5) / counts[L]   # stratified resampling in proportion to f
         pick = np.minimum(np.searchsorted(cdf, r), len(f_np) - 1)
-        picks_step.append(pick // len(lanes))
-        picks_lane.append(lanes[pick % len(lanes)])
+        picks_step.append(pick // len(sel))
+        picks_lane.append(sel[pick % len(sel)])
         lane_len += [L] * counts[L]
         scale += [b[L] * W * H / (n_calls * steps * counts[L])] * counts[L]
     si, li = jnp.asarray(np.concatenate(picks_step)), jnp.asarray(np.concatenate(picks_lane))
     u_b, v_b, f_b, p_b, _ = boot[live[0]]
     state = (u_b[si, :, li].T, V3(*(c[si, li] for c in v_b)), f_b[si, li], p_b[si, li])
-    del boot
-    lengths = jnp.asarray(np.array(lane_len, np.int32))
-    scale = jnp.asarray(np.array(scale, np.float32))
+    del boot, u_b, v_b, f_b, p_b
+    lane_len = np.array(lane_len, np.int32)
+    scale = np.array(scale, np.float32)
+
+    def group(g):
+        """Chains g * lanes .. (g + 1) * lanes - 1, all their calls, in order."""
+        part = slice(g * lanes, (g + 1) * lanes)
+        x = jax.tree_util.tree_map(lambda a: a[..., part], state)
+        lengths, sc = jnp.asarray(lane_len[part]), jnp.asarray(scale[part])
+        acc_img, accepted = np.zeros((W * H, 3), np.float64), 0
+        for blk in range(n_calls):
+            x, part_img, acc, _ = run_chains(scene, kcfg, jnp.uint32(seed), x, lengths,
+                                             jnp.int32(g * _GROUP_STEPS + blk * steps), steps,
+                                             sc, p_large)
+            acc_img += np.asarray(part_img, np.float64)
+            accepted += int(acc)
+        return acc_img, accepted
+
     accepted = 0
-    for blk in range(n_calls):
-        state, part, acc, _ = run_chains(scene, kcfg, jnp.uint32(seed), state, lengths,
-                                         jnp.int32(blk * steps), steps, scale, p_large)
-        img += np.asarray(part, np.float64)
-        accepted += int(acc)
+    for part_img, acc in calls.ordered_calls(group, streams, streams=streams):
+        img += part_img
+        accepted += acc
     mutations = n_calls * steps * chains
     stats = dict(b=sum(b.values()), b_per_length=b, chains_per_length=counts, calls=n_calls,
                  acceptance=accepted / mutations, mutations=mutations,
