@@ -1,10 +1,10 @@
 """Multiplexed Metropolis light transport (Hachisuka, Kaplanyan, Dachsbacher 2014).
 
 Metropolis-Hastings in the primary sample space of *bidirectional* path tracing, with the
-choice of BDPT strategy made part of the state (pbrt-v4's MLTIntegrator is the model for the
-structure; the code is ours and drives :func:`jgi.estimators.bdpt.contributions` through its
-``uniforms`` argument). For a path length L (segments, s + t - 1 = L) the state is one vector
-u of primary samples, in three streams as in pbrt-v4:
+choice of BDPT strategy made part of the state (pbrt-v4's MLTIntegrator::L is the model; the
+code is ours). A chain has a fixed path length L (segments, s + t - 1 = L); its state is one
+vector u of primary samples sized for max_depth, in three streams as in pbrt-v4 (a path of
+length L reads a prefix of each):
 
 * u[0]: the strategy choice, s = floor(u[0] n_L) among the n_L strategies (s, t) of length L
   (``BDPTConfig.strategies``: s = 0 .. L, t = L + 1 - s, without (1, 1));
@@ -17,12 +17,24 @@ contribution divided by the probability 1 / n_L of choosing it, so that E_u[n_L 
 strategy dimension is the BDPT estimate of paths of length L. t = 1 strategies splat at the
 film position that their light subpath projects to.
 
-Chains: each path length L has its own chains (a fixed number, run in parallel as lanes), its
-own normalisation b_L = E_u[f_L] from ``bootstrap_samples`` independent samples, and starts
-from a resampling of its bootstrap samples in proportion to f (no start-up bias). Mutations
-are shared out between lengths in proportion to b_L (pbrt-v4 picks each chain's depth with
-probability proportional to b_L); the image uses each length's exact mutation count M_L, so
-the allocation only affects efficiency:
+A mutation evaluates only its chosen strategy (:func:`evaluate`): the subpaths are traced from
+the streams, one connection of the kind (s, t) needs is made (s = 0: the emitter or the
+environment found by z_{t-1}; s = 1: next-event estimation at z_{t-1}; t = 1: y_{s-1} to the
+pinhole; s, t >= 2: y_{s-1} to z_{t-1}), with BDPT's own functions for each
+(:func:`~jgi.estimators.bdpt.emitter_strategy`, ``environment_strategy``,
+``next_event_strategy``, :mod:`jgi.transport.connection`), one shadow ray per lane, and only
+w_{s,t}, by :func:`jgi.estimators.bdpt.strategy_weight` (BDPT's ratio steps,
+:func:`~jgi.estimators.bdpt.ratio_step`, walked for one traced (s, t) per lane). tests/test_mmlt.py
+checks it lane by lane against BDPT's all-strategy evaluation (:func:`select`).
+
+Chains: one kernel (:func:`run_chains`) runs chains of every length, L a traced value per
+lane. The bootstrap runs through it with p_large = 1 (lanes assigned lengths round-robin) and
+gives each length's normalisation b_L = E_u[f_L] from ``bootstrap_samples`` independent
+samples. The chains are then shared between lengths in proportion to b_L (each length with
+b_L > 0 gets at least one; pbrt-v4 picks each chain's depth with probability proportional to
+b_L) and start from a resampling of their length's bootstrap samples in proportion to f (no
+start-up bias). The image uses each length's exact mutation count M_L, so the allocation only
+affects efficiency:
 
     I_j = sum_L  W H b_L / M_L  sum_{mutations of length L}  (expected-value weight) C / f,
 
@@ -32,12 +44,17 @@ with Kelemen's small steps (every coordinate, the strategy choice included, move
 min(1, f'/f), and expected-value splatting of the current state (weight 1 - a) and the proposal
 (weight a), all in the Metropolis kernel :func:`jgi.transport.mcmc.metropolis`.
 
-Cost: every mutation evaluates all strategies of its length and keeps one (simple, not
-pbrt's single-strategy evaluation). Compilation dominates small renders: one chain kernel per
-path length (the bootstrap runs through it too), about 150-170 s for lengths 1..5 on two shared
-CPU cores. Measured on cornell_box_caustics, 32x32, 2048 chains: acceptance 0.62 (depth 3)
-and 0.61 (depth 5); 4e5 (depth 3) and 2e5 (depth 5) mutations/s after compilation, beside
-BDPT's 2-4e5 samples/s on the same (shared, noisy) machine.
+Cost (docs/performance.md#mmlt): a mutation traces both subpaths to max_depth (static sizes:
+a lane cannot stop early) but makes one connection and one shadow ray, where a BDPT sample
+makes every connection (a shadow ray at each camera vertex and for every (s, t)); and the
+Metropolis step adds the mutation of dims(max_depth) coordinates and two splats. One
+compilation per max_depth. ``experiments/bench/mmlt_vs_bdpt.py``
+(Cornell box 64^2, 16 spp, two CPU cores shared with another job, three runs): max_depth 5,
+6.2-6.3e5 mutations/s (the whole render, bootstrap included) beside BDPT's 5.0-6.4e5 samples/s
+in the same runs (ratio 1.22, 1.24, 0.98), the chains alone 1.4e6/s; max_depth 16, 2.2-6.1e4
+beside 2.0-6.1e4 (ratio 0.86, 0.99, 1.09), the chains alone 9.5e4/s under load (the bootstrap,
+16384 samples per length, is 4x the render's mutations there). Compile+first render 20-23 s
+(max_depth 5) and 18-33 s (16), against 63 s and 284 s for the former per-length kernels.
 """
 
 from __future__ import annotations
@@ -422,7 +439,8 @@ def render(scene: Scene, cfg: MMLTConfig = MMLTConfig(), *, spp: int, seed: int,
     images are added in group order: nothing depends on timing.
 
     Stats: ``b`` (sum of b_L), ``b_per_length``, ``chains_per_length``, ``calls`` (per group),
-    ``acceptance`` (accepted / proposed mutations), ``mutations``, ``seconds``."""
+    ``acceptance`` (accepted / proposed mutations), ``mutations``, ``bootstrap_seconds`` (of
+    ``seconds``, the whole render's wall time)."""
     W, H = scene.camera.width, scene.camera.height
     img = np.zeros((W * H, 3), np.float64)
     t0 = time.perf_counter()
@@ -439,12 +457,14 @@ def render(scene: Scene, cfg: MMLTConfig = MMLTConfig(), *, spp: int, seed: int,
     kcfg = replace(cfg, p_large=0.0, chains=0, bootstrap_samples=0, steps_per_call=0)
     boot, f_boot = bootstrap(scene, kcfg, seed, cfg.bootstrap_samples, lanes, steps, streams)
     b = {L: float(f_boot[L].mean()) for L in boot}
+    t_boot = time.perf_counter() - t0
     counts = _chain_counts(b, chains)
     live = [L for L in counts if counts[L] > 0]
     if not live:
         return Render(img.reshape(H, W, 3).astype(np.float32),
                       dict(b=0.0, b_per_length=b, chains_per_length=counts, calls=0,
-                           acceptance=0.0, mutations=0, seconds=time.perf_counter() - t0))
+                           acceptance=0.0, mutations=0, bootstrap_seconds=t_boot,
+                           seconds=time.perf_counter() - t0))
     n_calls = max(1, -(-spp * W * H // (chains * steps)))
     lane_len, picks_step, picks_lane, scale = [], [], [], []
     for L in live:
@@ -485,7 +505,7 @@ def render(scene: Scene, cfg: MMLTConfig = MMLTConfig(), *, spp: int, seed: int,
     mutations = n_calls * steps * chains
     stats = dict(b=sum(b.values()), b_per_length=b, chains_per_length=counts, calls=n_calls,
                  acceptance=accepted / mutations, mutations=mutations,
-                 seconds=time.perf_counter() - t0)
+                 bootstrap_seconds=t_boot, seconds=time.perf_counter() - t0)
     return Render(img.reshape(H, W, 3).astype(np.float32), stats)
 
 
