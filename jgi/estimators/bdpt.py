@@ -419,11 +419,12 @@ def _camera_visit(scene: Scene, exponent: float):
 
 
 def camera_subpath(scene: Scene, cfg: BDPTConfig, key: Array, pixel: Array, uniform=None,
-                   visit=None):
+                   visit=None, n_live=None):
     """z_0 (the pinhole) .. z_max_depth, and the per-vertex s = 0 / s = 1 records.
     ``uniform(dim)``, if given, replaces the hashed stream ``key`` (dims 0, 1: pixel jitter).
     ``visit``, if given, replaces BDPT's per-vertex records (:func:`_camera_visit`) by its own
-    (MMLT's, which evaluates one strategy per lane after the walk)."""
+    (MMLT's, which evaluates one strategy per lane after the walk); ``n_live``: see
+    :func:`~jgi.transport.subpath.random_walk`."""
     cam = scene.camera
     u = (lambda k: rng.uniform(key, k)) if uniform is None else uniform  # noqa: E731
     o, d = camera_ray(cam, pixel, u)
@@ -438,7 +439,7 @@ def camera_subpath(scene: Scene, cfg: BDPTConfig, key: Array, pixel: Array, unif
     verts, pdf_rev0, rec = random_walk(scene, key, CAMERA_DIMS0, CAMERA_DIMS_PER_STEP,
                                        cfg.max_depth, start, bsdf.RADIANCE,
                                        _camera_visit(scene, cfg.exponent) if visit is None
-                                       else visit, uniform=uniform)
+                                       else visit, uniform=uniform, n_live=n_live)
     z0 = jax.tree_util.tree_map(lambda x: x[None], z0._replace(pdf_rev=pdf_rev0))
     return concat_rows(z0, verts), rec
 

@@ -258,8 +258,11 @@ def evaluate(scene: Scene, cfg: MMLTConfig, u, length):
     def records(v):
         return dict(alive=v.state.alive, pdf_dir=v.state.pdf_dir) if env else None
 
-    cam, rec = camera_subpath(scene, bcfg, None, pixel, _callable(cam_u), visit=records)
-    lp = light_subpath(scene, None, D, infinite=True, uniform=_callable(light_u))
+    # walk only as far as some lane of the batch needs: z_1 .. z_{t-1}, y_1 .. y_{s-1}
+    cam, rec = camera_subpath(scene, bcfg, None, pixel, _callable(cam_u), visit=records,
+                              n_live=jnp.max(t) - 1)
+    lp = light_subpath(scene, None, D, infinite=True, uniform=_callable(light_u),
+                       n_live=jnp.max(s) - 1)
     light = lp.vertices
     is_s0, is_s1, is_t1 = s == 0, s == 1, t == 1
     z, zm = _at(cam, t - 1), _at(cam, jnp.maximum(t - 2, 0))
@@ -376,34 +379,33 @@ def bootstrap(scene: Scene, cfg: MMLTConfig, seed: int, n: int, lanes: int, step
               streams: int = 1):
     """At least n independent samples of every path length 1 .. cfg.max_depth, made by the chain
     kernel (``lanes`` lanes) with p_large = 1 (each step a fresh vector, accepted whatever its
-    f), the lanes' lengths assigned round-robin; the calls are independent and run
+    f). Each call samples one length in all its lanes (call c: length 1 + c mod max_depth), so
+    its walks stop at that length (:func:`evaluate`); the calls are independent and run
     ``streams`` at a time (perf: docs/performance.md#concurrent-calls). Returns
-    {L: (u [samples, dims, lanes], value, f, pixel [samples, lanes], lanes of length L)} and
-    {L: numpy f of those lanes, flat, as float64}."""
+    {L: (u [samples, dims, lanes], value, f, pixel [samples, lanes])} and {L: numpy f, flat, as
+    float64}."""
     D = cfg.max_depth
-    lengths = 1 + np.arange(lanes) % D
-    calls_n = max(1, -(-n // ((lanes // D) * steps_per_call)))
+    per_length = max(1, -(-n // (lanes * steps_per_call)))
     empty = _empty_state(dims(D), lanes)
-    lengths_j = jnp.asarray(lengths, jnp.int32)
     zero = jnp.zeros((lanes,), jnp.float32)
 
     def call(c):
-        *_, prop = run_chains(scene, cfg, jnp.uint32(seed), empty, lengths_j,
+        length = jnp.full((lanes,), 1 + c % D, jnp.int32)
+        *_, prop = run_chains(scene, cfg, jnp.uint32(seed), empty, length,
                               jnp.int32(_BOOT_STEP0 + c * steps_per_call), steps_per_call, zero,
                               jnp.float32(1.0))
         return jax.block_until_ready(prop)
 
-    parts = list(calls.ordered_calls(call, calls_n, streams=streams))
-    u = jnp.concatenate([p_[0] for p_ in parts], 0)               # [calls * steps, d, lanes]
-    val = V3(*(jnp.concatenate([p_[1][k] for p_ in parts], 0) for k in range(3)))
-    f = jnp.concatenate([p_[2] for p_ in parts], 0)
-    pix = jnp.concatenate([p_[3] for p_ in parts], 0)
-    f_np = np.asarray(f, np.float64)
+    parts = list(calls.ordered_calls(call, per_length * D, streams=streams))
     out, f_out = {}, {}
     for L in range(1, D + 1):
-        sel = np.flatnonzero(lengths == L)
-        f_out[L] = f_np[:, sel].reshape(-1)
-        out[L] = (u, val, f, pix, sel)
+        mine = parts[L - 1::D]
+        u = jnp.concatenate([p_[0] for p_ in mine], 0)          # [calls * steps, d, lanes]
+        val = V3(*(jnp.concatenate([p_[1][k] for p_ in mine], 0) for k in range(3)))
+        f = jnp.concatenate([p_[2] for p_ in mine], 0)
+        pix = jnp.concatenate([p_[3] for p_ in mine], 0)
+        out[L] = (u, val, f, pix)
+        f_out[L] = np.asarray(f, np.float64).reshape(-1)
     return out, f_out
 
 
@@ -433,7 +435,8 @@ def render(scene: Scene, cfg: MMLTConfig = MMLTConfig(), *, spp: int, seed: int,
            progress: bool = False) -> Render:
     """MMLT image with at least spp * W * H mutations in total. Every chain has one path length;
     the chains are shared between lengths in proportion to b_L (each length with b_L > 0 gets
-    at least one) and all run in one kernel, as ``CALL_STREAMS`` groups of lanes, each group's
+    at least one), sorted by length, and all run in one kernel, as ``CALL_STREAMS`` groups of
+    lanes, each group's
     calls in its own thread (perf: docs/performance.md#mmlt); the image weighs each length's
     splats by b_L W H / M_L with M_L its exact mutation count, so it stays unbiased. The groups'
     images are added in group order: nothing depends on timing.
@@ -466,21 +469,20 @@ def render(scene: Scene, cfg: MMLTConfig = MMLTConfig(), *, spp: int, seed: int,
                            acceptance=0.0, mutations=0, bootstrap_seconds=t_boot,
                            seconds=time.perf_counter() - t0))
     n_calls = max(1, -(-spp * W * H // (chains * steps)))
-    lane_len, picks_step, picks_lane, scale = [], [], [], []
-    for L in live:
-        *_, sel = boot[L]
+    lane_len, parts, scale = [], [], []
+    for L in live:       # chains sorted by length: a group of short ones walks less far
+        u_b, v_b, f_b, p_b = boot[L]
         f_np = f_boot[L]
         cdf = np.cumsum(f_np) / f_np.sum()
         r = (np.arange(counts[L]) + 0.5) / counts[L]   # stratified resampling in proportion to f
         pick = np.minimum(np.searchsorted(cdf, r), len(f_np) - 1)
-        picks_step.append(pick // len(sel))
-        picks_lane.append(sel[pick % len(sel)])
+        si, li = jnp.asarray(pick // lanes), jnp.asarray(pick % lanes)
+        parts.append((u_b[si, :, li].T, V3(*(c[si, li] for c in v_b)), f_b[si, li],
+                      p_b[si, li]))
         lane_len += [L] * counts[L]
         scale += [b[L] * W * H / (n_calls * steps * counts[L])] * counts[L]
-    si, li = jnp.asarray(np.concatenate(picks_step)), jnp.asarray(np.concatenate(picks_lane))
-    u_b, v_b, f_b, p_b, _ = boot[live[0]]
-    state = (u_b[si, :, li].T, V3(*(c[si, li] for c in v_b)), f_b[si, li], p_b[si, li])
-    del boot, u_b, v_b, f_b, p_b
+    state = jax.tree_util.tree_map(lambda *xs: jnp.concatenate(xs, -1), *parts)
+    del boot, parts
     lane_len = np.array(lane_len, np.int32)
     scale = np.array(scale, np.float32)
 
