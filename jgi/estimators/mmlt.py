@@ -381,9 +381,9 @@ def bootstrap(scene: Scene, cfg: MMLTConfig, seed: int, n: int, lanes: int, step
     kernel (``lanes`` lanes) with p_large = 1 (each step a fresh vector, accepted whatever its
     f). Each call samples one length in all its lanes (call c: length 1 + c mod max_depth), so
     its walks stop at that length (:func:`evaluate`); the calls are independent and run
-    ``streams`` at a time (perf: docs/performance.md#concurrent-calls). Returns
-    {L: (u [samples, dims, lanes], value, f, pixel [samples, lanes])} and {L: numpy f, flat, as
-    float64}."""
+    ``streams`` at a time (perf: docs/performance.md#concurrent-calls). Returns (u [max_depth,
+    samples, dims, lanes], value, f, pixel [max_depth, samples, lanes]) and {L: numpy f of
+    length L, flat, as float64}."""
     D = cfg.max_depth
     per_length = max(1, -(-n // (lanes * steps_per_call)))
     empty = _empty_state(dims(D), lanes)
@@ -397,16 +397,12 @@ def bootstrap(scene: Scene, cfg: MMLTConfig, seed: int, n: int, lanes: int, step
         return jax.block_until_ready(prop)
 
     parts = list(calls.ordered_calls(call, per_length * D, streams=streams))
-    out, f_out = {}, {}
-    for L in range(1, D + 1):
-        mine = parts[L - 1::D]
-        u = jnp.concatenate([p_[0] for p_ in mine], 0)          # [calls * steps, d, lanes]
-        val = V3(*(jnp.concatenate([p_[1][k] for p_ in mine], 0) for k in range(3)))
-        f = jnp.concatenate([p_[2] for p_ in mine], 0)
-        pix = jnp.concatenate([p_[3] for p_ in mine], 0)
-        out[L] = (u, val, f, pix)
-        f_out[L] = np.asarray(f, np.float64).reshape(-1)
-    return out, f_out
+    # [length, call, step, ...]: shapes that depend on no estimate (no recompilation per render)
+    out = jax.tree_util.tree_map(
+        lambda *xs: jnp.stack(xs).reshape((per_length, D) + xs[0].shape).swapaxes(0, 1)
+        .reshape((D, per_length * steps_per_call) + xs[0].shape[1:]), *parts)
+    f_np = np.asarray(out[2], np.float64)
+    return out, {L: f_np[L - 1].reshape(-1) for L in range(1, D + 1)}
 
 
 def _chain_counts(b: dict, chains: int) -> dict:
@@ -459,7 +455,7 @@ def render(scene: Scene, cfg: MMLTConfig = MMLTConfig(), *, spp: int, seed: int,
     # max_depth (and lane count) serves every p_large, chain and bootstrap count
     kcfg = replace(cfg, p_large=0.0, chains=0, bootstrap_samples=0, steps_per_call=0)
     boot, f_boot = bootstrap(scene, kcfg, seed, cfg.bootstrap_samples, lanes, steps, streams)
-    b = {L: float(f_boot[L].mean()) for L in boot}
+    b = {L: float(f_boot[L].mean()) for L in f_boot}
     t_boot = time.perf_counter() - t0
     counts = _chain_counts(b, chains)
     live = [L for L in counts if counts[L] > 0]
@@ -469,20 +465,21 @@ def render(scene: Scene, cfg: MMLTConfig = MMLTConfig(), *, spp: int, seed: int,
                            acceptance=0.0, mutations=0, bootstrap_seconds=t_boot,
                            seconds=time.perf_counter() - t0))
     n_calls = max(1, -(-spp * W * H // (chains * steps)))
-    lane_len, parts, scale = [], [], []
+    lane_len, picks, scale = [], [], []
     for L in live:       # chains sorted by length: a group of short ones walks less far
-        u_b, v_b, f_b, p_b = boot[L]
         f_np = f_boot[L]
         cdf = np.cumsum(f_np) / f_np.sum()
         r = (np.arange(counts[L]) + 0.5) / counts[L]   # stratified resampling in proportion to f
-        pick = np.minimum(np.searchsorted(cdf, r), len(f_np) - 1)
-        si, li = jnp.asarray(pick // lanes), jnp.asarray(pick % lanes)
-        parts.append((u_b[si, :, li].T, V3(*(c[si, li] for c in v_b)), f_b[si, li],
-                      p_b[si, li]))
+        picks.append(np.minimum(np.searchsorted(cdf, r), len(f_np) - 1))
         lane_len += [L] * counts[L]
         scale += [b[L] * W * H / (n_calls * steps * counts[L])] * counts[L]
-    state = jax.tree_util.tree_map(lambda *xs: jnp.concatenate(xs, -1), *parts)
-    del boot, parts
+    pick = np.concatenate(picks)
+    Li = jnp.asarray(np.array(lane_len) - 1)
+    si, li = jnp.asarray(pick // lanes), jnp.asarray(pick % lanes)
+    u_b, v_b, f_b, p_b = boot
+    state = (u_b[Li, si, :, li].T, V3(*(c[Li, si, li] for c in v_b)), f_b[Li, si, li],
+             p_b[Li, si, li])
+    del boot, u_b, v_b, f_b, p_b
     lane_len = np.array(lane_len, np.int32)
     scale = np.array(scale, np.float32)
 
