@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 from jax import Array
 
 _U32 = jnp.uint32
@@ -59,7 +60,12 @@ def uniform_at(c: Array, k: int) -> Array:
 def uniforms(key: Array, first_dim: int, n: int) -> Array:
     """Dimensions ``first_dim .. first_dim + n - 1`` of stream ``key``, stacked: [n, *key.shape]
     (a vector of primary samples, one column per stream)."""
-    return jnp.stack([uniform(key, first_dim + k) for k in range(n)])
+    # one [n, ...] hash of broadcast counters, the same numbers as stacking uniform(key, dim)
+    # (perf: docs/performance.md#mmlt, a stack of n hashes compiled and ran as n kernels)
+    key = jnp.asarray(key).astype(_U32)
+    offsets = ((np.arange(n, dtype=np.uint64) + first_dim + 1) * _WEYL) & 0xFFFFFFFF
+    c = key[None] + jnp.asarray(offsets.astype(np.uint32)).reshape((n,) + (1,) * key.ndim)
+    return (lowbias32(c) >> 8).astype(jnp.float32) * jnp.float32(1.0 / 16777216.0)
 
 
 # Every salt :func:`derive` is given in jgi, named by stream. A stream is

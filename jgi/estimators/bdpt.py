@@ -99,7 +99,6 @@ from ..transport.subpath import (
     random_walk,
     rows,
     sample_next_event,
-    shading,
     vertex_lobe_delta,
     vertex_ns,
 )
@@ -262,79 +261,170 @@ def mis_weights(log_pdf: list[Array], delta: list[Array],
         for steps in chain:
             log_r = jnp.zeros_like(sum_r)
             for rev, fwd, da, db in steps:
-                log_r = log_r + exponent * (log_pdf[rev] - log_pdf[fwd])
-                r_i = jnp.exp(jnp.minimum(log_r, LOG_RATIO_MAX))
-                sum_r = sum_r + jnp.where(~delta[da] & ~delta[db], r_i, 0.0)
-        weights.append(1.0 / (1.0 + sum_r))
+                log_r, sum_r = ratio_step(log_r, sum_r, log_pdf[rev], log_pdf[fwd],
+                                          ~delta[da] & ~delta[db], exponent)
+        weights.append(weight_of_ratios(sum_r))
     return jnp.stack(weights)
+
+
+def ratio_step(log_r: Array, sum_r: Array, log_rev: Array, log_fwd: Array, counted: Array,
+               exponent: float, active: Array | None = None) -> tuple[Array, Array]:
+    """One step of a ratio chain (the formula of every MIS weight here, for all strategies at
+    once in :func:`mis_weights` and for one strategy per lane in :func:`strategy_weight`):
+    log r_i = log r_{i+1} + b (log p_rev - log p_fwd), and r_i, clamped at e^LOG_RATIO_MAX,
+    joins the sum where ``counted`` (neither vertex of the strategy it reaches is Dirac).
+    ``active`` (per lane, or None: all) leaves (log_r, sum_r) unchanged where False: the step
+    lies beyond the lane's strategy (adding 0 to log_r = 0 keeps the sums exact)."""
+    d = exponent * (log_rev - log_fwd)
+    if active is not None:
+        d = jnp.where(active, d, 0.0)
+        counted = counted & active
+    log_r = log_r + d
+    r_i = jnp.exp(jnp.minimum(log_r, LOG_RATIO_MAX))
+    return log_r, sum_r + jnp.where(counted, r_i, 0.0)
+
+
+def weight_of_ratios(sum_r: Array) -> Array:
+    """w_{s,t} = 1 / (1 + sum of the counted r_i^b)."""
+    return 1.0 / (1.0 + sum_r)
+
+
+class LaneSubpath(NamedTuple):
+    """One subpath's MIS rows as a per-lane strategy sees them (:func:`strategy_weight`): lists
+    (one [N] array per vertex) of log remap0 p_fwd, log remap0 p_rev and the Dirac flag, the
+    strategy's reverse densities and connected vertex already written in (as
+    :func:`with_connection` does by row index for :func:`mis_weights`)."""
+    log_fwd: list
+    log_rev: list
+    delta: list
+
+
+def strategy_weight(camera: LaneSubpath, light: LaneSubpath, delta_light: Array, s: Array,
+                    t: Array, exponent: float) -> Array:
+    """w_{s,t} of one strategy per lane, (s, t) traced [N] (MMLT's chosen strategy): the steps
+    of :func:`ratio_chain` for (s, t) with :func:`ratio_step`, walked over every vertex row
+    (camera rows i = K - 1 .. 1, light rows i = K' - 1 .. 0), each active where it lies inside
+    the lane's chain (i < t, i < s). (s, t) = (0, 2) has no steps (w = 1), as in ratio_chain."""
+    sum_r = jnp.zeros_like(camera.log_fwd[0])
+    more = (s + t) > 2
+    log_r = jnp.zeros_like(sum_r)
+    for i in range(len(camera.log_fwd) - 1, 0, -1):       # towards the camera
+        log_r, sum_r = ratio_step(log_r, sum_r, camera.log_rev[i], camera.log_fwd[i],
+                                  ~camera.delta[i] & ~camera.delta[i - 1], exponent,
+                                  more & (i < t))
+    log_r = jnp.zeros_like(sum_r)
+    for i in range(len(light.log_fwd) - 1, -1, -1):        # towards the light
+        before = light.delta[i - 1] if i > 0 else delta_light
+        log_r, sum_r = ratio_step(log_r, sum_r, light.log_rev[i], light.log_fwd[i],
+                                  ~light.delta[i] & ~before, exponent, more & (i < s))
+    return weight_of_ratios(sum_r)
 
 
 # --- the camera subpath, with s = 0 and s = 1 evaluated at each vertex ----------------------------
 
-def _camera_visit(scene: Scene, exponent: float):
+def emitter_strategy(lights, e: Array, n: V3, wo: V3, beta: V3, d2_prev: Array, cos_prev: Array,
+                     prev_surface: Array) -> dict:
+    """Strategy s = 0 at camera vertex z = z_{t-1} on light element ``e`` (-1: none), normal n,
+    ``wo`` towards z_{t-2}: its value L_e(z -> z_{t-2}) beta and its reverse densities as y_0
+    of a light subpath (z) and as y_1 (z_{t-2}: d2_prev, cos_prev = n_{t-2} . (z - z_{t-2})
+    direction, prev_surface describe it)."""
+    return dict(s0_value=beta * emitted(lights, e, n, wo),
+                s0_rev_pt=pdf_light_origin(lights, e),               # as y_0 of a light path
+                s0_rev_ptm=convert_density(pdf_emission_dir(lights, e, n, wo), d2_prev, cos_prev,
+                                           prev_surface))
+
+
+def environment_strategy(lights, escaped: Array, beta: V3, d: V3, pdf_dir: Array, prev_n: V3,
+                         prev_surface: Array) -> dict:
+    """Strategy s = 0 on the environment: the ray from z_{t-2} in direction d (sampled with
+    solid-angle density ``pdf_dir``) escaped to z_{t-1} at infinity; as y_0 of a light subpath
+    it has the environment's direction density, and z_{t-2} the bounding disc's area density
+    times |cos| (pbrt-v4's PdfLightOrigin and PdfLight for infinite lights)."""
+    z = jnp.zeros_like(pdf_dir)
+    Z = V3(z, z, z)
+    return dict(env_value=where(escaped, beta * environment_radiance(lights, d), Z),
+                env_fwd=pdf_dir,
+                env_rev_pt=environment_pdf(lights, d),
+                env_rev_ptm=pdf_bounding_disc(lights) * jnp.where(
+                    prev_surface, jnp.abs(dot(prev_n, d)), 1.0))
+
+
+def next_event_strategy(scene: Scene, mp, p: V3, n: V3, ns: V3 | None, wo: V3, beta: V3,
+                        u_select: Array, u1: Array, u2: Array, valid: Array, d2_prev: Array,
+                        cos_prev: Array, prev_surface: Array):
+    """Strategy s = 1 at camera vertex z = z_{t-1} (material ``mp``, point p, normals n and
+    ``ns``, ``wo`` towards z_{t-2}, throughput beta): light sampling
+    (:func:`~jgi.transport.subpath.sample_next_event`). Returns (value before the visibility
+    test, the shadow ray, the densities: y_0's p_fwd and p_rev, z's and z_{t-2}'s reverse
+    densities, y_0's Dirac flag), for the caller to test the shadow ray with others or alone."""
     lights = scene.lights
     kinds = scene.materials.kinds
+    out = {}
+    ne = sample_next_event(scene, mp, p, n, wo, u_select, u1, u2, valid, ns=ns)
+    ls, pdf_p_fwd = ne.light, ne.pdf_bsdf
+    # the light's density at z_{t-1} converts with the geometric cosine
+    cos_p = ne.cos if ns is None else jnp.abs(dot(ls.wi, n))
+    k = select_light(lights, u_select)
+    _, pdf_p_rev = bsdf.evaluate(kinds, mp, n if ns is None else ns, ls.wi, wo)
+    value = next_event_value(ne, beta)
+    dist = ls.dist
+    if has_infinite_lights(lights):
+        infinite = is_infinite(lights, k)
+        dist = jnp.where(infinite, 0.0, ls.dist)
+    d2 = dist * dist
+    y = p + ls.wi * dist
+    n_y, y_surface = light_normal(lights, k, y)
+    out["s1_fwd_y"] = pdf_light_origin(lights, k)                        # p_fwd(y_0)
+    out["s1_rev_y"] = convert_density(pdf_p_fwd, d2, dot(n_y, ls.wi), y_surface)
+    out["s1_rev_pt"] = convert_density(pdf_emission_dir(lights, k, n_y, -ls.wi), d2, cos_p,
+                                       True)
+    if has_infinite_lights(lights):
+        # y_0 at infinity: its densities are solid-angle ones (light sampling's, with
+        # selection, and BSDF sampling's at z_{t-1}); z_{t-1} from the bounding disc
+        out["s1_fwd_y"] = jnp.where(infinite, ls.pdf, out["s1_fwd_y"])
+        out["s1_rev_y"] = jnp.where(infinite, pdf_p_fwd, out["s1_rev_y"])
+        out["s1_rev_pt"] = jnp.where(infinite, pdf_bounding_disc(lights) * cos_p,
+                                     out["s1_rev_pt"])
+    out["s1_rev_ptm"] = convert_density(pdf_p_rev, d2_prev, cos_prev, prev_surface)
+    out["s1_delta_light"] = ls.delta
+    return value, ne.shadow, out
+
+
+def _camera_visit(scene: Scene, exponent: float):
+    lights = scene.lights
 
     def visit(v: Visit):
         hit, mp, wo, s, u = v.hit, v.mp, v.wo, v.state, v.u
         z = jnp.zeros_like(hit.t)
         Z = V3(z, z, z)
-        out = {}
+        cos_prev = dot(s.prev_n, s.d)
         # ---- s = 0: the camera subpath found an emitter: L_e(z_{t-1} -> z_{t-2}) ----
         e = jnp.where(v.valid, hit.emitter, -1)
-        out["s0_value"] = s.beta * emitted(lights, e, hit.n, wo)
-        out["s0_rev_pt"] = pdf_light_origin(lights, e)               # as y_0 of a light path
-        out["s0_rev_ptm"] = convert_density(pdf_emission_dir(lights, e, hit.n, wo), v.d2_prev,
-                                            dot(s.prev_n, s.d), s.prev_surface)
-        # ---- s = 0 on the environment: the ray escaped to z_{t-1} at infinity, found with
-        # the solid-angle density of the direction at z_{t-2}; as y_0 of a light subpath it
-        # has the environment's direction density, and z_{t-2} the bounding disc's area
-        # density times |cos| (pbrt-v4's PdfLightOrigin and PdfLight for infinite lights) ----
+        out = emitter_strategy(lights, e, hit.n, wo, s.beta, v.d2_prev, cos_prev,
+                               s.prev_surface)
+        # ---- s = 0 on the environment, at infinity ----
         if lights.environment >= 0:
-            escaped = s.alive & ~hit.valid
-            out["env_value"] = where(escaped, s.beta * environment_radiance(lights, s.d), Z)
-            out["env_fwd"] = s.pdf_dir
-            out["env_rev_pt"] = environment_pdf(lights, s.d)
-            out["env_rev_ptm"] = pdf_bounding_disc(lights) * jnp.where(
-                s.prev_surface, jnp.abs(dot(s.prev_n, s.d)), 1.0)
+            out.update(environment_strategy(lights, s.alive & ~hit.valid, s.beta, s.d,
+                                            s.pdf_dir, s.prev_n, s.prev_surface))
         # ---- s = 1: light sampling at z_{t-1} ----
-        ne = sample_next_event(scene, mp, hit.p, hit.n, wo, u(3), u(4), u(5), v.valid, ns=hit.ns)
-        ls, pdf_p_fwd = ne.light, ne.pdf_bsdf
-        # the light's density at z_{t-1} converts with the geometric cosine
-        cos_p = ne.cos if hit.ns is None else jnp.abs(dot(ls.wi, hit.n))
-        k = select_light(lights, u(3))
-        _, pdf_p_rev = bsdf.evaluate(kinds, mp, shading(hit), ls.wi, wo)
-        visible = ~geometry.occluded(scene, *ne.shadow)
-        out["s1_value"] = where(visible, next_event_value(ne, s.beta), Z)
-        dist = ls.dist
-        if has_infinite_lights(lights):
-            infinite = is_infinite(lights, k)
-            dist = jnp.where(infinite, 0.0, ls.dist)
-        d2 = dist * dist
-        y = hit.p + ls.wi * dist
-        n_y, y_surface = light_normal(lights, k, y)
-        out["s1_fwd_y"] = pdf_light_origin(lights, k)                        # p_fwd(y_0)
-        out["s1_rev_y"] = convert_density(pdf_p_fwd, d2, dot(n_y, ls.wi), y_surface)
-        out["s1_rev_pt"] = convert_density(pdf_emission_dir(lights, k, n_y, -ls.wi), d2, cos_p,
-                                           True)
-        if has_infinite_lights(lights):
-            # y_0 at infinity: its densities are solid-angle ones (light sampling's, with
-            # selection, and BSDF sampling's at z_{t-1}); z_{t-1} from the bounding disc
-            out["s1_fwd_y"] = jnp.where(infinite, ls.pdf, out["s1_fwd_y"])
-            out["s1_rev_y"] = jnp.where(infinite, pdf_p_fwd, out["s1_rev_y"])
-            out["s1_rev_pt"] = jnp.where(infinite, pdf_bounding_disc(lights) * cos_p,
-                                         out["s1_rev_pt"])
-        out["s1_rev_ptm"] = convert_density(pdf_p_rev, v.d2_prev, dot(s.prev_n, s.d),
-                                            s.prev_surface)
-        out["s1_delta_light"] = ls.delta
+        value, shadow, s1 = next_event_strategy(scene, mp, hit.p, hit.n, hit.ns, wo, s.beta,
+                                                u(3), u(4), u(5), v.valid, v.d2_prev, cos_prev,
+                                                s.prev_surface)
+        visible = ~geometry.occluded(scene, *shadow)
+        out["s1_value"] = where(visible, value, Z)
+        out.update(s1)
         return out
 
     return visit
 
 
-def camera_subpath(scene: Scene, cfg: BDPTConfig, key: Array, pixel: Array, uniform=None):
+def camera_subpath(scene: Scene, cfg: BDPTConfig, key: Array, pixel: Array, uniform=None,
+                   visit=None, n_live=None):
     """z_0 (the pinhole) .. z_max_depth, and the per-vertex s = 0 / s = 1 records.
-    ``uniform(dim)``, if given, replaces the hashed stream ``key`` (dims 0, 1: pixel jitter)."""
+    ``uniform(dim)``, if given, replaces the hashed stream ``key`` (dims 0, 1: pixel jitter).
+    ``visit``, if given, replaces BDPT's per-vertex records (:func:`_camera_visit`) by its own
+    (MMLT's, which evaluates one strategy per lane after the walk); ``n_live``: see
+    :func:`~jgi.transport.subpath.random_walk`."""
     cam = scene.camera
     u = (lambda k: rng.uniform(key, k)) if uniform is None else uniform  # noqa: E731
     o, d = camera_ray(cam, pixel, u)
@@ -348,14 +438,15 @@ def camera_subpath(scene: Scene, cfg: BDPTConfig, key: Array, pixel: Array, unif
     start = WalkState(o, d, one, pdf_dir, o, Z, z > 0, z > 0, z == 0)
     verts, pdf_rev0, rec = random_walk(scene, key, CAMERA_DIMS0, CAMERA_DIMS_PER_STEP,
                                        cfg.max_depth, start, bsdf.RADIANCE,
-                                       _camera_visit(scene, cfg.exponent), uniform=uniform)
+                                       _camera_visit(scene, cfg.exponent) if visit is None
+                                       else visit, uniform=uniform, n_live=n_live)
     z0 = jax.tree_util.tree_map(lambda x: x[None], z0._replace(pdf_rev=pdf_rev0))
     return concat_rows(z0, verts), rec
 
 
 # --- all strategies of one sample -----------------------------------------------------------------
 
-def _interior(scene: Scene, y: Vertices, ym: Vertices, z: Vertices, zm: Vertices):
+def interior_connection(scene: Scene, y: Vertices, ym: Vertices, z: Vertices, zm: Vertices):
     """Connection y = y_{s-1} <-> z = z_{t-1} (s, t >= 2) for stacked rows of pairs (ym, zm: the
     vertices before them): the value, the shadow ray, and this strategy's reverse area densities
     at the last two vertices of each subpath (pt, ptm: z_{t-1}, z_{t-2}; qs, qsm: y_{s-1},
@@ -375,14 +466,19 @@ def _interior(scene: Scene, y: Vertices, ym: Vertices, z: Vertices, zm: Vertices
     return conn.value, conn.shadow, rev
 
 
-def _reverse_at_predecessor(lights, lp, light_rows, pdf_solid: Array, pdf_area: Array) -> Array:
+def reverse_at_predecessor(lights, lp, light_rows, pdf_solid: Array, pdf_area: Array) -> Array:
     """y_{s-2}'s reverse density under a connection at y_{s-1} (light rows ``light_rows`` =
-    s - 1): the area density ``pdf_area``, but where y_{s-2} = y_0 is a directional or
+    s - 1: a static list, one per stacked strategy, or a traced [N] array, one strategy per
+    lane): the area density ``pdf_area``, but where y_{s-2} = y_0 is a directional or
     environment light the solid-angle density ``pdf_solid`` (pbrt-v4's ConvertDensity leaves
     a density towards an infinite light unconverted)."""
     if not has_infinite_lights(lights):
         return pdf_area
-    at_y0 = jnp.asarray(np.asarray(light_rows) == 1)[:, None] & is_infinite(lights, lp.element)
+    if isinstance(light_rows, np.ndarray):
+        second = jnp.asarray(light_rows == 1)[:, None]
+    else:
+        second = light_rows == 1
+    at_y0 = second & is_infinite(lights, lp.element)
     return jnp.where(at_y0, pdf_solid, pdf_area)
 
 
@@ -411,15 +507,15 @@ def contributions(scene: Scene, cfg: BDPTConfig, seed, pixel: Array, sample: Arr
         y, ym = rows(light, y_rows), rows(light, y_rows - 1)
         conn = materialize(connect_camera(scene, y))
         vm = ym.p - y.p
-        rev_qsm = _reverse_at_predecessor(lights, lp, y_rows, conn.pdf_y_rev, convert_density(
+        rev_qsm = reverse_at_predecessor(lights, lp, y_rows, conn.pdf_y_rev, convert_density(
             conn.pdf_y_rev, dot(vm, vm), dot(ym.n, y.wo), ym.on_surface))
         rays.append(conn.shadow)
     if inner:
         ls = np.array([s - 1 for s, _ in inner])
         ts = np.array([t - 1 for _, t in inner])
-        value_in, shadow_in, rev_in = materialize(_interior(
+        value_in, shadow_in, rev_in = materialize(interior_connection(
             scene, rows(light, ls), rows(light, ls - 1), rows(cam, ts), rows(cam, ts - 1)))
-        rev_in["qsm"] = _reverse_at_predecessor(lights, lp, ls, rev_in.get("qsm_solid"),
+        rev_in["qsm"] = reverse_at_predecessor(lights, lp, ls, rev_in.get("qsm_solid"),
                                                 rev_in["qsm"])
         rays.append(shadow_in)
     occ = occluded_many(scene, rays) if rays else []

@@ -192,7 +192,8 @@ class Visit(NamedTuple):
 
 def random_walk(scene: Scene, key: Array, dim0: int, dims_per_step: int, n_steps: int,
                 start: WalkState, mode: int, visit: Callable[[Visit], object] | None = None,
-                uniform: Callable | None = None, infinite_start: tuple | None = None):
+                uniform: Callable | None = None, infinite_start: tuple | None = None,
+                n_live=None):
     """Extend a subpath by ``n_steps`` BSDF-sampled segments (pbrt-v4's RandomWalk).
 
     Random numbers come from the hashed stream ``key``, or, if ``uniform`` is given, from
@@ -203,6 +204,10 @@ def random_walk(scene: Scene, key: Array, dim0: int, dims_per_step: int, n_steps
     its bounding disc, so vertex 1's density is the disc's area density times |cos| at vertex 1
     (no 1 / d^2), and vertex 0's reverse density stays a solid-angle density (pbrt-v4's
     GenerateLightSubpath and ConvertDensity for infinite lights).
+
+    ``n_live`` (traced scalar, or None: all): only the first n_live steps are traced; the others
+    are skipped (lax.cond: no intersection) and give invalid, zero vertices, so a batch whose
+    paths are all short (MMLT's lanes of short lengths) does not pay for max_depth steps.
 
     Returns (vertices 1..n_steps as :class:`Vertices` [n_steps, N], pdf_rev of vertex 0 [N],
     the stacked outputs of ``visit``). Each vertex's ``pdf_rev`` is filled in by the next step
@@ -249,7 +254,16 @@ def random_walk(scene: Scene, key: Array, dim0: int, dims_per_step: int, n_steps
                         jnp.where(bs.delta, 0.0, bs.pdf), hit.p, hit.n, valid, delta_s, alive)
         return nxt, (vert, extra)
 
-    _, (verts, extras) = jax.lax.scan(step, start, jnp.arange(n_steps))
+    body = step
+    if n_live is not None:
+        def body(s: WalkState, j):
+            shapes = jax.eval_shape(step, s, j)
+
+            def skip(s, j):
+                return s._replace(alive=s.alive & False), jax.tree_util.tree_map(
+                    lambda a: jnp.zeros(a.shape, a.dtype), shapes[1])
+            return jax.lax.cond(j < n_live, step, skip, s, j)
+    _, (verts, extras) = jax.lax.scan(body, start, jnp.arange(n_steps))
     # shift: the value computed at step j belongs to vertex j (the one before the hit)
     pdf_rev0 = verts.pdf_rev[0]
     pdf_rev = jnp.concatenate([verts.pdf_rev[1:], jnp.zeros_like(verts.pdf_rev[:1])], 0)
@@ -336,7 +350,7 @@ class LightPath(NamedTuple):
 
 
 def light_subpath(scene: Scene, key: Array, max_depth: int, infinite: bool = False,
-                  uniform: Callable | None = None) -> LightPath:
+                  uniform: Callable | None = None, n_live=None) -> LightPath:
     """Light subpath y_0 .. y_{max_depth-1} (enough for every strategy with t >= 1).
 
     ``uniform(dim)``, if given, replaces the hashed stream ``key`` (explicit primary samples).
@@ -373,7 +387,7 @@ def light_subpath(scene: Scene, key: Array, max_depth: int, infinite: bool = Fal
                       em.pdf_dir, em.p, em.n, on_surface, z > 0, ok)
     verts, pdf_rev0, _ = random_walk(scene, key, LIGHT_DIMS0, LIGHT_DIMS_PER_STEP, max_depth - 1,
                                      start, bsdf.IMPORTANCE, uniform=uniform,
-                                     infinite_start=infinite_start)
+                                     infinite_start=infinite_start, n_live=n_live)
     v0 = v0._replace(pdf_rev=pdf_rev0[None])
     return LightPath(concat_rows(v0, verts), delta_light, em.element)
 
