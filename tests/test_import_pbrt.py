@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 
+import equinox as eqx
 import numpy as np
 import pytest
 
@@ -519,3 +520,101 @@ def test_included_files_resolve_names_against_the_main_file(tmp_path):
     np.testing.assert_allclose(emission, np.stack([
         spectra.pbrt_rgb(([400.0, 700], [1.0, 3]), True),
         spectra.pbrt_rgb(spectra.pbrt_blackbody(4000.0), True)]), rtol=1e-6)
+
+
+# --- participating media: MakeNamedMedium / MediumInterface -----------------------------------
+
+FOG_HEADER = """
+MakeNamedMedium "fog" "string type" "homogeneous" "rgb sigma_a" [0.1 0.2 0.05]
+  "rgb sigma_s" [0.3 0.4 0.5] "float scale" 2 "float g" 0.4
+MakeNamedMedium "unused" "string type" "homogeneous"
+MediumInterface "" "fog"
+LookAt 0 1 5  0 0 0  0 1 0
+Camera "perspective" "float fov" [ 40 ]
+Film "rgb" "integer xresolution" [ 8 ] "integer yresolution" [ 6 ]
+WorldBegin
+"""
+
+
+def test_the_medium_outside_the_camera_fills_the_scene(tmp_path):
+    """pbrt-v4's camera medium is the outside medium of the MediumInterface current at Camera;
+    shapes that are no transition (inside = outside, the default "" "") keep a ray's medium,
+    so the fog fills the scene: sigma_t = (sigma_a + sigma_s) scale, albedo sigma_s / sigma_t."""
+    p = tmp_path / "fog.pbrt"
+    p.write_text(FOG_HEADER + 'Shape "sphere" "float radius" 0.5\n'
+                 'AttributeBegin\n MediumInterface "unused" "unused"\n'
+                 ' Shape "sphere" "float radius" 0.2\nAttributeEnd\n'
+                 'LightSource "point" "rgb I" [1 1 1] "point3 from" [0 2 0]\n')
+    m = load_pbrt(p).medium
+    np.testing.assert_allclose([float(c) for c in m.sigma_t], [0.8, 1.2, 1.1], rtol=1e-6)
+    # glass with fog outside and vacuum inside bounds a medium: refused by name
+    p.write_text(FOG_HEADER + 'Material "dielectric"\nShape "sphere" "float radius" 0.5\n')
+    with pytest.raises(SceneError, match=r'fog\.pbrt:11: Shape "sphere" bounds media'):
+        load_pbrt(p)
+    np.testing.assert_allclose([float(c) for c in m.albedo], [0.3 / 0.4, 0.4 / 0.6, 0.5 / 0.55],
+                               rtol=1e-6)
+    assert float(m.g) == pytest.approx(0.4)
+    # a camera in vacuum: media declared on shapes that are no transition change nothing
+    q = tmp_path / "vacuum.pbrt"
+    q.write_text(FOG_HEADER.replace('MediumInterface "" "fog"', "")
+                 + 'MediumInterface "fog"\nShape "sphere" "float radius" 0.5\n')
+    assert not load_pbrt(q).has_medium
+    # pbrt-v4's defaults: sigma_a = sigma_s = 1, g = 0; one name sets inside and outside
+    r = tmp_path / "defaults.pbrt"
+    r.write_text(FOG_HEADER.replace('MediumInterface "" "fog"', 'MediumInterface "unused"'))
+    m = load_pbrt(r).medium
+    np.testing.assert_allclose([float(c) for c in m.sigma_t], [2, 2, 2])
+    np.testing.assert_allclose([float(c) for c in m.albedo], [0.5, 0.5, 0.5])
+    assert float(m.g) == 0.0
+
+
+def test_a_pbrt_fog_renders_like_the_same_fog_built_in_jgi(tmp_path):
+    """The medium is all that MediumInterface adds: the scene equals the fog-free file's scene
+    leaf for leaf but for ``medium``, and its render is finite and dimmer (the fog attenuates
+    and scatters light out of view; the estimator itself is tested against Mitsuba 3)."""
+    p = tmp_path / "fog.pbrt"
+    p.write_text(FOG_HEADER + 'Material "diffuse" "rgb reflectance" [0.5 0.5 0.5]\n'
+                 'Shape "trianglemesh" "point3 P" [-2 0 -2  2 0 -2  2 0 2  -2 0 2]\n'
+                 '  "integer indices" [0 1 2  0 2 3]\n'
+                 'LightSource "point" "rgb I" [3 3 3] "point3 from" [0 2 0]\n')
+    ours = load_pbrt(p)
+    without = tmp_path / "nofog.pbrt"
+    without.write_text(p.read_text().replace('MediumInterface "" "fog"', ""))
+    b_scene = load_pbrt(without)
+    leaves_equal(eqx.tree_at(lambda s: s.medium, ours, None, is_leaf=lambda x: x is None),
+                 b_scene)
+    a = jgi.render(ours, "pt", spp=4, seed=3, max_depth=3)
+    c = jgi.render(b_scene, "pt", spp=4, seed=3, max_depth=3)
+    assert np.isfinite(a).all() and a.mean() > 0
+    assert a.mean() < 0.9 * c.mean()      # the fog attenuates what the camera sees
+
+
+@pytest.mark.parametrize("body, message", [
+    ('MakeNamedMedium "g" "string type" "uniformgrid" "float density" [1]',
+     'medium type "uniformgrid" is not supported yet; supported: homogeneous'),
+    ('MakeNamedMedium "g" "string type" "smoke"', 'medium type "smoke" is unknown'),
+    ('MakeNamedMedium "g" "string type" "homogeneous" "float density" 1',
+     "unknown parameter 'density'"),
+    ('MakeNamedMedium "g" "string type" "homogeneous" "string preset" "Ketchup"',
+     '"preset"'),
+    ('MakeNamedMedium "g" "string type" "homogeneous" "rgb Le" [1 1 1]', "emissive media"),
+    ('MakeNamedMedium "g" "rgb sigma_a" [1 1 1]', 'needs "string type"'),
+    ('MediumInterface "" "fog"\nShape "sphere"', r'bounds media \(MediumInterface inside '
+     r'"", outside "fog", material diffuse\): media bounded by shapes are not supported'),
+    ('MediumInterface "fog" ""\nMaterial "dielectric"\nShape "sphere"',
+     r'inside "fog", outside "", material dielectric'),
+    ('MediumInterface\nShape "sphere"', "MediumInterface expects one or two quoted"),
+])
+def test_unsupported_media_name_file_line_and_what_is_allowed(tmp_path, body, message):
+    path = write(tmp_path, 'MakeNamedMedium "fog" "string type" "homogeneous"\n' + body)
+    with pytest.raises(SceneError, match=message) as e:
+        load_pbrt(path)
+    assert f"{path}:" in str(e.value)
+
+
+def test_a_camera_medium_nobody_defines_is_refused(tmp_path):
+    p = tmp_path / "x.pbrt"
+    p.write_text(FOG_HEADER.replace('MediumInterface "" "fog"', 'MediumInterface "" "mist"'))
+    with pytest.raises(SceneError, match=r'x\.pbrt:7: the Camera\'s MediumInterface names '
+                                         r'medium "mist".*defined: fog, unused'):
+        load_pbrt(p)

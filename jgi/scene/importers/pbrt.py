@@ -58,6 +58,15 @@ supported):
              "uniform" / "infinite" (L, scale, illuminance; or filename: a square equal-area
              octahedral image, EXR or PNG, nearest texel, +z up in the light's frame, with
              scale and illuminance; "portal" refused)
+  media      MakeNamedMedium "name" "string type" "homogeneous" (sigma_a, sigma_s as rgb or a
+             grey float, scale, g: pbrt-v4's defaults 1, 1, 1, 0) and MediumInterface
+             ("inside" "outside", or one name for both; "" is vacuum): the medium outside the
+             Camera fills the scene, as in pbrt-v4, where a ray keeps its medium at every
+             surface that is no medium transition, and which it gives the rays an opaque
+             shape reflects: a Shape's interface must be no transition or have the camera's
+             medium outside an opaque material. Refused by name: other transitions (media
+             bounded by shapes, e.g. fog inside glass), other medium types
+             (uniformgrid, rgbgrid, cloud, nanovdb), "preset", emissive media (Le)
   files      Include / Import; relative file names (includes, meshes, images, spectra)
              are found in the main scene file's folder, also from included files, as pbrt-v4
              resolves them
@@ -115,7 +124,10 @@ from ._common import (
 
 _TOKEN = re.compile(r'"[^"]*"|\[|\]|[^\s\[\]"]+')
 IGNORED = {"Sampler", "Integrator", "PixelFilter", "ColorSpace", "Option", "Accelerator",
-           "WorldEnd", "Attribute", "MakeNamedMedium", "MediumInterface"}
+           "WorldEnd", "Attribute"}
+HOMOGENEOUS_MEDIUM_PARAMETERS = ("type", "sigma_a", "sigma_s", "scale", "g", "preset", "Le",
+                                 "Lescale")
+PBRT_MEDIUM_TYPES = ("homogeneous", "uniformgrid", "rgbgrid", "cloud", "nanovdb")
 SUPPORTED = {
     "Camera": ("perspective",), "Film": ("rgb", "gbuffer", "spectral"),
     "Material": ("diffuse", "conductor", "dielectric"),
@@ -215,6 +227,9 @@ class _Importer:
         self.float_textures: dict[str, str] = {}   # pbrt float texture -> builder texture
         self.alpha_materials: dict[tuple, str] = {}  # (material, alpha) -> masked copy
         self.camera_seen = False
+        self.media: dict[str, tuple] = {}      # MakeNamedMedium name -> (params, where)
+        self.inside = self.outside = ""        # the current MediumInterface ("": vacuum)
+        self.camera_medium = ("", None)        # (name, where) outside the Camera
         self.film = (1280, 720)
         self.cam = None
 
@@ -970,11 +985,13 @@ class _Importer:
                 return np.array(vals)
 
             if tok in ("AttributeBegin", "TransformBegin"):
-                self.stack.append((self.ctm.copy(), self.material, self.area, self.reverse))
+                self.stack.append((self.ctm.copy(), self.material, self.area, self.reverse,
+                                   self.inside, self.outside))
             elif tok in ("AttributeEnd", "TransformEnd"):
                 if not self.stack:
                     self.fail(where, f"{tok} without a matching begin")
-                self.ctm, self.material, self.area, self.reverse = self.stack.pop()
+                (self.ctm, self.material, self.area, self.reverse, self.inside,
+                 self.outside) = self.stack.pop()
             elif tok == "Identity":
                 self.ctm = np.eye(4)
             elif tok == "Translate":
@@ -1000,6 +1017,7 @@ class _Importer:
                 p = self.params(toks, where)
                 self.cam = (np.linalg.inv(self.ctm), float(self._get(p, "fov", 90.0, where, 1)))
                 self.coordinate_systems["camera"] = np.linalg.inv(self.ctm)
+                self.camera_medium = (self.outside, where)
             elif tok == "CoordinateSystem":
                 self.coordinate_systems[kind()] = self.ctm.copy()
             elif tok == "CoordSysTransform":
@@ -1048,9 +1066,22 @@ class _Importer:
                 k = kind()
                 self.check("LightSource", k, where)
                 self.light(k, self.params(toks, where), where)
+            elif tok == "MakeNamedMedium":
+                name = kind()
+                self.make_medium(name, self.params(toks, where), where)
+            elif tok == "MediumInterface":
+                names = []
+                while toks.peek()[0] is not None and toks.peek()[0].startswith('"') \
+                        and len(names) < 2:
+                    names.append(toks.next()[0].strip('"'))
+                if not names:
+                    self.fail(where, "MediumInterface expects one or two quoted medium names "
+                                     "(inside, outside; \"\" for vacuum)")
+                self.inside, self.outside = names[0], names[-1]
             elif tok == "Shape":
                 k = kind()
                 self.check("Shape", k, where)
+                self.check_interface(k, where)
                 self.shape(k, self.params(toks, where), where)
             elif tok == "Texture":
                 tex_name, tex_type, tex_class = kind(), kind(), kind()
@@ -1067,12 +1098,79 @@ class _Importer:
                 self.fail(where, f"directive '{tok}' is not supported; supported: transforms, "
                                  "Camera, Film, WorldBegin, Material, MakeNamedMaterial, "
                                  "NamedMaterial, AreaLightSource, LightSource, Shape, "
-                                 "AttributeBegin/End, Include")
+                                 "MakeNamedMedium, MediumInterface, AttributeBegin/End, "
+                                 "Include")
+
+    def check_interface(self, shape, where):
+        """A Shape's MediumInterface must leave the camera's medium filling the scene: no
+        transition (inside = outside), or an opaque shape (no dielectric: rays never enter
+        it) with the camera's medium outside, which pbrt-v4 gives the rays it reflects."""
+        if self.inside == self.outside:
+            return
+        kind = self.material_kind.get(self.material, "diffuse")
+        if kind != "dielectric" and self.outside == self.camera_medium[0]:
+            return
+        self.fail(where, f"Shape \"{shape}\" bounds media (MediumInterface inside "
+                         f"\"{self.inside}\", outside \"{self.outside}\", material {kind}): "
+                         "media bounded by shapes are not supported yet; supported: one "
+                         "homogeneous medium that fills the scene, the one outside the Camera "
+                         f"(\"{self.camera_medium[0]}\" here), on both sides of every shape or "
+                         "outside opaque ones")
+
+    def make_medium(self, name, p, where):
+        """MakeNamedMedium: pbrt-v4's homogeneous medium, checked here and built if the Camera
+        sits in it (:meth:`fill_medium`)."""
+        typ = self._get(p, "type", None, where)
+        if typ is None:
+            self.fail(where, f"MakeNamedMedium \"{name}\" needs \"string type\"")
+        if typ[0] != "homogeneous":
+            known = typ[0] in PBRT_MEDIUM_TYPES
+            self.fail(where, f"MakeNamedMedium \"{name}\": medium type \"{typ[0]}\" is "
+                             f"{'not supported yet' if known else 'unknown'}; supported: "
+                             "homogeneous")
+        for key in p:
+            if key not in HOMOGENEOUS_MEDIUM_PARAMETERS:
+                self.fail(where, f"MakeNamedMedium \"{name}\" (homogeneous): unknown parameter "
+                                 f"'{key}'; homogeneous takes: "
+                                 f"{', '.join(HOMOGENEOUS_MEDIUM_PARAMETERS)}")
+        if "preset" in p:
+            self.fail(where, f"MakeNamedMedium \"{name}\": \"preset\" (pbrt's measured media) is "
+                             "not supported; give sigma_a and sigma_s")
+        if "Le" in p and np.any(np.asarray(self._get(p, "Le", np.zeros(3), where)) != 0):
+            self.fail(where, f"MakeNamedMedium \"{name}\": emissive media (Le) are not "
+                             "supported")
+        self.media[name] = (p, where)
+
+    def fill_medium(self):
+        """The medium outside the Camera fills the scene (pbrt-v4 keeps a ray's medium at
+        surfaces that are no transition, and jgi refused every transition)."""
+        name, where = self.camera_medium
+        if not name:
+            return
+        if name not in self.media:
+            self.fail(where, f"the Camera's MediumInterface names medium \"{name}\", which no "
+                             "MakeNamedMedium defines; defined: "
+                             f"{', '.join(self.media) or '(none)'}")
+        p, mwhere = self.media[name]
+
+        def rgb(key):
+            v = np.asarray(self._get(p, key, np.ones(3), mwhere), float).reshape(-1)
+            if v.size not in (1, 3):
+                self.fail(mwhere, f"MakeNamedMedium \"{name}\": '{key}' takes an rgb or one "
+                                  f"float, got {v.size} values")
+            return np.broadcast_to(v, (3,))
+        try:
+            self.b.medium(sigma_a=rgb("sigma_a"), sigma_s=rgb("sigma_s"),
+                          scale=float(self._get(p, "scale", 1.0, mwhere, 1)),
+                          g=float(self._get(p, "g", 0.0, mwhere, 1)))
+        except SceneError as e:
+            self.fail(mwhere, f"MakeNamedMedium \"{name}\": {e}")
 
     def run(self) -> Scene:
         self.run_file(self.path)
         if self.cam is None:
             raise ImportError_(f"{self.path}: the scene has no Camera")
+        self.fill_medium()
         c2w, fov = self.cam
         w, h = self.film
         pos = xf.apply_point(c2w, np.zeros(3))
