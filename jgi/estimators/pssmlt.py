@@ -20,6 +20,9 @@ and run in parallel (one lane per chain). The image is consistent: its expectati
 path tracer's up to the error of b, which the bootstrap makes small. The Metropolis step itself
 (acceptance, splatting, the accept decision) is :func:`jgi.transport.mcmc.metropolis`; this module
 supplies the state (:class:`PrimarySample`), the mutation and the target.
+
+Participating media come with the path tracer: its free-flight numbers (channel, distance) are
+two more primary samples per bounce, mutated like the others.
 """
 
 from __future__ import annotations
@@ -38,7 +41,7 @@ from ..core.vec import V3, luminance
 from ..physics import camera
 from ..scene.tables import Scene
 from ..transport import mcmc
-from .path_tracer import PathTracerConfig, radiance
+from .path_tracer import PathTracerConfig, dims_per_bounce, radiance
 from .registry import Estimator, Render, param, register
 
 _SALT = rng.SALTS["pssmlt"]
@@ -68,9 +71,11 @@ class PSSMLTConfig:
         return PathTracerConfig(strategy=self.strategy, max_depth=self.max_depth,
                                 rr_depth=self.rr_depth)
 
-    @property
-    def dims(self) -> int:
-        return 2 + self.pt.max_depth * self.pt.dims_per_bounce
+
+def dims(cfg: PSSMLTConfig, scene: Scene) -> int:
+    """Length of the primary-sample vector: the pixel position, then the path tracer's numbers
+    per bounce (:func:`~jgi.estimators.path_tracer.dims_per_bounce`: two more in a medium)."""
+    return 2 + cfg.pt.max_depth * dims_per_bounce(cfg.pt, scene)
 
 
 def contribution(scene: Scene, cfg: PSSMLTConfig, u):
@@ -123,7 +128,7 @@ def splat_at(x: PrimarySample):
 def bootstrap(scene: Scene, cfg: PSSMLTConfig, seed, n: int):
     """n independent primary-sample vectors, their f, and the estimate of b = E[f]."""
     key = rng.derive(rng.path_key(seed, jnp.arange(n, dtype=jnp.int32), 0), _SALT)
-    u = rng.uniforms(key, 0, cfg.dims)
+    u = rng.uniforms(key, 0, dims(cfg, scene))
     _, f, _ = contribution(scene, cfg, u)
     return u, f
 
@@ -190,4 +195,4 @@ def render(scene: Scene, cfg: PSSMLTConfig = PSSMLTConfig(), *, spp: int, seed: 
 
 
 register(Estimator("pssmlt", "primary-sample-space Metropolis light transport over the path tracer",
-                   render, PSSMLTConfig))
+                   render, PSSMLTConfig, media=True))

@@ -90,6 +90,29 @@ def cornell_box_fog(resolution: int = 256, sigma_t=0.6, albedo=0.8, g=0.0) -> Sc
     return b.build()
 
 
+def glass_sphere_fog(resolution: int = 256, sigma_t=0.25, albedo=0.9, g=0.3) -> Scene:
+    """A volumetric caustic (the case mitsuba3#181 asks for): a glass sphere (ior 1.5, radius
+    0.6) in fog under a spot light whose cone (15 degrees) lies within the sphere's silhouette
+    (16.7 degrees), over a floor, in front of a back wall. All light below the sphere has
+    passed through the glass: the bright cone it focuses into the fog is an L S S M E path
+    (M: a medium vertex), which a path tracer cannot sample (its shadow rays stop at the glass
+    and a phase-sampled ray never hits the point light): light tracing, BDPT, photon maps
+    and beams can. The fog above the sphere is lit directly (single scattering: every
+    estimator)."""
+    b = SceneBuilder("glass_sphere_fog")
+    b.material("floor", "diffuse", diffuse=(0.6, 0.6, 0.6))
+    b.material("glass", "dielectric", ior=1.5)
+    b.quad((-3, 0, -3), (0, 0, 6), (6, 0, 0), "floor")              # normal +y
+    b.quad((-3, 0, -1.5), (6, 0, 0), (0, 4, 0), "floor")            # back wall, normal +z
+    b.sphere((0, 1.2, 0), 0.6, "glass")
+    b.spot_light((0, 3.2, 0), (0, 0, 0), intensity=(120, 120, 120), cutoff_deg=15.0,
+                 falloff_deg=12.0)
+    b.medium(sigma_t=sigma_t, albedo=albedo, g=g)
+    b.camera(position=(0, 1.4, 5.5), look_at=(0, 1.0, 0), fov=40, width=resolution,
+             height=resolution)
+    return b.build()
+
+
 def cornell_box_caustics(resolution: int = 256, light: str = "area") -> Scene:
     """The Cornell room with a mirror and a glass sphere; ``light="point"``: lit by a point
     light (:func:`cornell_room`), so that caustics seen in the spheres (L S D S E) can be
@@ -390,6 +413,7 @@ BUILTINS = {
     "mirror_sds": mirror_sds,
     "smallvcm_box": smallvcm_box,
     "cornell_box_fog": cornell_box_fog,
+    "glass_sphere_fog": glass_sphere_fog,
 }
 
 
