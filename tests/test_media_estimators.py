@@ -215,6 +215,23 @@ def test_fog_renders_like_mitsuba_volpath(tmp_path):
     assert_agree(mine, theirs, regions=1, label="jgi pt vs Mitsuba 3 volpath (whole image)")
 
 
+def test_mitsuba_shape_media_that_leave_the_fog_filling_the_scene(tmp_path):
+    """Mitsuba 3 gives a ray the medium on the side it leaves a shape that names media: the
+    sensor's fog on both sides of a shape, or outside an opaque one (whose inside no ray
+    reaches), leaves the fog filling the scene, and the scene is the one without the names."""
+    from jgi.scene.importers import load_mitsuba_xml
+    from tests.support.scenes import leaves_equal
+
+    plain = FOG_XML.format(depth=6)
+    (tmp_path / "plain.xml").write_text(plain)
+    named = plain.replace('<ref id="grey"/></shape>', '<ref id="grey"/><ref name="exterior" '
+                          'id="fog"/><medium type="homogeneous" name="interior"/></shape>', 1)
+    named = named.replace('<ref id="grey"/></shape>', '<ref id="grey"/><ref name="exterior" '
+                          'id="fog"/><ref name="interior" id="fog"/></shape>', 1)
+    (tmp_path / "named.xml").write_text(named)
+    leaves_equal(load_mitsuba_xml(tmp_path / "named.xml"), load_mitsuba_xml(tmp_path / "plain.xml"))
+
+
 def test_mitsuba_media_refusals(tmp_path):
     from jgi.scene.importers import load_mitsuba_xml
     from jgi.scene.importers._common import ImportError_
@@ -222,8 +239,16 @@ def test_mitsuba_media_refusals(tmp_path):
     bad_shape = FOG_XML.format(depth=6).replace(
         '<ref id="grey"/></shape>', '<ref id="grey"/><ref name="interior" id="fog"/></shape>', 1)
     (tmp_path / "a.xml").write_text(bad_shape)
-    with pytest.raises(ImportError_, match=r"a\.xml.*interior / exterior.*not supported"):
+    with pytest.raises(ImportError_, match=r"a\.xml.*rectangle: interior 'fog', exterior none: "
+                                          r"media bounded by shapes are not supported yet"):
         load_mitsuba_xml(tmp_path / "a.xml")
+    glass = FOG_XML.format(depth=6).replace(
+        '<ref id="grey"/></shape>', '<bsdf type="dielectric"/><ref name="exterior" id="fog"/>'
+        '</shape>', 1)
+    (tmp_path / "d.xml").write_text(glass)
+    with pytest.raises(ImportError_, match=r"d\.xml.*interior none, exterior 'fog' \(it "
+                                          r"transmits light\)"):
+        load_mitsuba_xml(tmp_path / "d.xml")
     hetero = FOG_XML.format(depth=6).replace('type="homogeneous"', 'type="heterogeneous"')
     (tmp_path / "b.xml").write_text(hetero)
     with pytest.raises(ImportError_, match=r"b\.xml.*medium plugin 'heterogeneous'.*homogeneous"):

@@ -70,6 +70,14 @@ supported):
              cones; to_world), directional (direction, irradiance), constant (radiance),
              envmap (filename: EXR, Radiance HDR, PNG or JPEG latitude-longitude image;
              scale; to_world)
+  media      homogeneous (sigma_t, albedo, scale; phase isotropic or hg), nested in or
+             referenced by the <sensor>: it fills the scene, as Mitsuba 3's volpath renders a
+             sensor medium when no shape is a medium transition. Shapes may name media
+             (<ref name="interior"/"exterior"> or nested) where that leaves the fog filling
+             the scene: the sensor's medium on both sides, or outside an opaque shape (no
+             dielectric, no mask), whose inside no ray reaches. Other shape media (fog
+             bounded by a shape, glass containing another medium) and other medium plugins
+             are refused
   values     rgb, float, spectrum (a constant, wavelength:value pairs, a filename= .spd
              file, blackbody in emitters: converted to RGB as Mitsuba 3's RGB variants
              do, jgi.scene.spectra; a blackbody as its spectral variants' RGB film sees
@@ -99,7 +107,7 @@ import numpy as np
 from ...core import transform as xf
 from .. import spectra
 from ..builder import SceneBuilder, SceneError, luminance_np, smooth_vertex_normals
-from ..tables import Scene
+from ..tables import DIELECTRIC, ROUGH_DIELECTRIC, Scene
 from ._common import (
     NAMED_IOR,
     ImportError_,
@@ -213,6 +221,8 @@ class _Importer:
         self.n_anon = 0
         self.checkerboards: dict[str, dict] = {}   # name -> the builder's checkerboard kwargs
         self.sensor_done = False
+        self.sensor_medium = None    # its id, or its nested <medium> element
+        self.shape_media: list = []  # (shape element, kind, interior, exterior, transmits)
         self.source: dict = {}
         self.integrator: IntegratorSettings | None = None
         # ids of the transforms with a non-unit rotation axis: Mitsuba moves normals by such
@@ -696,14 +706,20 @@ class _Importer:
         m = p.get("to_world", np.eye(4))
         material = None
         emission = None
+        shape_media: dict = {}     # "interior" / "exterior" -> medium id (or nested element)
         for c in el:
             if c.tag == "bsdf":
                 material = self.bsdf(c)
             elif c.tag == "medium" or (c.tag == "ref" and c.get("name") in ("interior",
                                                                           "exterior")):
-                self.fail(c, "media attached to shapes (interior / exterior) are not supported "
-                             "yet; supported: one medium on the <sensor>, which then fills the "
-                             "whole scene (both sides of every surface)")
+                side = c.get("name")
+                if side not in ("interior", "exterior"):
+                    self.fail(c, "a shape's medium needs name=\"interior\" or "
+                                 "name=\"exterior\"")
+                if c.tag == "ref" and c.get("id") not in self.media:
+                    self.fail(c, f"reference to unknown medium '{c.get('id')}'; defined: "
+                                 f"{', '.join(self.media) or '(none)'}")
+                shape_media[side] = c.get("id") if c.tag == "ref" else c
             elif c.tag == "ref" and c.get("id") in self.area_emitters:
                 # a top-level area emitter with an id, referenced (before or after it)
                 emission = self.emitted(self.area_emitters[c.get("id")], "radiance")
@@ -725,6 +741,11 @@ class _Importer:
             self.n_anon += 1
             self.b.material(material, "diffuse", diffuse=(0.5, 0.5, 0.5), one_sided=True)
         row = self.b.materials[self.b.material_names[material]]
+        if shape_media:
+            transmits = (row.kind in (DIELECTRIC, ROUGH_DIELECTRIC) or row.opacity < 1.0
+                         or row.opacity_texture >= 0)
+            self.shape_media.append((el, kind, shape_media.get("interior"),
+                                     shape_media.get("exterior"), transmits))
         if emission is not None and (row.opacity < 1.0 or row.opacity_texture >= 0):
             self.fail(el, f"{kind}: an area emitter on a shape whose bsdf is a 'mask' is not "
                           "supported (jgi's emitters are opaque: they are sampled over their "
@@ -1007,10 +1028,36 @@ class _Importer:
             self.fail(el, "a sensor takes one medium")
         if media:
             self.medium(media[0])
+            ref = [c.get("id") for c in el if c.tag == "ref" and c.get("id") in self.media]
+            self.sensor_medium = ref[0] if ref else media[0]
+
+    def check_shape_media(self):
+        """Shapes' interior / exterior media must leave the sensor's medium filling the scene,
+        as Mitsuba 3's volpath then renders it: the ray takes the medium on the side its next
+        direction leaves to, at shapes that name a medium (elsewhere it keeps its own). Allowed:
+        interior and exterior both the sensor's, or an opaque shape (no dielectric, no mask)
+        with the sensor's medium outside (its interior is never reached)."""
+        fill = self.sensor_medium
+
+        def same(m):
+            return m is not None and m is fill if not isinstance(m, str) else m == fill
+        for el, kind, interior, exterior, transmits in self.shape_media:
+            if same(exterior) and (same(interior) or not transmits):
+                continue
+
+            def name(m):
+                return ("none" if m is None else f"'{m}'" if isinstance(m, str)
+                        else f"a nested {m.get('type')}")
+            sensor = name(fill) if fill is not None else "none"
+            self.fail(el, f"{kind}: interior {name(interior)}, exterior {name(exterior)}"
+                          f"{' (it transmits light)' if transmits else ''}: media bounded by "
+                          "shapes are not supported yet; supported: one medium that fills "
+                          f"the scene, the sensor's ({sensor} here), as both media of a shape "
+                          "or as the exterior of an opaque one")
 
     def medium(self, el):
         """Mitsuba's homogeneous medium (sigma_t, albedo, scale; an isotropic or hg phase), as
-        the medium that fills the scene (the sensor's: jgi has no per-shape media yet)."""
+        the medium that fills the scene (the sensor's; shapes' media: check_shape_media)."""
         self.check_type(el)
         p = self.props(el)
         for k in p:
@@ -1117,6 +1164,7 @@ class _Importer:
             return None
         if not self.sensor_done:
             raise ImportError_(f"{self.path}: the scene has no <sensor>")
+        self.check_shape_media()
         return self.b.build()
 
 
