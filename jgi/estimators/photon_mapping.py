@@ -26,6 +26,15 @@ dielectrics) are sampled through like specular ones, not looked up
 (:func:`jgi.transport.visible_points.samples_through`); ``pm_jensen`` samples through every
 microfacet vertex (specular and glossy light by Monte Carlo, Jensen's split).
 
+Participating media (``pm``; a scene filled by a homogeneous medium): photons are stored at
+medium interactions too (volume photons, :mod:`jgi.transport.photons`), and a camera chain
+that interacts with the medium before reaching a surface ends there, a volume visible point
+(:func:`jgi.transport.visible_points.trace_to_diffuse`), where the volume photon map of Jensen
+and Christensen (1998) estimates the in-scattered radiance,
+L_s(x, wo) ~= sum_p p(-w_p, wo) DeltaPhi_p W(d_p) / K_3 (K_3 = 4/3 pi r^3 for the box
+filter; :func:`jgi.transport.density.volume_sum_within`): a point estimate at a sampled
+free-flight distance (stochastic ray marching), not yet the beam estimate.
+
 Parameters: :class:`PMConfig`, :class:`JensenConfig`, :class:`ProgressiveConfig`; each
 ``render_*`` returns a :class:`~jgi.estimators.registry.Render` (image and stats).
 """
@@ -40,6 +49,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..core import rng
+from ..core.errors import ParameterError
 from ..core.vec import V3, coordinate_system
 from ..core.warps import sample_cosine_hemisphere
 from ..physics import geometry
@@ -137,11 +147,26 @@ def render_pm(scene: Scene, cfg: PMConfig = PMConfig(), *, spp: int = 4, seed: i
           else {})
     if k == 0:   # every photon within r (no cap): sum / K
         r2 = np.full(pix.shape[0], radius * radius, np.float32)
-        L, _ = density.sum_within(scene, pm, v.p, v.n, v.wo, v.material, r2,
-                                  live=np.asarray(v.found), kind=filter, filter_params=fp,
-                                  uv=v.uv, ns=v.ns, thickness=thickness)
+        surface_live, surface_map = np.asarray(v.found), pm
+        if scene.has_medium:   # volume points: the 3-D estimate from the volume photons
+            in_medium = np.asarray(v.in_medium)
+            surface_live = surface_live & ~in_medium
+            surface_map = pm.select(~np.asarray(pm.volume))
+            Lv, _ = density.volume_sum_within(scene, pm, v.p, v.wo, r2, live=in_medium,
+                                              kind=filter)
+            Lv = Lv / (4.0 / 3.0 * np.pi * radius**3
+                       * float(density.volume_filter_weight(filter, 0.0, 1.0)[1]))
+        L = density.sum_within(scene, surface_map, v.p, v.n, v.wo, v.material, r2,
+                               live=surface_live, kind=filter, filter_params=fp,
+                               uv=v.uv, ns=v.ns, thickness=thickness)[0]
         L = L / (np.pi * radius * radius * float(density.filter_weight(filter, 0.0, 1.0, **fp)[1]))
+        if scene.has_medium:
+            L = np.where(in_medium, Lv, L)
     else:        # the k nearest within r, from the host grid (cells shrunk to hold ~ cap / 2)
+        if scene.has_medium:
+            raise ParameterError("pm: k-nearest-neighbour estimates (k > 0) are not implemented "
+                                 "in participating media; use k = 0 (every photon within "
+                                 "radius)")
         grid = hash_grid.build_grid(pm, radius, cap=cap or 128)
         L = density.estimate_at_points(scene, grid, v.p, v.n, v.wo, v.material,
                                        float(grid.cell), cap=cap, k=k, kind=filter,
@@ -297,7 +322,7 @@ def _sppm(scene: Scene, cfg: ProgressiveConfig, *, spp: int, seed: int,
 
 register(Estimator("pm", "photon mapping, direct visualisation of the global map", _pm, PMConfig,
                    renamed={"alpha": "gauss_alpha", "beta": "gauss_beta",
-                            "max_depth": "max_bounces"}))
+                            "max_depth": "max_bounces"}, media=True))
 register(Estimator("pm_jensen", "photon mapping with Jensen's split (direct, specular, "
                    "caustic map, final gathering)", _jensen, JensenConfig))
 register(Estimator("ppm", "progressive photon mapping (Hachisuka 2008)", _ppm, ProgressiveConfig,

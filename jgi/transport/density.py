@@ -38,7 +38,7 @@ from jax import Array
 
 from ..core.errors import ParameterError
 from ..core.vec import V3, dot, where
-from ..physics import bsdf
+from ..physics import bsdf, phase
 from ..scene.tables import PLASTIC, Scene
 from .hash_grid import (
     CellIndex,
@@ -308,6 +308,95 @@ def _sum_within(scene: Scene, photons: PhotonRows, table_size: int, x: V3, n: V3
     return V3(acc[:, 1], acc[:, 2], acc[:, 3]), acc[:, 0]
 
 
+# --- volume photons: the 3-D radiance estimate (Jensen and Christensen 1998) -------------------
+
+VOLUME_FILTERS = {"box": 1.0, "epanechnikov": 0.4}   # K / (4/3 pi r^3) in three dimensions
+
+
+def volume_filter_weight(kind: str, d2, r2):
+    """(W(d), K / (4/3 pi r^3)) of a 3-D filter: box (W = 1) or Epanechnikov (W = 1 - d^2/r^2,
+    K = 8 pi r^3 / 15); the others' 2-D constants do not carry over, and are refused."""
+    if kind == "box":
+        return jnp.ones_like(d2), 1.0
+    if kind == "epanechnikov":
+        return 1.0 - d2 / r2, VOLUME_FILTERS[kind]
+    raise ParameterError(f"filter '{kind}' has no volume (3-D) form in jgi; volume photon "
+                         f"estimates allow: {', '.join(VOLUME_FILTERS)}")
+
+
+def _volume_within(q: Array, y: Array) -> Array:
+    """The cheap test's per-point part for volume lookups: a volume photon (zero normal)."""
+    return ((y[:, 3] == 0) & (y[:, 4] == 0) & (y[:, 5] == 0))
+
+
+def _add_volume_photons(acc: Array, q: Array, slot: Array, ok: Array, *, rows: Array, x: V3,
+                        wo: V3, r2: Array, g, kind: str) -> Array:
+    """Pair visitor: sum_p p(-w_p, wo) W DeltaPhi_p and the count, added to acc [N, 4]; the
+    photon's propagation direction is -w_p, the light's towards the viewer wo."""
+    y = rows[slot]
+    at = lambda v: V3(*(c[q] for c in v))                                      # noqa: E731
+    diff = V3(y[:, 0], y[:, 1], y[:, 2]) - at(x)
+    w, _ = volume_filter_weight(kind, dot(diff, diff), r2[q])
+    p = phase.evaluate(g, -V3(y[:, 6], y[:, 7], y[:, 8]), at(wo))
+    terms = [jnp.where(ok, p * y[:, 9 + c] * w, 0.0) for c in range(3)]
+    return acc.at[q].add(jnp.stack([ok.astype(acc.dtype), *terms], -1))
+
+
+@partial(jax.jit, static_argnames=("table_size", "kind"))
+def _volume_sum_within(photons: PhotonRows, table_size: int, x: V3, wo: V3, r2: Array,
+                       live: Array, g, kind: str):
+    visit = partial(_add_volume_photons, rows=photons.rows, x=x, wo=wo, r2=r2, g=g, kind=kind)
+    acc = accumulate_near_pairs(photons.cells, table_size, photons.where, x, live,
+                                jnp.max(jnp.where(live, r2, 0.0)), visit,
+                                jnp.zeros((live.shape[0], 4), jnp.float32), block=PAIR_BLOCK,
+                                near_block=NEAR_BLOCK, keep=_volume_within)
+    return V3(acc[:, 1], acc[:, 2], acc[:, 3]), acc[:, 0]
+
+
+def volume_sum_within(scene: Scene, pm, x: V3, wo: V3, r2, *, live=None, kind: str = "box"):
+    """(sum_p p(-w_p, wo) W(d_p) DeltaPhi_p, count) over every *volume* photon of ``pm`` within
+    each point's radius (r2 per point), numpy [3, N] and [N]: the in-scattered radiance
+    int p(w, wo) L_i(x, w) dw is the sum divided by K = (the filter's constant) 4/3 pi r^3
+    (:func:`volume_filter_weight`), the volume photons' power being the flux times T / p
+    (:mod:`jgi.transport.photons`). x's throughput carries sigma_s already (its free-flight
+    weight). Exact as :func:`sum_within`: every pair of the 27 cells is read."""
+    volume_filter_weight(kind, 0.0, 1.0)     # refuses filters without a 3-D form
+    vol = pm.select(np.asarray(pm.volume))
+    N = x.x.shape[0]
+    out, count = np.zeros((3, N), np.float32), np.zeros(N, np.float32)
+    if vol.count == 0:
+        return out, count
+    r2 = np.asarray(r2, np.float32)
+    live = np.ones(N, bool) if live is None else np.asarray(live, bool)
+    photons, table_size = _device_rows(vol, float(np.sqrt(max(float(r2[live].max(initial=0.0)),
+                                                              1e-12))))
+    chunk = min(QUERY_CHUNK, padded_size(N))
+    g = jnp.float32(scene.medium.g)
+    for s in range(0, N, chunk):
+        sl = slice(s, min(s + chunk, N))
+        k = sl.stop - s
+        fill = lambda a: jnp.asarray(np.pad(np.asarray(a)[sl], (0, chunk - k), mode="edge"))  # noqa: E731
+        fv = lambda v: V3(*(fill(c) for c in v))                                             # noqa: E731
+        L, c = _volume_sum_within(photons, table_size, fv(x), fv(wo), fill(r2),
+                                  jnp.asarray(np.pad(live[sl], (0, chunk - k))), g, kind)
+        out[:, sl] = np.stack([np.asarray(a)[:k] for a in L])
+        count[sl] = np.asarray(c)[:k]
+    return out, count
+
+
+def _device_rows(pm, cell: float):
+    """The photon map ``pm`` (host arrays) padded to a compiled size and sorted into the device
+    grid of cells ``cell``: (PhotonRows, table size)."""
+    M = pm.count
+    size = padded_size(M)
+    pad = lambda a: jnp.asarray(np.pad(np.asarray(a, np.float32), (0, size - M)))  # noqa: E731
+    padv = lambda v: V3(*(pad(c) for c in v))                                      # noqa: E731
+    valid = jnp.asarray(np.arange(size) < M)
+    table_size = int(1 << max(10, int(np.ceil(np.log2(2 * size)))))
+    return photon_rows(padv(pm.position), padv(pm.normal), padv(pm.wi), padv(pm.power), valid,
+                       jnp.float32(cell), table_size), table_size
+
+
 def sum_within(scene: Scene, pm, x: V3, n: V3, wo: V3, material, r2, *, live=None,
                kind: str = "box", filter_params: dict | None = None, uv=None, ns=None,
                thickness: float | None = None):
@@ -325,14 +414,7 @@ def sum_within(scene: Scene, pm, x: V3, n: V3, wo: V3, material, r2, *, live=Non
     r2 = np.asarray(r2, np.float32)
     live = np.ones(N, bool) if live is None else np.asarray(live, bool)
     cell = float(np.sqrt(max(float(r2[live].max(initial=0.0)), 1e-12)))
-    M = pm.count
-    size = padded_size(M)
-    pad = lambda a: jnp.asarray(np.pad(np.asarray(a, np.float32), (0, size - M)))  # noqa: E731
-    padv = lambda v: V3(*(pad(c) for c in v))                                      # noqa: E731
-    valid = jnp.asarray(np.arange(size) < M)
-    table_size = int(1 << max(10, int(np.ceil(np.log2(2 * size)))))
-    photons = photon_rows(padv(pm.position), padv(pm.normal), padv(pm.wi), padv(pm.power), valid,
-                          jnp.float32(cell), table_size)
+    photons, table_size = _device_rows(pm, cell)
     out, count = np.zeros((3, N), np.float32), np.zeros(N, np.float32)
     chunk = min(QUERY_CHUNK, padded_size(N))
     for s in range(0, N, chunk):

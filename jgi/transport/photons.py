@@ -19,6 +19,16 @@ power is multiplied by weight / q, so the expected power is unchanged while phot
 equal power (Jensen's reflect/transmit/absorb decision). Mirrors and dielectrics pass photons on
 without storing them (Fresnel chooses reflection or transmission).
 
+In a scene filled by a participating medium (``Scene.medium``), each segment first samples a
+free flight (:func:`jgi.physics.media.sample_free_flight`, two more numbers per bounce, after
+all the vacuum layout's). At a medium interaction x the photon is stored as a *volume photon*
+(zero normal: surface lookups, which test the normal, never take it) with the power
+P T(t) / p(t): the free-flight weight without sigma, so that sum_p P_p delta(x - x_p) h(w_p)
+estimates int L_i(x, w) h(w) dw, the in-scattered radiance's integrand; a volume radiance
+estimate (:func:`jgi.transport.density.volume_sum_within`) divides by the kernel's volume.
+The photon then continues with the weight T sigma_s / p (Russian roulette on it) in a direction
+sampled from the phase function. Reaching a surface weighs it by T / P.
+
 Two maps are distinguished by a flag per stored photon:
   * global: every non-specular hit;
   * caustic: photons whose path so far is L S+ D (one or more specular, microfacet or smooth
@@ -40,7 +50,7 @@ from ..core import rng
 from ..core.calls import ordered_calls
 from ..core.sharding import device_mesh, sharded_calls
 from ..core.vec import V3, dot, max_component, where
-from ..physics import bsdf, geometry
+from ..physics import bsdf, geometry, media, phase
 from ..physics.lights import sample_emission
 from ..scene.tables import Scene
 from .visible_points import is_lookup_surface, samples_through
@@ -63,6 +73,12 @@ class PhotonMap(NamedTuple):
     def count(self) -> int:
         return int(self.caustic.shape[0])
 
+    @property
+    def volume(self):
+        """Volume photons (stored in a medium: zero normal)."""
+        n = self.normal
+        return (n.x == 0) & (n.y == 0) & (n.z == 0)
+
     def select(self, mask) -> "PhotonMap":
         return jax.tree_util.tree_map(lambda a: a[mask], self)
 
@@ -80,10 +96,22 @@ def trace_photon_paths(scene: Scene, seed, photon_index: Array, n_emitted, max_d
     # o, d, power, alive, specular_seen, only_specular
     state = (em.p, em.d, power, power.x >= 0, z > 0, z == 0)
 
+    medium = scene.medium
+
     def bounce(state, depth):
         o, d, pw, alive, spec_seen, only_spec = state
         hit = geometry.intersect(scene, o, d)
-        alive = alive & hit.valid
+        base = 5 + depth * DIMS_PER_BOUNCE
+        if medium is not None:   # a free flight before the surface (see the module)
+            dm = 5 + max_depth * DIMS_PER_BOUNCE + 2 * depth
+            ff = media.sample_free_flight(medium.sigma_t, medium.albedo, pw,
+                                          jnp.where(hit.valid, hit.t, jnp.inf), u(dm), u(dm + 1))
+            in_medium = alive & ff.scattered
+            pw_arrival = pw
+            pw = where(in_medium, pw, pw * ff.weight)    # T / P where it reaches the surface
+            alive = alive & (hit.valid | in_medium)
+            hit = hit._replace(valid=hit.valid & ~in_medium)
+        alive = alive & hit.valid if medium is None else alive
         mp = bsdf.lookup(mats, hit.material, hit.uv)
         store = alive & is_lookup_surface(mp, mats.kinds)
         # caustic: L S+ D with S what Jensen's split samples through (Dirac and microfacet
@@ -96,18 +124,36 @@ def trace_photon_paths(scene: Scene, seed, photon_index: Array, n_emitted, max_d
         # stored power is divided by it, so the map estimates the flux arriving there (the
         # flux the surface scatters where it stops a ray), unbiased in expectation
         stored_pw = pw if not mats.has_masks else pw * (1.0 / geometry.hit_opacity(scene, hit))
-        record = (hit.p, stored_pw, -d, n_arrival, store & ~through & spec_seen & only_spec,
-                  store)
-        base = 5 + depth * DIMS_PER_BOUNCE
         ns = hit.n if hit.ns is None else hit.ns
         bs = bsdf.sample(mats.kinds, mp, ns, -d, u(base), u(base + 1), u(base + 2),
                          mode=bsdf.IMPORTANCE)
         if hit.ns is not None:   # Veach's adjoint correction for shading normals
             bs = bs._replace(weight=bs.weight * bsdf.adjoint_correction(ns, hit.n, -d, bs.wi))
+        p_at, n_at, origin = hit.p, n_arrival, None
+        if medium is not None:
+            # a medium interaction takes the surface's place: stored with the free-flight
+            # weight without sigma (T / p), continued with T sigma_s / p along a phase sample
+            x = o + d * ff.t
+            ph = phase.sample(medium.g, d, u(base), u(base + 1))
+            pdf = jnp.where(ff.pdf > 0, ff.pdf, 1.0)
+            t_over_p = V3(*(jnp.where(ff.pdf > 0, c / pdf, 0.0)
+                            for c in media.transmittance(medium.sigma_t, ff.t)))
+            stored_pw = where(in_medium, pw_arrival * t_over_p, stored_pw)
+            store = (store & ~in_medium) | in_medium
+            through = through & ~in_medium
+            zero = jnp.zeros_like(x.x)
+            p_at = where(in_medium, x, hit.p)
+            n_at = where(in_medium, V3(zero, zero, zero), n_arrival)
+            origin = where(in_medium, x, geometry.offset_origin(hit.p, hit.n, bs.wi))
+            bs = bsdf.BSDFSample(where(in_medium, ph.d_out, bs.wi),
+                                 where(in_medium, ff.weight, bs.weight),
+                                 jnp.where(in_medium, ph.pdf, bs.pdf), bs.delta & ~in_medium,
+                                 bs.valid | in_medium)
+        record = (p_at, stored_pw, -d, n_at, store & ~through & spec_seen & only_spec, store)
         q = jnp.clip(max_component(bs.weight), 0.0, 1.0)
         survive = alive & bs.valid & (u(base + 3) < q)
         pw = where(survive, pw * bs.weight / jnp.where(q > 0, q, 1.0), pw)
-        o_next = geometry.offset_origin(hit.p, hit.n, bs.wi)
+        o_next = geometry.offset_origin(hit.p, hit.n, bs.wi) if origin is None else origin
         only_spec = only_spec & (bs.delta | through)
         spec_seen = spec_seen | bs.delta | through
         return (o_next, bs.wi, pw, survive, spec_seen, only_spec), record

@@ -21,7 +21,7 @@ from jax import Array
 
 from ..core import rng
 from ..core.vec import V3, where
-from ..physics import bsdf, geometry
+from ..physics import bsdf, geometry, media
 from ..physics.lights import emitted, environment_radiance
 from ..scene.tables import DIFFUSE, PHONG, PLASTIC, ROUGH_DIELECTRIC, ROUGH_KINDS, Scene
 from .subpath import (
@@ -87,6 +87,9 @@ class DiffuseVertex(NamedTuple):
     found: Array     # bool: the chain ended on a non-specular surface
     uv: tuple | None = None  # its surface coordinates, in scenes with textures (else None)
     ns: V3 | None = None     # its shading normal, in scenes with vertex normals (else None)
+    # a medium interaction (zero normal; its beta includes T sigma_s / p), in scenes filled by
+    # a participating medium (else None)
+    in_medium: Array | None = None
 
 
 def trace_to_diffuse(scene: Scene, uniform, o: V3, d: V3, *, max_depth: int,
@@ -102,8 +105,20 @@ def trace_to_diffuse(scene: Scene, uniform, o: V3, d: V3, *, max_depth: int,
     Smooth plastic (with lookups): its BSDF is sampled first; where the coating's Dirac lobe is
     chosen (probability p) the chain continues with its weight k_s F / p, else it ends there
     with beta / (1 - p) (the lookup and the direct light estimate the base alone): each part of
-    the BSDF is counted once, in expectation."""
+    the BSDF is counted once, in expectation.
+
+    Participating media (``Scene.medium``): each segment first samples a free flight
+    (:func:`jgi.physics.media.sample_free_flight`, the numbers ``uniform(2 + max_depth (3 + 3
+    light_samples) + 2 k + ...)``, past the others); an interaction before the surface ends the
+    chain there, a *volume* visible point (``in_medium``; its beta times T sigma_s / p), where a
+    volume photon estimate (:func:`jgi.transport.density.volume_sum_within`) takes over; the
+    surface, reached, weighs the chain by T / P. Only without direct light (light_samples 0)."""
     mats, lights = scene.materials, scene.lights
+    medium = scene.medium
+    if medium is not None and light_samples:
+        raise ValueError("trace_to_diffuse: direct light at visible points is not implemented "
+                         "in participating media (light_samples must be 0)")
+    medium_dim0 = 2 + max_depth * (3 + 3 * light_samples)
     z = jnp.zeros_like(o.x)
     Z = V3(z, z, z)
     dims = 1 + 3 * light_samples
@@ -117,6 +132,20 @@ def trace_to_diffuse(scene: Scene, uniform, o: V3, d: V3, *, max_depth: int,
         hit = geometry.intersect(scene, o, d)
         wo = -d
         base = 2 + depth * dims
+        if medium is not None:   # a free flight first: a volume visible point, or T / P
+            dm = medium_dim0 + 2 * depth
+            ff = media.sample_free_flight(medium.sigma_t, medium.albedo, beta,
+                                          jnp.where(hit.valid, hit.t, jnp.inf), uniform(dm),
+                                          uniform(dm + 1))
+            scattered = active & ff.scattered
+            v_m = v._replace(
+                beta=where(scattered, beta * ff.weight, v.beta),
+                p=where(scattered, o + d * ff.t, v.p), n=where(scattered, Z, v.n),
+                wo=where(scattered, wo, v.wo), found=v.found | scattered,
+                in_medium=v.in_medium | scattered)
+            v = v_m
+            beta = beta * ff.weight     # T / P where the surface is reached
+            active = active & ~scattered
         if lights.count:
             L = L + where(active & hit.valid, beta * emitted(lights, hit.emitter, hit.n, wo), Z)
             if lights.environment >= 0:
@@ -150,7 +179,8 @@ def trace_to_diffuse(scene: Scene, uniform, o: V3, d: V3, *, max_depth: int,
                           jnp.where(diffuse_end, hit.material, v.material), v.found | diffuse_end,
                           None if v.uv is None else
                           tuple(jnp.where(diffuse_end, a, b) for a, b in zip(hit.uv, v.uv)),
-                          None if v.ns is None else where(diffuse_end, hit.ns, v.ns))
+                          None if v.ns is None else where(diffuse_end, hit.ns, v.ns),
+                          v.in_medium)
         # ---- follow the specular (or glossy) chain ----
         if not plastic:
             bs = bsdf.sample(kinds, mp, shading(hit), wo, uniform(base), u1, u2)
@@ -159,7 +189,8 @@ def trace_to_diffuse(scene: Scene, uniform, o: V3, d: V3, *, max_depth: int,
 
     one = jnp.ones_like(z)
     v0 = DiffuseVertex(Z, Z, o, V3(z, z, one), V3(z, z, one), jnp.zeros_like(z, jnp.int32), z > 0,
-                       no_uv(scene, z), vertex_ns(scene, V3(z, z, one)))
+                       no_uv(scene, z), vertex_ns(scene, V3(z, z, one)),
+                       None if medium is None else z > 0)
     state = (o, d, V3(one, one, one), Z, z == 0, v0)
     _, _, _, L, _, v = jax.lax.fori_loop(0, max_depth, step, state)
     return v._replace(L=L)
