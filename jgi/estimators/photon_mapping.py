@@ -33,7 +33,9 @@ that interacts with the medium before reaching a surface ends there, a volume vi
 and Christensen (1998) estimates the in-scattered radiance,
 L_s(x, wo) ~= sum_p p(-w_p, wo) DeltaPhi_p W(d_p) / K_3 (K_3 = 4/3 pi r^3 for the box
 filter; :func:`jgi.transport.density.volume_sum_within`): a point estimate at a sampled
-free-flight distance (stochastic ray marching), not yet the beam estimate.
+free-flight distance (stochastic ray marching), not yet the beam estimate. ``ppm`` / ``sppm``
+keep a pixel's volume points' statistics apart from its surface points' and shrink their
+radius in three dimensions: R^3 <- R^3 (N + a M) / (N + M) (Knaus and Zwicker 2011).
 
 Parameters: :class:`PMConfig`, :class:`JensenConfig`, :class:`ProgressiveConfig`; each
 ``render_*`` returns a :class:`~jgi.estimators.registry.Render` (image and stats).
@@ -276,6 +278,11 @@ def render_progressive(scene: Scene, cfg: ProgressiveConfig = ProgressiveConfig(
     R2 = np.full(n_pts, radius * radius, np.float64)
     tau = np.zeros((3, n_pts), np.float64)
     direct = np.zeros((3, n_pts), np.float64)
+    # in a medium, a pixel's volume visible points keep statistics of their own (3-D
+    # kernels): SPPM's point of a pixel may be on a surface in one pass and in the medium in
+    # the next, and each kind's estimate tau / (K R^d passes) is its share of the average
+    medium = scene.has_medium
+    N_v, R2_v, tau_v = N.copy(), R2.copy(), tau.copy()
     v = None
     for t in range(passes):
         if stochastic or v is None:
@@ -288,17 +295,33 @@ def render_progressive(scene: Scene, cfg: ProgressiveConfig = ProgressiveConfig(
         direct += Lv
         pm = trace_photons(scene, photons, seed=int(rng.lowbias32(jnp.uint32(seed * 7919 + t + 1))),
                            max_depth=max_depth)
+        surface = found
+        if medium:
+            in_medium = np.asarray(v.in_medium)
+            surface = found & ~in_medium
+            phi_v, M_v = density.volume_sum_within(scene, pm, v.p, v.wo, R2_v,
+                                                   live=found & in_medium)
+            phi_v = np.where(found & in_medium, beta_ * phi_v, 0.0)
+            tau_v, R2_v, N_v = _progressive_update(tau_v, R2_v, N_v, phi_v, M_v, radius_alpha, 3)
+            pm = pm.select(~np.asarray(pm.volume))
         # M_i (photons within R_i) and Phi_i = sum f_r DeltaPhi_p, over every photon (no cap)
-        phi, M = density.sum_within(scene, pm, v.p, v.n, v.wo, v.material, R2, live=found,
+        phi, M = density.sum_within(scene, pm, v.p, v.n, v.wo, v.material, R2, live=surface,
                                     uv=v.uv, ns=v.ns)
-        phi = np.where(found, beta_ * phi, 0.0)
-        grow = N + radius_alpha * M
-        ratio = np.where(N + M > 0, grow / np.maximum(N + M, 1e-30), 1.0)
-        tau = (tau + phi) * ratio
-        R2 = R2 * ratio
-        N = grow
+        phi = np.where(surface, beta_ * phi, 0.0)
+        tau, R2, N = _progressive_update(tau, R2, N, phi, M, radius_alpha, 2)
     L = direct / passes + tau / (np.pi * R2 * passes)
+    if medium:
+        L = L + tau_v / (4.0 / 3.0 * np.pi * R2_v**1.5 * passes)
     return Render(_to_image(scene, L, spp), dict(radius_final=float(np.sqrt(R2.mean()))))
+
+
+def _progressive_update(tau, R2, N, phi, M, radius_alpha: float, dim: int):
+    """One pass of Hachisuka's statistics in ``dim`` dimensions: N <- N + a M, the kernel's
+    measure (pi R^2, or 4/3 pi R^3 in a medium: Knaus and Zwicker 2011) scaled by
+    (N + a M) / (N + M), tau <- (tau + Phi) times the same ratio."""
+    grow = N + radius_alpha * M
+    ratio = np.where(N + M > 0, grow / np.maximum(N + M, 1e-30), 1.0)
+    return (tau + phi) * ratio, R2 * ratio ** (2.0 / dim), grow
 
 
 def _pm(scene: Scene, cfg: PMConfig, *, spp: int, seed: int, progress: bool = False) -> Render:
@@ -326,7 +349,7 @@ register(Estimator("pm", "photon mapping, direct visualisation of the global map
 register(Estimator("pm_jensen", "photon mapping with Jensen's split (direct, specular, "
                    "caustic map, final gathering)", _jensen, JensenConfig))
 register(Estimator("ppm", "progressive photon mapping (Hachisuka 2008)", _ppm, ProgressiveConfig,
-                   renamed={"alpha": "radius_alpha", "max_depth": "max_bounces"}))
+                   renamed={"alpha": "radius_alpha", "max_depth": "max_bounces"}, media=True))
 register(Estimator("sppm", "stochastic progressive photon mapping (Hachisuka & Jensen 2009)", _sppm,
                    ProgressiveConfig, renamed={"alpha": "radius_alpha",
-                                               "max_depth": "max_bounces"}))
+                                               "max_depth": "max_bounces"}, media=True))

@@ -324,9 +324,11 @@ def volume_filter_weight(kind: str, d2, r2):
                          f"estimates allow: {', '.join(VOLUME_FILTERS)}")
 
 
-def _volume_within(q: Array, y: Array) -> Array:
-    """The cheap test's per-point part for volume lookups: a volume photon (zero normal)."""
-    return ((y[:, 3] == 0) & (y[:, 4] == 0) & (y[:, 5] == 0))
+def _volume_within(q: Array, y: Array, *, x: V3, r2: Array) -> Array:
+    """The cheap test's per-point part for volume lookups: a volume photon (zero normal) within
+    the point's own radius (the grid's test is the largest radius of all)."""
+    diff = V3(y[:, 0], y[:, 1], y[:, 2]) - V3(*(c[q] for c in x))
+    return (dot(diff, diff) < r2[q]) & (y[:, 3] == 0) & (y[:, 4] == 0) & (y[:, 5] == 0)
 
 
 def _add_volume_photons(acc: Array, q: Array, slot: Array, ok: Array, *, rows: Array, x: V3,
@@ -349,7 +351,7 @@ def _volume_sum_within(photons: PhotonRows, table_size: int, x: V3, wo: V3, r2: 
     acc = accumulate_near_pairs(photons.cells, table_size, photons.where, x, live,
                                 jnp.max(jnp.where(live, r2, 0.0)), visit,
                                 jnp.zeros((live.shape[0], 4), jnp.float32), block=PAIR_BLOCK,
-                                near_block=NEAR_BLOCK, keep=_volume_within)
+                                near_block=NEAR_BLOCK, keep=partial(_volume_within, x=x, r2=r2))
     return V3(acc[:, 1], acc[:, 2], acc[:, 3]), acc[:, 0]
 
 
