@@ -33,7 +33,11 @@ that interacts with the medium before reaching a surface ends there, a volume vi
 and Christensen (1998) estimates the in-scattered radiance,
 L_s(x, wo) ~= sum_p p(-w_p, wo) DeltaPhi_p W(d_p) / K_3 (K_3 = 4/3 pi r^3 for the box
 filter; :func:`jgi.transport.density.volume_sum_within`): a point estimate at a sampled
-free-flight distance (stochastic ray marching), not yet the beam estimate. ``ppm`` / ``sppm``
+free-flight distance (stochastic ray marching). With ``volume="beam"`` the camera segments
+cross the medium to their surfaces (weighed by T) and the beam radiance estimate of Jarosz et
+al. (2008) sums every volume photon within r of each segment,
+beta sigma_s sum_p T(t_p) p DeltaPhi_p / (pi r^2) (:func:`jgi.transport.density.beam_sum`),
+from the same grid. ``ppm`` / ``sppm``
 keep a pixel's volume points' statistics apart from its surface points' and shrink their
 radius in three dimensions: R^3 <- R^3 (N + a M) / (N + M) (Knaus and Zwicker 2011).
 
@@ -83,6 +87,10 @@ class PMConfig:
     gauss_beta: float = param(density.JENSEN_BETA, "Gaussian filter beta (Jensen's)",
                               minimum=1e-3)
     max_bounces: int = param(8, _MAX_BOUNCES_DOC, minimum=1)
+    volume: str = param("point", "in a medium: the volume photons' estimate at a sampled "
+                        "point of each camera segment ('point', Jensen and Christensen 1998) "
+                        "or along the whole segment ('beam', Jarosz et al. 2008)",
+                        choices=("point", "beam"))
     cap: int | None = None          # k > 0: photons read per grid cell (None: the fullest cell)
     thickness: float | None = None  # flattened-disc selection: reject photons this far off
                                     # the plane
@@ -143,14 +151,21 @@ def render_pm(scene: Scene, cfg: PMConfig = PMConfig(), *, spp: int = 4, seed: i
     cap, thickness = cfg.cap, cfg.thickness
     pm = trace_photons(scene, photons, seed=seed, max_depth=max_depth)
     pix, smp = _pixels(scene, spp)
-    v = visible_points(scene, jnp.uint32(seed), pix, smp, max_depth=max_depth, light_samples=0)
+    beams = scene.has_medium and cfg.volume == "beam"
+    if beams and (k or filter != "box"):
+        raise ParameterError("pm: the beam estimate (volume='beam') takes every photon within "
+                             "radius with the box filter; allowed: k = 0, filter = 'box'")
+    v = visible_points(scene, jnp.uint32(seed), pix, smp, max_depth=max_depth, light_samples=0,
+                       beams=beams)
     fp = (dict(k=cfg.cone_k) if filter == "cone" else
           dict(gauss_alpha=cfg.gauss_alpha, gauss_beta=cfg.gauss_beta) if filter == "gaussian"
           else {})
     if k == 0:   # every photon within r (no cap): sum / K
         r2 = np.full(pix.shape[0], radius * radius, np.float32)
         surface_live, surface_map = np.asarray(v.found), pm
-        if scene.has_medium:   # volume points: the 3-D estimate from the volume photons
+        if beams:
+            surface_map = pm.select(~np.asarray(pm.volume))
+        elif scene.has_medium:   # volume points: the 3-D estimate from the volume photons
             in_medium = np.asarray(v.in_medium)
             surface_live = surface_live & ~in_medium
             surface_map = pm.select(~np.asarray(pm.volume))
@@ -162,7 +177,7 @@ def render_pm(scene: Scene, cfg: PMConfig = PMConfig(), *, spp: int = 4, seed: i
                                live=surface_live, kind=filter, filter_params=fp,
                                uv=v.uv, ns=v.ns, thickness=thickness)[0]
         L = L / (np.pi * radius * radius * float(density.filter_weight(filter, 0.0, 1.0, **fp)[1]))
-        if scene.has_medium:
+        if scene.has_medium and not beams:
             L = np.where(in_medium, Lv, L)
     else:        # the k nearest within r, from the host grid (cells shrunk to hold ~ cap / 2)
         if scene.has_medium:
@@ -176,6 +191,8 @@ def render_pm(scene: Scene, cfg: PMConfig = PMConfig(), *, spp: int = 4, seed: i
     found = np.asarray(v.found)
     beta_ = np.stack([np.asarray(c) for c in v.beta])
     total = np.stack([np.asarray(c) for c in v.L]) + np.where(found, beta_ * L, 0.0)
+    if beams:   # the in-scattered light along every camera segment (its throughput included)
+        total = total + density.beam_sum(scene, pm, v.segments, radius)
     return Render(_to_image(scene, total, spp), dict(stored=pm.count))
 
 

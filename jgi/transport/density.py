@@ -386,6 +386,110 @@ def volume_sum_within(scene: Scene, pm, x: V3, wo: V3, r2, *, live=None, kind: s
     return out, count
 
 
+# --- the beam radiance estimate (Jarosz, Zwicker and Jensen 2008) --------------------------------
+
+def _beam_within(q: Array, y: Array, *, o: V3, d: V3, t_lo: Array, t_hi: Array, r2) -> Array:
+    """A volume photon within r of the query's piece of ray [t_lo, t_hi) (perpendicular
+    distance < r, projection inside the piece: each photon near a segment counts once, in the
+    piece its projection falls into)."""
+    rel = V3(y[:, 0], y[:, 1], y[:, 2]) - V3(*(c[q] for c in o))
+    t = dot(rel, V3(*(c[q] for c in d)))
+    perp2 = dot(rel, rel) - t * t
+    return ((perp2 < r2) & (t >= t_lo[q]) & (t < t_hi[q])
+            & (y[:, 3] == 0) & (y[:, 4] == 0) & (y[:, 5] == 0))
+
+
+def _add_beam_photons(acc: Array, q: Array, slot: Array, ok: Array, *, rows: Array, o: V3, d: V3,
+                      sigma_t: V3, g) -> Array:
+    """Pair visitor: sum_p T(t_p) p(-w_p, -d) DeltaPhi_p and the count, added to acc [N, 4]."""
+    y = rows[slot]
+    dq = V3(*(c[q] for c in d))
+    t = dot(V3(y[:, 0], y[:, 1], y[:, 2]) - V3(*(c[q] for c in o)), dq)
+    p = phase.evaluate(g, -V3(y[:, 6], y[:, 7], y[:, 8]), -dq)
+    tr = [jnp.exp(-s * jnp.maximum(t, 0.0)) for s in sigma_t]
+    terms = [jnp.where(ok, tr[c] * p * y[:, 9 + c], 0.0) for c in range(3)]
+    return acc.at[q].add(jnp.stack([ok.astype(acc.dtype), *terms], -1))
+
+
+@partial(jax.jit, static_argnames=("table_size",))
+def _beam_sum(photons: PhotonRows, table_size: int, x: V3, o: V3, d: V3, t_lo: Array,
+              t_hi: Array, r2, live: Array, sigma_t: V3, g):
+    visit = partial(_add_beam_photons, rows=photons.rows, o=o, d=d, sigma_t=sigma_t, g=g)
+    acc = accumulate_near_pairs(photons.cells, table_size, photons.where, x, live, 1.25 * r2,
+                                visit, jnp.zeros((live.shape[0], 4), jnp.float32),
+                                block=PAIR_BLOCK, near_block=NEAR_BLOCK,
+                                keep=partial(_beam_within, o=o, d=d, t_lo=t_lo, t_hi=t_hi,
+                                             r2=r2))
+    return V3(acc[:, 1], acc[:, 2], acc[:, 3]), acc[:, 0]
+
+
+def beam_sum(scene: Scene, pm, segments, r: float) -> np.ndarray:
+    """The beam radiance estimate of the volume photons of ``pm`` along camera segments
+    (Jarosz et al. 2008), numpy [3, N]: for each segment (origin o, unit direction d, length
+    s, throughput beta; [D, N] as :func:`jgi.transport.visible_points.trace_to_diffuse`
+    returns them) and every volume photon within perpendicular distance r of it,
+
+        L_m = beta sigma_s sum_p T(t_p) p(-w_p, -d) DeltaPhi_p / (pi r^2),
+
+    t_p the photon's projection on the segment (0 <= t_p < s): the in-scattered radiance
+    integrated along the segment with a 2-D (box) kernel across it, where the point estimate
+    samples one distance. Summed over each path's D segments.
+
+    From the same grid as the point estimate: each segment, clipped to the volume photons'
+    bounding box grown by r, is cut into pieces of length r whose midpoints are grid queries
+    of radius sqrt(5/4) r (holding every photon within r of the piece); a photon counts in the
+    piece its projection falls into, so once."""
+    so, sd, st, sb = (jax.tree_util.tree_map(np.asarray, a) for a in segments)
+    D, N = np.shape(st)
+    out = np.zeros((3, N), np.float64)
+    vol = pm.select(np.asarray(pm.volume))
+    if vol.count == 0:
+        return out.astype(np.float32)
+    pos = np.stack([np.asarray(c) for c in vol.position], -1)
+    lo, hi = pos.min(0) - r, pos.max(0) + r
+    o = np.stack([c.reshape(-1) for c in so], -1).astype(np.float64)
+    d = np.stack([c.reshape(-1) for c in sd], -1).astype(np.float64)
+    s = st.reshape(-1).astype(np.float64)
+    # clip each segment to the photons' box (slabs): no photon lies outside it
+    with np.errstate(divide="ignore", invalid="ignore"):
+        inv = 1.0 / np.where(np.abs(d) > 1e-20, d, 1e-20)
+        ta, tb = (lo - o) * inv, (hi - o) * inv
+    t0 = np.maximum(np.max(np.minimum(ta, tb), 1), 0.0)
+    t1 = np.minimum(np.min(np.maximum(ta, tb), 1), s)
+    pieces = np.where((s > 0) & (t1 > t0), np.ceil((t1 - t0) / r), 0).astype(np.int64)
+    seg = np.repeat(np.arange(len(s)), pieces)
+    if len(seg) == 0:
+        return out.astype(np.float32)
+    k = np.arange(len(seg)) - np.repeat(np.cumsum(pieces) - pieces, pieces)
+    t_lo = t0[seg] + k * r
+    t_hi = np.minimum(t_lo + r, t1[seg])
+    mid = o[seg] + d[seg] * (0.5 * (t_lo + t_hi))[:, None]
+    photons, table_size = _device_rows(vol, float(np.sqrt(1.25) * r))
+    medium = scene.medium
+    sigma_t = V3(*(jnp.float32(c) for c in medium.sigma_t))
+    g = jnp.float32(medium.g)
+    Q = len(seg)
+    chunk = min(QUERY_CHUNK, padded_size(Q))
+    acc = np.zeros((3, Q), np.float64)
+    for a in range(0, Q, chunk):
+        sl = slice(a, min(a + chunk, Q))
+        n = sl.stop - a
+        fill = lambda x: jnp.asarray(np.pad(np.asarray(x, np.float32)[sl], (0, chunk - n),  # noqa: E731
+                                            mode="edge"))
+        fv = lambda m: V3(*(fill(m[:, c]) for c in range(3)))                             # noqa: E731
+        L, _ = _beam_sum(photons, table_size, fv(mid), fv(o[seg]), fv(d[seg]), fill(t_lo),
+                         fill(t_hi), jnp.float32(r * r), jnp.asarray(np.arange(chunk) < n),
+                         sigma_t, g)
+        acc[:, sl] = np.stack([np.asarray(x)[:n] for x in L])
+    per_segment = np.zeros((3, len(s)), np.float64)
+    for c in range(3):
+        np.add.at(per_segment[c], seg, acc[c])
+    sigma_s = np.array([float(a) * float(b) for a, b in zip(medium.albedo, medium.sigma_t)])
+    beta = np.stack([c.reshape(-1) for c in sb]).astype(np.float64)
+    per_segment = per_segment * beta * sigma_s[:, None] / (np.pi * r * r)
+    return per_segment.reshape(3, D, N).sum(1).astype(np.float32)
+
+
 def _device_rows(pm, cell: float):
     """The photon map ``pm`` (host arrays) padded to a compiled size and sorted into the device
     grid of cells ``cell``: (PhotonRows, table size)."""

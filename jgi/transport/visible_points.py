@@ -90,10 +90,15 @@ class DiffuseVertex(NamedTuple):
     # a medium interaction (zero normal; its beta includes T sigma_s / p), in scenes filled by
     # a participating medium (else None)
     in_medium: Array | None = None
+    # with beam estimates (``beams=True``): the chain's segments through the medium, each
+    # (origin V3, direction V3, length, throughput V3 at its start) stacked [max_depth, N]
+    # (length 0 where unused; inf where the ray escapes)
+    segments: tuple | None = None
 
 
 def trace_to_diffuse(scene: Scene, uniform, o: V3, d: V3, *, max_depth: int,
-                     light_samples: int, lookup_rough: bool = True) -> DiffuseVertex:
+                     light_samples: int, lookup_rough: bool = True,
+                     beams: bool = False) -> DiffuseVertex:
     """Follow rays (o, d) through specular (and glossy: :func:`samples_through`) surfaces (at
     most ``max_depth`` segments) to the first other hit, adding emission seen on the way and
     direct light there (``light_samples`` shadow rays, unweighted next-event estimation).
@@ -112,7 +117,10 @@ def trace_to_diffuse(scene: Scene, uniform, o: V3, d: V3, *, max_depth: int,
     light_samples) + 2 k + ...)``, past the others); an interaction before the surface ends the
     chain there, a *volume* visible point (``in_medium``; its beta times T sigma_s / p), where a
     volume photon estimate (:func:`jgi.transport.density.volume_sum_within`) takes over; the
-    surface, reached, weighs the chain by T / P. Only without direct light (light_samples 0)."""
+    surface, reached, weighs the chain by T / P. Only without direct light (light_samples 0).
+    With ``beams``, no free flight is sampled: every segment crosses the medium to its surface,
+    weighed by its transmittance T(s), and is returned (``segments``) for the beam radiance
+    estimate (:func:`jgi.transport.density.beam_sum`)."""
     mats, lights = scene.materials, scene.lights
     medium = scene.medium
     if medium is not None and light_samples:
@@ -132,7 +140,14 @@ def trace_to_diffuse(scene: Scene, uniform, o: V3, d: V3, *, max_depth: int,
         hit = geometry.intersect(scene, o, d)
         wo = -d
         base = 2 + depth * dims
-        if medium is not None:   # a free flight first: a volume visible point, or T / P
+        if medium is not None and beams:   # the segment, for the beam estimate; T(s)
+            t_seg = jnp.where(active, jnp.where(hit.valid, hit.t, jnp.inf), 0.0)
+            so, sd, st, sb = v.segments
+            put = lambda a, x: a.at[depth].set(x)    # noqa: E731
+            v = v._replace(segments=(V3(*map(put, so, o)), V3(*map(put, sd, d)),
+                                     put(st, t_seg), V3(*map(put, sb, beta))))
+            beta = beta * media.transmittance(medium.sigma_t, jnp.where(active, t_seg, 0.0))
+        elif medium is not None:   # a free flight first: a volume visible point, or T / P
             dm = medium_dim0 + 2 * depth
             ff = media.sample_free_flight(medium.sigma_t, medium.albedo, beta,
                                           jnp.where(hit.valid, hit.t, jnp.inf), uniform(dm),
@@ -180,7 +195,7 @@ def trace_to_diffuse(scene: Scene, uniform, o: V3, d: V3, *, max_depth: int,
                           None if v.uv is None else
                           tuple(jnp.where(diffuse_end, a, b) for a, b in zip(hit.uv, v.uv)),
                           None if v.ns is None else where(diffuse_end, hit.ns, v.ns),
-                          v.in_medium)
+                          v.in_medium, v.segments)
         # ---- follow the specular (or glossy) chain ----
         if not plastic:
             bs = bsdf.sample(kinds, mp, shading(hit), wo, uniform(base), u1, u2)
@@ -188,17 +203,22 @@ def trace_to_diffuse(scene: Scene, uniform, o: V3, d: V3, *, max_depth: int,
         return (geometry.offset_origin(hit.p, hit.n, bs.wi), bs.wi, beta * bs.weight, L, active, v)
 
     one = jnp.ones_like(z)
+    segments0 = None
+    if medium is not None and beams:
+        zz = jnp.zeros((max_depth,) + z.shape, z.dtype)
+        segments0 = (V3(zz, zz, zz), V3(zz, zz, zz), zz, V3(zz, zz, zz))
     v0 = DiffuseVertex(Z, Z, o, V3(z, z, one), V3(z, z, one), jnp.zeros_like(z, jnp.int32), z > 0,
                        no_uv(scene, z), vertex_ns(scene, V3(z, z, one)),
-                       None if medium is None else z > 0)
+                       None if medium is None else z > 0, segments0)
     state = (o, d, V3(one, one, one), Z, z == 0, v0)
     _, _, _, L, _, v = jax.lax.fori_loop(0, max_depth, step, state)
     return v._replace(L=L)
 
 
-@partial(jax.jit, static_argnames=("max_depth", "light_samples", "lookup_rough"))
+@partial(jax.jit, static_argnames=("max_depth", "light_samples", "lookup_rough", "beams"))
 def visible_points(scene: Scene, seed, pixel, sample, *, max_depth: int,
-                   light_samples: int, lookup_rough: bool = True) -> DiffuseVertex:
+                   light_samples: int, lookup_rough: bool = True,
+                   beams: bool = False) -> DiffuseVertex:
     """The visible point of each camera sample (seed, pixel, sample): its camera ray followed
     through specular (and glossy) surfaces to the first other hit (:func:`trace_to_diffuse`),
     the normal there turned to face the viewer. Where photon mapping estimates its density, and
@@ -207,7 +227,7 @@ def visible_points(scene: Scene, seed, pixel, sample, *, max_depth: int,
     uniform = lambda k: rng.uniform(key, k)  # noqa: E731
     o, d = camera_ray(scene.camera, pixel, uniform)
     v = trace_to_diffuse(scene, uniform, o, d, max_depth=max_depth, light_samples=light_samples,
-                         lookup_rough=lookup_rough)
+                         lookup_rough=lookup_rough, beams=beams)
     return face_viewer(v)
 
 
