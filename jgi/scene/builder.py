@@ -56,6 +56,7 @@ from .tables import (
     EnvironmentMap,
     Lights,
     Materials,
+    GridMedium,
     Medium,
     Quads,
     Rects,
@@ -64,6 +65,10 @@ from .tables import (
     Textures,
     Triangles,
 )
+
+# a grid medium's majorant times its box's diagonal, at most: the expected tentative collisions
+# of one crossing (jgi.physics.grid_media tracks them all, with no cap)
+MAX_OPTICAL_DEPTH = 1e5
 
 # Defaults taken from Mitsuba 3: roughness alpha 0.1; (rough)plastic's int_ior (polypropylene)
 # and ext_ior (air); a missing int_ior of a dielectric is bk7's.
@@ -325,6 +330,40 @@ class SceneBuilder:
         if not -1.0 < float(g) < 1.0:
             raise SceneError(f"medium g = {g} must lie in (-1, 1) (Henyey-Greenstein)")
         self.medium_args = dict(sigma_t=tuple(st), albedo=tuple(alb), g=float(g))
+
+    def grid_medium(self, density, bbox_min=(0.0, 0.0, 0.0), bbox_max=(1.0, 1.0, 1.0), *,
+                    sigma_t=1.0, albedo=1.0, g=0.0, scale=1.0):
+        """Fill the box [bbox_min, bbox_max] with a heterogeneous medium (vacuum around it; the
+        camera's medium, both sides of every surface): extinction
+        sigma_t,c(x) = scale density(x) sigma_t,c, ``density`` a [nz, ny, nx] grid (x fastest,
+        Mitsuba's .vol order) interpolated trilinearly between voxel centres
+        (:mod:`jgi.physics.grid_media`), constant ``albedo`` (RGB or grey), HG ``g``."""
+        grid = np.asarray(density, np.float64)
+        if grid.ndim != 3 or min(grid.shape) < 1:
+            raise SceneError(f"grid medium: density must be a [nz, ny, nx] array, got shape "
+                             f"{list(grid.shape)}")
+        if not np.all(np.isfinite(grid)) or np.any(grid < 0):
+            raise SceneError("grid medium: density values must be finite and >= 0")
+        lo, hi = np.asarray(_rgb(bbox_min), float), np.asarray(_rgb(bbox_max), float)
+        if not np.all(hi > lo):
+            raise SceneError(f"grid medium: bbox_max {hi.tolist()} must exceed bbox_min "
+                             f"{lo.tolist()} in every axis")
+        st = np.asarray(_rgb(sigma_t), float)
+        alb = np.asarray(_rgb(albedo), float)
+        if float(scale) < 0 or np.any(st < 0):
+            raise SceneError(f"grid medium: scale {scale} and sigma_t {st.tolist()} must be >= 0")
+        if np.any(alb < 0) or np.any(alb > 1):
+            raise SceneError(f"medium albedo {alb.tolist()} must lie in [0, 1]")
+        if not -1.0 < float(g) < 1.0:
+            raise SceneError(f"medium g = {g} must lie in (-1, 1) (Henyey-Greenstein)")
+        grid = (grid * float(scale)).astype(np.float32)
+        depth = float(grid.max()) * float(st.max()) * float(np.linalg.norm(hi - lo))
+        if depth > MAX_OPTICAL_DEPTH:
+            raise SceneError(f"grid medium: majorant optical depth {depth:.3g} across the box "
+                             f"exceeds {MAX_OPTICAL_DEPTH:.0e} tentative collisions per crossing; "
+                             "allowed: a smaller scale or density")
+        self.medium_args = dict(sigma_t=tuple(st), albedo=tuple(alb), g=float(g), grid=grid,
+                                lo=tuple(lo), hi=tuple(hi))
 
     # --- textures ---------------------------------------------------------------------------
     def texture(self, name: str, kind: str, *, color0=(0.4, 0.4, 0.4), color1=(0.2, 0.2, 0.2),
@@ -803,6 +842,11 @@ class SceneBuilder:
         if m is None:
             return None
         f = lambda v: V3(*(jnp.float32(c) for c in v))  # noqa: E731
+        if "grid" in m:
+            grid = m["grid"]
+            return GridMedium(f(m["sigma_t"]), f(m["albedo"]), jnp.float32(m["g"]),
+                              jnp.asarray(grid), f(m["lo"]), f(m["hi"]),
+                              jnp.float32(grid.max()))
         return Medium(f(m["sigma_t"]), f(m["albedo"]), jnp.float32(m["g"]))
 
     def _material_name(self, m: int) -> str:
