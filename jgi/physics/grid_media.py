@@ -45,10 +45,11 @@ Both trackings are ``jax.lax.while_loop`` over the lanes, running until every la
 the box or scattered: the number of tentative collisions is Poisson with mean mu times the
 length inside the box, finite with probability 1 (no cap, so no truncation bias;
 :meth:`jgi.scene.builder.SceneBuilder.grid_medium` refuses majorants whose expected collisions
-per crossing of the box exceed ``jgi.scene.builder.MAX_OPTICAL_DEPTH``). The random numbers of a flight are a
-stream of their own (:func:`jgi.core.rng.substream` of the bounce's two free-flight numbers),
-two per tentative collision. Grid media are rendered, not differentiated: the tracking runs on
-stop_gradient'ed parameters, so derivatives with respect to a grid medium are zero.
+per crossing of the box exceed ``jgi.scene.builder.MAX_OPTICAL_DEPTH``). The random numbers of
+a flight are a stream of their own (:func:`jgi.core.rng.substream` of the bounce's two
+free-flight numbers), two per tentative collision. Grid media are rendered, not
+differentiated: the tracking runs on stop_gradient'ed parameters, so derivatives with respect
+to a grid medium are zero.
 """
 
 from __future__ import annotations
@@ -62,6 +63,7 @@ from jax import Array
 from ..core import rng
 from ..core.vec import V3
 from ..core.vec import length as length_of
+
 
 def density(grid: Array, lo: V3, hi: V3, p: V3) -> Array:
     """The trilinearly interpolated density at points p (Mitsuba 3's voxel-centre convention,
