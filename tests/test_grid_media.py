@@ -32,7 +32,7 @@ from jgi.core import transform as xf
 from jgi.core.vec import V3
 from jgi.physics import grid_media
 from jgi.scene import builtin
-from jgi.scene.builder import SceneBuilder
+from jgi.scene.builder import SceneBuilder, majorant_grid
 from jgi.scene.importers.volgrid import VolError, read_vol, write_vol
 from jgi.scene.tables import GridMedium
 
@@ -53,11 +53,11 @@ def _ramp_grid():
     return np.broadcast_to(A0 + AX * xc[None, None, :] + AY * yc[None, :, None], SHAPE).copy()
 
 
-def _medium(grid, sigma=SIGMA, albedo=(1.0, 1.0, 1.0), lo=LO, hi=HI):
+def _medium(grid, sigma=SIGMA, albedo=(1.0, 1.0, 1.0), lo=LO, hi=HI, resolution=16):
     f = lambda v: V3(*(jnp.float32(c) for c in v))  # noqa: E731
     grid = np.asarray(grid, np.float32)
     return GridMedium(f(sigma), f(albedo), jnp.float32(0.0), jnp.asarray(grid), f(lo), f(hi),
-                      jnp.float32(grid.max()))
+                      jnp.float32(grid.max()), jnp.asarray(majorant_grid(grid, resolution)))
 
 
 def _ramp_density(p):
@@ -166,14 +166,39 @@ def _v3(v):
     return V3(*(jnp.float32(c) for c in v))
 
 
-@pytest.mark.parametrize("grid", ["ramp", "constant"])
-def test_ratio_tracking_transmittance(grid):
-    """E[ratio tracking] = exp(-sigma_c tau) per channel and ray (tau exact, see the module);
-    rays that miss the box or have no length give exactly 1."""
+def test_majorant_grid_bounds_the_density():
+    """Each coarse cell's majorant bounds the interpolated density at every point of the cell
+    (random points, and points on the cells' faces); resolution 1 is the global max, and the
+    resolution is capped by the grid's."""
+    rs = np.random.default_rng(8)
+    grid = rs.random(SHAPE) ** 3
+    g32 = jnp.asarray(grid, jnp.float32)
+    for res in (1, 2, 3, 16):
+        maj = majorant_grid(grid, res)
+        m = np.array(maj.shape[::-1])             # cells along x, y, z
+        u = rs.random((20000, 3))
+        u[:5000, 0] = np.round(u[:5000, 0] * m[0]) / m[0]     # on cell faces
+        p = LO + u * (HI - LO)
+        cell = np.clip(np.floor(u * m), 0, m - 1).astype(int)
+        dens = np.asarray(grid_media.density(g32, _v3(LO), _v3(HI),
+                                             V3(*(jnp.asarray(c, jnp.float32) for c in p.T))))
+        bound = maj[cell[:, 2], cell[:, 1], cell[:, 0]]
+        assert np.all(dens <= bound * (1 + 1e-6)), res
+    assert majorant_grid(grid, 1).shape == (1, 1, 1) and majorant_grid(grid, 1)[0, 0, 0] == \
+        np.float32(grid.max())
+    assert majorant_grid(grid, 16).shape == SHAPE
+
+
+@pytest.mark.parametrize("grid,resolution", [("ramp", 1), ("ramp", 2), ("ramp", 16),
+                                             ("constant", 8)])
+def test_ratio_tracking_transmittance(grid, resolution):
+    """E[ratio tracking] = exp(-sigma_c tau) per channel and ray (tau exact, see the module),
+    with one global majorant, a coarse majorant grid and one majorant per voxel; rays that miss
+    the box or have no length give exactly 1."""
     if grid == "ramp":
-        medium, depth = _medium(_ramp_grid()), _ramp_depth
+        medium, depth = _medium(_ramp_grid(), resolution=resolution), _ramp_depth
     else:
-        medium = _medium(np.full(SHAPE, 0.8))
+        medium = _medium(np.full(SHAPE, 0.8), resolution=resolution)
         depth = lambda o, d, t: 0.8 * _clipped_length(o, d, t)  # noqa: E731
     sigma = np.asarray(SIGMA)
     for i, (o, d, t_max) in enumerate(RAYS):
@@ -216,12 +241,14 @@ def _tracked(medium, o, d, t_max, beta=(1.0, 1.0, 1.0), seed=0, n=N):
 RAY_O, RAY_D, RAY_T = (-2.0, -1.0, -1.5), _unit((3.0, 1.4, 1.6)), 3.6   # t_max inside the box
 
 
-def test_delta_tracking_distances_chi_square():
+@pytest.mark.parametrize("resolution", [1, 2, 16])
+def test_delta_tracking_distances_chi_square(resolution):
     """A grey ramp medium (sigma_t = 1.5 density): delta tracking's collision distances follow
     P(t' < t) = 1 - exp(-1.5 tau(t)), with P(no collision before t_max) = exp(-1.5 tau(t_max))
-    the last category; weights exactly 1 (albedo 1). Negative control: the same samples against
-    a medium 10% denser are rejected."""
-    medium = _medium(_ramp_grid(), sigma=(1.5, 1.5, 1.5))
+    the last category; weights exactly 1 (albedo 1); for a global majorant, a coarse majorant
+    grid and one per voxel. Negative control: the same samples against a medium 10% denser are
+    rejected."""
+    medium = _medium(_ramp_grid(), sigma=(1.5, 1.5, 1.5), resolution=resolution)
     t, hit, w = _tracked(medium, RAY_O, RAY_D, RAY_T, seed=3, n=100_000)
     np.testing.assert_allclose(w, 1.0, rtol=1e-5)
     assert np.all(t[~hit] == np.float32(RAY_T))
@@ -237,13 +264,14 @@ def test_delta_tracking_distances_chi_square():
     assert not pearson(observed, expected(1.65, edges)).ok(), "no power: 10% denser passed"
 
 
-@pytest.mark.parametrize("beta", [(1.0, 1.0, 1.0), (0.2, 1.0, 3.0)])
-def test_spectral_tracking_weights(beta):
+@pytest.mark.parametrize("beta,resolution", [((1.0, 1.0, 1.0), 1), ((0.2, 1.0, 3.0), 1),
+                                             ((0.2, 1.0, 3.0), 2)])
+def test_spectral_tracking_weights(beta, resolution):
     """RGB extinction, one grey majorant: per channel, E[w 1{collision in bin}] =
     albedo_c (F_c(b) - F_c(a)) with F_c = 1 - exp(-sigma_c tau), and E[w 1{no collision}] =
     exp(-sigma_c tau(t_max)), whatever the path throughput that steers the real/null choice."""
     albedo = np.array([0.9, 0.5, 0.8])
-    medium = _medium(_ramp_grid(), albedo=albedo)
+    medium = _medium(_ramp_grid(), albedo=albedo, resolution=resolution)
     t, hit, w = _tracked(medium, RAY_O, RAY_D, RAY_T, beta=beta, seed=4)
     assert np.all(np.isfinite(w)) and np.all(w >= 0)
     sigma = np.asarray(SIGMA)

@@ -119,9 +119,65 @@ def _sigma_t(medium, p: V3) -> V3:
     return V3(*(d * s for s in medium.sigma_t))
 
 
-def _majorant(medium) -> Array:
+def _tracker(medium, o: V3, d: V3, t_start: Array, t_end: Array, live: Array, key: Array,
+             carry, collide):
+    """Tentative collisions along o + t d (unit d), t in [t_start, t_end], against the majorant
+    grid (one cell: the global majorant), for lanes ``live``. Cells are crossed by a DDA
+    (Amanatides and Woo 1987; pbrt-v4's DDAMajorantIterator): in a cell of majorant mu the next
+    distance is exponential at rate mu, and one that passes the cell's exit restarts there at
+    the next cell's rate (exact, by memorylessness; a cell of mu = 0 is skipped). At each
+    collision ``collide(carry, at, sigma_t, mu, u)`` returns (carry, stop): ``at`` the lanes
+    colliding, sigma_t the RGB extinction there, u a uniform for the collision's choice; lanes
+    ``stop`` end. Iteration i uses dimensions 2i, 2i + 1 of stream ``key``. Returns (carry,
+    t of the last collision, the loop's iterations: the batch's longest tracking)."""
+    maj = medium.majorants
+    res = (maj.shape[2], maj.shape[1], maj.shape[0])   # cells along x, y, z
     s = medium.sigma_t
-    return medium.majorant * jnp.maximum(jnp.maximum(s.x, s.y), s.z)
+    s_max = jnp.maximum(jnp.maximum(s.x, s.y), s.z)
+    flat = maj.reshape(-1)
+    cell, t_next, dt, step = [], [], [], []
+    for oc, dc, lc, hc, m in zip(o, d, medium.lo, medium.hi, res):
+        ext = hc - lc
+        pc = oc + dc * t_start
+        k = jnp.clip(jnp.floor((pc - lc) / ext * m), 0, m - 1).astype(jnp.int32)
+        pos, par = dc > 0, dc == 0
+        inv = 1.0 / jnp.where(par, 1.0, dc)
+        bound = lc + (k + pos.astype(jnp.int32)).astype(oc.dtype) * (ext / m)
+        cell.append(k)
+        t_next.append(jnp.where(par, jnp.inf, (bound - oc) * inv))
+        dt.append(jnp.where(par, jnp.inf, jnp.abs(ext / m * inv)))
+        step.append(jnp.where(pos, 1, -1).astype(jnp.int32))
+
+    def cond(c):
+        return jnp.any(c[2])
+
+    def body(c):
+        i, t, live, (kx, ky, kz), (nx, ny, nz), carry = c
+        ctr = rng.counter(key, 2 * i)
+        mu = flat[(kz * res[1] + ky) * res[0] + kx] * s_max
+        t_seg = jnp.minimum(jnp.minimum(nx, ny), jnp.minimum(nz, t_end))
+        t_c = t - jnp.log1p(-rng.uniform_at(ctr, 0)) / jnp.where(mu > 0, mu, 1.0)
+        at = live & (mu > 0) & (t_c < t_seg)
+        cross = live & ~at
+        t = jnp.where(at, t_c, jnp.where(cross, jnp.maximum(t_seg, t), t))
+        st = _sigma_t(medium, o + d * jnp.where(at, t, 0.0))
+        carry, stop = collide(carry, at, st, jnp.where(mu > 0, mu, 1.0), rng.uniform_at(ctr, 1))
+        # a crossing: on to the next cell along the axis whose boundary comes first, or out
+        ax = jnp.where(nx <= jnp.minimum(ny, nz), 0, jnp.where(ny <= nz, 1, 2))
+        move = cross & (t_seg < t_end)
+        k, n = [kx, ky, kz], [nx, ny, nz]
+        for a in range(3):
+            go = move & (ax == a)
+            k[a] = jnp.where(go, k[a] + step[a], k[a])
+            n[a] = jnp.where(go, n[a] + dt[a], n[a])
+        inside = ((k[0] >= 0) & (k[0] < res[0]) & (k[1] >= 0) & (k[1] < res[1]) & (k[2] >= 0)
+                  & (k[2] < res[2]))
+        live = live & ~stop & ~(cross & ~move) & inside
+        return i + 1, t, live, tuple(k), tuple(n), carry
+
+    init = (jnp.uint32(0), t_start, live, tuple(cell), tuple(t_next), carry)
+    out = jax.lax.while_loop(cond, body, init)
+    return out[5], out[1], out[0]
 
 
 def sample_free_flight(medium, o: V3, d: V3, t_max: Array, throughput: V3, active: Array,
@@ -129,42 +185,30 @@ def sample_free_flight(medium, o: V3, d: V3, t_max: Array, throughput: V3, activ
     """Spectral (weighted delta) tracking along the unit-direction ray o + t d, t in
     [0, t_max] (inf: unbounded), for lanes ``active``; ``key``: the flight's random stream."""
     t0, t1 = clip_to_box(medium.lo, medium.hi, o, d)
-    mu = _majorant(medium)
-    t_start = jnp.maximum(t0, 0.0)
-    t_end = jnp.minimum(t1, t_max)
-    go = active & (t_start < t_end) & (mu > 0)
-    mu_safe = jnp.where(mu > 0, mu, 1.0)
+    t_start, t_end = jnp.maximum(t0, 0.0), jnp.minimum(t1, t_max)
+    go = active & (t_start < t_end)
     one = jnp.ones_like(t_start)
     bx, by, bz = (jnp.abs(b) for b in throughput)
+    alb = medium.albedo
 
-    def cond(c):
-        return jnp.any(c[2])
-
-    def body(c):
-        i, t, live, hit, w = c
-        ctr = rng.counter(key, 2 * i)
-        t = jnp.where(live, t - jnp.log1p(-rng.uniform_at(ctr, 0)) / mu_safe, t)
-        out = live & (t >= t_end)
-        live_in = live & ~out
-        p = o + d * jnp.where(live_in, t, 0.0)
-        st = _sigma_t(medium, p)
-        sn = V3(*(mu - s for s in st))
+    def collide(carry, at, st, mu, u):
+        hit, w = carry
         b = V3(bx * w.x, by * w.y, bz * w.z)
         bsum = b.x + b.y + b.z
-        pr_w = (b.x * st.x + b.y * st.y + b.z * st.z) / (mu_safe * jnp.where(bsum > 0, bsum, 1.0))
-        pr_u = (st.x + st.y + st.z) / (3.0 * mu_safe)
+        pr_w = (b.x * st.x + b.y * st.y + b.z * st.z) / (mu * jnp.where(bsum > 0, bsum, 1.0))
+        pr_u = (st.x + st.y + st.z) / (3.0 * mu)
         pr = jnp.clip(jnp.where(bsum > 0, pr_w, pr_u), 0.0, 1.0)
-        real = live_in & (rng.uniform_at(ctr, 1) < pr)
-        null = live_in & ~real
-        alb = medium.albedo
-        f_real = [a * s / (mu_safe * jnp.where(pr > 0, pr, 1.0)) for a, s in zip(alb, st)]
-        f_null = [jnp.maximum(s, 0.0) / (mu_safe * jnp.where(pr < 1, 1.0 - pr, 1.0)) for s in sn]
+        real = at & (u < pr)
+        null = at & ~real
+        f_real = [a * sc / (mu * jnp.where(pr > 0, pr, 1.0)) for a, sc in zip(alb, st)]
+        f_null = [jnp.maximum(mu - sc, 0.0) / (mu * jnp.where(pr < 1, 1.0 - pr, 1.0))
+                  for sc in st]
         w = V3(*(wc * jnp.where(real, fr, jnp.where(null, fn, 1.0))
                  for fr, fn, wc in zip(f_real, f_null, w)))
-        return i + 1, t, null, hit | real, w
+        return (hit | real, w), real
 
-    init = (jnp.uint32(0), t_start, go, go & False, V3(one, one, one))
-    _, t, _, scattered, w = jax.lax.while_loop(cond, body, init)
+    (scattered, w), t, _ = _tracker(medium, o, d, t_start, t_end, go, key,
+                                 (go & False, V3(one, one, one)), collide)
     return GridFlight(jnp.where(scattered, t, t_max), scattered, w)
 
 
@@ -175,26 +219,13 @@ def ratio_tracking(medium, o: V3, d: V3, t_max: Array, active: Array, key: Array
     n = length_of(d)
     dn = d * (1.0 / jnp.where(n > 0, n, 1.0))
     t0, t1 = clip_to_box(medium.lo, medium.hi, o, dn)
-    mu = _majorant(medium)
-    t_start = jnp.maximum(t0, 0.0)
-    t_end = jnp.minimum(t1, t_max * n)
-    go = active & (t_start < t_end) & (mu > 0) & (n > 0)
-    mu_safe = jnp.where(mu > 0, mu, 1.0)
+    t_start, t_end = jnp.maximum(t0, 0.0), jnp.minimum(t1, t_max * n)
+    go = active & (t_start < t_end) & (n > 0)
     one = jnp.ones_like(t_start)
 
-    def cond(c):
-        return jnp.any(c[2])
+    def collide(T, at, st, mu, u):
+        T = V3(*(jnp.where(at, tc * jnp.maximum(mu - sc, 0.0) / mu, tc) for tc, sc in zip(T, st)))
+        return T, (T.x <= 0) & (T.y <= 0) & (T.z <= 0)   # 0 in every channel stays 0: stop
 
-    def body(c):
-        i, t, live, T = c
-        t = jnp.where(live, t - jnp.log1p(-rng.uniform(key, i)) / mu_safe, t)
-        live = live & (t < t_end)
-        st = _sigma_t(medium, o + dn * jnp.where(live, t, 0.0))
-        T = V3(*(jnp.where(live, tc * jnp.maximum(mu - s, 0.0) / mu_safe, tc)
-                 for tc, s in zip(T, st)))
-        # a lane whose estimate is 0 in every channel stays 0: stop it
-        live = live & ((T.x > 0) | (T.y > 0) | (T.z > 0))
-        return i + 1, t, live, T
-
-    _, _, _, T = jax.lax.while_loop(cond, body, (jnp.uint32(0), t_start, go, V3(one, one, one)))
+    T, _, _ = _tracker(medium, o, dn, t_start, t_end, go, key, V3(one, one, one), collide)
     return T

@@ -69,6 +69,28 @@ from .tables import (
 # a grid medium's majorant times its box's diagonal, at most: the expected tentative collisions
 # of one crossing (jgi.physics.grid_media tracks them all, with no cap)
 MAX_OPTICAL_DEPTH = 1e5
+# cells per axis of a grid medium's majorant grid (at most the density grid's)
+MAJORANT_RESOLUTION = 8
+
+
+def majorant_grid(grid: np.ndarray, resolution: int) -> np.ndarray:
+    """[mz, my, mx] (m = min(resolution, n) per axis): the max of the trilinearly interpolated
+    density (voxel centres, clamped: jgi.physics.grid_media) over each cell of an m^3 grid over
+    the box: the max of the voxels whose centres lie within a voxel of the cell (the
+    interpolation's support), each cell widened by 1e-3 of itself against rounding."""
+    ranges = []
+    for n in grid.shape:
+        m = min(resolution, n)
+        k = np.arange(m)
+        lo = np.clip(((k - 1e-3) / m) * n - 0.5, 0, n - 1)
+        hi = np.clip(((k + 1 + 1e-3) / m) * n - 0.5, 0, n - 1)
+        ranges.append([(int(np.floor(a)), int(np.ceil(b)) + 1) for a, b in zip(lo, hi)])
+    out = np.empty([len(r) for r in ranges], np.float32)
+    for iz, (z0, z1) in enumerate(ranges[0]):
+        for iy, (y0, y1) in enumerate(ranges[1]):
+            for ix, (x0, x1) in enumerate(ranges[2]):
+                out[iz, iy, ix] = grid[z0:z1, y0:y1, x0:x1].max()
+    return out
 
 # Defaults taken from Mitsuba 3: roughness alpha 0.1; (rough)plastic's int_ior (polypropylene)
 # and ext_ior (air); a missing int_ior of a dielectric is bk7's.
@@ -332,12 +354,15 @@ class SceneBuilder:
         self.medium_args = dict(sigma_t=tuple(st), albedo=tuple(alb), g=float(g))
 
     def grid_medium(self, density, bbox_min=(0.0, 0.0, 0.0), bbox_max=(1.0, 1.0, 1.0), *,
-                    sigma_t=1.0, albedo=1.0, g=0.0, scale=1.0):
+                    sigma_t=1.0, albedo=1.0, g=0.0, scale=1.0,
+                    majorant_resolution=MAJORANT_RESOLUTION):
         """Fill the box [bbox_min, bbox_max] with a heterogeneous medium (vacuum around it; the
         camera's medium, both sides of every surface): extinction
         sigma_t,c(x) = scale density(x) sigma_t,c, ``density`` a [nz, ny, nx] grid (x fastest,
         Mitsuba's .vol order) interpolated trilinearly between voxel centres
-        (:mod:`jgi.physics.grid_media`), constant ``albedo`` (RGB or grey), HG ``g``."""
+        (:mod:`jgi.physics.grid_media`), constant ``albedo`` (RGB or grey), HG ``g``. The
+        trackings' majorant is the density's max over the cells of a coarse grid of
+        ``majorant_resolution`` cells per axis (at most the grid's; 1: one global majorant)."""
         grid = np.asarray(density, np.float64)
         if grid.ndim != 3 or min(grid.shape) < 1:
             raise SceneError(f"grid medium: density must be a [nz, ny, nx] array, got shape "
@@ -362,8 +387,12 @@ class SceneBuilder:
             raise SceneError(f"grid medium: majorant optical depth {depth:.3g} across the box "
                              f"exceeds {MAX_OPTICAL_DEPTH:.0e} tentative collisions per crossing; "
                              "allowed: a smaller scale or density")
+        if int(majorant_resolution) < 1:
+            raise SceneError(f"grid medium: majorant_resolution {majorant_resolution} must be "
+                             ">= 1")
         self.medium_args = dict(sigma_t=tuple(st), albedo=tuple(alb), g=float(g), grid=grid,
-                                lo=tuple(lo), hi=tuple(hi))
+                                lo=tuple(lo), hi=tuple(hi),
+                                majorants=majorant_grid(grid, int(majorant_resolution)))
 
     # --- textures ---------------------------------------------------------------------------
     def texture(self, name: str, kind: str, *, color0=(0.4, 0.4, 0.4), color1=(0.2, 0.2, 0.2),
@@ -846,7 +875,7 @@ class SceneBuilder:
             grid = m["grid"]
             return GridMedium(f(m["sigma_t"]), f(m["albedo"]), jnp.float32(m["g"]),
                               jnp.asarray(grid), f(m["lo"]), f(m["hi"]),
-                              jnp.float32(grid.max()))
+                              jnp.float32(grid.max()), jnp.asarray(m["majorants"]))
         return Medium(f(m["sigma_t"]), f(m["albedo"]), jnp.float32(m["g"]))
 
     def _material_name(self, m: int) -> str:

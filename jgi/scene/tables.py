@@ -403,8 +403,9 @@ class GridMedium(eqx.Module):
     sigma_t,c(x) = density(x) sigma_t,c inside the axis-aligned box [lo, hi] (0 outside), the
     density interpolated trilinearly from the grid (voxel centres, Mitsuba 3's gridvolume
     convention), constant albedo, Henyey-Greenstein g. The grid's shape is static (one compile
-    per shape); ``majorant`` is max(density), computed when the scene is built (the trackings'
-    bound: a density above it would bias them, so edit the grid through the builder)."""
+    per shape); ``majorant`` is max(density) and ``majorants`` the max per coarse cell, computed
+    when the scene is built (the trackings' bounds: a density above them would bias them, so
+    edit the grid through the builder, or :func:`jgi.scene.builder.majorant_grid`)."""
 
     sigma_t: V3        # extinction per unit density, RGB
     albedo: V3         # sigma_s / sigma_t, in [0, 1]
@@ -413,6 +414,9 @@ class GridMedium(eqx.Module):
     lo: V3             # the box's corners in world space
     hi: V3
     majorant: Array    # max(density)
+    # [mz, my, mx]: the max of the density over each cell of a coarse grid over the box (the
+    # trackings' piecewise-constant majorant; shape (1, 1, 1): the global max)
+    majorants: Array
 
 
 class Camera(eqx.Module):
