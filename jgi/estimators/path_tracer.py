@@ -37,6 +37,14 @@ T sigma_s / p, T / P and p_g / p carry the dependence on sigma_t, the albedo and
 estimates the derivative of the expected image without the boundary term that moving sampled
 distances across surfaces would need.
 
+A heterogeneous medium (``Scene.medium`` a :class:`jgi.scene.tables.GridMedium`, a static
+flag: vacuum and homogeneous scenes compile as before) replaces the closed forms by null-
+scattering tracking (:mod:`jgi.physics.grid_media`): free flights by spectral delta tracking,
+whose RGB weight multiplies the throughput, shadow rays' transmittance by ratio tracking, both
+drawing from a stream hashed from the bounce's two free-flight numbers
+(:func:`jgi.core.rng.substream`). Grid media are not differentiated (their sampling and
+weights are constants for derivatives).
+
 Derivatives (``gradient``): with ``"attached"`` (default) ``jax.grad`` differentiates the
 estimate itself, the sampled directions moving with the parameters (reparametrised sampling;
 common random numbers). With ``"detached"`` the sampled directions, their pdfs, the lobe

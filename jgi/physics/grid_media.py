@@ -15,9 +15,13 @@ the clamp wrap mode, checked against ``mi.load_dict({'type': 'gridvolume', ...})
 Null scattering (Woodcock tracking; Miller, Georgiev and Jarosz 2019; Mitsuba 3's volpath,
 pbrt-v4): with a majorant mu >= sigma_t,c(x) for every channel and point of the box, the
 fictitious "null" extinction sigma_n,c = mu - sigma_t,c >= 0 makes the medium homogeneous with
-extinction mu, whose free flights are exponential. jgi uses one grey majorant,
-mu = max(d) max_c sigma_t,c^0 (the density grid's maximum, precomputed when the scene is built),
-and the channel-free **spectral tracking** of Kutz, Habel, Li and Novak 2017 (section 5): a
+extinction mu, whose free flights are exponential. jgi's majorant is grey (one for all
+channels) and piecewise constant: mu = M_k max_c sigma_t,c^0 in cell k of a coarse grid over
+the box, M_k the density's max over the cell (:func:`jgi.scene.builder.majorant_grid`,
+precomputed when the scene is built; 8^3 cells by default, 1: the global max). Flights cross
+the cells by a DDA and restart their exponential distance at each cell's exit (exact, by
+memorylessness; cells of majorant 0 are skipped). It uses the channel-free **spectral
+tracking** of Kutz, Habel, Li and Novak 2017 (section 5): a
 tentative collision at t ~ mu exp(-mu t) is real with probability P_r and null with 1 - P_r,
 and the path's RGB weight is multiplied by
 
@@ -41,15 +45,24 @@ Transmittance along a shadow ray (next-event estimation) is estimated by **ratio
 (Novak, Selle and Jarosz 2014): tentative collisions at the same majorant, the estimate the
 product of sigma_n,c(x_i) / mu over those before the segment's end; unbiased per channel.
 
-Both trackings are ``jax.lax.while_loop`` over the lanes, running until every lane has left
-the box or scattered: the number of tentative collisions is Poisson with mean mu times the
-length inside the box, finite with probability 1 (no cap, so no truncation bias;
+Both trackings are one ``jax.lax.while_loop`` over the lanes (:func:`_tracker`), an iteration
+a tentative collision or a cell crossing, running until every lane has left the box or
+scattered: the number of tentative collisions is Poisson with mean the majorant's integral
+along the ray, finite with probability 1 (no cap, so no truncation bias;
 :meth:`jgi.scene.builder.SceneBuilder.grid_medium` refuses majorants whose expected collisions
 per crossing of the box exceed ``jgi.scene.builder.MAX_OPTICAL_DEPTH``). The random numbers of
 a flight are a stream of their own (:func:`jgi.core.rng.substream` of the bounce's two
 free-flight numbers), two per tentative collision. Grid media are rendered, not
 differentiated: the tracking runs on stop_gradient'ed parameters, so derivatives with respect
 to a grid medium are zero.
+
+Cost: a batch's loop runs as long as its longest tracking, so what the majorant grid saves is
+the longest lane's tentative collisions, against the crossings it adds. Measured on a 32^3
+cloud (haze 0.05, a blob of 12) in the Cornell room, 4096 random rays in the box: 62 loop trips
+with the global majorant, 36 with 4^3 or 8^3 cells, 51 with 16^3, 87 with 32^3 (mean tentative
+collisions per ray 15.5, 1.8, 0.8, 0.5, 0.3); the path tracer at 32 x 32, 256 spp, max_depth 8
+on two loaded CPU cores took 6.7-7.7 s with the global majorant and 3.2-3.5 s with 8^3 cells
+(docs/performance.md#grid-media).
 """
 
 from __future__ import annotations
