@@ -549,3 +549,14 @@ def test_toml_grid_medium(tmp_path):
     for extra, message in cases:
         with pytest.raises(jgi.SceneError, match=r"s\.toml.*" + message):
             load(extra)
+
+
+def test_estimators_without_media_refuse_grid_media_by_name():
+    from jgi.core.errors import ParameterError
+    from jgi.estimators import registry
+
+    scene = _fog_room("zero_grid", res=4)
+    for name, est in registry.REGISTRY.items():
+        if not est.media:
+            with pytest.raises(ParameterError, match=f"'{name}' does not render participating"):
+                jgi.render(scene, name, spp=1)
