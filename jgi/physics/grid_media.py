@@ -5,8 +5,9 @@ axis-aligned box [lo, hi], with extinction per RGB channel
 
     sigma_t,c(x) = d(x) sigma_t,c^0,     sigma_s,c(x) = rho_c sigma_t,c(x),
 
-a constant single-scattering albedo rho and a Henyey-Greenstein phase function; outside the box
-the density is 0 (vacuum). d(x) interpolates the grid trilinearly with Mitsuba 3's
+a single-scattering albedo rho (constant, or times an RGB albedo grid over the same box,
+interpolated alike) and a Henyey-Greenstein phase function; outside the box the density is 0
+(vacuum). d(x) interpolates the grid trilinearly with Mitsuba 3's
 ``gridvolume`` convention: the box's unit coordinates u in [0, 1]^3 map to the continuous index
 u n - 1/2 (voxel centres at (i + 1/2) / n), clamped to [0, n - 1] per axis, so the density is
 constant between the box's faces and the outermost voxel centres (Dr.Jit's texture lookup with
@@ -127,6 +128,16 @@ class GridFlight(NamedTuple):
     weight: V3        # the product of the tracking's weights (see the module)
 
 
+def albedo(medium, p: V3) -> V3:
+    """The single-scattering albedo at points p inside the box: the constant, times the albedo
+    grid's interpolated RGB where the medium has one."""
+    a = medium.albedo
+    if medium.albedo_grid is None:
+        return a
+    g = medium.albedo_grid
+    return V3(*(ac * density(g[..., c], medium.lo, medium.hi, p) for c, ac in enumerate(a)))
+
+
 def _sigma_t(medium, p: V3) -> V3:
     d = density(medium.density, medium.lo, medium.hi, p)
     return V3(*(d * s for s in medium.sigma_t))
@@ -139,8 +150,8 @@ def _tracker(medium, o: V3, d: V3, t_start: Array, t_end: Array, live: Array, ke
     (Amanatides and Woo 1987; pbrt-v4's DDAMajorantIterator): in a cell of majorant mu the next
     distance is exponential at rate mu, and one that passes the cell's exit restarts there at
     the next cell's rate (exact, by memorylessness; a cell of mu = 0 is skipped). At each
-    collision ``collide(carry, at, sigma_t, mu, u)`` returns (carry, stop): ``at`` the lanes
-    colliding, sigma_t the RGB extinction there, u a uniform for the collision's choice; lanes
+    collision ``collide(carry, at, p, sigma_t, mu, u)`` returns (carry, stop): ``at`` the lanes
+    colliding, p where, sigma_t the RGB extinction there, u a uniform for the choice; lanes
     ``stop`` end. Iteration i uses dimensions 2i, 2i + 1 of stream ``key``. Returns (carry,
     t of the last collision, the loop's iterations: the batch's longest tracking)."""
     maj = medium.majorants
@@ -173,8 +184,9 @@ def _tracker(medium, o: V3, d: V3, t_start: Array, t_end: Array, live: Array, ke
         at = live & (mu > 0) & (t_c < t_seg)
         cross = live & ~at
         t = jnp.where(at, t_c, jnp.where(cross, jnp.maximum(t_seg, t), t))
-        st = _sigma_t(medium, o + d * jnp.where(at, t, 0.0))
-        carry, stop = collide(carry, at, st, jnp.where(mu > 0, mu, 1.0), rng.uniform_at(ctr, 1))
+        p = o + d * jnp.where(at, t, 0.0)
+        carry, stop = collide(carry, at, p, _sigma_t(medium, p), jnp.where(mu > 0, mu, 1.0),
+                              rng.uniform_at(ctr, 1))
         # a crossing: on to the next cell along the axis whose boundary comes first, or out
         ax = jnp.where(nx <= jnp.minimum(ny, nz), 0, jnp.where(ny <= nz, 1, 2))
         move = cross & (t_seg < t_end)
@@ -202,9 +214,9 @@ def sample_free_flight(medium, o: V3, d: V3, t_max: Array, throughput: V3, activ
     go = active & (t_start < t_end)
     one = jnp.ones_like(t_start)
     bx, by, bz = (jnp.abs(b) for b in throughput)
-    alb = medium.albedo
 
-    def collide(carry, at, st, mu, u):
+    def collide(carry, at, p, st, mu, u):
+        alb = albedo(medium, p)
         hit, w = carry
         b = V3(bx * w.x, by * w.y, bz * w.z)
         bsum = b.x + b.y + b.z
@@ -236,7 +248,7 @@ def ratio_tracking(medium, o: V3, d: V3, t_max: Array, active: Array, key: Array
     go = active & (t_start < t_end) & (n > 0)
     one = jnp.ones_like(t_start)
 
-    def collide(T, at, st, mu, u):
+    def collide(T, at, p, st, mu, u):
         T = V3(*(jnp.where(at, tc * jnp.maximum(mu - sc, 0.0) / mu, tc) for tc, sc in zip(T, st)))
         return T, (T.x <= 0) & (T.y <= 0) & (T.z <= 0)   # 0 in every channel stays 0: stop
 

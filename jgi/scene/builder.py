@@ -360,7 +360,8 @@ class SceneBuilder:
         camera's medium, both sides of every surface): extinction
         sigma_t,c(x) = scale density(x) sigma_t,c, ``density`` a [nz, ny, nx] grid (x fastest,
         Mitsuba's .vol order) interpolated trilinearly between voxel centres
-        (:mod:`jgi.physics.grid_media`), constant ``albedo`` (RGB or grey), HG ``g``. The
+        (:mod:`jgi.physics.grid_media`), ``albedo`` RGB or grey, or a grid over the same box
+        ([nz', ny', nx'] or [nz', ny', nx', 3], values in [0, 1]), HG ``g``. The
         trackings' majorant is the density's max over the cells of a coarse grid of
         ``majorant_resolution`` cells per axis (at most the grid's; 1: one global majorant)."""
         grid = np.asarray(density, np.float64)
@@ -374,6 +375,18 @@ class SceneBuilder:
             raise SceneError(f"grid medium: bbox_max {hi.tolist()} must exceed bbox_min "
                              f"{lo.tolist()} in every axis")
         st = np.asarray(_rgb(sigma_t), float)
+        alb_grid = None
+        if np.ndim(albedo) >= 3:   # a grid: [nz, ny, nx] (grey) or [nz, ny, nx, 3]
+            alb_grid = np.asarray(albedo, np.float64)
+            if alb_grid.ndim == 3:
+                alb_grid = alb_grid[..., None]
+            if alb_grid.ndim != 4 or alb_grid.shape[3] not in (1, 3) or min(alb_grid.shape) < 1:
+                raise SceneError(f"grid medium: an albedo grid must be [nz, ny, nx] or "
+                                 f"[nz, ny, nx, 3], got shape {list(alb_grid.shape)}")
+            if not np.all(np.isfinite(alb_grid)) or np.any(alb_grid < 0) or np.any(alb_grid > 1):
+                raise SceneError("grid medium: albedo grid values must lie in [0, 1]")
+            alb_grid = np.broadcast_to(alb_grid, alb_grid.shape[:3] + (3,)).astype(np.float32)
+            albedo = 1.0
         alb = np.asarray(_rgb(albedo), float)
         if float(scale) < 0 or np.any(st < 0):
             raise SceneError(f"grid medium: scale {scale} and sigma_t {st.tolist()} must be >= 0")
@@ -392,7 +405,8 @@ class SceneBuilder:
                              ">= 1")
         self.medium_args = dict(sigma_t=tuple(st), albedo=tuple(alb), g=float(g), grid=grid,
                                 lo=tuple(lo), hi=tuple(hi),
-                                majorants=majorant_grid(grid, int(majorant_resolution)))
+                                majorants=majorant_grid(grid, int(majorant_resolution)),
+                                albedo_grid=alb_grid)
 
     # --- textures ---------------------------------------------------------------------------
     def texture(self, name: str, kind: str, *, color0=(0.4, 0.4, 0.4), color1=(0.2, 0.2, 0.2),
@@ -875,7 +889,8 @@ class SceneBuilder:
             grid = m["grid"]
             return GridMedium(f(m["sigma_t"]), f(m["albedo"]), jnp.float32(m["g"]),
                               jnp.asarray(grid), f(m["lo"]), f(m["hi"]),
-                              jnp.float32(grid.max()), jnp.asarray(m["majorants"]))
+                              jnp.float32(grid.max()), jnp.asarray(m["majorants"]),
+                              None if m["albedo_grid"] is None else jnp.asarray(m["albedo_grid"]))
         return Medium(f(m["sigma_t"]), f(m["albedo"]), jnp.float32(m["g"]))
 
     def _material_name(self, m: int) -> str:

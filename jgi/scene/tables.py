@@ -417,6 +417,9 @@ class GridMedium(eqx.Module):
     # [mz, my, mx]: the max of the density over each cell of a coarse grid over the box (the
     # trackings' piecewise-constant majorant; shape (1, 1, 1): the global max)
     majorants: Array
+    # [nz', ny', nx', 3] RGB in [0, 1] over the same box, multiplying ``albedo`` (None: a constant
+    # albedo, whose kernels are those of a medium before albedo grids)
+    albedo_grid: Array | None = None
 
 
 class Camera(eqx.Module):

@@ -1041,8 +1041,9 @@ class _Importer:
     def heterogeneous(self, el):
         """Mitsuba's heterogeneous medium: sigma_t a single-channel ``gridvolume`` (.vol file;
         its box the unit cube or, with use_grid_bbox, the file's, through a to_world of scale
-        and translation), a constant albedo (float, rgb or constvolume), scale, an isotropic or
-        hg phase. Vacuum outside the grid's box, as Mitsuba clips the medium to it."""
+        and translation), an albedo (float, rgb, constvolume, or a gridvolume of 1 or 3 channels
+        over the same box), scale, an isotropic or hg phase. Vacuum outside the grid's box, as
+        Mitsuba clips the medium to it."""
         allowed = ("sigma_t", "albedo", "scale", "sample_emitted", "has_spectral_extinction")
         p, volumes = self.props(el), {}   # (props reads no <volume>)
         for c in el:
@@ -1060,29 +1061,38 @@ class _Importer:
         if "sigma_t" not in volumes:
             self.fail(el, "heterogeneous medium: sigma_t must be a <volume type=\"gridvolume\"> "
                           "(a constant extinction is a homogeneous medium)")
-        grid, lo, hi = self.gridvolume(volumes["sigma_t"])
+        grid, lo, hi = self.gridvolume(volumes["sigma_t"], "sigma_t", (1,))
+        grid = grid[..., 0]
         albedo = p.get("albedo", 0.75)
         if "albedo" in volumes:
             v = volumes["albedo"]
-            if v.get("type") != "constvolume":
+            if v.get("type") == "gridvolume":
+                albedo, a_lo, a_hi = self.gridvolume(v, "albedo", (1, 3))
+                if not (np.allclose(a_lo, lo, rtol=0, atol=1e-6)
+                        and np.allclose(a_hi, hi, rtol=0, atol=1e-6)):
+                    self.fail(v, f"albedo gridvolume: its box {a_lo.tolist()} - {a_hi.tolist()} "
+                                 f"differs from sigma_t's {lo.tolist()} - {hi.tolist()}; allowed: "
+                                 "an albedo grid over the same box")
+            elif v.get("type") == "constvolume":
+                q = self.props(v)
+                if set(q) - {"value"}:
+                    self.fail(v, "constvolume: allowed parameters: value")
+                albedo = q.get("value", 1.0)
+            else:
                 self.fail(v, f"heterogeneous medium: albedo volume '{v.get('type')}' is not "
-                             "supported; allowed: a constant (<float>, <rgb> or a constvolume)")
-            q = self.props(v)
-            if set(q) - {"value"}:
-                self.fail(v, "constvolume: allowed parameters: value")
-            albedo = q.get("value", 1.0)
+                             "supported; allowed: gridvolume, constvolume, <float>, <rgb>")
         try:
             self.b.grid_medium(grid, lo, hi, sigma_t=1.0, albedo=albedo, g=self.phase_g(el),
                                scale=float(p.get("scale", 1.0)))
         except SceneError as e:
             self.fail(el, str(e))
 
-    def gridvolume(self, v):
-        """(density [nz, ny, nx], box min, box max in world space) of a single-channel
-        ``gridvolume`` read from its .vol file (Mitsuba 3's conventions, see
+    def gridvolume(self, v, what: str, channels: tuple[int, ...]):
+        """(data [nz, ny, nx, channels], box min, box max in world space) of the ``gridvolume``
+        ``v`` (the medium's ``what``) read from its .vol file (Mitsuba 3's conventions, see
         :mod:`jgi.physics.grid_media`)."""
         if v.get("type") != "gridvolume":
-            self.fail(v, f"volume '{v.get('type')}' is not supported for sigma_t; allowed: "
+            self.fail(v, f"volume '{v.get('type')}' is not supported for {what}; allowed: "
                          "gridvolume (a .vol file)")
         q = self.props(v)
         allowed = ("filename", "use_grid_bbox", "to_world", "filter_type", "wrap_mode", "raw",
@@ -1103,9 +1113,9 @@ class _Importer:
             data, lo, hi = read_vol(self.resolve(v, q["filename"], "volume grid"))
         except VolError as e:
             self.fail(v, str(e))
-        if data.shape[3] != 1:
+        if data.shape[3] not in channels:
             self.fail(v, f"gridvolume '{q['filename']}': {data.shape[3]} channels; allowed for "
-                         "sigma_t: 1 (a density)")
+                         f"{what}: {' or '.join(map(str, channels))}")
         if not q.get("use_grid_bbox", False):
             lo, hi = np.zeros(3), np.ones(3)
         m = q.get("to_world", np.eye(4))
@@ -1114,7 +1124,7 @@ class _Importer:
                 or np.any(m[3] != (0, 0, 0, 1))):
             self.fail(v, "gridvolume: to_world must be a scale (positive) and a translation; "
                          "rotations, shears and mirrorings are not supported")
-        return data[..., 0], m[:3, :3] @ lo + m[:3, 3], m[:3, :3] @ hi + m[:3, 3]
+        return data, m[:3, :3] @ lo + m[:3, 3], m[:3, :3] @ hi + m[:3, 3]
 
     def read_integrator(self, el):
         """Record the settings of the integrator ``el``, reading through ``moment`` and ``aov``
