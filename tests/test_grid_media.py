@@ -187,6 +187,7 @@ def test_majorant_grid_bounds_the_density():
     assert majorant_grid(grid, 1).shape == (1, 1, 1) and majorant_grid(grid, 1)[0, 0, 0] == \
         np.float32(grid.max())
     assert majorant_grid(grid, 16).shape == SHAPE
+    assert majorant_grid(np.full(SHAPE, 0.5), 16).shape == (1, 1, 1)   # uniform: one cell
 
 
 @pytest.mark.parametrize("grid,resolution", [("ramp", 1), ("ramp", 2), ("ramp", 16),
