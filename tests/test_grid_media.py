@@ -538,6 +538,9 @@ def test_toml_grid_medium(tmp_path):
     np.testing.assert_allclose([float(c) for c in m.hi], [2, 1, 1])
     m = load("density = [[[0, 1], [2, 3]]]\nbbox_min = [-1, -1, -1]\nbbox_max = [1, 1, 1]\n").medium
     assert m.density.shape == (1, 2, 2) and float(m.majorant) == 3.0
+    write_vol(tmp_path / "a.vol", np.full((2, 2, 2, 3), 0.25))
+    m = load('file = "d.vol"\nalbedo_file = "a.vol"\n').medium
+    np.testing.assert_array_equal(np.asarray(m.albedo_grid), 0.25)
     cases = [
         ("", r"medium\[0\].*file .* or density"),
         ('file = "d.vol"\ndensity = [[[1]]]\n', r"medium\[0\].*one of the two"),
@@ -550,6 +553,9 @@ def test_toml_grid_medium(tmp_path):
         ("density = [[[1]]]\nbbox_min = [0, 0, 0]\nbbox_max = [1, 0, 1]\n",
          r"medium\[0\].*must exceed bbox_min"),
         ('file = "d.vol"\nsigma_a = 1\n', r"medium\[0\]\.sigma_a.*unknown key"),
+        ('file = "d.vol"\nalbedo_file = "a.vol"\nalbedo = 1\n', r"medium\[0\].*albedo or "
+         r"albedo_file"),
+        ('file = "a.vol"\n', r"medium\[0\]\.file.*3 channels; allowed: 1"),
     ]
     for extra, message in cases:
         with pytest.raises(jgi.SceneError, match=r"s\.toml.*" + message):

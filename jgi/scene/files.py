@@ -65,7 +65,7 @@ MEDIUM_KEYS = {"homogeneous": {"name": "str", "type": "str", "sigma_t": "rgb", "
                # default) or inline, density = [[[x values] per y] per z]
                "grid": {"name": "str", "type": "str", "file": "str", "density": "grid",
                         "bbox_min": "vec3", "bbox_max": "vec3", "sigma_t": "rgb", "albedo": "rgb",
-                        "g": "number", "scale": "number"}}
+                        "albedo_file": "str", "g": "number", "scale": "number"}}
 
 # Each material type accepts only the parameters its BSDF uses (a key another type uses is a
 # likely mistake, e.g. `ior` on a mirror). Defaults are filled in by `_material`.
@@ -504,19 +504,13 @@ class _TomlLoader:
 
     def grid_medium(self, b: SceneBuilder, key: str, m: dict):
         """A [[medium]] of type grid: ``file`` (a Mitsuba .vol file, one channel; its box unless
-        bbox_min / bbox_max are given) or ``density`` (inline, with bbox_min and bbox_max)."""
+        bbox_min / bbox_max are given) or ``density`` (inline, with bbox_min and bbox_max); a
+        constant ``albedo`` or an ``albedo_file`` (.vol, 1 or 3 channels, over the same box)."""
         if ("file" in m) == ("density" in m):
             self.fail(key, "a grid medium takes file (a .vol file) or density (an inline "
                            "[nz][ny][nx] array); allowed: one of the two")
         if "file" in m:
-            path = (self.path.parent / m["file"]).resolve()
-            try:
-                data, lo, hi = read_vol(path)
-            except VolError as e:
-                self.fail(f"{key}.file", str(e))
-            if data.shape[3] != 1:
-                self.fail(f"{key}.file", f"{path}: {data.shape[3]} channels; allowed: 1 (a "
-                                         "density)")
+            data, lo, hi = self.vol(f"{key}.file", m["file"], (1,))
             grid = data[..., 0]
         else:
             grid, lo, hi = m["density"], None, None
@@ -524,12 +518,29 @@ class _TomlLoader:
                 if k not in m:
                     self.fail(f"{key}.{k}", "missing (required with an inline density)")
         lo, hi = m.get("bbox_min", lo), m.get("bbox_max", hi)
+        albedo = m.get("albedo", 1.0)
+        if "albedo_file" in m:
+            if "albedo" in m:
+                self.fail(key, "give albedo or albedo_file; allowed: one of the two")
+            albedo = self.vol(f"{key}.albedo_file", m["albedo_file"], (1, 3))[0]
         try:
-            b.grid_medium(grid, lo, hi, sigma_t=m.get("sigma_t", 1.0),
-                          albedo=m.get("albedo", 1.0), g=m.get("g", 0.0),
-                          scale=m.get("scale", 1.0))
+            b.grid_medium(grid, lo, hi, sigma_t=m.get("sigma_t", 1.0), albedo=albedo,
+                          g=m.get("g", 0.0), scale=m.get("scale", 1.0))
         except SceneError as e:
             self.fail(key, str(e))
+
+    def vol(self, key: str, name: str, channels: tuple[int, ...]):
+        """(data [nz, ny, nx, c], box min, box max) of the .vol file ``name`` (relative to the
+        scene file), with c one of ``channels``."""
+        path = (self.path.parent / name).resolve()
+        try:
+            data, lo, hi = read_vol(path)
+        except VolError as e:
+            self.fail(key, str(e))
+        if data.shape[3] not in channels:
+            self.fail(key, f"{path}: {data.shape[3]} channels; allowed: "
+                           f"{' or '.join(map(str, channels))}")
+        return data, lo, hi
 
     def texture(self, b: SceneBuilder, key: str, t):
         kind = self.type_of(key, t, tuple(TEXTURE_KEYS))
