@@ -327,9 +327,10 @@ def test_mitsuba_media_refusals(tmp_path):
     with pytest.raises(ImportError_, match=r"d\.xml.*interior none, exterior 'fog' \(it "
                                           r"transmits light\)"):
         load_mitsuba_xml(tmp_path / "d.xml")
-    hetero = FOG_XML.format(depth=6).replace('type="homogeneous"', 'type="heterogeneous"')
-    (tmp_path / "b.xml").write_text(hetero)
-    with pytest.raises(ImportError_, match=r"b\.xml.*medium plugin 'heterogeneous'.*homogeneous"):
+    other = FOG_XML.format(depth=6).replace('type="homogeneous"', 'type="sggx"')
+    (tmp_path / "b.xml").write_text(other)
+    with pytest.raises(ImportError_,
+                       match=r"b\.xml.*medium plugin 'sggx'.*homogeneous, heterogeneous"):
         load_mitsuba_xml(tmp_path / "b.xml")
     g_out = FOG_XML.format(depth=6).replace('name="g" value="0.5"', 'name="g" value="1.2"')
     (tmp_path / "c.xml").write_text(g_out)
@@ -379,8 +380,8 @@ def test_toml_medium(tmp_path):
         ('medium = "fog"', fog + "sigma_t = 1\nalbedo = 1.5\n", r"medium\[0\].*albedo.*\[0, 1\]"),
         ('medium = "fog"', fog + "sigma_t = 1\ng = -1\n", r"medium\[0\].*g = -1.*\(-1, 1\)"),
         ('medium = "fog"', fog + "sigma_t = 1\ndensity = 3\n", r"medium\[0\]\.density.*unknown"),
-        ('medium = "fog"', fog.replace("homogeneous", "grid") + "sigma_t = 1\n",
-         r"medium\[0\]\.type.*'grid'.*homogeneous"),
+        ('medium = "fog"', fog.replace("homogeneous", "voxels") + "sigma_t = 1\n",
+         r"medium\[0\]\.type.*'voxels'.*homogeneous, grid"),
     ]
     for cam, media, message in cases:
         with pytest.raises(jgi.SceneError, match=r"s\.toml.*" + message):

@@ -80,6 +80,9 @@ SALTS: dict[str, int] = {
     "mcmc": 0x27D4EB2F,               # transport.mcmc chains, per (chain, step)
     "pssmlt": 0x2545F491,             # PSSMLT bootstrap; + 1: its chains, per (chain, step)
     "mmlt": 0x5F3759DF,               # MMLT chains of path length L: + 1 + L, per (chain, step)
+    # ratio tracking of shadow ray j through a grid medium: + j, from the bounce's flight stream
+    # (substream), per (path, bounce)
+    "ratio_tracking": 0x6A09E667,
     # Veach's MLT: bootstrap paths; + 1: chain steps. The bootstrap shares its value with
     # "final_gather": harmless, as no estimate uses both (pm_jensen never runs an MLT chain,
     # mlt never final-gathers), and estimators run with one seed are correlated anyway through
@@ -95,6 +98,16 @@ def derive(key: Array, salt) -> Array:
     :data:`SALTS`."""
     return lowbias32(key ^ lowbias32(jnp.asarray(salt).astype(_U32) + _U32(0x68E31DA4)))
 
+
+
+def substream(u1: Array, u2: Array) -> Array:
+    """A stream key that is a pure function of two uniforms of a path's own stream (their 48
+    random bits chained through the mixer): an unbounded run of numbers where a loop needs more
+    than the fixed dimensions a bounce reserves (the tracking of heterogeneous media,
+    :mod:`jgi.physics.grid_media`). Works alike on hashed streams and on primary-sample vectors."""
+    bits = [jax.lax.bitcast_convert_type(jax.lax.stop_gradient(jnp.asarray(u, jnp.float32)), _U32)
+            for u in (u1, u2)]
+    return lowbias32(lowbias32(bits[0] ^ _U32(0x7F4A7C15)) ^ bits[1])
 
 
 def ray_uniform(o, d, key: Array) -> Array:

@@ -37,6 +37,14 @@ T sigma_s / p, T / P and p_g / p carry the dependence on sigma_t, the albedo and
 estimates the derivative of the expected image without the boundary term that moving sampled
 distances across surfaces would need.
 
+A heterogeneous medium (``Scene.medium`` a :class:`jgi.scene.tables.GridMedium`, a static
+flag: vacuum and homogeneous scenes compile as before) replaces the closed forms by null-
+scattering tracking (:mod:`jgi.physics.grid_media`): free flights by spectral delta tracking,
+whose RGB weight multiplies the throughput, shadow rays' transmittance by ratio tracking, both
+drawing from a stream hashed from the bounce's two free-flight numbers
+(:func:`jgi.core.rng.substream`). Grid media are not differentiated (their sampling and
+weights are constants for derivatives).
+
 Derivatives (``gradient``): with ``"attached"`` (default) ``jax.grad`` differentiates the
 estimate itself, the sampled directions moving with the parameters (reparametrised sampling;
 common random numbers). With ``"detached"`` the sampled directions, their pdfs, the lobe
@@ -68,7 +76,7 @@ from ..core.configured import Configured
 from ..core.vec import V3, max_component, where
 from ..core.vec import length as length_of
 from ..drivers.wavefront import render_wavefront
-from ..physics import bsdf, geometry, media, phase
+from ..physics import bsdf, geometry, grid_media, media, phase
 from ..physics.lights import emitted, environment_pdf, environment_radiance, pdf_li
 from ..scene.tables import ROUGH_KINDS, Scene
 from ..transport import mis
@@ -161,7 +169,18 @@ def _shade(scene: Scene, cfg: PathTracerConfig, s: PathState, hit: geometry.Hit,
     # ---- Free flight in the scene's medium: a medium vertex before the surface, or the surface
     # reached, weighted T sigma_s / p(t) or T / P(s) (jgi.physics.media; spectral MIS) ----
     medium = scene.medium
-    if medium is not None:
+    grid = scene.has_grid_medium
+    if grid:   # delta (spectral) tracking; not differentiated (jgi.physics.grid_media)
+        dm = cfg.dims_per_bounce
+        medium = jax.tree_util.tree_map(jax.lax.stop_gradient, medium)
+        key_m = rng.substream(u(dm), u(dm + 1))
+        gf = grid_media.sample_free_flight(medium, s.o, s.d, jnp.where(hit.valid, hit.t, jnp.inf),
+                                           jax.lax.stop_gradient(s.beta), s.active, key_m)
+        in_medium = s.active & gf.scattered
+        reached = ~gf.scattered
+        p_m = s.o + s.d * jnp.where(in_medium, gf.t, 0.0)
+        beta_in = s.beta * gf.weight
+    elif medium is not None:
         dm = cfg.dims_per_bounce
         sg = jax.lax.stop_gradient   # medium sampling is detached (see the module)
         ff = media.sample_free_flight(sg(medium.sigma_t), sg(medium.albedo), sg(s.beta),
@@ -229,7 +248,12 @@ def _shade(scene: Scene, cfg: PathTracerConfig, s: PathState, hit: geometry.Hit,
             else:
                 w_g = jnp.ones_like(z)
             value = next_event_value(ne, beta_in, w_g, n_g)
-            if medium is not None:   # exact transmittance along the shadow ray
+            if grid:   # transmittance along the shadow ray by ratio tracking
+                o_s, d_s, t_s = ne.shadow
+                key_j = rng.derive(key_m, rng.SALTS["ratio_tracking"] + j)
+                lit = nee_active & (max_component(value) > 0)
+                value = value * grid_media.ratio_tracking(medium, o_s, d_s, t_s, lit, key_j)
+            elif medium is not None:   # exact transmittance along the shadow ray
                 o_s, d_s, t_s = ne.shadow
                 value = value * media.transmittance(medium.sigma_t, t_s * length_of(d_s))
             shadow.append((*ne.shadow, value))
@@ -375,4 +399,5 @@ def render(scene: Scene, cfg: PathTracerConfig = PathTracerConfig(), *, spp: int
 
 
 register(Estimator("pt", "path tracing with BSDF sampling, light sampling or MIS", render,
-                   PathTracerConfig, renamed={"beta": "power"}, media=True))
+                   PathTracerConfig, renamed={"beta": "power"}, media=True,
+                   grid_media=True))

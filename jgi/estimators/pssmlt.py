@@ -195,4 +195,4 @@ def render(scene: Scene, cfg: PSSMLTConfig = PSSMLTConfig(), *, spp: int, seed: 
 
 
 register(Estimator("pssmlt", "primary-sample-space Metropolis light transport over the path tracer",
-                   render, PSSMLTConfig, media=True))
+                   render, PSSMLTConfig, media=True, grid_media=True))

@@ -126,7 +126,8 @@ class Estimator:
     config: type
     renamed: Mapping[str, str] = field(default_factory=dict, hash=False)
     check: Callable[[Any], None] | None = field(default=None, compare=False)
-    media: bool = False      # renders scenes filled by a participating medium
+    media: bool = False      # renders scenes filled by a homogeneous participating medium
+    grid_media: bool = False  # and by a heterogeneous (grid) one
     params: tuple[Param, ...] = field(init=False)
 
     def __post_init__(self):
@@ -148,6 +149,11 @@ class Estimator:
             raise ParameterError(
                 f"estimator '{self.name}' does not render participating media (yet), and the "
                 f"scene '{scene.name}' is filled by a medium; estimators that do: {able}")
+        if getattr(scene, "has_grid_medium", False) and not self.grid_media:
+            able = ", ".join(e.name for e in REGISTRY.values() if e.grid_media) or "none"
+            raise ParameterError(
+                f"estimator '{self.name}' does not render heterogeneous (grid) media (yet), and "
+                f"the scene '{scene.name}' is filled by one; estimators that do: {able}")
 
     def lookup(self, key: str) -> Param:
         """The parameter ``key``; a former name or an unknown key is a :class:`ParameterError`

@@ -54,6 +54,7 @@ from .tables import (
     Cylinders,
     Disks,
     EnvironmentMap,
+    GridMedium,
     Lights,
     Materials,
     Medium,
@@ -64,6 +65,35 @@ from .tables import (
     Textures,
     Triangles,
 )
+
+# a grid medium's majorant times its box's diagonal, at most: the expected tentative collisions
+# of one crossing (jgi.physics.grid_media tracks them all, with no cap)
+MAX_OPTICAL_DEPTH = 1e5
+# cells per axis of a grid medium's majorant grid (at most the density grid's)
+MAJORANT_RESOLUTION = 8
+
+
+def majorant_grid(grid: np.ndarray, resolution: int) -> np.ndarray:
+    """[mz, my, mx] (m = min(resolution, n) per axis): the max of the trilinearly interpolated
+    density (voxel centres, clamped: jgi.physics.grid_media) over each cell of an m^3 grid over
+    the box: the max of the voxels whose centres lie within a voxel of the cell (the
+    interpolation's support), each cell widened by 1e-3 of itself against rounding; one cell
+    where all are alike."""
+    ranges = []
+    for n in grid.shape:
+        m = min(resolution, n)
+        k = np.arange(m)
+        lo = np.clip(((k - 1e-3) / m) * n - 0.5, 0, n - 1)
+        hi = np.clip(((k + 1 + 1e-3) / m) * n - 0.5, 0, n - 1)
+        ranges.append([(int(np.floor(a)), int(np.ceil(b)) + 1) for a, b in zip(lo, hi)])
+    out = np.empty([len(r) for r in ranges], np.float32)
+    for iz, (z0, z1) in enumerate(ranges[0]):
+        for iy, (y0, y1) in enumerate(ranges[1]):
+            for ix, (x0, x1) in enumerate(ranges[2]):
+                out[iz, iy, ix] = grid[z0:z1, y0:y1, x0:x1].max()
+    # all cells alike (a constant grid): one cell, no crossings (measured: the constant fog of
+    # docs/performance.md#grid-media, 0.68-0.72 s with 8^3 cells, 0.40-0.67 s with one)
+    return out[:1, :1, :1] if np.all(out == out.flat[0]) else out
 
 # Defaults taken from Mitsuba 3: roughness alpha 0.1; (rough)plastic's int_ior (polypropylene)
 # and ext_ior (air); a missing int_ior of a dielectric is bk7's.
@@ -325,6 +355,61 @@ class SceneBuilder:
         if not -1.0 < float(g) < 1.0:
             raise SceneError(f"medium g = {g} must lie in (-1, 1) (Henyey-Greenstein)")
         self.medium_args = dict(sigma_t=tuple(st), albedo=tuple(alb), g=float(g))
+
+    def grid_medium(self, density, bbox_min=(0.0, 0.0, 0.0), bbox_max=(1.0, 1.0, 1.0), *,
+                    sigma_t=1.0, albedo=1.0, g=0.0, scale=1.0,
+                    majorant_resolution=MAJORANT_RESOLUTION):
+        """Fill the box [bbox_min, bbox_max] with a heterogeneous medium (vacuum around it; the
+        camera's medium, both sides of every surface): extinction
+        sigma_t,c(x) = scale density(x) sigma_t,c, ``density`` a [nz, ny, nx] grid (x fastest,
+        Mitsuba's .vol order) interpolated trilinearly between voxel centres
+        (:mod:`jgi.physics.grid_media`), ``albedo`` RGB or grey, or a grid over the same box
+        ([nz', ny', nx'] or [nz', ny', nx', 3], values in [0, 1]), HG ``g``. The
+        trackings' majorant is the density's max over the cells of a coarse grid of
+        ``majorant_resolution`` cells per axis (at most the grid's; 1: one global majorant)."""
+        grid = np.asarray(density, np.float64)
+        if grid.ndim != 3 or min(grid.shape) < 1:
+            raise SceneError(f"grid medium: density must be a [nz, ny, nx] array, got shape "
+                             f"{list(grid.shape)}")
+        if not np.all(np.isfinite(grid)) or np.any(grid < 0):
+            raise SceneError("grid medium: density values must be finite and >= 0")
+        lo, hi = np.asarray(_rgb(bbox_min), float), np.asarray(_rgb(bbox_max), float)
+        if not np.all(hi > lo):
+            raise SceneError(f"grid medium: bbox_max {hi.tolist()} must exceed bbox_min "
+                             f"{lo.tolist()} in every axis")
+        st = np.asarray(_rgb(sigma_t), float)
+        alb_grid = None
+        if np.ndim(albedo) >= 3:   # a grid: [nz, ny, nx] (grey) or [nz, ny, nx, 3]
+            alb_grid = np.asarray(albedo, np.float64)
+            if alb_grid.ndim == 3:
+                alb_grid = alb_grid[..., None]
+            if alb_grid.ndim != 4 or alb_grid.shape[3] not in (1, 3) or min(alb_grid.shape) < 1:
+                raise SceneError(f"grid medium: an albedo grid must be [nz, ny, nx] or "
+                                 f"[nz, ny, nx, 3], got shape {list(alb_grid.shape)}")
+            if not np.all(np.isfinite(alb_grid)) or np.any(alb_grid < 0) or np.any(alb_grid > 1):
+                raise SceneError("grid medium: albedo grid values must lie in [0, 1]")
+            alb_grid = np.broadcast_to(alb_grid, alb_grid.shape[:3] + (3,)).astype(np.float32)
+            albedo = 1.0
+        alb = np.asarray(_rgb(albedo), float)
+        if float(scale) < 0 or np.any(st < 0):
+            raise SceneError(f"grid medium: scale {scale} and sigma_t {st.tolist()} must be >= 0")
+        if np.any(alb < 0) or np.any(alb > 1):
+            raise SceneError(f"medium albedo {alb.tolist()} must lie in [0, 1]")
+        if not -1.0 < float(g) < 1.0:
+            raise SceneError(f"medium g = {g} must lie in (-1, 1) (Henyey-Greenstein)")
+        grid = (grid * float(scale)).astype(np.float32)
+        depth = float(grid.max()) * float(st.max()) * float(np.linalg.norm(hi - lo))
+        if depth > MAX_OPTICAL_DEPTH:
+            raise SceneError(f"grid medium: majorant optical depth {depth:.3g} across the box "
+                             f"exceeds {MAX_OPTICAL_DEPTH:.0e} tentative collisions per crossing; "
+                             "allowed: a smaller scale or density")
+        if int(majorant_resolution) < 1:
+            raise SceneError(f"grid medium: majorant_resolution {majorant_resolution} must be "
+                             ">= 1")
+        self.medium_args = dict(sigma_t=tuple(st), albedo=tuple(alb), g=float(g), grid=grid,
+                                lo=tuple(lo), hi=tuple(hi),
+                                majorants=majorant_grid(grid, int(majorant_resolution)),
+                                albedo_grid=alb_grid)
 
     # --- textures ---------------------------------------------------------------------------
     def texture(self, name: str, kind: str, *, color0=(0.4, 0.4, 0.4), color1=(0.2, 0.2, 0.2),
@@ -803,6 +888,12 @@ class SceneBuilder:
         if m is None:
             return None
         f = lambda v: V3(*(jnp.float32(c) for c in v))  # noqa: E731
+        if "grid" in m:
+            grid = m["grid"]
+            return GridMedium(f(m["sigma_t"]), f(m["albedo"]), jnp.float32(m["g"]),
+                              jnp.asarray(grid), f(m["lo"]), f(m["hi"]),
+                              jnp.float32(grid.max()), jnp.asarray(m["majorants"]),
+                              None if m["albedo_grid"] is None else jnp.asarray(m["albedo_grid"]))
         return Medium(f(m["sigma_t"]), f(m["albedo"]), jnp.float32(m["g"]))
 
     def _material_name(self, m: int) -> str:

@@ -37,6 +37,7 @@ from .importers._common import (
     load_mesh,
     load_mesh_with_normals,
 )
+from .importers.volgrid import VolError, read_vol
 from .tables import ENVIRONMENT, MATERIAL_KINDS, MICROFACET_DISTRIBUTIONS, NAMED_METALS, Scene
 
 
@@ -59,7 +60,12 @@ FOV_AXES = ("x", "y", "smaller")
 # and sigma_s, times scale; Henyey-Greenstein g. The camera's medium fills the scene.
 MEDIUM_KEYS = {"homogeneous": {"name": "str", "type": "str", "sigma_t": "rgb", "albedo": "rgb",
                                "sigma_a": "rgb", "sigma_s": "rgb", "g": "number",
-                               "scale": "number"}}
+                               "scale": "number"},
+               # a density grid (SceneBuilder.grid_medium): from a Mitsuba .vol file (its box by
+               # default) or inline, density = [[[x values] per y] per z]
+               "grid": {"name": "str", "type": "str", "file": "str", "density": "grid",
+                        "bbox_min": "vec3", "bbox_max": "vec3", "sigma_t": "rgb", "albedo": "rgb",
+                        "albedo_file": "str", "g": "number", "scale": "number"}}
 
 # Each material type accepts only the parameters its BSDF uses (a key another type uses is a
 # likely mistake, e.g. `ior` on a mirror). Defaults are filled in by `_material`.
@@ -282,6 +288,14 @@ class _TomlLoader:
             if kind == "rgb" and np.any(a < 0):
                 self.fail(key, f"colours must be non-negative, got {v!r}")
             return a
+        if kind == "grid":
+            try:
+                a = np.asarray(v, float)
+            except (TypeError, ValueError):
+                a = None
+            if a is None or a.ndim != 3 or a.size == 0 or not np.all(np.isfinite(a)):
+                self.fail(key, f"expected a [nz][ny][nx] nested array of finite numbers, {got}")
+            return a
         if kind == "bool":
             if not isinstance(v, bool):
                 self.fail(key, f"expected true or false, {got}")
@@ -473,6 +487,8 @@ class _TomlLoader:
                 self.fail(key, f"medium '{name}' is not used; only the camera's medium "
                                f"('{camera_medium}') is supported, and it fills the scene")
         key, m = names[camera_medium]
+        if m["type"] == "grid":
+            return self.grid_medium(b, key, m)
         has_t = "sigma_t" in m or "albedo" in m
         has_as = "sigma_a" in m or "sigma_s" in m
         if has_t == has_as:
@@ -485,6 +501,46 @@ class _TomlLoader:
                      sigma_s=m.get("sigma_s"), g=m.get("g", 0.0), scale=m.get("scale", 1.0))
         except SceneError as e:
             self.fail(key, str(e))
+
+    def grid_medium(self, b: SceneBuilder, key: str, m: dict):
+        """A [[medium]] of type grid: ``file`` (a Mitsuba .vol file, one channel; its box unless
+        bbox_min / bbox_max are given) or ``density`` (inline, with bbox_min and bbox_max); a
+        constant ``albedo`` or an ``albedo_file`` (.vol, 1 or 3 channels, over the same box)."""
+        if ("file" in m) == ("density" in m):
+            self.fail(key, "a grid medium takes file (a .vol file) or density (an inline "
+                           "[nz][ny][nx] array); allowed: one of the two")
+        if "file" in m:
+            data, lo, hi = self.vol(f"{key}.file", m["file"], (1,))
+            grid = data[..., 0]
+        else:
+            grid, lo, hi = m["density"], None, None
+            for k in ("bbox_min", "bbox_max"):
+                if k not in m:
+                    self.fail(f"{key}.{k}", "missing (required with an inline density)")
+        lo, hi = m.get("bbox_min", lo), m.get("bbox_max", hi)
+        albedo = m.get("albedo", 1.0)
+        if "albedo_file" in m:
+            if "albedo" in m:
+                self.fail(key, "give albedo or albedo_file; allowed: one of the two")
+            albedo = self.vol(f"{key}.albedo_file", m["albedo_file"], (1, 3))[0]
+        try:
+            b.grid_medium(grid, lo, hi, sigma_t=m.get("sigma_t", 1.0), albedo=albedo,
+                          g=m.get("g", 0.0), scale=m.get("scale", 1.0))
+        except SceneError as e:
+            self.fail(key, str(e))
+
+    def vol(self, key: str, name: str, channels: tuple[int, ...]):
+        """(data [nz, ny, nx, c], box min, box max) of the .vol file ``name`` (relative to the
+        scene file), with c one of ``channels``."""
+        path = (self.path.parent / name).resolve()
+        try:
+            data, lo, hi = read_vol(path)
+        except VolError as e:
+            self.fail(key, str(e))
+        if data.shape[3] not in channels:
+            self.fail(key, f"{path}: {data.shape[3]} channels; allowed: "
+                           f"{' or '.join(map(str, channels))}")
+        return data, lo, hi
 
     def texture(self, b: SceneBuilder, key: str, t):
         kind = self.type_of(key, t, tuple(TEXTURE_KEYS))

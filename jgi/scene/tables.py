@@ -398,6 +398,30 @@ class Medium(eqx.Module):
     g: Array        # in (-1, 1)
 
 
+class GridMedium(eqx.Module):
+    """A heterogeneous medium (:mod:`jgi.physics.grid_media`): extinction
+    sigma_t,c(x) = density(x) sigma_t,c inside the axis-aligned box [lo, hi] (0 outside), the
+    density interpolated trilinearly from the grid (voxel centres, Mitsuba 3's gridvolume
+    convention), constant albedo, Henyey-Greenstein g. The grid's shape is static (one compile
+    per shape); ``majorant`` is max(density) and ``majorants`` the max per coarse cell, computed
+    when the scene is built (the trackings' bounds: a density above them would bias them, so
+    edit the grid through the builder, or :func:`jgi.scene.builder.majorant_grid`)."""
+
+    sigma_t: V3        # extinction per unit density, RGB
+    albedo: V3         # sigma_s / sigma_t, in [0, 1]
+    g: Array           # in (-1, 1)
+    density: Array     # [nz, ny, nx] float32, >= 0 (the medium's scale folded in)
+    lo: V3             # the box's corners in world space
+    hi: V3
+    majorant: Array    # max(density)
+    # [mz, my, mx]: the max of the density over each cell of a coarse grid over the box (the
+    # trackings' piecewise-constant majorant; shape (1, 1, 1): the global max)
+    majorants: Array
+    # [nz', ny', nx', 3] RGB in [0, 1] over the same box, multiplying ``albedo`` (None: a constant
+    # albedo, whose kernels are those of a medium before albedo grids)
+    albedo_grid: Array | None = None
+
+
 class Camera(eqx.Module):
     """Pinhole camera. ``forward`` is unit; ``right``/``up`` are scaled to the image-plane
     half-extents at distance 1, so a film point (sx, sy) in [-1, 1]^2 maps to the direction
@@ -427,12 +451,18 @@ class Scene(eqx.Module):
     cylinders: Cylinders | None = None
     # the medium filling the scene's space: the camera's, and both sides of every surface
     # (pbrt-v4 with one MediumInterface for all shapes). None: vacuum (kernels as before media)
-    medium: Medium | None = None
+    # (a GridMedium: a heterogeneous medium in a box, vacuum around it)
+    medium: Medium | GridMedium | None = None
 
     @property
     def has_medium(self) -> bool:
         """Static: the scene's space is filled by a participating medium."""
         return self.medium is not None
+
+    @property
+    def has_grid_medium(self) -> bool:
+        """Static: the medium is a density grid (null-scattering tracking)."""
+        return isinstance(self.medium, GridMedium)
 
     @property
     def resolution(self) -> tuple[int, int]:

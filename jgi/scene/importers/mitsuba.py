@@ -119,6 +119,7 @@ from ._common import (
     read_serialized,
     tangent_frame,
 )
+from .volgrid import VolError, read_vol
 
 SUPPORTED = {
     "sensor": ("perspective",),
@@ -126,7 +127,7 @@ SUPPORTED = {
              "roughplastic", "plastic", "twosided", "mask"),
     "shape": ("rectangle", "cube", "sphere", "disk", "cylinder", "obj", "ply", "serialized"),
     "emitter": ("area", "point", "spot", "directional", "constant", "envmap"),
-    "medium": ("homogeneous",),
+    "medium": ("homogeneous", "heterogeneous"),
     "phase": ("isotropic", "hg"),
 }
 IGNORED_TAGS = ("sampler", "rfilter")
@@ -1057,8 +1058,10 @@ class _Importer:
 
     def medium(self, el):
         """Mitsuba's homogeneous medium (sigma_t, albedo, scale; an isotropic or hg phase), as
-        the medium that fills the scene (the sensor's; shapes' media: check_shape_media)."""
-        self.check_type(el)
+        the medium that fills the scene (the sensor's; shapes' media: check_shape_media), or its
+        heterogeneous one (:meth:`heterogeneous`)."""
+        if self.check_type(el) == "heterogeneous":
+            return self.heterogeneous(el)
         p = self.props(el)
         for k in p:
             if k not in ("sigma_t", "albedo", "scale", "sample_emitted"):
@@ -1067,17 +1070,108 @@ class _Importer:
             if isinstance(p[k], TextureRef):
                 self.fail(el, f"homogeneous medium: '{k}' must be a constant (a value or an "
                               "rgb), not a texture")
-        g = 0.0
-        for c in el:
-            if c.tag == "phase":
-                kind = self.check_type(c)
-                if kind == "hg":
-                    g = float(self.props(c).get("g", 0.8))    # Mitsuba's default g
+        g = self.phase_g(el)
         try:
             self.b.medium(sigma_t=p.get("sigma_t", 1.0), albedo=p.get("albedo", 0.75), g=g,
                           scale=float(p.get("scale", 1.0)))
         except SceneError as e:
             self.fail(el, str(e))
+
+    def phase_g(self, el) -> float:
+        """The asymmetry g of the medium ``el``'s phase function (isotropic: 0)."""
+        g = 0.0
+        for c in el:
+            if c.tag == "phase" and self.check_type(c) == "hg":
+                g = float(self.props(c).get("g", 0.8))    # Mitsuba's default g
+        return g
+
+    def heterogeneous(self, el):
+        """Mitsuba's heterogeneous medium: sigma_t a single-channel ``gridvolume`` (.vol file;
+        its box the unit cube or, with use_grid_bbox, the file's, through a to_world of scale
+        and translation), an albedo (float, rgb, constvolume, or a gridvolume of 1 or 3 channels
+        over the same box), scale, an isotropic or hg phase. Vacuum outside the grid's box, as
+        Mitsuba clips the medium to it."""
+        allowed = ("sigma_t", "albedo", "scale", "sample_emitted", "has_spectral_extinction")
+        p, volumes = self.props(el), {}   # (props reads no <volume>)
+        for c in el:
+            name = c.get("name")
+            if c.tag == "phase":
+                continue
+            if name not in allowed:
+                self.fail(c, f"heterogeneous medium: unknown parameter '{name}'; allowed: "
+                             f"{', '.join(allowed)}")
+            if c.tag == "volume":
+                volumes[name] = c
+            elif c.tag not in ("float", "integer", "rgb", "color", "boolean", "spectrum"):
+                self.fail(c, f"heterogeneous medium: '{name}' as <{c.tag}> is not supported; "
+                             "allowed: <volume>, <float>, <rgb>, <boolean>")
+        if "sigma_t" not in volumes:
+            self.fail(el, "heterogeneous medium: sigma_t must be a <volume type=\"gridvolume\"> "
+                          "(a constant extinction is a homogeneous medium)")
+        grid, lo, hi = self.gridvolume(volumes["sigma_t"], "sigma_t", (1,))
+        grid = grid[..., 0]
+        albedo = p.get("albedo", 0.75)
+        if "albedo" in volumes:
+            v = volumes["albedo"]
+            if v.get("type") == "gridvolume":
+                albedo, a_lo, a_hi = self.gridvolume(v, "albedo", (1, 3))
+                if not (np.allclose(a_lo, lo, rtol=0, atol=1e-6)
+                        and np.allclose(a_hi, hi, rtol=0, atol=1e-6)):
+                    self.fail(v, f"albedo gridvolume: its box {a_lo.tolist()} - {a_hi.tolist()} "
+                                 f"differs from sigma_t's {lo.tolist()} - {hi.tolist()}; allowed: "
+                                 "an albedo grid over the same box")
+            elif v.get("type") == "constvolume":
+                q = self.props(v)
+                if set(q) - {"value"}:
+                    self.fail(v, "constvolume: allowed parameters: value")
+                albedo = q.get("value", 1.0)
+            else:
+                self.fail(v, f"heterogeneous medium: albedo volume '{v.get('type')}' is not "
+                             "supported; allowed: gridvolume, constvolume, <float>, <rgb>")
+        try:
+            self.b.grid_medium(grid, lo, hi, sigma_t=1.0, albedo=albedo, g=self.phase_g(el),
+                               scale=float(p.get("scale", 1.0)))
+        except SceneError as e:
+            self.fail(el, str(e))
+
+    def gridvolume(self, v, what: str, channels: tuple[int, ...]):
+        """(data [nz, ny, nx, channels], box min, box max in world space) of the ``gridvolume``
+        ``v`` (the medium's ``what``) read from its .vol file (Mitsuba 3's conventions, see
+        :mod:`jgi.physics.grid_media`)."""
+        if v.get("type") != "gridvolume":
+            self.fail(v, f"volume '{v.get('type')}' is not supported for {what}; allowed: "
+                         "gridvolume (a .vol file)")
+        q = self.props(v)
+        allowed = ("filename", "use_grid_bbox", "to_world", "filter_type", "wrap_mode", "raw",
+                   "accel")
+        for k in q:
+            if k not in allowed:
+                self.fail(v, f"gridvolume: unknown parameter '{k}'; allowed: "
+                             f"{', '.join(allowed)}")
+        if "filename" not in q:
+            self.fail(v, "gridvolume: needs <string name=\"filename\"> (a .vol file)")
+        if q.get("filter_type", "trilinear") != "trilinear":
+            self.fail(v, f"gridvolume: filter_type '{q['filter_type']}' is not supported; "
+                         "allowed: trilinear")
+        if q.get("wrap_mode", "clamp") != "clamp":
+            self.fail(v, f"gridvolume: wrap_mode '{q['wrap_mode']}' is not supported; "
+                         "allowed: clamp")
+        try:
+            data, lo, hi = read_vol(self.resolve(v, q["filename"], "volume grid"))
+        except VolError as e:
+            self.fail(v, str(e))
+        if data.shape[3] not in channels:
+            self.fail(v, f"gridvolume '{q['filename']}': {data.shape[3]} channels; allowed for "
+                         f"{what}: {' or '.join(map(str, channels))}")
+        if not q.get("use_grid_bbox", False):
+            lo, hi = np.zeros(3), np.ones(3)
+        m = q.get("to_world", np.eye(4))
+        lin = m[:3, :3]
+        if (np.any(np.abs(lin - np.diag(np.diag(lin))) > 1e-9) or np.any(np.diag(lin) <= 0)
+                or np.any(m[3] != (0, 0, 0, 1))):
+            self.fail(v, "gridvolume: to_world must be a scale (positive) and a translation; "
+                         "rotations, shears and mirrorings are not supported")
+        return data, m[:3, :3] @ lo + m[:3, 3], m[:3, :3] @ hi + m[:3, 3]
 
     def read_integrator(self, el):
         """Record the settings of the integrator ``el``, reading through ``moment`` and ``aov``
@@ -1200,3 +1294,4 @@ def read_mitsuba_integrator(path) -> IntegratorSettings:
     importer = _Importer(Path(path))
     importer.run(settings_only=True)
     return importer.integrator or IntegratorSettings("path")
+
