@@ -72,16 +72,17 @@ from ..core.configured import Configured
 from ..core.imageio import write_exr, write_png
 from ..core.vec import V3, dot, where
 from ..drivers.splat import render_splats
-from ..physics import bsdf, camera, geometry
+from ..physics import bsdf, camera, geometry, media
 from ..physics.lights import emitted, environment_pdf, environment_radiance, select_light
 from ..scene.tables import Scene
 from ..transport.connection import connect_camera, connect_vertices, occluded_many
 from ..transport.subpath import (
     CAMERA_DIMS0,
-    CAMERA_DIMS_PER_STEP,
     Vertices,
     Visit,
     WalkState,
+    area_density,
+    camera_dims_per_step,
     camera_ray,
     concat_rows,
     convert_density,
@@ -96,9 +97,12 @@ from ..transport.subpath import (
     pdf_bounding_disc,
     pdf_emission_dir,
     pdf_light_origin,
+    phase_value,
     random_walk,
     rows,
     sample_next_event,
+    segment_density,
+    vertex_in_medium,
     vertex_lobe_delta,
     vertex_ns,
 )
@@ -351,22 +355,39 @@ def environment_strategy(lights, escaped: Array, beta: V3, d: V3, pdf_dir: Array
 
 def next_event_strategy(scene: Scene, mp, p: V3, n: V3, ns: V3 | None, wo: V3, beta: V3,
                         u_select: Array, u1: Array, u2: Array, valid: Array, d2_prev: Array,
-                        cos_prev: Array, prev_surface: Array):
+                        cos_prev: Array, prev_surface: Array, in_medium: Array | None = None):
     """Strategy s = 1 at camera vertex z = z_{t-1} (material ``mp``, point p, normals n and
     ``ns``, ``wo`` towards z_{t-2}, throughput beta): light sampling
     (:func:`~jgi.transport.subpath.sample_next_event`). Returns (value before the visibility
     test, the shadow ray, the densities: y_0's p_fwd and p_rev, z's and z_{t-2}'s reverse
-    densities, y_0's Dirac flag), for the caller to test the shadow ray with others or alone."""
+    densities, y_0's Dirac flag), for the caller to test the shadow ray with others or alone.
+
+    ``in_medium`` (medium scenes): z is a medium vertex there (its normal zero): the phase
+    function p(-wo -> wi) in place of f, no cosine, its density both ways; the value takes the
+    shadow segment's transmittance T(d), and every area density across a segment its distance
+    density (:func:`~jgi.transport.subpath.area_density`: p(d) at a medium vertex, P(d) at a
+    surface)."""
     lights = scene.lights
     kinds = scene.materials.kinds
     out = {}
     ne = sample_next_event(scene, mp, p, n, wo, u_select, u1, u2, valid, ns=ns)
-    ls, pdf_p_fwd = ne.light, ne.pdf_bsdf
+    ls = ne.light
+    _, pdf_p_rev = bsdf.evaluate(kinds, mp, n if ns is None else ns, ls.wi, wo)
+    if in_medium is not None:
+        f_m = phase_value(scene, -wo, ls.wi)
+        ok_m = valid & ls.valid & (ls.pdf > 0)
+        ne = ne._replace(f=where(in_medium, V3(f_m, f_m, f_m), ne.f),
+                         pdf_bsdf=jnp.where(in_medium, f_m, ne.pdf_bsdf),
+                         cos=jnp.where(in_medium, 1.0, ne.cos),
+                         ok=jnp.where(in_medium, ok_m, ne.ok))
+        pdf_p_rev = jnp.where(in_medium, f_m, pdf_p_rev)
+    pdf_p_fwd = ne.pdf_bsdf
     # the light's density at z_{t-1} converts with the geometric cosine
     cos_p = ne.cos if ns is None else jnp.abs(dot(ls.wi, n))
     k = select_light(lights, u_select)
-    _, pdf_p_rev = bsdf.evaluate(kinds, mp, n if ns is None else ns, ls.wi, wo)
     value = next_event_value(ne, beta)
+    if in_medium is not None:
+        value = value * media.transmittance(scene.medium.sigma_t, ls.dist)
     dist = ls.dist
     if has_infinite_lights(lights):
         infinite = is_infinite(lights, k)
@@ -375,9 +396,15 @@ def next_event_strategy(scene: Scene, mp, p: V3, n: V3, ns: V3 | None, wo: V3, b
     y = p + ls.wi * dist
     n_y, y_surface = light_normal(lights, k, y)
     out["s1_fwd_y"] = pdf_light_origin(lights, k)                        # p_fwd(y_0)
-    out["s1_rev_y"] = convert_density(pdf_p_fwd, d2, dot(n_y, ls.wi), y_surface)
-    out["s1_rev_pt"] = convert_density(pdf_emission_dir(lights, k, n_y, -ls.wi), d2, cos_p,
-                                       True)
+    if in_medium is None:
+        out["s1_rev_y"] = convert_density(pdf_p_fwd, d2, dot(n_y, ls.wi), y_surface)
+        out["s1_rev_pt"] = convert_density(pdf_emission_dir(lights, k, n_y, -ls.wi), d2, cos_p,
+                                           True)
+    else:
+        out["s1_rev_y"] = area_density(scene, pdf_p_fwd, d2, dot(n_y, ls.wi), y_surface,
+                                       ~y_surface)
+        out["s1_rev_pt"] = area_density(scene, pdf_emission_dir(lights, k, n_y, -ls.wi), d2,
+                                        cos_p, ~in_medium, in_medium)
     if has_infinite_lights(lights):
         # y_0 at infinity: its densities are solid-angle ones (light sampling's, with
         # selection, and BSDF sampling's at z_{t-1}); z_{t-1} from the bounding disc
@@ -385,7 +412,11 @@ def next_event_strategy(scene: Scene, mp, p: V3, n: V3, ns: V3 | None, wo: V3, b
         out["s1_rev_y"] = jnp.where(infinite, pdf_p_fwd, out["s1_rev_y"])
         out["s1_rev_pt"] = jnp.where(infinite, pdf_bounding_disc(lights) * cos_p,
                                      out["s1_rev_pt"])
-    out["s1_rev_ptm"] = convert_density(pdf_p_rev, d2_prev, cos_prev, prev_surface)
+    if in_medium is None:
+        out["s1_rev_ptm"] = convert_density(pdf_p_rev, d2_prev, cos_prev, prev_surface)
+    else:
+        out["s1_rev_ptm"] = area_density(scene, pdf_p_rev, d2_prev, cos_prev, prev_surface,
+                                         ~prev_surface)
     out["s1_delta_light"] = ls.delta
     return value, ne.shadow, out
 
@@ -402,6 +433,9 @@ def _camera_visit(scene: Scene, exponent: float):
         e = jnp.where(v.valid, hit.emitter, -1)
         out = emitter_strategy(lights, e, hit.n, wo, s.beta, v.d2_prev, cos_prev,
                                s.prev_surface)
+        if v.in_medium is not None:   # z_{t-2} reached from the light across a medium segment
+            out["s0_rev_ptm"] = out["s0_rev_ptm"] * segment_density(scene, v.d2_prev,
+                                                                    ~s.prev_surface)
         # ---- s = 0 on the environment, at infinity ----
         if lights.environment >= 0:
             out.update(environment_strategy(lights, s.alive & ~hit.valid, s.beta, s.d,
@@ -409,7 +443,7 @@ def _camera_visit(scene: Scene, exponent: float):
         # ---- s = 1: light sampling at z_{t-1} ----
         value, shadow, s1 = next_event_strategy(scene, mp, hit.p, hit.n, hit.ns, wo, s.beta,
                                                 u(3), u(4), u(5), v.valid, v.d2_prev, cos_prev,
-                                                s.prev_surface)
+                                                s.prev_surface, v.in_medium)
         visible = ~geometry.occluded(scene, *shadow)
         out["s1_value"] = where(visible, value, Z)
         out.update(s1)
@@ -434,9 +468,9 @@ def camera_subpath(scene: Scene, cfg: BDPTConfig, key: Array, pixel: Array, unif
     pdf_dir = camera.project(cam, o + d).pdf_dir            # 1 / (A cos^3): the film's density
     z0 = Vertices(o, Z, Z, one, z + 1, z, z > 0, z > 0, z == 0, z.astype(jnp.int32),
                   z.astype(jnp.int32) - 1, no_uv(scene, z), vertex_ns(scene, Z),
-                  vertex_lobe_delta(scene, z))
+                  vertex_lobe_delta(scene, z), vertex_in_medium(scene, z))
     start = WalkState(o, d, one, pdf_dir, o, Z, z > 0, z > 0, z == 0)
-    verts, pdf_rev0, rec = random_walk(scene, key, CAMERA_DIMS0, CAMERA_DIMS_PER_STEP,
+    verts, pdf_rev0, rec = random_walk(scene, key, CAMERA_DIMS0, camera_dims_per_step(scene),
                                        cfg.max_depth, start, bsdf.RADIANCE,
                                        _camera_visit(scene, cfg.exponent) if visit is None
                                        else visit, uniform=uniform, n_live=n_live)
@@ -457,9 +491,11 @@ def interior_connection(scene: Scene, y: Vertices, ym: Vertices, z: Vertices, zm
     vm_y = ym.p - y.p
     rev = dict(
         pt=conn.pdf_z_from_y,
-        ptm=convert_density(conn.pdf_z_rev, dot(vm_z, vm_z), dot(zm.n, z.wo), zm.on_surface),
+        ptm=area_density(scene, conn.pdf_z_rev, dot(vm_z, vm_z), dot(zm.n, z.wo), zm.on_surface,
+                         zm.in_medium),
         qs=conn.pdf_y_from_z,
-        qsm=convert_density(conn.pdf_y_rev, dot(vm_y, vm_y), dot(ym.n, y.wo), ym.on_surface),
+        qsm=area_density(scene, conn.pdf_y_rev, dot(vm_y, vm_y), dot(ym.n, y.wo), ym.on_surface,
+                         ym.in_medium),
     )
     if has_infinite_lights(scene.lights):   # y_{s-2} may be y_0 at infinity
         rev["qsm_solid"] = conn.pdf_y_rev
@@ -507,8 +543,8 @@ def contributions(scene: Scene, cfg: BDPTConfig, seed, pixel: Array, sample: Arr
         y, ym = rows(light, y_rows), rows(light, y_rows - 1)
         conn = materialize(connect_camera(scene, y))
         vm = ym.p - y.p
-        rev_qsm = reverse_at_predecessor(lights, lp, y_rows, conn.pdf_y_rev, convert_density(
-            conn.pdf_y_rev, dot(vm, vm), dot(ym.n, y.wo), ym.on_surface))
+        rev_qsm = reverse_at_predecessor(lights, lp, y_rows, conn.pdf_y_rev, area_density(
+            scene, conn.pdf_y_rev, dot(vm, vm), dot(ym.n, y.wo), ym.on_surface, ym.in_medium))
         rays.append(conn.shadow)
     if inner:
         ls = np.array([s - 1 for s, _ in inner])
@@ -691,4 +727,4 @@ def render(scene: Scene, cfg: BDPTConfig = BDPTConfig(), *, spp: int, seed: int,
 
 
 register(Estimator("bdpt", "bidirectional path tracing, all (s, t) strategies with MIS", render,
-                   BDPTConfig, renamed={"beta": "power"}))
+                   BDPTConfig, renamed={"beta": "power"}, media=True))

@@ -33,6 +33,12 @@ Parameters: ``max_depth`` (path segments, as the path tracer's: 1 = emitters see
 The light subpath is BDPT's (:func:`jgi.transport.subpath.light_subpath`), the camera
 connection BDPT's and VCM's (:func:`jgi.transport.connection.connect_camera`); the splats are
 summed by :func:`jgi.drivers.splat.render_splats`.
+
+Participating media (a scene filled by a homogeneous medium): the light subpath samples a free
+flight on every segment and scatters at medium vertices by the phase function
+(:mod:`jgi.transport.subpath`); every vertex, surface or medium, is connected to the pinhole
+with the segment's transmittance T(d) (:func:`~jgi.transport.connection.connect_camera`), and
+y_0 seen directly is attenuated by T(d) too.
 """
 
 from __future__ import annotations
@@ -46,7 +52,7 @@ from jax import Array
 from ..core.configured import Configured
 from ..core.vec import V3, dot, where
 from ..drivers.splat import render_splats
-from ..physics import camera, geometry
+from ..physics import camera, geometry, media
 from ..physics.lights import emitted
 from ..scene.tables import Scene
 from ..transport.connection import connect_camera, occluded_many
@@ -78,6 +84,8 @@ def trace_light_paths(scene: Scene, cfg: LightTracerConfig, seed, pixel: Array, 
     pdf0 = y0.pdf_fwd
     ok0 = y0.valid & y0.on_surface & proj.visible & (pdf0 > 0)
     val0 = where(ok0, le * (proj.importance * g / jnp.where(ok0, pdf0, 1.0)), V3.full(0.0, g))
+    if scene.has_medium:   # the light seen through the medium: T(d)
+        val0 = val0 * media.transmittance(scene.medium.sigma_t, proj.dist)
     W = scene.camera.width
     pix0 = jnp.where(ok0, jnp.clip(jnp.floor(proj.py).astype(jnp.int32), 0,
                                    scene.camera.height - 1) * W
@@ -107,4 +115,4 @@ def render(scene: Scene, cfg: LightTracerConfig = LightTracerConfig(), *, spp: i
 
 
 register(Estimator("lt", "light tracing: light subpaths splatted onto the pinhole film (t = 1)",
-                   render, LightTracerConfig))
+                   render, LightTracerConfig, media=True))

@@ -20,6 +20,13 @@ so a medium interaction weighs T(t) sigma_s / p(t) and reaching the surface weig
 (both RGB): unbiased in every channel, and exactly 1 (resp. the albedo) in the grey case.
 Channels of zero extinction are never chosen to sample (they would put t at infinity) unless
 all are zero (vacuum: no interaction ever).
+
+Bidirectional estimators (light tracing, BDPT) need a distance density that is the same
+whichever end of a segment sampled it, so their subpaths pick the channel with probabilities
+that do not depend on the throughput (:func:`channel_probabilities_uniform`, ``throughput=None``):
+p(t) and P(s) above are then functions of the segment alone, and the area density of a vertex
+reached by free flight is p_omega |cos| / d^2 times p(d) (a medium vertex) or P(d) (a surface),
+:func:`segment_pdf` (Veach 1997 sec. 10.2 with pbrt-v4's BDPT in media).
 """
 
 from __future__ import annotations
@@ -58,11 +65,31 @@ def channel_probabilities(sigma_t: V3, throughput: V3) -> V3:
                 for wc, uc in zip(w, uniform)))
 
 
-def sample_free_flight(sigma_t: V3, albedo: V3, throughput: V3, t_max: Array, u_channel: Array,
-                       u_distance: Array) -> FreeFlight:
+def channel_probabilities_uniform(sigma_t: V3) -> V3:
+    """q_c uniform over the channels that can interact (sigma_t,c > 0), all zero in vacuum: the
+    throughput-independent choice of subpaths, whose densities must not depend on which end
+    sampled a segment (see the module)."""
+    can = [s > 0 for s in sigma_t]
+    n_can = sum(ok.astype(jnp.float32) for ok in can)
+    return V3(*(jnp.where(ok, 1.0 / jnp.maximum(n_can, 1.0), 0.0) for ok in can))
+
+
+def segment_pdf(sigma_t: V3, t: Array, at_medium: Array) -> Array:
+    """The distance density of a segment of length t sampled by free flight with the uniform
+    channel choice: p(t) = sum_c q_c sigma_t,c T_c(t) where it ends at a medium vertex
+    (``at_medium``), else P(t) = sum_c q_c T_c(t) (a surface reached). Symmetric in the
+    segment's ends; a constant for derivatives (detached sampling)."""
+    sigma_t = jax.lax.stop_gradient(sigma_t)
+    return _mixture_pdf(channel_probabilities_uniform(sigma_t), sigma_t, t, at_medium)
+
+
+def sample_free_flight(sigma_t: V3, albedo: V3, throughput: V3 | None, t_max: Array,
+                       u_channel: Array, u_distance: Array) -> FreeFlight:
     """Sample the next interaction along a ray segment of length t_max (inf: unbounded) in a
-    homogeneous medium, with spectral MIS over the channel choice (see the module)."""
-    q = channel_probabilities(sigma_t, throughput)
+    homogeneous medium, with spectral MIS over the channel choice (see the module);
+    ``throughput=None``: the uniform channel choice of bidirectional subpaths."""
+    q = (channel_probabilities_uniform(sigma_t) if throughput is None
+         else channel_probabilities(sigma_t, throughput))
     # the channel: the first whose cumulative probability exceeds u_channel
     c0 = u_channel < q.x
     c1 = ~c0 & (u_channel < q.x + q.y)

@@ -15,6 +15,13 @@ with the shading normals' cosines in the value, and the geometric normals' in th
 and the shadow ray; the light vertex y, whose BSDF is evaluated in importance mode, takes Veach's
 adjoint correction (:func:`jgi.physics.bsdf.adjoint_correction`), so that a path is valued alike
 from both ends. :func:`occluded_many` tests several batches of shadow rays in one query.
+
+In a scene filled by a medium (:mod:`jgi.transport.subpath`'s medium vertices) a connection's
+value takes the transmittance T_c(d) = exp(-sigma_t,c d) of the segment (the shadow ray stays a
+binary visibility test), a medium vertex contributes the phase function in place of f and no
+cosine, and every area density across the connection multiplies by the distance density p_dist
+of the vertex it reaches (p(d) at a medium vertex, P(d) at a surface): the density with which a
+subpath's free flight would have made that segment.
 """
 
 from __future__ import annotations
@@ -27,9 +34,9 @@ from jax import Array
 
 from .._xla import materialize
 from ..core.vec import V3, dot, where
-from ..physics import bsdf, camera, geometry
+from ..physics import bsdf, camera, geometry, media
 from ..scene.tables import Scene
-from .subpath import Vertices, convert_density, shading
+from .subpath import Vertices, convert_density, phase_value, segment_density, shading
 
 # --- s, t >= 2: a light vertex joined to a camera vertex -----------------------------------------
 
@@ -74,11 +81,24 @@ def connect_vertices(scene: Scene, y, z, ok: Array,
     _, pdf_y_rev = bsdf.evaluate(kinds, my, ny, w, y.wo)
     f_z, pdf_z_fwd = bsdf.evaluate(kinds, mz, nz, z.wo, -w)  # z_{t-2} -> z -> y
     _, pdf_z_rev = bsdf.evaluate(kinds, mz, nz, -w, z.wo)
+    medium = scene.has_medium
+    if medium:
+        # medium vertices: the phase function for the propagation directions (in: -wo, out:
+        # towards the other end), its value its density both ways (reciprocity)
+        y_m, z_m = y.in_medium, z.in_medium
+        p_y = phase_value(scene, -y.wo, w)
+        p_z = phase_value(scene, -z.wo, -w)
+        f_y = where(y_m, V3(p_y, p_y, p_y), f_y)
+        f_z = where(z_m, V3(p_z, p_z, p_z), f_z)
+        pdf_y_fwd, pdf_y_rev = jnp.where(y_m, p_y, pdf_y_fwd), jnp.where(y_m, p_y, pdf_y_rev)
+        pdf_z_fwd, pdf_z_rev = jnp.where(z_m, p_z, pdf_z_fwd), jnp.where(z_m, p_z, pdf_z_rev)
     if continuation is not None:
         q_y, q_z = continuation(my), continuation(mz)
         pdf_y_fwd, pdf_y_rev, pdf_z_fwd, pdf_z_rev = (pdf_y_fwd * q_y, pdf_y_rev * q_y,
                                                       pdf_z_fwd * q_z, pdf_z_rev * q_z)
     cos_y, cos_z = jnp.abs(dot(y.n, w)), jnp.abs(dot(z.n, w))   # geometric: G, area densities
+    if medium:      # no cosine at a medium vertex
+        cos_y, cos_z = jnp.where(y_m, 1.0, cos_y), jnp.where(z_m, 1.0, cos_z)
     ok = ok & (d2 > 0)
     if reciprocal:
         inv_d2 = 1.0 / jnp.where(ok, d2, 1.0)
@@ -91,12 +111,21 @@ def connect_vertices(scene: Scene, y, z, ok: Array,
     if y.ns is not None:
         # the value's cosines are the shading normals' (pbrt-v4's G), and y, a light vertex,
         # takes Veach's adjoint correction
-        f_y = f_y * bsdf.adjoint_correction(y.ns, y.n, y.wo, w)
-        g_value = over_d2(jnp.abs(dot(y.ns, w) * dot(z.ns, w)))
+        corr = bsdf.adjoint_correction(y.ns, y.n, y.wo, w)
+        cs_y, cs_z = jnp.abs(dot(y.ns, w)), jnp.abs(dot(z.ns, w))
+        if medium:
+            corr = jnp.where(y_m, 1.0, corr)
+            cs_y, cs_z = jnp.where(y_m, 1.0, cs_y), jnp.where(z_m, 1.0, cs_z)
+        f_y = f_y * corr
+        g_value = over_d2(cs_y * cs_z)
     value = where(ok, y.beta * f_y * f_z * z.beta * g_value, V3.full(0.0, d2))
+    pdf_z_from_y, pdf_y_from_z = to_area(pdf_y_fwd, cos_z), to_area(pdf_z_fwd, cos_y)
+    if medium:      # T(d) in the value; p_dist of the reached vertex's kind in the densities
+        value = value * media.transmittance(scene.medium.sigma_t, dist)
+        pdf_z_from_y = pdf_z_from_y * segment_density(scene, d2, z_m)
+        pdf_y_from_z = pdf_y_from_z * segment_density(scene, d2, y_m)
     shadow = geometry.shadow_ray(y.p, y.n, w, dist)
-    return VertexConnection(value, shadow, to_area(pdf_y_fwd, cos_z), to_area(pdf_z_fwd, cos_y),
-                            pdf_y_rev, pdf_z_rev)
+    return VertexConnection(value, shadow, pdf_z_from_y, pdf_y_from_z, pdf_y_rev, pdf_z_rev)
 
 
 # --- t = 1: a light vertex joined to the pinhole -------------------------------------------------
@@ -111,7 +140,10 @@ class CameraConnection(NamedTuple):
 
 
 def connect_camera(scene: Scene, y: Vertices) -> CameraConnection:
-    """Connect surface vertices y (any array shape) to the pinhole (strategy t = 1)."""
+    """Connect vertices y (any array shape; surface, or medium vertices in a medium scene) to
+    the pinhole (strategy t = 1). In a medium the camera sits in it: the value takes T(d), a
+    medium vertex the phase function and no cosine, and the camera's area density of y the
+    p_dist of y's kind (p(d) or P(d))."""
     cam = scene.camera
     kinds = scene.materials.kinds
     proj = camera.project(cam, y.p)
@@ -123,8 +155,18 @@ def connect_camera(scene: Scene, y: Vertices) -> CameraConnection:
     cos_y = jnp.abs(dot(y.n, w))     # geometric: the camera's area density of y
     cos_f = cos_y                    # the cosine of the value: the shading normal's
     if y.ns is not None:             # (pbrt-v4's BDPT), with Veach's adjoint correction
-        f = f * bsdf.adjoint_correction(y.ns, y.n, y.wo, w)
+        corr = bsdf.adjoint_correction(y.ns, y.n, y.wo, w)
         cos_f = jnp.abs(dot(y.ns, w))
+        if scene.has_medium:
+            corr, cos_f = jnp.where(y.in_medium, 1.0, corr), jnp.where(y.in_medium, 1.0, cos_f)
+        f = f * corr
+    if scene.has_medium:             # a medium vertex: the phase function, no cosine
+        p_y = phase_value(scene, -y.wo, w)
+        f = where(y.in_medium, V3(p_y, p_y, p_y), f)
+        pdf_y_rev = jnp.where(y.in_medium, p_y, pdf_y_rev)
+        cos_y = jnp.where(y.in_medium, 1.0, cos_y)
+        if y.ns is None:
+            cos_f = cos_y
     d2 = proj.dist * proj.dist
     inv_d2 = jnp.where(d2 > 0, 1.0 / jnp.where(d2 > 0, d2, 1.0), 0.0)
     cos_cam = -dot(w, cam.forward)
@@ -138,6 +180,9 @@ def connect_camera(scene: Scene, y: Vertices) -> CameraConnection:
     pixel = jnp.where(ok, iy * W + ix, -1)
     shadow = geometry.shadow_ray(y.p, y.n, w, proj.dist)
     pdf_cam = jnp.where(ok, proj.pdf_dir * cos_y * inv_d2, 0.0)
+    if scene.has_medium:
+        value = value * media.transmittance(scene.medium.sigma_t, proj.dist)
+        pdf_cam = pdf_cam * segment_density(scene, d2, y.in_medium)
     return CameraConnection(pixel, value, shadow, pdf_cam, pdf_y_rev, ok)
 
 

@@ -33,7 +33,24 @@ Random numbers: a camera path uses dimensions 0 and 1 of its stream for the pixe
 bidirectional camera subpath (BDPT, VCM) then draws ``CAMERA_DIMS_PER_STEP`` per vertex from
 ``CAMERA_DIMS0`` on (its BSDF sample, then its light sample). A light subpath draws from the
 stream :func:`light_key` (independent of the camera path's), ``LIGHT_DIMS0`` numbers for its
-emission sample, then ``LIGHT_DIMS_PER_STEP`` per bounce.
+emission sample, then ``LIGHT_DIMS_PER_STEP`` per bounce. In a scene filled by a medium every
+step draws two more after its own (free flight: channel, distance), so the per-step counts are
+:func:`camera_dims_per_step` and :func:`light_dims_per_step` of the scene.
+
+Participating media (a scene filled by a homogeneous medium, ``scene.has_medium``; Veach 1997
+sec. 10.2 extended as in pbrt-v4's BDPT with media): every walk segment first samples a free
+flight (:func:`jgi.physics.media.sample_free_flight`, the channel chosen uniformly, not by the
+throughput, so the distance density is the same from either end). An interaction before the
+surface makes a *medium vertex* (``in_medium`` True, ``on_surface`` False, normal zero, never
+Dirac, no emitter) whose "BSDF" is the phase function (value = density, no cosine; sigma_s is
+in beta), and beta takes T sigma_s / p(t) or, reaching the surface, T / P(t). Area densities
+along a segment of length d multiply by the distance density of the vertex reached,
+
+    p_A(x_i) = p_omega(x_{i-1} -> x_i) (|cos theta_i| if a surface) / d^2 * p_dist,
+    p_dist = p(d) = sum_c q_c sigma_t,c T_c(d) (medium vertex),  P(d) = sum_c q_c T_c(d) (surface)
+
+(:func:`area_density`), and connections multiply their values by the transmittance T(d).
+Vacuum scenes compile to the programs they compiled to before (``in_medium`` is None there).
 """
 
 from __future__ import annotations
@@ -49,7 +66,7 @@ from .. import _xla
 from .._xla import materialize
 from ..core import rng, warps
 from ..core.vec import EDGE_ON_COS, V3, dot, max_component, normalize, where
-from ..physics import bsdf, camera, geometry
+from ..physics import bsdf, camera, geometry, media, phase
 from ..physics.lights import LightSample, cylinder_normal, emitted, sample_emission, sample_li
 from ..scene.tables import (
     AREA_CYLINDER,
@@ -71,6 +88,18 @@ CAMERA_DIMS0 = 2               # dims 0, 1: pixel jitter
 CAMERA_DIMS_PER_STEP = 6       # per vertex: BSDF (3), light sample (3)
 LIGHT_DIMS0 = 5                # dims 0..4: sample_emission (selection, position, direction)
 LIGHT_DIMS_PER_STEP = 3        # per bounce: lobe, u1, u2
+MEDIUM_DIMS = 2                # per step in a medium scene, after the step's own: channel, distance
+
+
+def camera_dims_per_step(scene: Scene) -> int:
+    """Random numbers per camera-subpath vertex: BSDF (3) and light sample (3), then free flight
+    (channel, distance) in a scene filled by a medium (vacuum scenes keep their streams)."""
+    return CAMERA_DIMS_PER_STEP + (MEDIUM_DIMS if scene.has_medium else 0)
+
+
+def light_dims_per_step(scene: Scene) -> int:
+    """Random numbers per light-subpath bounce: lobe, u1, u2, then free flight in a medium."""
+    return LIGHT_DIMS_PER_STEP + (MEDIUM_DIMS if scene.has_medium else 0)
 
 
 # --- streams and the camera ray -------------------------------------------------------------------
@@ -110,6 +139,38 @@ class Vertices(NamedTuple):
     # reads), in scenes with smooth plastic, whose vertices are connectable (``delta`` False)
     # and yet may be left by a Dirac lobe; None elsewhere, where ``delta`` says both
     lobe_delta: Array | None = None
+    # a medium vertex (a free-flight interaction; phase function, no normal), in scenes filled
+    # by a medium; None in vacuum scenes
+    in_medium: Array | None = None
+
+
+def vertex_in_medium(scene: Scene, like: Array) -> Array | None:
+    """The ``in_medium`` of a vertex that is not a free-flight interaction (camera, light,
+    surface): False in a medium scene, None in a vacuum one."""
+    return (like != like) if scene.has_medium else None
+
+
+def segment_density(scene: Scene, d2: Array, at_medium: Array) -> Array:
+    """p_dist of a segment of squared length d2 (medium scenes): p(d) if it ends at a medium
+    vertex (``at_medium``), P(d) if at a surface (:func:`jgi.physics.media.segment_pdf`)."""
+    return media.segment_pdf(scene.medium.sigma_t, jnp.sqrt(d2), at_medium)
+
+
+def area_density(scene: Scene, pdf_solid: Array, d2: Array, cos_at: Array, on_surface: Array,
+                 at_medium: Array | None) -> Array:
+    """:func:`convert_density`, times the segment's distance density p_dist of the target's kind
+    in a medium scene (p(d) at a medium vertex, ``at_medium``; P(d) elsewhere). In vacuum
+    scenes exactly :func:`convert_density`."""
+    pdf = convert_density(pdf_solid, d2, cos_at, on_surface)
+    if not scene.has_medium:
+        return pdf
+    return pdf * segment_density(scene, d2, at_medium)
+
+
+def phase_value(scene: Scene, d_in: V3, d_out: V3) -> Array:
+    """The medium's phase function for propagation directions d_in -> d_out (= its sampling
+    density; reciprocal: the reversed pair -d_out -> -d_in has the same value)."""
+    return phase.evaluate(jax.lax.stop_gradient(scene.medium.g), d_in, d_out)
 
 
 def mis_delta(v: Vertices) -> Array:
@@ -188,6 +249,9 @@ class Visit(NamedTuple):
     valid: Array
     d2_prev: Array     # squared distance to the previous vertex
     u: Callable[[int], Array]
+    # medium scenes: the vertex is a free-flight interaction (``hit`` then holds its position,
+    # a zero normal and no emitter; ``state.beta`` already carries the free-flight weight)
+    in_medium: Array | None = None
 
 
 def random_walk(scene: Scene, key: Array, dim0: int, dims_per_step: int, n_steps: int,
@@ -214,20 +278,47 @@ def random_walk(scene: Scene, key: Array, dim0: int, dims_per_step: int, n_steps
     (the density of sampling it backwards from there); the last one's is 0."""
     mats = scene.materials
     kinds = mats.kinds
+    medium = scene.medium
+    sg = jax.lax.stop_gradient
 
     def step(s: WalkState, j):
         base = dim0 + j * dims_per_step
         u = ((lambda k: rng.uniform(key, base + k)) if uniform is None  # noqa: E731
              else (lambda k: uniform(base + k)))
         hit = geometry.intersect(scene, s.o, s.d)
+        in_med = None
+        if medium is not None:
+            # ---- free flight (detached sampling, uniform channel choice): a medium vertex
+            # before the surface, or the surface reached; beta *= T sigma_s / p(t) or T / P(t)
+            ff = media.sample_free_flight(sg(medium.sigma_t), sg(medium.albedo), None,
+                                          jnp.where(hit.valid, hit.t, jnp.inf),
+                                          u(dims_per_step - MEDIUM_DIMS),
+                                          u(dims_per_step - MEDIUM_DIMS + 1))
+            in_med = s.alive & ff.scattered
+            p_m = s.o + s.d * jnp.where(in_med, ff.t, 0.0)
+            zero = jnp.zeros_like(hit.t)
+            Z = V3(zero, zero, zero)
+            hit = hit._replace(valid=hit.valid | in_med, p=where(in_med, p_m, hit.p),
+                               n=where(in_med, Z, hit.n),
+                               emitter=jnp.where(in_med, -1, hit.emitter),
+                               ns=None if hit.ns is None else where(in_med, Z, hit.ns))
+            s = s._replace(beta=s.beta * media.free_flight_weight(
+                medium.sigma_t, medium.albedo, ff.t, ff.scattered, ff.pdf))
         valid = s.alive & hit.valid
         v = hit.p - s.prev_p
         d2 = dot(v, v)
-        pdf_fwd = jnp.where(valid, convert_density(s.pdf_dir, d2, dot(hit.n, s.d), True), 0.0)
+        if in_med is None:
+            pdf_fwd = jnp.where(valid, convert_density(s.pdf_dir, d2, dot(hit.n, s.d), True), 0.0)
+        else:
+            pdf_fwd = jnp.where(valid, area_density(scene, s.pdf_dir, d2, dot(hit.n, s.d),
+                                                    ~in_med, in_med), 0.0)
         mp = bsdf.lookup_specialised(mats, hit.material, hit.uv)
         wo = -s.d
         delta = bsdf.is_delta(mp)
-        extra = visit(Visit(j, hit, mp, wo, s, valid, d2, u)) if visit is not None else None
+        if in_med is not None:
+            delta = delta & ~in_med
+        extra = (visit(Visit(j, hit, mp, wo, s, valid, d2, u, in_med)) if visit is not None
+                 else None)
         # ---- BSDF sampling: the next direction, and the reverse density of the previous vertex
         # (both about the shading normal; area conversions use geometric normals)
         ns = shading(hit)
@@ -236,22 +327,42 @@ def random_walk(scene: Scene, key: Array, dim0: int, dims_per_step: int, n_steps
         # pdfFwd and pdfRev); per sample on plastic, else the material's flag
         delta_s = bsdf.sampled_delta(kinds, mp, bs)
         _, pdf_back = bsdf.evaluate(kinds, mp, ns, bs.wi, wo)
-        pdf_rev_prev = jnp.where(valid & ~delta_s,
-                                 convert_density(pdf_back, d2, dot(s.prev_n, s.d), s.prev_surface),
-                                 0.0)
+        if in_med is not None:
+            # a medium vertex scatters by the phase function: weight 1 (p / p; for detached
+            # derivatives 1 + (p - sg(p)) / sg(p), the derivative of p alone), pdf = the phase
+            # value, the same backwards (reciprocity)
+            ps = phase.sample(sg(medium.g), s.d, u(0), u(1))
+            p_g = phase.henyey_greenstein(ps.mu, medium.g)
+            one = 1.0 + (p_g - sg(p_g)) / jnp.where(sg(p_g) > 0, sg(p_g), 1.0)
+            bs = bs._replace(wi=where(in_med, ps.d_out, bs.wi),
+                             weight=where(in_med, V3(one, one, one), bs.weight),
+                             pdf=jnp.where(in_med, ps.pdf, bs.pdf), delta=bs.delta & ~in_med,
+                             valid=bs.valid | in_med)
+            delta_s = delta_s & ~in_med
+            pdf_back = jnp.where(in_med, ps.pdf, pdf_back)
+            # the previous vertex from here: P(d) if a surface, p(d) if a medium vertex
+            pdf_rev_prev = jnp.where(valid & ~delta_s, area_density(
+                scene, pdf_back, d2, dot(s.prev_n, s.d), s.prev_surface, ~s.prev_surface), 0.0)
+        else:
+            pdf_rev_prev = jnp.where(valid & ~delta_s, convert_density(
+                pdf_back, d2, dot(s.prev_n, s.d), s.prev_surface), 0.0)
         if infinite_start is not None:
             at_infinity = infinite_start[0] & (j == 0) & valid
             pdf_fwd = jnp.where(at_infinity, infinite_start[1] * jnp.abs(dot(hit.n, s.d)), pdf_fwd)
             pdf_rev_prev = jnp.where(at_infinity & ~delta_s, pdf_back, pdf_rev_prev)
-        vert = Vertices(hit.p, hit.n, wo, s.beta, pdf_fwd, pdf_rev_prev, delta, valid, valid,
+        surface = valid if in_med is None else valid & ~in_med
+        vert = Vertices(hit.p, hit.n, wo, s.beta, pdf_fwd, pdf_rev_prev, delta, surface, valid,
                         hit.material, jnp.where(valid, hit.emitter, -1), hit.uv, hit.ns,
-                        delta_s if PLASTIC in kinds else None)
+                        delta_s if PLASTIC in kinds else None,
+                        None if in_med is None else valid & in_med)
         beta = s.beta * bs.weight
         if mode == bsdf.IMPORTANCE and hit.ns is not None:   # Veach's adjoint correction
-            beta = beta * bsdf.adjoint_correction(ns, hit.n, wo, bs.wi)
+            corr = bsdf.adjoint_correction(ns, hit.n, wo, bs.wi)
+            beta = beta * (corr if in_med is None else jnp.where(in_med, 1.0, corr))
         alive = valid & bs.valid & (max_component(beta) > 0)
+        # a medium vertex has a zero normal: the next ray leaves from it, not offset
         nxt = WalkState(geometry.offset_origin(hit.p, hit.n, bs.wi), bs.wi, beta,
-                        jnp.where(bs.delta, 0.0, bs.pdf), hit.p, hit.n, valid, delta_s, alive)
+                        jnp.where(bs.delta, 0.0, bs.pdf), hit.p, hit.n, surface, delta_s, alive)
         return nxt, (vert, extra)
 
     body = step
@@ -362,6 +473,10 @@ def light_subpath(scene: Scene, key: Array, max_depth: int, infinite: bool = Fal
     its p_rev a solid-angle density too; y_1's p_fwd is the disc's area density times |cos| at
     y_1 (:func:`random_walk`'s ``infinite_start``)."""
     lights = scene.lights
+    if scene.has_medium:
+        # in a medium filling the scene, light from infinity is extinguished (T(inf) = 0, as
+        # the path tracer finds: its escaping rays weigh T / P = 0)
+        infinite = False
     u = (lambda k: rng.uniform(key, k)) if uniform is None else uniform  # noqa: E731
     em = sample_emission(lights, u(0), u(1), u(2), u(3), u(4))
     inf = is_infinite(lights, em.element)
@@ -379,13 +494,14 @@ def light_subpath(scene: Scene, key: Array, max_depth: int, infinite: bool = Fal
         infinite_start = (inf, pdf_bounding_disc(lights))
     v0 = Vertices(em.p, em.n, V3(z, z, z), le, pdf_y0, z, z > 0, on_surface, ok,
                   jnp.zeros_like(em.element), em.element, no_uv(scene, z), vertex_ns(scene, em.n),
-                  vertex_lobe_delta(scene, z))
+                  vertex_lobe_delta(scene, z), vertex_in_medium(scene, z))
     v0 = jax.tree_util.tree_map(lambda x: x[None], v0)
     if max_depth <= 1:
         return LightPath(v0, delta_light, em.element)
     start = WalkState(geometry.offset_origin(em.p, em.n, em.d), em.d, em.weight,
                       em.pdf_dir, em.p, em.n, on_surface, z > 0, ok)
-    verts, pdf_rev0, _ = random_walk(scene, key, LIGHT_DIMS0, LIGHT_DIMS_PER_STEP, max_depth - 1,
+    verts, pdf_rev0, _ = random_walk(scene, key, LIGHT_DIMS0, light_dims_per_step(scene),
+                                     max_depth - 1,
                                      start, bsdf.IMPORTANCE, uniform=uniform,
                                      infinite_start=infinite_start, n_live=n_live)
     v0 = v0._replace(pdf_rev=pdf_rev0[None])
