@@ -55,3 +55,25 @@ def test_agrees_with_the_path_tracer_in_fog(pt_reference, name, spp, depth):
     r_off = region_agreement(off, pt_reference[depth], 4)
     print(f"{name} depth {depth} (sigma_t x 1.15) vs pt: max t {r_off.t.max():.2f}")
     assert not r_off.agree
+
+
+def test_volumetric_caustic_needs_light_subpaths():
+    """glass_sphere_fog: a spot light focused by a glass sphere into fog (L S S M E). Light
+    tracing and BDPT render the bright cone below the sphere and agree per region; the path
+    tracer cannot sample it (its shadow rays stop at the glass, its phase-sampled rays never
+    hit the point light), so its mean there is far lower. lt and bdpt are compared in the
+    image's lower third (the cone and the floor), as light tracing cannot see the glass itself
+    (paths ending ... S E reach a pinhole by no connection): there it reads 0.043 where bdpt
+    reads 0.056 (t 15). Measured at 24 x 24 (16 seeds): lower third max |t| 2.2 (critical
+    5.9); in the cone lt 0.16, pt 0.02."""
+    scene = jgi.load_scene("glass_sphere_fog", resolution=RES)
+    lt = _stack(scene, "lt", 64, 0, max_depth=8)
+    bdpt = _stack(scene, "bdpt", 16, 100, max_depth=8)
+    r = region_agreement(lt[:, 16:], bdpt[:, 16:], 3)
+    assert r.agree, f"lt vs bdpt: worst t {r.t[r.worst]:.1f} > {r.critical[r.worst]:.1f}"
+    pt = _stack(scene, "pt", 64, 200, max_depth=8)
+    cone = (slice(15, 22), slice(9, 15))       # below the sphere, above the floor
+    means = {k: v[:, cone[0], cone[1]].mean((1, 2, 3)) for k, v in (("lt", lt), ("pt", pt))}
+    gap = means["lt"].mean() - means["pt"].mean()
+    se = np.sqrt(sum(m.var(ddof=1) / len(m) for m in means.values()))
+    assert gap > 10 * se and means["pt"].mean() < 0.5 * means["lt"].mean(), (means, se)
