@@ -128,19 +128,23 @@ def test_stats_and_registry(cornell, mmlt_renders):
     assert "mmlt" in jgi.REGISTRY
 
 
-@pytest.mark.parametrize("scene_name", ["cornell_box_caustics", "env_scene"])
+@pytest.mark.parametrize("scene_name", ["cornell_box_caustics", "env_scene", "fog"])
 def test_single_strategy_evaluation_matches_bdpt(scene_name, rng_np):
     """:func:`mmlt.evaluate` (the chain kernel's target: one strategy per lane, path lengths
     mixed over the lanes) gives, lane by lane, what BDPT's all-strategy evaluation gives for the
     strategy the lane chose (:func:`mmlt.select`), with the same primary samples: value, target
-    and pixel. Glass (Dirac vertices) in the caustic box, infinite lights under the map."""
+    and pixel. Glass (Dirac vertices) in the caustic box, infinite lights under the map, medium
+    vertices (their distance densities in every MIS ratio) in an RGB, anisotropic fog."""
     if scene_name == "env_scene":
         scene = env_scene(8)
+    elif scene_name == "fog":
+        scene = jgi.load_scene("cornell_box_fog", resolution=8, sigma_t=(0.45, 0.6, 0.8),
+                               albedo=(0.9, 0.8, 0.7), g=0.4)
     else:
         scene = jgi.load_scene(scene_name, resolution=8)
     D, N = 3, 1536
     cfg = mmlt.MMLTConfig(max_depth=D)
-    u = jnp.asarray(rng_np.random((mmlt.dims(D), N)).astype(np.float32))
+    u = jnp.asarray(rng_np.random((mmlt.dims(D, scene), N)).astype(np.float32))
     lengths = jnp.asarray(1 + np.arange(N) % D, jnp.int32)
     evaluate = jax.jit(lambda u, L: mmlt.evaluate(scene, cfg, u, L))
     value, f, pix = jax.device_get(evaluate(u, lengths))

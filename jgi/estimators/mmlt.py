@@ -27,6 +27,10 @@ w_{s,t}, by :func:`jgi.estimators.bdpt.strategy_weight` (BDPT's ratio steps,
 :func:`~jgi.estimators.bdpt.ratio_step`, walked for one traced (s, t) per lane). tests/test_mmlt.py
 checks it lane by lane against BDPT's all-strategy evaluation (:func:`select`).
 
+Participating media (a scene filled by a homogeneous medium) come with BDPT's subpaths: each
+walk step draws its two free-flight numbers too (:func:`stream_dims`), and the strategies'
+densities carry the segments' distance densities as BDPT's do.
+
 Chains: one kernel (:func:`run_chains`) runs chains of every length, L a traced value per
 lane. The bootstrap runs through it with p_large = 1 (lanes assigned lengths round-robin) and
 gives each length's normalisation b_L = E_u[f_L] from ``bootstrap_samples`` independent
@@ -80,9 +84,12 @@ from ..transport.subpath import (
     CAMERA_DIMS_PER_STEP,
     LIGHT_DIMS0,
     LIGHT_DIMS_PER_STEP,
-    convert_density,
+    area_density,
+    camera_dims_per_step,
+    light_dims_per_step,
     light_subpath,
     mis_delta,
+    segment_density,
 )
 from .bdpt import (
     BDPTConfig,
@@ -138,15 +145,18 @@ def n_strategies(cfg: MMLTConfig, length: int) -> int:
     return len(strategies(cfg, length))
 
 
-def stream_dims(length: int) -> tuple[int, int]:
-    """(camera dims, light dims) for paths of up to ``length`` segments."""
-    cam = CAMERA_DIMS0 + CAMERA_DIMS_PER_STEP * length
-    light = LIGHT_DIMS0 + LIGHT_DIMS_PER_STEP * max(length - 1, 0)
+def stream_dims(length: int, scene: Scene | None = None) -> tuple[int, int]:
+    """(camera dims, light dims) for paths of up to ``length`` segments (in a scene filled by a
+    medium each step has its two free-flight numbers more: ``scene``; None: vacuum)."""
+    cam_step = CAMERA_DIMS_PER_STEP if scene is None else camera_dims_per_step(scene)
+    light_step = LIGHT_DIMS_PER_STEP if scene is None else light_dims_per_step(scene)
+    cam = CAMERA_DIMS0 + cam_step * length
+    light = LIGHT_DIMS0 + light_step * max(length - 1, 0)
     return cam, light
 
 
-def dims(length: int) -> int:
-    c, li = stream_dims(length)
+def dims(length: int, scene: Scene | None = None) -> int:
+    c, li = stream_dims(length, scene)
     return 1 + c + li
 
 
@@ -163,7 +173,7 @@ def _streams(scene: Scene, length: int, u):
     """(strategy sample, flat pixel, camera stream [dims, N], light stream [dims, N]) of
     primary samples u [dims(length), N]; see :func:`primary_streams`."""
     W, H = scene.camera.width, scene.camera.height
-    nc, _ = stream_dims(length)
+    nc, _ = stream_dims(length, scene)
     cam = u[1:1 + nc]
     light = u[1 + nc:]
     fx, fy = cam[0] * W, cam[1] * H
@@ -278,6 +288,8 @@ def evaluate(scene: Scene, cfg: MMLTConfig, u, length):
     em = emitter_strategy(lights, z.emitter, z.n, z.wo, z.beta, d2_prev, cos_prev,
                           zm.on_surface)
     c0, pt0, ptm0 = em["s0_value"], em["s0_rev_pt"], em["s0_rev_ptm"]
+    if cam.in_medium is not None:   # z_{t-2} reached from the light across a medium segment
+        ptm0 = ptm0 * segment_density(scene, d2_prev, ~zm.on_surface)
     if env:
         alive, pdf_dir = _at((rec["alive"], rec["pdf_dir"]), jnp.maximum(t - 2, 0))
         escaped = alive & ~z.valid
@@ -286,16 +298,17 @@ def evaluate(scene: Scene, cfg: MMLTConfig, u, length):
         pt0 = jnp.where(escaped, ev["env_rev_pt"], pt0)
         ptm0 = jnp.where(escaped, ev["env_rev_ptm"], ptm0)
     # ---- s = 1: light sampling at z_{t-1}, with the walk's light-sample numbers there ----
-    ne_u = [_at(jnp.stack([cam_u[CAMERA_DIMS0 + CAMERA_DIMS_PER_STEP * j + k]
+    step = camera_dims_per_step(scene)
+    ne_u = [_at(jnp.stack([cam_u[CAMERA_DIMS0 + step * j + k]
                            for j in range(D)]), jnp.maximum(t - 2, 0)) for k in (3, 4, 5)]
     mp = bsdf.lookup_specialised(mats, z.material, z.uv)
     c1, shadow1, d1 = next_event_strategy(scene, mp, z.p, z.n, z.ns, z.wo, z.beta, *ne_u,
-                                          z.valid, d2_prev, cos_prev, zm.on_surface)
+                                          z.valid, d2_prev, cos_prev, zm.on_surface, z.in_medium)
     # ---- t = 1: y_{s-1} seen from the pinhole, splatted where it projects ----
     conn = connect_camera(scene, y)
     vy = ym.p - y.p
-    qsm_t1 = reverse_at_predecessor(lights, lp, s - 1, conn.pdf_y_rev, convert_density(
-        conn.pdf_y_rev, dot(vy, vy), dot(ym.n, y.wo), ym.on_surface))
+    qsm_t1 = reverse_at_predecessor(lights, lp, s - 1, conn.pdf_y_rev, area_density(
+        scene, conn.pdf_y_rev, dot(vy, vy), dot(ym.n, y.wo), ym.on_surface, ym.in_medium))
     # ---- s, t >= 2: y_{s-1} <-> z_{t-1} ----
     c_in, shadow_in, rev_in = interior_connection(scene, y, ym, z, zm)
     qsm_in = reverse_at_predecessor(lights, lp, s - 1, rev_in.get("qsm_solid"), rev_in["qsm"])
@@ -387,7 +400,7 @@ def bootstrap(scene: Scene, cfg: MMLTConfig, seed: int, n: int, lanes: int, step
     length L, flat, as float64}."""
     D = cfg.max_depth
     per_length = max(1, -(-n // (lanes * steps_per_call)))
-    empty = _empty_state(dims(D), lanes)
+    empty = _empty_state(dims(D, scene), lanes)
     zero = jnp.zeros((lanes,), jnp.float32)
 
     def call(c):
@@ -511,7 +524,7 @@ def render(scene: Scene, cfg: MMLTConfig = MMLTConfig(), *, spp: int, seed: int,
 
 register(Estimator(
     "mmlt", "multiplexed Metropolis light transport over BDPT (strategy in the chain state)",
-    render, MMLTConfig, renamed={"beta": "power"}))
+    render, MMLTConfig, renamed={"beta": "power"}, media=True))
 
 
 def small_step_density(u, v, s1: float = MMLTConfig.s1, s2: float = MMLTConfig.s2):
