@@ -434,3 +434,49 @@ def test_gradients_with_respect_to_the_medium():
     print("grad", g.mean(0), "+-", se(g), "fd", fd.mean(0), "paired se", se(g - fd))
     np.testing.assert_array_less(np.abs(g.mean(0) - fd.mean(0)), 5 * se(g - fd) + curvature)
     np.testing.assert_array_less(5 * se(g), np.abs(g.mean(0)))
+
+
+def test_volume_estimate_bias_is_the_kernel_smoothing_the_radius_predicts():
+    """The volume photon estimate's expectation is the in-scattered radiance averaged over the
+    kernel's ball, whose bias grows as (r^2 / 10) laplacian(L) / L for small r (here, first
+    collisions from a point light in an infinite medium, L = I e^{-sigma d} / (4 pi d^2) at
+    d = 1: 3.25 r^2 / 10): measured +5.57% +- 0.16% at r = 0.4 against the ball average's
+    +5.44%, +0.96% +- 0.38% at r = 0.2 against +1.28%. The bias is resolved (> 10 standard
+    errors at r = 0.4) and matches the radius's prediction within 4 of them, which is what
+    the progressive radius schedules (R^2 shrinking) rely on."""
+    import jax.numpy as jnp
+
+    from jgi.core.vec import V3
+    from jgi.transport import density
+    from jgi.transport.photons import trace_photons
+
+    sigma, intensity = 0.5, 1.0
+    b = SceneBuilder("point_light_in_fog")
+    b.camera((0, 0, -5), (0, 0, 0), width=4, height=4)
+    b.point_light((0, 0, 0), (intensity,) * 3)
+    b.medium(sigma_t=sigma, albedo=1.0, g=0.0)
+    scene = b.build()
+    rng = np.random.default_rng(0)
+    dirs = rng.normal(size=(256, 3))
+    dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
+    x = V3(*(jnp.asarray(dirs[:, c], jnp.float32) for c in range(3)))      # points at d = 1
+    wo = V3(*(-c for c in x))
+
+    def radiance(p):      # int p L_i dw of single scattering, isotropic phase
+        d = np.linalg.norm(p, axis=-1)
+        return intensity * np.exp(-sigma * d) / d**2 / (4 * np.pi)
+
+    exact = radiance(np.array([1.0, 0.0, 0.0]))
+    for r in (0.4, 0.2):
+        u = rng.normal(size=(400_000, 3))
+        u *= r * rng.random(len(u))[:, None] ** (1 / 3) / np.linalg.norm(u, axis=1, keepdims=True)
+        smoothed = radiance(np.array([1.0, 0.0, 0.0]) + u).mean()    # the ball average of L
+        est = []
+        for seed in range(6):
+            pm = trace_photons(scene, 400_000, seed=seed, max_depth=1)
+            L, _ = density.volume_sum_within(scene, pm, x, wo, np.full(256, r * r, np.float32))
+            est.append(L[0].mean() / (4 / 3 * np.pi * r**3))
+        mean, err = np.mean(est), np.std(est, ddof=1) / np.sqrt(len(est))
+        assert abs(mean - smoothed) < 4 * err, (r, mean / exact - 1, smoothed / exact - 1, err)
+        if r == 0.4:
+            assert mean - exact > 10 * err      # the bias is there, and measured
