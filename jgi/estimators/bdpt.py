@@ -49,6 +49,13 @@ event estimation (s = 1) gives y_0 the same solid-angle densities. So every (s, 
 from the environment is weighted by the full heuristic. Deliberate simplification: no Russian
 roulette; subpaths end at ``max_depth`` or at absorption.
 
+Participating media (a scene filled by a homogeneous medium): both subpaths sample free
+flights and carry medium vertices (:mod:`jgi.transport.subpath`: phase function as BSDF, never
+Dirac, always connectable); every area density along a segment includes its distance density
+(p(d) at a medium vertex, P(d) at a surface, the same from either end), so the ratio chains
+above hold unchanged; connections and light sampling take the transmittance T(d). Light from
+infinite lights is extinguished in such a scene (no light subpaths start there).
+
 Parameters: ``max_depth`` (segments, the path tracer's convention), ``heuristic``
 ("balance" | "power"), ``power`` (power exponent), ``path_length`` (> 0: only paths of exactly
 that many segments), ``strategy_images`` (a folder: also write every strategy's weighted and
