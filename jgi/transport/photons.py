@@ -194,6 +194,9 @@ def trace_photons(scene: Scene, n_photons: int, seed: int = 0, max_depth: int = 
     :mod:`jgi.core.sharding`); chunks keep memory bounded (13 floats per stored photon)."""
     if scene.lights.count == 0:
         raise ValueError("the scene has no lights to emit photons from")
+    if scene.has_grid_medium:
+        raise ValueError("photon tracing samples homogeneous media only; the scene's medium is "
+                         "a grid (heterogeneous media: the path tracer)")
     chunk = int(min(chunk, max(256, 1 << int(np.ceil(np.log2(max(n_photons, 1)))))))
     starts = list(range(0, n_photons, chunk))
     devices = list(devices if devices is not None else jax.devices())

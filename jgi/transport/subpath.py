@@ -276,6 +276,9 @@ def random_walk(scene: Scene, key: Array, dim0: int, dims_per_step: int, n_steps
     Returns (vertices 1..n_steps as :class:`Vertices` [n_steps, N], pdf_rev of vertex 0 [N],
     the stacked outputs of ``visit``). Each vertex's ``pdf_rev`` is filled in by the next step
     (the density of sampling it backwards from there); the last one's is 0."""
+    if scene.has_grid_medium:
+        raise ValueError("subpaths sample homogeneous media only; the scene's medium is a grid "
+                         "(heterogeneous media: the path tracer)")
     mats = scene.materials
     kinds = mats.kinds
     medium = scene.medium

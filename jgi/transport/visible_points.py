@@ -123,6 +123,9 @@ def trace_to_diffuse(scene: Scene, uniform, o: V3, d: V3, *, max_depth: int,
     estimate (:func:`jgi.transport.density.beam_sum`)."""
     mats, lights = scene.materials, scene.lights
     medium = scene.medium
+    if scene.has_grid_medium:
+        raise ValueError("trace_to_diffuse samples homogeneous media only; the scene's medium is "
+                         "a grid (heterogeneous media: the path tracer)")
     if medium is not None and light_samples:
         raise ValueError("trace_to_diffuse: direct light at visible points is not implemented "
                          "in participating media (light_samples must be 0)")
