@@ -88,14 +88,14 @@ def test_bdpt_single_scattering_from_a_point_light(g):
     medium, no surfaces: strategies (1, 2) (light sampling at a medium vertex) and (2, 1) (the
     medium vertex y_1 seen from the pinhole), MIS-weighted, against the quadrature of
     tests/test_media_estimators.py within 4 standard errors over seeds."""
-    from tests.test_media_estimators import _point_light_scene, _single_scattering_mean
+    from tests.support.media import point_light_scene, single_scattering_mean
 
-    scene = _point_light_scene(g)
+    scene = point_light_scene(g)
     imgs = np.stack([jgi.render(scene, "bdpt", spp=1024, seed=s, max_depth=2, path_length=2)
                      for s in range(8)])
     assert np.all(np.isfinite(imgs))
     means = imgs.reshape(len(imgs), -1, 3).mean(1)
     mean, err = means.mean(0), means.std(0, ddof=1) / np.sqrt(len(means))
-    exact = _single_scattering_mean(scene)
+    exact = single_scattering_mean(scene)
     print("bdpt", mean, "+-", err, "exact", exact)
     np.testing.assert_array_less(np.abs(mean - exact), 4 * err + 1e-4 * exact)

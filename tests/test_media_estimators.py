@@ -21,6 +21,8 @@ from jgi.analysis.stats import region_agreement
 from jgi.core.errors import ParameterError
 from jgi.estimators import registry
 from jgi.scene.builder import SceneBuilder
+from tests.support.media import point_light_scene as _point_light_scene
+from tests.support.media import single_scattering_mean as _single_scattering_mean
 
 
 def _furnace(albedo_wall: float, g: float):
@@ -51,42 +53,6 @@ def test_medium_furnace(strategy):
     mean = per_channel.mean(0)
     err = per_channel.std(0, ddof=1) / np.sqrt(len(per_channel))
     np.testing.assert_array_less(np.abs(mean - 1.0 / (1.0 - a)), 4 * err)
-
-
-def _point_light_scene(g: float):
-    b = SceneBuilder("single_scattering")
-    b.camera((0.0, 0.0, 0.0), (0.0, 0.0, 1.0), fov=30, width=8, height=8)
-    b.point_light((0.8, 0.3, 1.5), (2.0, 2.0, 2.0))
-    b.medium(sigma_t=(0.5, 0.9, 0.2), albedo=(0.8, 0.6, 0.9), g=g)
-    return b.build()
-
-
-def _single_scattering_mean(scene, n=48, t_max=80.0, nt=40001):
-    """The film-averaged radiance of one scattering event, by quadrature: directions of the film
-    (sx, sy) in [-1, 1]^2 (midpoints), int_0^inf sigma_s T(t) p(mu) I T(r) / r^2 dt each."""
-    cam = scene.camera
-    f, r, u = (np.array([float(c) for c in v]) for v in (cam.forward, cam.right, cam.up))
-    o = np.array([float(c) for c in cam.position])
-    m = scene.medium
-    st = np.array([float(c) for c in m.sigma_t])
-    ss = st * np.array([float(c) for c in m.albedo])
-    g = float(m.g)
-    light, intensity = np.array([0.8, 0.3, 1.5]), 2.0
-    s = (np.arange(n) + 0.5) / n * 2 - 1
-    t = np.linspace(0, t_max, nt)
-    total = np.zeros(3)
-    for sx in s:
-        for sy in s:
-            d = f + sx * r + sy * u
-            d /= np.linalg.norm(d)
-            x = o + t[:, None] * d
-            to = light - x
-            dist = np.linalg.norm(to, axis=1)
-            mu = (to @ d) / dist
-            p = (1 - g * g) / (4 * np.pi * (1 + g * g - 2 * g * mu) ** 1.5)
-            integrand = (ss * np.exp(-np.outer(t + dist, st)) * (p * intensity / dist**2)[:, None])
-            total += np.trapezoid(integrand, t, axis=0)
-    return total / (n * n)
 
 
 @pytest.mark.parametrize("g", [0.0, 0.7])

@@ -1,0 +1,46 @@
+"""Closed forms for participating media shared by the media tests: single scattering from a
+point light in an infinite homogeneous medium, by quadrature."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from jgi.scene.builder import SceneBuilder
+
+
+def point_light_scene(g: float):
+    """A camera and a point light in an infinite homogeneous medium (RGB extinction and
+    albedo, HG g), no surfaces: every path scatters in the medium."""
+    b = SceneBuilder("single_scattering")
+    b.camera((0.0, 0.0, 0.0), (0.0, 0.0, 1.0), fov=30, width=8, height=8)
+    b.point_light((0.8, 0.3, 1.5), (2.0, 2.0, 2.0))
+    b.medium(sigma_t=(0.5, 0.9, 0.2), albedo=(0.8, 0.6, 0.9), g=g)
+    return b.build()
+
+
+def single_scattering_mean(scene, n=48, t_max=80.0, nt=40001):
+    """The film-averaged radiance of one scattering event, by quadrature: directions of the film
+    (sx, sy) in [-1, 1]^2 (midpoints), int_0^inf sigma_s T(t) p(mu) I T(r) / r^2 dt each."""
+    cam = scene.camera
+    f, r, u = (np.array([float(c) for c in v]) for v in (cam.forward, cam.right, cam.up))
+    o = np.array([float(c) for c in cam.position])
+    m = scene.medium
+    st = np.array([float(c) for c in m.sigma_t])
+    ss = st * np.array([float(c) for c in m.albedo])
+    g = float(m.g)
+    light, intensity = np.array([0.8, 0.3, 1.5]), 2.0
+    s = (np.arange(n) + 0.5) / n * 2 - 1
+    t = np.linspace(0, t_max, nt)
+    total = np.zeros(3)
+    for sx in s:
+        for sy in s:
+            d = f + sx * r + sy * u
+            d /= np.linalg.norm(d)
+            x = o + t[:, None] * d
+            to = light - x
+            dist = np.linalg.norm(to, axis=1)
+            mu = (to @ d) / dist
+            p = (1 - g * g) / (4 * np.pi * (1 + g * g - 2 * g * mu) ** 1.5)
+            integrand = (ss * np.exp(-np.outer(t + dist, st)) * (p * intensity / dist**2)[:, None])
+            total += np.trapezoid(integrand, t, axis=0)
+    return total / (n * n)
