@@ -48,6 +48,7 @@ def test_unroll_threshold_changes_no_result(tmp_path):
              if not f.startswith("--xla_backend_extra_options=")]
     env = dict(os.environ, JGI_UNROLL_THRESHOLD=str(PRODUCTION_THRESHOLD), PYTHONPATH=str(ROOT),
                XLA_FLAGS=" ".join(flags), JGI_CACHE_DIR="off")
+    env.pop("JAX_COMPILATION_CACHE_DIR", None)     # the suite's cache (tests/conftest.py)
     r = subprocess.run([sys.executable, "-c", script], env=env, capture_output=True, text=True,
                        timeout=600, cwd=ROOT)
     assert r.returncode == 0, r.stdout + r.stderr
