@@ -24,38 +24,44 @@ def _render(name, params):
     return jgi.render(jgi.load_scene(name, resolution=8), "pt", spp=4, seed=3, **params)
 
 
-def test_unroll_threshold_changes_no_result(tmp_path):
-    """The suite compiles with a lower LLVM unroll threshold than jgi ships (tests/conftest.py);
-    a render under the shipped threshold, in a process of its own (LLVM options are fixed when
-    JAX starts), must be the same bits."""
-    assert _xla.UNROLL_THRESHOLD != PRODUCTION_THRESHOLD, "the suite runs jgi's own threshold"
-    assert f"-unroll-threshold={_xla.UNROLL_THRESHOLD}," in os.environ["XLA_FLAGS"]
-    out = tmp_path / "images.npz"
+def _render_in_process(threshold: int, out: Path) -> np.ndarray:
+    """CASES rendered in a fresh process with LLVM unroll threshold ``threshold`` (LLVM options
+    are fixed when JAX starts) and no persistent compile cache: each side compiles its own
+    programs. (With the suite's side rendered in the pytest worker, three full-suite runs
+    segfaulted inside JAX's loading of a cached executable in this test, never when it ran
+    alone; isolating both sides keeps the comparison and leaves the workers' cache alone.)"""
     script = textwrap.dedent(f"""
         import os, numpy as np, jgi
         from jgi import _xla
-        assert _xla.UNROLL_THRESHOLD == {PRODUCTION_THRESHOLD}
-        assert "-unroll-threshold={PRODUCTION_THRESHOLD}," in os.environ["XLA_FLAGS"]
+        assert _xla.UNROLL_THRESHOLD == {threshold}
+        assert "-unroll-threshold={threshold}," in os.environ["XLA_FLAGS"]
         from tests.test_xla import CASES, _render
         np.savez({str(out)!r}, *[_render(n, p) for n, p in CASES])
     """)
     # this process's XLA_FLAGS carry its own threshold, and jgi keeps flags it finds set: drop
-    # them so the child sets its own. The child compiles without the persistent cache: its
-    # programs, built with other backend options, are never stored where this process (whose
-    # renders read that cache) could load them (the full suite twice crashed with a segfault
-    # in the cache's executable loading here, never when the test ran alone)
+    # them so the child sets its own
     flags = [f for f in os.environ.get("XLA_FLAGS", "").split()
              if not f.startswith("--xla_backend_extra_options=")]
-    env = dict(os.environ, JGI_UNROLL_THRESHOLD=str(PRODUCTION_THRESHOLD), PYTHONPATH=str(ROOT),
+    env = dict(os.environ, JGI_UNROLL_THRESHOLD=str(threshold), PYTHONPATH=str(ROOT),
                XLA_FLAGS=" ".join(flags), JGI_CACHE_DIR="off")
     env.pop("JAX_COMPILATION_CACHE_DIR", None)     # the suite's cache (tests/conftest.py)
     r = subprocess.run([sys.executable, "-c", script], env=env, capture_output=True, text=True,
                        timeout=600, cwd=ROOT)
     assert r.returncode == 0, r.stdout + r.stderr
-    shipped = np.load(out)
-    for i, (name, params) in enumerate(CASES):
-        here = _render(name, params)
-        assert np.array_equal(here, shipped[f"arr_{i}"]), name
+    images = np.load(out)
+    return [images[f"arr_{i}"] for i in range(len(CASES))]
+
+
+def test_unroll_threshold_changes_no_result(tmp_path):
+    """The suite compiles with a lower LLVM unroll threshold than jgi ships (tests/conftest.py);
+    renders under the suite's threshold and under the shipped one, each in a process of its
+    own, must be the same bits."""
+    assert _xla.UNROLL_THRESHOLD != PRODUCTION_THRESHOLD, "the suite runs jgi's own threshold"
+    assert f"-unroll-threshold={_xla.UNROLL_THRESHOLD}," in os.environ["XLA_FLAGS"]
+    suite = _render_in_process(_xla.UNROLL_THRESHOLD, tmp_path / "suite.npz")
+    shipped = _render_in_process(PRODUCTION_THRESHOLD, tmp_path / "shipped.npz")
+    for (name, _), a, b in zip(CASES, suite, shipped):
+        assert np.array_equal(a, b), name
 
 
 def test_no_jax_arctan_where_the_vector_width_flag_breaks_it():
