@@ -27,9 +27,8 @@ def _render(name, params):
 def _render_in_process(threshold: int, out: Path) -> np.ndarray:
     """CASES rendered in a fresh process with LLVM unroll threshold ``threshold`` (LLVM options
     are fixed when JAX starts) and no persistent compile cache: each side compiles its own
-    programs. (With the suite's side rendered in the pytest worker, three full-suite runs
-    segfaulted inside JAX's loading of a cached executable in this test, never when it ran
-    alone; isolating both sides keeps the comparison and leaves the workers' cache alone.)"""
+    programs (the suite's side rendered in a pytest worker crashed in JAX's loading of a cached
+    executable where that worker had loaded Mitsuba's LLVM: tests/support/mitsuba.py)."""
     script = textwrap.dedent(f"""
         import os, numpy as np, jgi
         from jgi import _xla
