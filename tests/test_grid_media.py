@@ -35,6 +35,7 @@ from jgi.scene import builtin
 from jgi.scene.builder import SceneBuilder, majorant_grid
 from jgi.scene.importers.volgrid import VolError, read_vol, write_vol
 from jgi.scene.tables import GridMedium
+from tests.support.media import MITSUBA_FOG_ROOM
 
 N = 40_000
 LO, HI = np.array([-1.0, -0.5, -0.8]), np.array([1.5, 0.7, 0.4])
@@ -73,14 +74,7 @@ def _ramp_depth(o, d, t_max):
     between the box's entry and exit and the planes of the outermost voxel centres, so the
     trapezoid rule over those breakpoints is exact."""
     o, d = np.asarray(o, float), np.asarray(d, float)
-    t0, t1 = 0.0, t_max
-    for k in range(3):
-        if d[k] == 0:
-            if not LO[k] <= o[k] <= HI[k]:
-                return 0.0
-            continue
-        a, b = sorted(((LO[k] - o[k]) / d[k], (HI[k] - o[k]) / d[k]))
-        t0, t1 = max(t0, a), min(t1, b)
+    t0, t1 = _box_interval(o, d, t_max)
     if t0 >= t1:
         return 0.0
     nz, ny, nx = SHAPE
@@ -221,15 +215,23 @@ def test_ratio_tracking_transmittance(grid, resolution):
     np.testing.assert_array_less(np.abs(m - np.exp(-sigma * depth(o, d, 2.0))), 4.5 * e)
 
 
-def _clipped_length(o, d, t_max):
+def _box_interval(o, d, t_max):
+    """[t0, t1]: the part of the ray o + t d, 0 <= t <= t_max, inside the grid's box (t0 >= t1
+    where it misses)."""
+    o, d = np.asarray(o, float), np.asarray(d, float)
     t0, t1 = 0.0, t_max
     for k in range(3):
         if d[k] == 0:
             if not LO[k] <= o[k] <= HI[k]:
-                return 0.0
+                return 0.0, 0.0
             continue
         a, b = sorted(((LO[k] - o[k]) / d[k], (HI[k] - o[k]) / d[k]))
         t0, t1 = max(t0, a), min(t1, b)
+    return t0, t1
+
+
+def _clipped_length(o, d, t_max):
+    t0, t1 = _box_interval(o, d, t_max)
     return max(t1 - t0, 0.0)
 
 
@@ -358,25 +360,7 @@ SMOKE_XML = """<scene version="3.0.0">
     <float name="scale" value="{scale}"/>
     <phase type="hg"><float name="g" value="0.5"/></phase>
   </medium>
-  <sensor type="perspective"><float name="fov" value="45"/>
-    <transform name="to_world"><lookat origin="0, 0.2, 3.2" target="0, -0.2, 0" up="0, 1, 0"/>
-    </transform>
-    <film type="hdrfilm"><integer name="width" value="24"/><integer name="height" value="24"/>
-      <rfilter type="box"/></film>
-    <ref name="medium" id="smoke"/>
-  </sensor>
-  <bsdf type="diffuse" id="grey"><rgb name="reflectance" value="0.6, 0.5, 0.4"/></bsdf>
-  <shape type="rectangle"><transform name="to_world"><scale value="2"/><rotate x="1" angle="-90"/>
-    <translate y="-1"/></transform><ref id="grey"/></shape>
-  <shape type="rectangle"><transform name="to_world"><scale value="2"/><translate z="-1"/>
-    </transform><ref id="grey"/></shape>
-  <shape type="sphere"><point name="center" value="0.3, -0.6, 0.1"/><float name="radius"
-    value="0.4"/><ref id="grey"/></shape>
-  <shape type="rectangle"><transform name="to_world"><scale value="0.4"/><rotate x="1" angle="90"/>
-    <translate y="1"/></transform>
-    <emitter type="area"><rgb name="radiance" value="12, 12, 12"/></emitter></shape>
-</scene>
-"""
+""" + MITSUBA_FOG_ROOM.format(res=24, medium="smoke")
 
 
 def _smoke_grid():

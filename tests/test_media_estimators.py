@@ -21,6 +21,7 @@ from jgi.analysis.stats import region_agreement
 from jgi.core.errors import ParameterError
 from jgi.estimators import registry
 from jgi.scene.builder import SceneBuilder
+from tests.support.media import MITSUBA_FOG_ROOM
 from tests.support.media import point_light_scene as _point_light_scene
 from tests.support.media import single_scattering_mean as _single_scattering_mean
 
@@ -210,25 +211,7 @@ FOG_XML = """<scene version="3.0.0">
     <float name="scale" value="1.5"/>
     <phase type="hg"><float name="g" value="0.5"/></phase>
   </medium>
-  <sensor type="perspective"><float name="fov" value="45"/>
-    <transform name="to_world"><lookat origin="0, 0.2, 3.2" target="0, -0.2, 0" up="0, 1, 0"/>
-    </transform>
-    <film type="hdrfilm"><integer name="width" value="12"/><integer name="height" value="12"/>
-      <rfilter type="box"/></film>
-    <ref name="medium" id="fog"/>
-  </sensor>
-  <bsdf type="diffuse" id="grey"><rgb name="reflectance" value="0.6, 0.5, 0.4"/></bsdf>
-  <shape type="rectangle"><transform name="to_world"><scale value="2"/><rotate x="1" angle="-90"/>
-    <translate y="-1"/></transform><ref id="grey"/></shape>
-  <shape type="rectangle"><transform name="to_world"><scale value="2"/><translate z="-1"/>
-    </transform><ref id="grey"/></shape>
-  <shape type="sphere"><point name="center" value="0.3, -0.6, 0.1"/><float name="radius"
-    value="0.4"/><ref id="grey"/></shape>
-  <shape type="rectangle"><transform name="to_world"><scale value="0.4"/><rotate x="1" angle="90"/>
-    <translate y="1"/></transform>
-    <emitter type="area"><rgb name="radiance" value="12, 12, 12"/></emitter></shape>
-</scene>
-"""
+""" + MITSUBA_FOG_ROOM.format(res=12, medium="fog")
 
 
 def test_fog_renders_like_mitsuba_volpath(tmp_path):

@@ -89,6 +89,7 @@ from ..transport.subpath import (
     Visit,
     WalkState,
     area_density,
+    at_medium_vertex,
     camera_dims_per_step,
     camera_ray,
     concat_rows,
@@ -382,11 +383,7 @@ def next_event_strategy(scene: Scene, mp, p: V3, n: V3, ns: V3 | None, wo: V3, b
     _, pdf_p_rev = bsdf.evaluate(kinds, mp, n if ns is None else ns, ls.wi, wo)
     if in_medium is not None:
         f_m = phase_value(scene, -wo, ls.wi)
-        ok_m = valid & ls.valid & (ls.pdf > 0)
-        ne = ne._replace(f=where(in_medium, V3(f_m, f_m, f_m), ne.f),
-                         pdf_bsdf=jnp.where(in_medium, f_m, ne.pdf_bsdf),
-                         cos=jnp.where(in_medium, 1.0, ne.cos),
-                         ok=jnp.where(in_medium, ok_m, ne.ok))
+        ne = at_medium_vertex(ne, in_medium, f_m, valid)
         pdf_p_rev = jnp.where(in_medium, f_m, pdf_p_rev)
     pdf_p_fwd = ne.pdf_bsdf
     # the light's density at z_{t-1} converts with the geometric cosine

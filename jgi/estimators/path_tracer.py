@@ -80,7 +80,13 @@ from ..physics import bsdf, geometry, grid_media, media, phase
 from ..physics.lights import emitted, environment_pdf, environment_radiance, pdf_li
 from ..scene.tables import ROUGH_KINDS, Scene
 from ..transport import mis
-from ..transport.subpath import camera_ray, next_event_value, sample_next_event, shading
+from ..transport.subpath import (
+    at_medium_vertex,
+    camera_ray,
+    next_event_value,
+    sample_next_event,
+    shading,
+)
 from .registry import Estimator, Render, param, register
 
 
@@ -305,15 +311,12 @@ def _shade(scene: Scene, cfg: PathTracerConfig, s: PathState, hit: geometry.Hit,
 def _medium_next_event(medium, ne, in_medium, p_m: V3, d: V3, active):
     """The light sample ``ne`` (drawn at the medium vertex p_m where ``in_medium``) with the
     phase function in place of the BSDF: f = pdf = p(d, wi), no cosine, a shadow ray from p_m."""
-    f = phase.evaluate(medium.g, d, ne.light.wi)
+    ne = at_medium_vertex(ne, in_medium, phase.evaluate(medium.g, d, ne.light.wi), active)
+    # the shadow ray leaves p_m itself (no surface to offset from)
     o_m, d_m, t_m = geometry.shadow_ray(p_m, ne.light.wi, ne.light.wi, ne.light.dist)
-    ok_m = active & ne.light.valid & (ne.light.pdf > 0)
-    pick = lambda a, b: where(in_medium, a, b)  # noqa: E731
     o_s, d_s, t_s = ne.shadow
-    return ne._replace(f=pick(V3(f, f, f), ne.f), pdf_bsdf=jnp.where(in_medium, f, ne.pdf_bsdf),
-                       cos=jnp.where(in_medium, 1.0, ne.cos),
-                       shadow=(pick(o_m, o_s), pick(d_m, d_s), jnp.where(in_medium, t_m, t_s)),
-                       ok=jnp.where(in_medium, ok_m, ne.ok))
+    return ne._replace(shadow=(where(in_medium, o_m, o_s), where(in_medium, d_m, d_s),
+                               jnp.where(in_medium, t_m, t_s)))
 
 
 def _as_bsdf_sample(bs: bsdf.BSDFSample, ps: phase.PhaseSample, one) -> tuple:

@@ -365,25 +365,15 @@ def volume_sum_within(scene: Scene, pm, x: V3, wo: V3, r2, *, live=None, kind: s
     volume_filter_weight(kind, 0.0, 1.0)     # refuses filters without a 3-D form
     vol = pm.select(np.asarray(pm.volume))
     N = x.x.shape[0]
-    out, count = np.zeros((3, N), np.float32), np.zeros(N, np.float32)
     if vol.count == 0:
-        return out, count
+        return np.zeros((3, N), np.float32), np.zeros(N, np.float32)
     r2 = np.asarray(r2, np.float32)
     live = np.ones(N, bool) if live is None else np.asarray(live, bool)
     photons, table_size = _device_rows(vol, float(np.sqrt(max(float(r2[live].max(initial=0.0)),
                                                               1e-12))))
-    chunk = min(QUERY_CHUNK, padded_size(N))
     g = jnp.float32(scene.medium.g)
-    for s in range(0, N, chunk):
-        sl = slice(s, min(s + chunk, N))
-        k = sl.stop - s
-        fill = lambda a: jnp.asarray(np.pad(np.asarray(a)[sl], (0, chunk - k), mode="edge"))  # noqa: E731
-        fv = lambda v: V3(*(fill(c) for c in v))                                             # noqa: E731
-        L, c = _volume_sum_within(photons, table_size, fv(x), fv(wo), fill(r2),
-                                  jnp.asarray(np.pad(live[sl], (0, chunk - k))), g, kind)
-        out[:, sl] = np.stack([np.asarray(a)[:k] for a in L])
-        count[sl] = np.asarray(c)[:k]
-    return out, count
+    return _by_chunks(N, live, lambda take, alive: _volume_sum_within(
+        photons, table_size, take(x), take(wo), take(r2), alive, g, kind))
 
 
 # --- the beam radiance estimate (Jarosz, Zwicker and Jensen 2008) --------------------------------
@@ -468,19 +458,11 @@ def beam_sum(scene: Scene, pm, segments, r: float) -> np.ndarray:
     medium = scene.medium
     sigma_t = V3(*(jnp.float32(c) for c in medium.sigma_t))
     g = jnp.float32(medium.g)
-    Q = len(seg)
-    chunk = min(QUERY_CHUNK, padded_size(Q))
-    acc = np.zeros((3, Q), np.float64)
-    for a in range(0, Q, chunk):
-        sl = slice(a, min(a + chunk, Q))
-        n = sl.stop - a
-        fill = lambda x: jnp.asarray(np.pad(np.asarray(x, np.float32)[sl], (0, chunk - n),  # noqa: E731
-                                            mode="edge"))
-        fv = lambda m: V3(*(fill(m[:, c]) for c in range(3)))                             # noqa: E731
-        L, _ = _beam_sum(photons, table_size, fv(mid), fv(o[seg]), fv(d[seg]), fill(t_lo),
-                         fill(t_hi), jnp.float32(r * r), jnp.asarray(np.arange(chunk) < n),
-                         sigma_t, g)
-        acc[:, sl] = np.stack([np.asarray(x)[:n] for x in L])
+    cols = lambda m: V3(*(m[:, c].astype(np.float32) for c in range(3)))   # noqa: E731
+    acc, _ = _by_chunks(len(seg), np.ones(len(seg), bool), lambda take, alive: _beam_sum(
+        photons, table_size, take(cols(mid)), take(cols(o[seg])), take(cols(d[seg])),
+        take(t_lo.astype(np.float32)), take(t_hi.astype(np.float32)), jnp.float32(r * r), alive,
+        sigma_t, g))
     per_segment = np.zeros((3, len(s)), np.float64)
     for c in range(3):
         np.add.at(per_segment[c], seg, acc[c])
@@ -521,18 +503,26 @@ def sum_within(scene: Scene, pm, x: V3, n: V3, wo: V3, material, r2, *, live=Non
     live = np.ones(N, bool) if live is None else np.asarray(live, bool)
     cell = float(np.sqrt(max(float(r2[live].max(initial=0.0)), 1e-12)))
     photons, table_size = _device_rows(pm, cell)
-    out, count = np.zeros((3, N), np.float32), np.zeros(N, np.float32)
-    chunk = min(QUERY_CHUNK, padded_size(N))
-    for s in range(0, N, chunk):
-        sl = slice(s, min(s + chunk, N))
-        k = sl.stop - s
-        fill = lambda a: jnp.asarray(np.pad(np.asarray(a)[sl], (0, chunk - k), mode="edge"))  # noqa: E731
-        fv = lambda v: None if v is None else V3(*(fill(c) for c in v))                     # noqa: E731
-        L, c = _sum_within(scene, photons, table_size, fv(x), fv(n), fv(wo), fill(material),
-                           fill(r2), jnp.asarray(np.pad(live[sl], (0, chunk - k))), kind,
-                           filter_params or {}, None if uv is None else
-                           tuple(fill(u) for u in uv), fv(ns),
-                           None if thickness is None else float(thickness))
-        out[:, sl] = np.stack([np.asarray(a)[:k] for a in L])
-        count[sl] = np.asarray(c)[:k]
+    return _by_chunks(N, live, lambda take, alive: _sum_within(
+        scene, photons, table_size, take(x), take(n), take(wo), take(material), take(r2), alive,
+        kind, filter_params or {}, take(uv), take(ns),
+        None if thickness is None else float(thickness)))
+
+
+def _by_chunks(n: int, live, query):
+    """``query(take, alive)`` over chunks of QUERY_CHUNK points padded to one compiled size:
+    ``take(a)`` is the chunk of a (an array, V3 or tuple of [n] arrays; None stays None), padded
+    with its last point; ``alive`` marks the chunk's points to estimate (``live``), padding
+    excluded. Returns the query's sums [3, n] and counts [n] as numpy."""
+    chunk = min(QUERY_CHUNK, padded_size(n))
+    out, count = np.zeros((3, n), np.float32), np.zeros(n, np.float32)
+    live = np.asarray(live, bool)
+    for s in range(0, n, chunk):
+        k = min(s + chunk, n) - s
+        pad = lambda a: jnp.asarray(np.pad(np.asarray(a)[s:s + k], (0, chunk - k),  # noqa: E731
+                                           mode="edge"))
+        take = lambda v: None if v is None else jax.tree_util.tree_map(pad, v)      # noqa: E731
+        L, c = query(take, jnp.asarray(np.pad(live[s:s + k], (0, chunk - k))))
+        out[:, s:s + k] = np.stack([np.asarray(a)[:k] for a in L])
+        count[s:s + k] = np.asarray(c)[:k]
     return out, count

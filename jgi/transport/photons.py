@@ -139,7 +139,7 @@ def trace_photon_paths(scene: Scene, seed, photon_index: Array, n_emitted, max_d
             t_over_p = V3(*(jnp.where(ff.pdf > 0, c / pdf, 0.0)
                             for c in media.transmittance(medium.sigma_t, ff.t)))
             stored_pw = where(in_medium, pw_arrival * t_over_p, stored_pw)
-            store = (store & ~in_medium) | in_medium
+            store = store | in_medium
             through = through & ~in_medium
             zero = jnp.zeros_like(x.x)
             p_at = where(in_medium, x, hit.p)

@@ -544,6 +544,19 @@ def sample_next_event(scene: Scene, mp: bsdf.MaterialParams, p: V3, n: V3, wo: V
                      geometry.shadow_ray(p, n, ls.wi, ls.dist), ok)
 
 
+def at_medium_vertex(ne: NextEvent, in_medium: Array, f_phase: Array, active: Array) -> NextEvent:
+    """The light sample ``ne`` where ``in_medium``, seen from a medium vertex: the phase
+    function's value ``f_phase`` (= its sampling density) in place of the BSDF's f and pdf, no
+    cosine, usable wherever the light sample is (no BSDF lobe to be Dirac). The caller's
+    estimate also takes the shadow segment's transmittance."""
+    f = V3(f_phase, f_phase, f_phase)
+    ok = active & ne.light.valid & (ne.light.pdf > 0)
+    return ne._replace(f=where(in_medium, f, ne.f),
+                       pdf_bsdf=jnp.where(in_medium, f_phase, ne.pdf_bsdf),
+                       cos=jnp.where(in_medium, 1.0, ne.cos),
+                       ok=jnp.where(in_medium, ok, ne.ok))
+
+
 def next_event_value(ne: NextEvent, beta: V3, weight: Array | None = None,
                      n_samples: float = 1.0) -> V3:
     """The sample's contribution if y is visible from x: beta f L_i |cos theta_i| w / (n p_light),

@@ -156,12 +156,11 @@ def trace_to_diffuse(scene: Scene, uniform, o: V3, d: V3, *, max_depth: int,
                                           jnp.where(hit.valid, hit.t, jnp.inf), uniform(dm),
                                           uniform(dm + 1))
             scattered = active & ff.scattered
-            v_m = v._replace(
+            v = v._replace(
                 beta=where(scattered, beta * ff.weight, v.beta),
                 p=where(scattered, o + d * ff.t, v.p), n=where(scattered, Z, v.n),
                 wo=where(scattered, wo, v.wo), found=v.found | scattered,
                 in_medium=v.in_medium | scattered)
-            v = v_m
             beta = beta * ff.weight     # T / P where the surface is reached
             active = active & ~scattered
         if lights.count:

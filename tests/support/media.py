@@ -44,3 +44,27 @@ def single_scattering_mean(scene, n=48, t_max=80.0, nt=40001):
             integrand = (ss * np.exp(-np.outer(t + dist, st)) * (p * intensity / dist**2)[:, None])
             total += np.trapezoid(integrand, t, axis=0)
     return total / (n * n)
+
+
+# The room of the Mitsuba volpath comparisons (a grey floor, back wall and sphere, a small area
+# light; the sensor in medium ``medium``), after the scene's <integrator> and <medium>:
+# ``MITSUBA_FOG_ROOM.format(res=..., medium=...)``.
+MITSUBA_FOG_ROOM = """  <sensor type="perspective"><float name="fov" value="45"/>
+    <transform name="to_world"><lookat origin="0, 0.2, 3.2" target="0, -0.2, 0" up="0, 1, 0"/>
+    </transform>
+    <film type="hdrfilm"><integer name="width" value="{res}"/><integer name="height" value="{res}"/>
+      <rfilter type="box"/></film>
+    <ref name="medium" id="{medium}"/>
+  </sensor>
+  <bsdf type="diffuse" id="grey"><rgb name="reflectance" value="0.6, 0.5, 0.4"/></bsdf>
+  <shape type="rectangle"><transform name="to_world"><scale value="2"/><rotate x="1" angle="-90"/>
+    <translate y="-1"/></transform><ref id="grey"/></shape>
+  <shape type="rectangle"><transform name="to_world"><scale value="2"/><translate z="-1"/>
+    </transform><ref id="grey"/></shape>
+  <shape type="sphere"><point name="center" value="0.3, -0.6, 0.1"/><float name="radius"
+    value="0.4"/><ref id="grey"/></shape>
+  <shape type="rectangle"><transform name="to_world"><scale value="0.4"/><rotate x="1" angle="90"/>
+    <translate y="1"/></transform>
+    <emitter type="area"><rgb name="radiance" value="12, 12, 12"/></emitter></shape>
+</scene>
+"""
