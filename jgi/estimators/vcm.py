@@ -69,6 +69,19 @@ acceptance area pi r^2 for every filter (as unified path sampling does). The ima
 differentiable in r_0 and the filter's parameters (:func:`iteration_image`); with a filter that
 vanishes at r (cone with k = 1, Epanechnikov) the image is continuous in r too.
 
+Participating media (a scene filled by a homogeneous medium; UPBP's point-point 3-D estimator,
+Krivanek et al. 2014, within VCM). Both walks sample free flights as BDPT's subpaths do
+(:func:`jgi.transport.subpath.free_flight`), so medium vertices (phase function, no cosine, no
+roulette) join every technique: next-event estimation and connections through the segment's
+transmittance (:mod:`jgi.transport.connection`), and *volume merging*: a camera medium vertex
+merges the light medium vertices within r_V (never surface ones, nor a surface vertex medium
+ones), L ~= sum_y p(-w_y, wo) beta_y / sigma_s K_V(|z - y|) / N_L with the 3-D kernel
+normalised over the ball (the light vertex's sigma_s is the camera vertex's to bring). The
+MIS densities take the segments' distance densities (p(d) towards a medium vertex, P(d)
+towards a surface: at arrival, :func:`mis_arrive`) and the merge vertex's own eta: eta_V =
+4/3 pi r_V^3 N_L at a medium vertex (:class:`MisFactors`), r_V,i = r_V,0 i^((alpha - 1) / 3).
+With the same random numbers ``bpt`` mode is BDPT path for path in fog too.
+
 Random numbers: iteration i of pixel p draws the camera subpath from the stream (seed, p, i)
 and the light subpath from :func:`jgi.transport.subpath.light_key` (seed, p, i), with BDPT's
 dimension layout.
@@ -92,7 +105,7 @@ from ..core.compaction import compact_map
 from ..core.imageio import write_exr, write_png
 from ..core.progress import advance
 from ..core.vec import V3, dot, max_component, where
-from ..physics import bsdf, camera, geometry
+from ..physics import bsdf, camera, geometry, media
 from ..physics.lights import (
     emitted,
     environment_pdf,
@@ -105,13 +118,16 @@ from ..transport import density, hash_grid
 from ..transport.connection import connect_camera, connect_vertices, occluded_many
 from ..transport.subpath import (
     CAMERA_DIMS0,
-    CAMERA_DIMS_PER_STEP,
     LIGHT_DIMS0,
-    LIGHT_DIMS_PER_STEP,
+    MEDIUM_DIMS,
     Vertices,
+    at_medium_vertex,
+    camera_dims_per_step,
     camera_ray,
+    free_flight,
     has_infinite_lights,
     is_infinite,
+    light_dims_per_step,
     light_key,
     light_normal,
     next_event_value,
@@ -119,7 +135,10 @@ from ..transport.subpath import (
     pdf_bounding_disc,
     pdf_emission_dir,
     pdf_light_origin,
+    phase_value,
     sample_next_event,
+    scatter_in_medium,
+    segment_density,
     shading,
 )
 from .registry import Estimator, Render, param, register
@@ -138,6 +157,9 @@ class VCMConfig:
                       choices=MODES)
     max_depth: int = param(8, "maximum path segments", minimum=1, maximum=16)
     radius: float = param(0.02, "initial merge radius r_0 (scene units)", minimum=1e-6)
+    volume_radius: float = param(0.0, "initial volume merge radius r_V,0 at medium vertices "
+                                 "(3-D ball; 0: r_0), r_V,i = r_V,0 i^((alpha - 1) / 3)",
+                                 minimum=0.0)
     radius_alpha: float = param(0.75, "radius schedule r_i = r_0 i^((alpha - 1) / 2), alpha in "
                                 "(0, 1]", minimum=1e-3, maximum=1.0)
     heuristic: str = param("power", "MIS heuristic over all techniques",
@@ -180,8 +202,8 @@ class VCMConfig:
 
     def compile_key(self) -> "VCMConfig":
         """The settings a compiled function depends on (the rest are traced or host-side)."""
-        return replace(self, radius=0.0, radius_alpha=1.0, cone_k=1.0, gauss_alpha=1.0,
-                       gauss_beta=1.0, technique_images="")
+        return replace(self, radius=0.0, volume_radius=0.0, radius_alpha=1.0, cone_k=1.0,
+                       gauss_alpha=1.0, gauss_beta=1.0, technique_images="")
 
     def techniques(self) -> list[tuple]:
         """Every technique with its own image, in pyramid order: ("connect", s, t) for
@@ -206,13 +228,42 @@ def radius_at(cfg: VCMConfig, iteration: int) -> float:
     return cfg.radius * float(iteration) ** ((cfg.radius_alpha - 1.0) / 2.0)
 
 
+def volume_radius_at(cfg: VCMConfig, iteration: int) -> float:
+    """r_V,i = r_V,0 i^((alpha - 1) / 3): the 3-D estimate's variance grows like 1 / r^3, so
+    the ball's volume, not its radius, shrinks like i^(alpha - 1) (Knaus and Zwicker 2011 in
+    three dimensions); r_V,0 = ``volume_radius``, or r_0 where that is 0."""
+    r0 = cfg.volume_radius if cfg.volume_radius > 0 else cfg.radius
+    return r0 * float(iteration) ** ((cfg.radius_alpha - 1.0) / 3.0)
+
+
 # --- MIS: the recursive quantities and the weights of each technique ------------------------------
 
 class MisFactors(NamedTuple):
-    """Per-iteration constants: eta^b where merging is used (else 0) and eta^-b where
-    connections are (else 0), eta = pi r^2 N_L."""
-    vm: Array        # Mis(eta_VCM): SmallVCM's misVmWeightFactor
-    vc: Array        # Mis(1 / eta_VCM): misVcWeightFactor
+    """Per-iteration constants at a vertex: eta^b where merging is used (else 0) and eta^-b
+    where connections are (else 0), eta = pi r^2 N_L at a surface vertex (eta_A), 4/3 pi r_V^3
+    N_L at a medium vertex (eta_V: the merge ball's volume; UPBP's point-point 3-D estimator).
+
+    dVM is kept normalised by the surface's eta_A (SmallVCM's form, exact in vacuum), so a
+    medium vertex also needs eta_V / eta_A (``ratio``): there a merge's own term is eta_V /
+    eta_A where a surface's is 1."""
+    vm: Array        # Mis(eta): SmallVCM's misVmWeightFactor
+    vc: Array        # Mis(1 / eta): misVcWeightFactor
+    vc_surface: Array | None = None   # Mis(1 / eta_A) (where connections are): dVM's normaliser
+    ratio: Array | float = 1.0        # Mis(eta / eta_A): 1 at a surface vertex
+
+
+class Factors(NamedTuple):
+    """An iteration's :class:`MisFactors`: the surface's and, in scenes filled by a medium, the
+    volume's; :meth:`at` gives a vertex's."""
+    surface: MisFactors
+    volume: MisFactors | None = None
+
+    def at(self, in_medium: Array | None) -> MisFactors:
+        if in_medium is None or self.volume is None:
+            return self.surface
+        s, v = self.surface, self.volume
+        return MisFactors(jnp.where(in_medium, v.vm, s.vm), jnp.where(in_medium, v.vc, s.vc),
+                          s.vc_surface, jnp.where(in_medium, v.ratio, 1.0))
 
 
 class Mis(NamedTuple):
@@ -247,10 +298,30 @@ def continuation(mp: bsdf.MaterialParams, roulette: bool) -> Array:
 
 
 def mis_factors(radius, n_light: int, cfg: VCMConfig) -> MisFactors:
+    """A surface vertex's factors, eta_A = pi r^2 N_L."""
     eta = jnp.pi * radius * radius * n_light
     b = cfg.exponent
-    return MisFactors(mis_pow(eta, b) if cfg.merges else jnp.zeros_like(eta),
-                      mis_pow(1.0 / eta, b) if cfg.connects else jnp.zeros_like(eta))
+    vc = mis_pow(1.0 / eta, b) if cfg.connects else jnp.zeros_like(eta)
+    return MisFactors(mis_pow(eta, b) if cfg.merges else jnp.zeros_like(eta), vc, vc)
+
+
+def volume_mis_factors(volume_radius, surface: MisFactors, radius, n_light: int,
+                       cfg: VCMConfig) -> MisFactors:
+    """A medium vertex's factors, eta_V = 4/3 pi r_V^3 N_L (and eta_V / eta_A)."""
+    eta_v = (4.0 / 3.0) * jnp.pi * volume_radius ** 3 * n_light
+    b = cfg.exponent
+    return MisFactors(mis_pow(eta_v, b) if cfg.merges else jnp.zeros_like(eta_v),
+                      mis_pow(1.0 / eta_v, b) if cfg.connects else jnp.zeros_like(eta_v),
+                      surface.vc_surface,
+                      mis_pow(eta_v / (jnp.pi * radius * radius * n_light), b))
+
+
+def factors(scene: Scene, cfg: VCMConfig, radius, volume_radius, n_light: int) -> Factors:
+    """The iteration's factors (the volume's in scenes filled by a medium)."""
+    f = mis_factors(radius, n_light, cfg)
+    if not scene.has_medium:
+        return Factors(f)
+    return Factors(f, volume_mis_factors(volume_radius, f, radius, n_light, cfg))
 
 
 def mis_light_start(pdf_dir: Array, pdf_pos: Array, cos_y: Array, delta_light: Array,
@@ -265,7 +336,7 @@ def mis_light_start(pdf_dir: Array, pdf_pos: Array, cos_y: Array, delta_light: A
     has no cosine (|cos y_0| = 1, as SmallVCM's background light)."""
     dvc = jnp.where(delta_light, 0.0, mis_pow(cos_y * _inv(pdf_pos * pdf_dir), b))
     dvcm = _inv(pdf_dir) if pdf_disc is None else _inv(pdf_disc)
-    return Mis(mis_pow(dvcm, b), dvc, dvc * f.vc)
+    return Mis(mis_pow(dvcm, b), dvc, dvc * f.vc_surface)
 
 
 def mis_camera_start(pdf_film: Array, b: float) -> Mis:
@@ -274,11 +345,23 @@ def mis_camera_start(pdf_film: Array, b: float) -> Mis:
     return Mis(mis_pow(_inv(pdf_film), b), z, z)
 
 
-def mis_arrive(m: Mis, d2: Array, cos_in: Array, b: float) -> Mis:
-    """At a new vertex: the last direction's solid-angle density becomes an area density."""
+def mis_arrive(m: Mis, d2: Array, cos_in: Array, b: float, dist_prev: Array | None = None,
+               dist_new: Array | None = None) -> Mis:
+    """At a new vertex: the last direction's solid-angle density becomes an area density.
+
+    In a medium (``dist_prev``, ``dist_new``: the segment's distance densities p_dist towards
+    the previous vertex's kind and the new one's, p(d) at a medium vertex, P(d) at a surface;
+    ``cos_in`` 1 at a medium vertex) the new vertex's forward density takes p_dist(new), and
+    the previous vertex's reverse density, a factor of dVC's and dVM's every term, takes
+    p_dist(previous): the segment is now known."""
     inv_cos = mis_pow(_inv(jnp.abs(cos_in)), b)
-    return Mis(jnp.minimum(m.dvcm * mis_pow(d2, b) * inv_cos, MIS_MAX),
-               jnp.minimum(m.dvc * inv_cos, MIS_MAX), jnp.minimum(m.dvm * inv_cos, MIS_MAX))
+    if dist_new is None:
+        return Mis(jnp.minimum(m.dvcm * mis_pow(d2, b) * inv_cos, MIS_MAX),
+                   jnp.minimum(m.dvc * inv_cos, MIS_MAX), jnp.minimum(m.dvm * inv_cos, MIS_MAX))
+    inv_new = inv_cos * mis_pow(_inv(dist_new), b)
+    rev = mis_pow(dist_prev, b) * inv_new
+    return Mis(jnp.minimum(m.dvcm * mis_pow(d2, b) * inv_new, MIS_MAX),
+               jnp.minimum(m.dvc * rev, MIS_MAX), jnp.minimum(m.dvm * rev, MIS_MAX))
 
 
 def mis_scatter(m: Mis, cos_out: Array, pdf_fwd: Array, pdf_rev: Array, specular: Array,
@@ -288,7 +371,7 @@ def mis_scatter(m: Mis, cos_out: Array, pdf_fwd: Array, pdf_rev: Array, specular
     g = mis_pow(jnp.abs(cos_out) * _inv(pdf_fwd), b)
     rev = mis_pow(pdf_rev, b)
     dvc = g * (m.dvc * rev + m.dvcm + f.vm)
-    dvm = g * (m.dvm * rev + m.dvcm * f.vc + 1.0)
+    dvm = g * (m.dvm * rev + m.dvcm * f.vc_surface + f.ratio)
     dvcm = mis_pow(_inv(pdf_fwd), b)
     out = Mis(jnp.where(specular, 0.0, dvcm), jnp.where(specular, m.dvc * c, dvc),
               jnp.where(specular, m.dvm * c, dvm))
@@ -316,12 +399,15 @@ def weight_next_event(m: Mis, pdf_light_y: Array, pdf_bsdf_y: Array, pdf_emit_x:
 
 
 def weight_connection(light: Mis, camera: Mis, pdf_y_from_z: Array, pdf_z_from_y: Array,
-                      pdf_y_rev: Array, pdf_z_rev: Array, f: MisFactors, b: float) -> Array:
+                      pdf_y_rev: Array, pdf_z_rev: Array, f: MisFactors, b: float,
+                      f_camera: MisFactors | None = None) -> Array:
     """Light vertex y joined to camera vertex z: area densities of y sampled from z and of z
     from y, and at each end the BSDF's solid-angle density of its own subpath's previous
-    direction given the connecting one."""
+    direction given the connecting one. ``f`` are y's factors, ``f_camera`` z's where they
+    differ (a medium vertex at one end)."""
+    fz = f if f_camera is None else f_camera
     w_light = mis_pow(pdf_y_from_z, b) * (f.vm + light.dvcm + light.dvc * mis_pow(pdf_y_rev, b))
-    w_camera = mis_pow(pdf_z_from_y, b) * (f.vm + camera.dvcm
+    w_camera = mis_pow(pdf_z_from_y, b) * (fz.vm + camera.dvcm
                                            + camera.dvc * mis_pow(pdf_z_rev, b))
     return 1.0 / (1.0 + w_light + w_camera)
 
@@ -338,9 +424,10 @@ def weight_merge(light: Mis, camera: Mis, pdf_fwd: Array, pdf_rev: Array, f: Mis
                  b: float) -> Array:
     """Light vertex y merged at camera vertex z: the camera BSDF's densities of y's incident
     direction (``pdf_fwd``, continuing the camera subpath) and of the camera's own previous
-    direction given it (``pdf_rev``)."""
-    w_light = light.dvcm * f.vc + light.dvm * mis_pow(pdf_fwd, b)
-    w_camera = camera.dvcm * f.vc + camera.dvm * mis_pow(pdf_rev, b)
+    direction given it (``pdf_rev``); ``f`` the merge vertex's factors (dVM / ratio: dVM
+    normalised by that vertex's eta rather than the surface's)."""
+    w_light = light.dvcm * f.vc + light.dvm * mis_pow(pdf_fwd, b) / f.ratio
+    w_camera = camera.dvcm * f.vc + camera.dvm * mis_pow(pdf_rev, b) / f.ratio
     return 1.0 / (1.0 + w_light + w_camera)
 
 
@@ -357,74 +444,120 @@ class LightVertices(NamedTuple):
     material: Array
     uv: tuple | None
     ns: V3 | None       # shading normal, in scenes with vertex normals
+    in_medium: Array | None = None   # a medium vertex (zero normal), in scenes with a medium
 
 
-def light_walk(scene: Scene, cfg: VCMConfig, key: Array, f: MisFactors):
+def light_walk(scene: Scene, cfg: VCMConfig, key: Array, fs: Factors):
     """The light subpath of stream ``key`` (BDPT's dimension layout), with its MIS quantities.
-    Returns (:class:`LightVertices` [D - 1, N], valid start)."""
+    Returns (:class:`LightVertices` [D - 1, N], valid start).
+
+    In a scene filled by a medium every segment samples a free flight
+    (:func:`jgi.transport.subpath.free_flight`, BDPT's), making medium vertices that scatter by
+    the phase function (no roulette there: q = 1); light from infinity is extinguished (as in
+    BDPT: those subpaths are dropped)."""
     lights, mats = scene.lights, scene.materials
     kinds = mats.kinds
     b = cfg.exponent
+    f = fs.surface
+    medium = scene.has_medium
+    dims = light_dims_per_step(scene)
     u = lambda k: rng.uniform(key, k)  # noqa: E731
     em = sample_emission(lights, u(0), u(1), u(2), u(3), u(4))
     ok = (em.pdf_pos > 0) & (max_component(em.weight) > 0)
     delta_light = em.delta_pos | em.delta_dir
     at_infinity = None
-    if has_infinite_lights(lights):   # y_0 a direction, the subpath leaves the bounding disc
+    if medium and has_infinite_lights(lights):
+        ok = ok & ~is_infinite(lights, em.element)
+        mis = mis_light_start(em.pdf_dir, em.pdf_pos, jnp.abs(dot(em.n, em.d)), delta_light, f, b)
+    elif has_infinite_lights(lights):   # y_0 a direction, the subpath leaves the bounding disc
         at_infinity = is_infinite(lights, em.element)
         pdf_disc = jnp.where(at_infinity, pdf_bounding_disc(lights), 0.0)
         mis = mis_light_start(em.pdf_dir, em.pdf_pos, jnp.abs(dot(em.n, em.d)), delta_light, f,
                               b, jnp.where(at_infinity, pdf_disc, em.pdf_dir))
     else:
         mis = mis_light_start(em.pdf_dir, em.pdf_pos, jnp.abs(dot(em.n, em.d)), delta_light, f, b)
-    start = (geometry.offset_origin(em.p, em.n, em.d), em.d, em.weight, em.p, mis, ok)
-    rr_dim0 = LIGHT_DIMS0 + (cfg.max_depth - 1) * LIGHT_DIMS_PER_STEP   # past BDPT's dimensions
+    start = (geometry.offset_origin(em.p, em.n, em.d), em.d, em.weight, em.p, jnp.zeros_like(ok),
+             mis, ok)
+    rr_dim0 = LIGHT_DIMS0 + (cfg.max_depth - 1) * dims   # past BDPT's dimensions
 
     def step(s, j):
-        o, d, beta, prev_p, m, alive = s
-        base = LIGHT_DIMS0 + j * LIGHT_DIMS_PER_STEP
+        o, d, beta, prev_p, prev_medium, m, alive = s
+        base = LIGHT_DIMS0 + j * dims
         hit = geometry.intersect(scene, o, d)
+        in_med = None
+        if medium:
+            hit, in_med, w_ff = free_flight(scene, o, d, hit, alive,
+                                            u(base + dims - MEDIUM_DIMS),
+                                            u(base + dims - MEDIUM_DIMS + 1))
+            beta = beta * w_ff
         valid = alive & hit.valid
         v = hit.p - prev_p
         d2 = dot(v, v)
         if at_infinity is not None:   # from infinity: solid angle, no 1 / d^2 (tech. rep. 5.1)
             d2 = jnp.where(at_infinity & (j == 0), 1.0, d2)
-        m = mis_arrive(m, d2, dot(hit.n, d), b)
+        m = _arrive(scene, m, d2, dot(hit.n, d), prev_medium, in_med, b)
         mp = bsdf.lookup_specialised(mats, hit.material, hit.uv)
         wo = -d
-        vert = LightVertices(hit.p, hit.n, wo, beta, m, valid & ~bsdf.is_delta(mp), hit.material,
-                             hit.uv, hit.ns)
+        delta = bsdf.is_delta(mp) if in_med is None else bsdf.is_delta(mp) & ~in_med
+        vert = LightVertices(hit.p, hit.n, wo, beta, m, valid & ~delta, hit.material,
+                             hit.uv, hit.ns, in_med)
         ns = shading(hit)       # BSDFs about the shading normal; densities convert with hit.n
         bs = materialize(bsdf.sample(kinds, mp, ns, wo, u(base), u(base + 1), u(base + 2),
                                      mode=bsdf.IMPORTANCE))
         _, pdf_rev = bsdf.evaluate(kinds, mp, ns, bs.wi, wo)
         q = continuation(mp, cfg.roulette)
-        m = mis_scatter(m, dot(hit.n, bs.wi), bs.pdf * q, pdf_rev * q, bs.delta, f, b)
+        cos_out = dot(hit.n, bs.wi)
+        if medium:
+            bs, pdf_rev = scatter_in_medium(scene, bs, pdf_rev, d, in_med, u(base), u(base + 1))
+            q, cos_out = jnp.where(in_med, 1.0, q), jnp.where(in_med, 1.0, cos_out)
+        m = mis_scatter(m, cos_out, bs.pdf * q, pdf_rev * q, bs.delta, fs.at(in_med), b)
         beta = beta * bs.weight / q
         if hit.ns is not None:   # Veach's adjoint correction (a light subpath)
-            beta = beta * bsdf.adjoint_correction(hit.ns, hit.n, wo, bs.wi)
+            corr = bsdf.adjoint_correction(hit.ns, hit.n, wo, bs.wi)
+            beta = beta * (corr if in_med is None else jnp.where(in_med, 1.0, corr))
         alive = valid & bs.valid & (max_component(beta) > 0)
         if cfg.roulette:
             alive = alive & (rng.uniform(key, rr_dim0 + j) < q)
-        return (geometry.offset_origin(hit.p, hit.n, bs.wi), bs.wi, beta, hit.p, m, alive), vert
+        nxt = (geometry.offset_origin(hit.p, hit.n, bs.wi), bs.wi, beta, hit.p,
+               jnp.zeros_like(valid) if in_med is None else in_med, m, alive)
+        return nxt, vert
 
     _, verts = jax.lax.scan(step, start, jnp.arange(cfg.max_depth - 1))
     return verts, ok
 
 
+def _continuation_at(scene: Scene, cfg: VCMConfig, v) -> Array:
+    """q at vertices v (records with material, uv and in_medium): 1 at a medium vertex."""
+    q = continuation(bsdf.lookup(scene.materials, v.material, v.uv), cfg.roulette)
+    return q if v.in_medium is None else jnp.where(v.in_medium, 1.0, q)
+
+
+def _arrive(scene: Scene, m: Mis, d2: Array, cos_in: Array, prev_medium: Array,
+            in_medium: Array | None, b: float) -> Mis:
+    """:func:`mis_arrive` at a new vertex (a medium vertex: no cosine, and the segment's
+    distance densities towards both ends' kinds)."""
+    if in_medium is None:
+        return mis_arrive(m, d2, cos_in, b)
+    return mis_arrive(m, d2, jnp.where(in_medium, 1.0, cos_in), b,
+                      segment_density(scene, d2, prev_medium),
+                      segment_density(scene, d2, in_medium))
+
+
 def _as_vertices(scene: Scene, y: LightVertices) -> Vertices:
     """Light vertices in :class:`~jgi.transport.subpath.Vertices` form (for connect_camera)."""
     z = jnp.zeros_like(y.p.x)
-    return Vertices(y.p, y.n, y.wo, y.beta, z, z, ~y.stored, y.stored, y.stored, y.material,
-                    y.material * 0 - 1, y.uv if y.uv is not None else no_uv(scene, z), y.ns)
+    on_surface = y.stored if y.in_medium is None else y.stored & ~y.in_medium
+    return Vertices(y.p, y.n, y.wo, y.beta, z, z, ~y.stored, on_surface, y.stored, y.material,
+                    y.material * 0 - 1, y.uv if y.uv is not None else no_uv(scene, z), y.ns,
+                    None, y.in_medium)
 
 
-def light_pass(scene: Scene, cfg: VCMConfig, seed, iteration, f: MisFactors, paths: Array):
+def light_pass(scene: Scene, cfg: VCMConfig, seed, iteration, fs: Factors, paths: Array):
     """Light subpaths ``paths`` of an iteration: their vertices, and the t = 1 connections
     (pixel [D - 1, N], MIS-weighted and unweighted values)."""
     b = cfg.exponent
     key = light_key(seed, paths, iteration)
-    y, _ = light_walk(scene, cfg, key, f)
+    y, _ = light_walk(scene, cfg, key, fs)
     if not cfg.connects or cfg.max_depth < 2:
         return y, None
     K, N = y.material.shape
@@ -433,8 +566,9 @@ def light_pass(scene: Scene, cfg: VCMConfig, seed, iteration, f: MisFactors, pat
         yb = yb._replace(stored=yb.stored & live)
         conn = materialize(connect_camera(scene, _as_vertices(scene, yb)))
         occ = occluded_many(scene, [conn.shadow])[0]
-        q = continuation(bsdf.lookup(scene.materials, yb.material, yb.uv), cfg.roulette)
-        w = weight_camera_connection(yb.mis, conn.pdf_cam, conn.pdf_y_rev * q, f, b)
+        q = _continuation_at(scene, cfg, yb)
+        w = weight_camera_connection(yb.mis, conn.pdf_cam, conn.pdf_y_rev * q,
+                                     fs.at(yb.in_medium), b)
         keep = conn.ok & ~occ
         value = where(keep, conn.value, V3.full(0.0, w))
         # pixel + 1: entries never written stay 0, i.e. pixel -1
@@ -469,38 +603,50 @@ class CameraVertices(NamedTuple):
     w_emission: Array
     next_event: V3         # s = 1, unweighted (visibility tested)
     w_next_event: Array
+    in_medium: Array | None = None   # a medium vertex (zero normal), in scenes with a medium
 
 
 def camera_walk(scene: Scene, cfg: VCMConfig, key: Array, pixel: Array,
-                f: MisFactors) -> CameraVertices:
+                fs: Factors) -> CameraVertices:
     """The camera subpath of stream ``key`` through ``pixel``, with s = 0 and s = 1 at each
-    vertex."""
+    vertex (in a medium as :func:`light_walk`; next-event estimation from a medium vertex by
+    the phase function, through the shadow segment's transmittance)."""
     cam, lights, mats = scene.camera, scene.lights, scene.materials
     kinds = mats.kinds
     b, D = cfg.exponent, cfg.max_depth
+    medium = scene.has_medium
+    dims = camera_dims_per_step(scene)
     u0 = lambda k: rng.uniform(key, k)  # noqa: E731
     o, d = camera_ray(cam, pixel, u0)
     z = jnp.zeros_like(o.x)
     one = V3(z + 1, z + 1, z + 1)
     mis = mis_camera_start(camera.project(cam, o + d).pdf_dir, b)
-    start = (o, d, one, o, mis, z == 0, z == 0)
-    rr_dim0 = CAMERA_DIMS0 + D * CAMERA_DIMS_PER_STEP   # past BDPT's dimensions
+    start = (o, d, one, o, z != 0, mis, z == 0, z == 0)
+    rr_dim0 = CAMERA_DIMS0 + D * dims   # past BDPT's dimensions
 
     def step(s, j):
-        o, d, beta, prev_p, m, alive, specular_path = s
-        base = CAMERA_DIMS0 + j * CAMERA_DIMS_PER_STEP
+        o, d, beta, prev_p, prev_medium, m, alive, specular_path = s
+        base = CAMERA_DIMS0 + j * dims
         u = lambda k: rng.uniform(key, base + k)  # noqa: E731
         hit = geometry.intersect(scene, o, d)
+        in_med = None
+        if medium:
+            hit, in_med, w_ff = free_flight(scene, o, d, hit, alive, u(dims - MEDIUM_DIMS),
+                                            u(dims - MEDIUM_DIMS + 1))
+            beta = beta * w_ff
         valid = alive & hit.valid
         v = hit.p - prev_p
         d2 = dot(v, v)
         m_left = m            # as the subpath left its last vertex (an escaped ray's)
-        m = mis_arrive(m, d2, dot(hit.n, d), b)
+        m = _arrive(scene, m, d2, dot(hit.n, d), prev_medium, in_med, b)
         mp = bsdf.lookup_specialised(mats, hit.material, hit.uv)
         wo = -d
-        delta = bsdf.is_delta(mp)
+        delta = bsdf.is_delta(mp) if in_med is None else bsdf.is_delta(mp) & ~in_med
         connectable = valid & ~delta
         q = continuation(mp, cfg.roulette)
+        if medium:
+            q = jnp.where(in_med, 1.0, q)
+        f = fs.at(in_med)
         # ---- s = 0: an emitter ----
         e = jnp.where(valid, hit.emitter, -1)
         pdf_pos = pdf_light_origin(lights, e)
@@ -520,19 +666,28 @@ def camera_walk(scene: Scene, cfg: VCMConfig, key: Array, pixel: Array,
         # ---- s = 1: next-event estimation ----
         ns = shading(hit)       # BSDFs about the shading normal; densities convert with hit.n
         if cfg.connects and D >= 2:
-            ne = sample_next_event(scene, mp, hit.p, hit.n, wo, u(3), u(4), u(5),
-                                   valid & (j + 2 <= D), ns=hit.ns)
+            ne_active = valid & (j + 2 <= D)
+            ne = sample_next_event(scene, mp, hit.p, hit.n, wo, u(3), u(4), u(5), ne_active,
+                                   ns=hit.ns)
             ls = ne.light
             k = select_light(lights, u(3))
             _, pdf_bsdf_rev = bsdf.evaluate(kinds, mp, ns, ls.wi, wo)
+            cos_x = jnp.abs(dot(ls.wi, hit.n))
+            if medium:   # the phase function at a medium vertex, no cosine
+                f_m = phase_value(scene, d, ls.wi)
+                ne = at_medium_vertex(ne, in_med, f_m, ne_active)
+                pdf_bsdf_rev = jnp.where(in_med, f_m, pdf_bsdf_rev)
+                cos_x = jnp.where(in_med, 1.0, cos_x)
             y = hit.p + ls.wi * ls.dist
             n_y, y_surface = light_normal(lights, k, y)
             d2_y = ls.dist * ls.dist
             inv_d2 = _inv(d2_y)
             cos_y = jnp.where(y_surface, jnp.abs(dot(n_y, ls.wi)), 1.0)
-            cos_x = jnp.abs(dot(ls.wi, hit.n))
             pdf_emit_x = pdf_emission_dir(lights, k, n_y, -ls.wi) * cos_x * inv_d2
             pdf_light_y, pdf_bsdf_y = pdf_light_origin(lights, k), ne.pdf_bsdf * q * cos_y * inv_d2
+            if medium:   # each end's distance density (the light's: a surface's, P(d))
+                pdf_emit_x = pdf_emit_x * segment_density(scene, d2_y, in_med)
+                pdf_bsdf_y = pdf_bsdf_y * segment_density(scene, d2_y, in_med & False)
             if has_infinite_lights(lights):
                 # a light at infinity: y_0 is a direction (solid-angle densities, selection
                 # included), x is reached from the bounding disc (SmallVCM's background light)
@@ -544,15 +699,21 @@ def camera_walk(scene: Scene, cfg: VCMConfig, key: Array, pixel: Array,
                                      ls.delta, f, b)
             Z = V3.full(0.0, z)
             ne_value = where(~geometry.occluded(scene, *ne.shadow), next_event_value(ne, beta), Z)
+            if medium:
+                ne_value = ne_value * media.transmittance(scene.medium.sigma_t, ls.dist)
         else:
             ne_value, w_ne = V3.full(0.0, z), z
         rec = CameraVertices(hit.p, hit.n, wo, beta, m, connectable,
                              connectable & specular_path, hit.material, hit.uv, hit.ns, emission,
-                             w_e, ne_value, w_ne)
+                             w_e, ne_value, w_ne, in_med)
         # ---- the next direction ----
         bs = materialize(bsdf.sample(kinds, mp, ns, wo, u(0), u(1), u(2)))
         _, pdf_rev = bsdf.evaluate(kinds, mp, ns, bs.wi, wo)
-        m = mis_scatter(m, dot(hit.n, bs.wi), bs.pdf * q, pdf_rev * q, bs.delta, f, b)
+        cos_out = dot(hit.n, bs.wi)
+        if medium:
+            bs, pdf_rev = scatter_in_medium(scene, bs, pdf_rev, d, in_med, u(0), u(1))
+            cos_out = jnp.where(in_med, 1.0, cos_out)
+        m = mis_scatter(m, cos_out, bs.pdf * q, pdf_rev * q, bs.delta, f, b)
         beta = beta * bs.weight / q
         alive = valid & bs.valid & (max_component(beta) > 0)
         if cfg.roulette:
@@ -560,10 +721,12 @@ def camera_walk(scene: Scene, cfg: VCMConfig, key: Array, pixel: Array,
         # left by a Dirac lobe (per sample on plastic: a merge there estimates its base alone,
         # and the coating's reflection goes on)
         delta_s = bsdf.sampled_delta(kinds, mp, bs)
+        if medium:
+            delta_s = delta_s & ~in_med
         if cfg.mode == "ppm":   # the subpath ends at its first merge
             alive = alive & delta_s
-        nxt = (geometry.offset_origin(hit.p, hit.n, bs.wi), bs.wi, beta, hit.p, m, alive,
-               specular_path & delta_s)
+        nxt = (geometry.offset_origin(hit.p, hit.n, bs.wi), bs.wi, beta, hit.p,
+               prev_medium if in_med is None else in_med, m, alive, specular_path & delta_s)
         return nxt, rec
 
     _, verts = jax.lax.scan(step, start, jnp.arange(D))
@@ -577,7 +740,7 @@ def connection_pairs(cfg: VCMConfig) -> list[tuple[int, int]]:
     return [(k, j) for j in range(D) for k in range(1, D) if k + j + 2 <= D]
 
 
-def _connect(scene: Scene, cfg: VCMConfig, y: LightVertices, z: CameraVertices, f: MisFactors):
+def _connect(scene: Scene, cfg: VCMConfig, y: LightVertices, z: CameraVertices, fs: Factors):
     """Light vertices y joined to camera vertices z (rows of pairs): (weighted, unweighted) V3.
     The direction densities at both ends carry Russian roulette's continuation q."""
     conn = connect_vertices(scene, y, z, y.stored & z.connectable,
@@ -586,12 +749,13 @@ def _connect(scene: Scene, cfg: VCMConfig, y: LightVertices, z: CameraVertices, 
     occ = occluded_many(scene, [conn.shadow])[0]
     value = where(occ, V3.full(0.0, conn.pdf_y_rev), conn.value)
     wt = weight_connection(y.mis, z.mis, conn.pdf_y_from_z, conn.pdf_z_from_y, conn.pdf_y_rev,
-                           conn.pdf_z_rev, f, cfg.exponent)
+                           conn.pdf_z_rev, fs.at(y.in_medium), cfg.exponent,
+                           fs.at(z.in_medium))
     return value * wt, value
 
 
 def connections(scene: Scene, cfg: VCMConfig, y: LightVertices, z: CameraVertices,
-                f: MisFactors):
+                fs: Factors):
     """s, t >= 2: y_{s-1} of the pixel's own light subpath joined to z_{t-1}, for every
     :func:`connection_pairs` pair whose two vertices are connectable (gathered into batches:
     :func:`jgi.core.compaction.compact_map`; ``cfg.compact``). Returns (weighted, unweighted)
@@ -609,7 +773,7 @@ def connections(scene: Scene, cfg: VCMConfig, y: LightVertices, z: CameraVertice
         kb, jb, nb = idx
         yb = jax.tree_util.tree_map(lambda a: a[kb - 1, nb], y)
         zb = jax.tree_util.tree_map(lambda a: a[jb, nb], z)
-        wtd, unw = _connect(scene, cfg, yb._replace(stored=yb.stored & live), zb, f)
+        wtd, unw = _connect(scene, cfg, yb._replace(stored=yb.stored & live), zb, fs)
         return jnp.stack(list(wtd), -1), jnp.stack(list(unw), -1)
 
     like = (jnp.zeros((J * N, 3)), jnp.zeros((J * N, 3)))
@@ -634,17 +798,27 @@ class MergeGrid(NamedTuple):
 
 def merge_grid(y_all: LightVertices, radius, table_size: int, n_light: int,
                scene: Scene | None = None) -> MergeGrid:
+    """The grid of cell ``radius`` (the largest merge radius) over the stored light vertices.
+    A medium vertex's row has a zero normal and the throughput without the medium's sigma_s
+    (a volume density estimate of the arriving light: the camera vertex brings its own
+    sigma_s; the photon maps' T / p)."""
     # most slots are empty (absorbed, Dirac, ended by roulette): sort only the stored ones
     cells = hash_grid.index_cells(y_all.p, y_all.stored, radius, table_size,
                                   capacity=2 * n_light)
     o = cells.order
     row = (o // n_light).astype(jnp.float32)
     beta = y_all.beta
+    if y_all.in_medium is not None:
+        sigma_s = scene.medium.sigma_t * scene.medium.albedo
+        inv_s = V3(*(jnp.where(c > 0, 1.0 / jnp.where(c > 0, c, 1.0), 0.0) for c in sigma_s))
+        beta = where(y_all.in_medium, beta * inv_s, beta)
     if scene is not None and scene.materials.has_masks:
         # a masked surface stops a fraction opacity of the light arriving there: a merge
         # (a density estimate of that arriving light) divides the vertex's throughput by it,
         # as the photon maps do (connections need no factor: they start at the vertex)
         a = geometry.opacity(scene, y_all.material, lambda: y_all.uv)
+        if y_all.in_medium is not None:
+            a = jnp.where(y_all.in_medium, 1.0, a)
         beta = beta * (1.0 / jnp.where(a > 0, a, 1.0))
     cols = [*y_all.p, *y_all.n, *y_all.wo, *beta, *y_all.mis]
     rows = jnp.stack([c[o] for c in cols] + [row], -1)
@@ -657,19 +831,55 @@ MERGE_NEAR = 1 << 12    # pairs within r evaluated per batch
 CONNECT_BATCH = 4096    # light-camera vertex pairs connected per batch
 
 
+class MergeKernel(NamedTuple):
+    """An iteration's merge kernels: r^2 and the surface's normalisation 1 / (norm pi r^2 N_L),
+    and in a medium the volume's, r_V^2 and K / (4/3 pi r_V^3 N_L)."""
+    r2: Array
+    scale: Array
+    r2_volume: Array | None = None
+    scale_volume: Array | None = None
+
+    @property
+    def query_r2(self):
+        return self.r2 if self.r2_volume is None else jnp.maximum(self.r2, self.r2_volume)
+
+
+def merge_kernel(cfg: VCMConfig, radius, volume_radius, n_light: int, filter_params: dict,
+                 media: bool) -> MergeKernel:
+    r2 = radius * radius
+    norm = density.filter_weight(cfg.filter, jnp.float32(0.0), r2, **filter_params)[1]
+    scale = 1.0 / (norm * jnp.pi * r2 * n_light)
+    if not media:
+        return MergeKernel(r2, scale)
+    r2_v = volume_radius * volume_radius
+    k_v = density.volume_filter_weight(cfg.filter, jnp.float32(0.0), r2_v)[1]
+    return MergeKernel(r2, scale, r2_v, k_v / ((4.0 / 3.0) * jnp.pi * volume_radius ** 3
+                                                * n_light))
+
+
 def _merge_pairs(scene: Scene, cfg: VCMConfig, z: "CameraVertexRows", y: Array, ok: Array,
-                 f: MisFactors, r2, scale, filter_params: dict):
+                 fs: Factors, kernel: MergeKernel, filter_params: dict):
     """Merges of camera vertices z (one per pair, [P]) with the light vertices of grid rows y
     ([P, 16]; :class:`MergeGrid`): (weighted, unweighted) [P] V3, zero where ``ok`` is false or
-    y lies beyond r, and the light vertex's row (it is y_{row + 1})."""
+    y lies beyond r, and the light vertex's row (it is y_{row + 1}).
+
+    In a medium a medium vertex merges with medium vertices only, within r_V, by the 3-D
+    kernel and the phase function (volume merging, the point-point 3-D estimator of Krivanek et
+    al. 2014), a surface vertex with surface vertices as in vacuum."""
     D = cfg.max_depth
     b = cfg.exponent
     kinds = scene.materials.kinds
+    r2 = kernel.r2
     v3 = lambda i: V3(y[:, i], y[:, i + 1], y[:, i + 2])  # noqa: E731
     diff = v3(0) - z.p
     d2 = dot(diff, diff)
     row = y[:, 15].astype(jnp.int32)
-    ok = ok & (d2 < r2) & (dot(v3(3), z.n) > 0) & (row + z.j + 2 <= D)
+    facing = dot(v3(3), z.n) > 0
+    if z.in_medium is not None:   # medium vertex with medium vertex (zero normals), within r_V
+        y_medium = dot(v3(3), v3(3)) == 0
+        facing = jnp.where(z.in_medium, y_medium, facing)
+        r2 = jnp.where(z.in_medium, kernel.r2_volume, r2)
+    ok = ok & (d2 < r2) & facing & (row + z.j + 2 <= D)
     # ---- the camera BSDF at the light vertex's incident direction; MIS ----
     wi = v3(6)
     mp = bsdf.lookup(scene.materials, z.material, z.uv)
@@ -679,12 +889,24 @@ def _merge_pairs(scene: Scene, cfg: VCMConfig, z: "CameraVertexRows", y: Array, 
     if z.ns is not None:   # photon flux through the stored surface -> the shading cosine
         f_z = f_z * bsdf.shading_ratio(nz, v3(3), wi)
     q = continuation(mp, cfg.roulette)
-    kern = density.filter_weight(cfg.filter, jnp.where(ok, d2, 0.0), r2, **filter_params)[0]
-    c = jnp.where(ok, kern * scale, 0.0)
+    d2_ok = jnp.where(ok, d2, 0.0)
+    c = density.filter_weight(cfg.filter, d2_ok, kernel.r2, **filter_params)[0] * kernel.scale
+    if z.in_medium is not None:
+        # the phase function for the photon's propagation -wi scattered towards the camera (its
+        # value its density both ways), the 3-D kernel, no roulette at a medium vertex
+        p_z = phase_value(scene, -wi, z.wo)
+        f_z = where(z.in_medium, V3(p_z, p_z, p_z), f_z)
+        pdf_fwd, pdf_rev = jnp.where(z.in_medium, p_z, pdf_fwd), jnp.where(z.in_medium, p_z,
+                                                                            pdf_rev)
+        q = jnp.where(z.in_medium, 1.0, q)
+        c_v = density.volume_filter_weight(cfg.filter, d2_ok, kernel.r2_volume)[0]
+        c = jnp.where(z.in_medium, c_v * kernel.scale_volume, c)
+    c = jnp.where(ok, c, 0.0)
     value = where(ok, z.beta * f_z * v3(9) * c, V3.full(0.0, c))
     if cfg.mode == "ppm":
         return value, value, row
-    wt = weight_merge(Mis(y[:, 12], y[:, 13], y[:, 14]), z.mis, pdf_fwd * q, pdf_rev * q, f, b)
+    wt = weight_merge(Mis(y[:, 12], y[:, 13], y[:, 14]), z.mis, pdf_fwd * q, pdf_rev * q,
+                      fs.at(z.in_medium), b)
     return where(ok, value * wt, V3.full(0.0, c)), value, row
 
 
@@ -700,6 +922,7 @@ class CameraVertexRows(NamedTuple):
     uv: tuple | None
     ns: V3 | None
     j: Array
+    in_medium: Array | None = None
 
 
 def _camera_vertex_rows(z: CameraVertices) -> CameraVertexRows:
@@ -708,7 +931,8 @@ def _camera_vertex_rows(z: CameraVertices) -> CameraVertexRows:
     return CameraVertexRows(flat(z.p), flat(z.n), flat(z.wo), flat(z.beta), flat(z.mis),
                             z.material.reshape(-1), flat(z.uv) if z.uv is not None else None,
                             flat(z.ns) if z.ns is not None else None,
-                            jnp.repeat(jnp.arange(D, dtype=jnp.int32), N))
+                            jnp.repeat(jnp.arange(D, dtype=jnp.int32), N),
+                            None if z.in_medium is None else z.in_medium.reshape(-1))
 
 
 def _within_max_depth(q: Array, y: Array, *, j: Array, max_depth: int) -> Array:
@@ -719,29 +943,32 @@ def _within_max_depth(q: Array, y: Array, *, j: Array, max_depth: int) -> Array:
 
 
 def _add_merges(acc: Array, q: Array, slot: Array, ok: Array, *, scene: Scene, cfg: VCMConfig,
-                zs: CameraVertexRows, rows: Array, f: MisFactors, r2, scale, filter_params: dict,
+                zs: CameraVertexRows, rows: Array, fs: Factors, kernel: MergeKernel,
+                filter_params: dict,
                 by_length: bool) -> Array:
     """The pair visitor of :func:`jgi.transport.hash_grid.accumulate_near_pairs`: the merges of
     camera vertices zs[q] with grid rows ``slot`` added to acc [Q, (D - 1,) 6] (weighted and
     unweighted, by the light vertex's row if ``by_length``), in one scatter."""
     wtd, unw, row = _merge_pairs(scene, cfg, jax.tree_util.tree_map(lambda a: a[q], zs),
-                                 rows[slot], ok, f, r2, scale, filter_params)
+                                 rows[slot], ok, fs, kernel, filter_params)
     at = (q, row) if by_length else q
     return acc.at[at].add(jnp.stack([*wtd, *unw], -1))
 
 
 def _merge_batch(zs: CameraVertexRows, live: Array, *, scene: Scene, cfg: VCMConfig,
-                 grid: MergeGrid, f: MisFactors, r2, scale, filter_params: dict, table_size: int,
+                 grid: MergeGrid, fs: Factors, kernel: MergeKernel, filter_params: dict,
+                 table_size: int,
                  by_length: bool, dense_pairs: int | None):
     """The merges at a batch of camera vertices (where ``live``): (weighted, unweighted)
     [Q, (D - 1,) 3]. The grid query is :func:`jgi.transport.hash_grid.accumulate_near_pairs`;
     its cheap test also drops the pairs whose path would exceed ``max_depth``."""
     D = cfg.max_depth
-    visit = partial(_add_merges, scene=scene, cfg=cfg, zs=zs, rows=grid.rows, f=f, r2=r2,
-                    scale=scale, filter_params=filter_params, by_length=by_length)
+    visit = partial(_add_merges, scene=scene, cfg=cfg, zs=zs, rows=grid.rows, fs=fs,
+                    kernel=kernel, filter_params=filter_params, by_length=by_length)
     zero = jnp.zeros((live.shape[0],) + ((D - 1,) if by_length else ()) + (6,))
     acc = hash_grid.accumulate_near_pairs(
-        grid.cells, table_size, grid.where, zs.p, live, r2, visit, zero, block=MERGE_PAIRS,
+        grid.cells, table_size, grid.where, zs.p, live, kernel.query_r2, visit, zero,
+        block=MERGE_PAIRS,
         near_block=MERGE_NEAR, keep=partial(_within_max_depth, j=zs.j, max_depth=D),
         dense=dense_pairs)
     return acc[..., :3], acc[..., 3:]
@@ -756,8 +983,9 @@ def _per_camera_vertex(a: Array, D: int, N: int, by_length: bool) -> V3:
 
 
 def merge_at_camera_vertices(scene: Scene, cfg: VCMConfig, grid: MergeGrid, z: CameraVertices,
-                             f: MisFactors, radius, filter_params: dict, n_light: int,
-                             table_size: int, by_length: bool, dense_pairs: int | None = None):
+                             fs: Factors, radius, filter_params: dict, n_light: int,
+                             table_size: int, by_length: bool, dense_pairs: int | None = None,
+                             volume_radius=None):
     """Vertex merging at every camera vertex (``ppm``: the first non-specular one), the live
     ones gathered into batches (:func:`jgi.core.compaction.compact_map`; ``cfg.compact``).
     A batch reads every (camera vertex, light vertex) pair of its vertices' 27 grid cells
@@ -771,11 +999,10 @@ def merge_at_camera_vertices(scene: Scene, cfg: VCMConfig, grid: MergeGrid, z: C
     pairs for all vertices (a loop of traced length has no reverse-mode derivative); if the
     vertices have more pairs the result is NaN, never a silently truncated sum."""
     D, N = z.material.shape
-    r2 = radius * radius
-    norm = density.filter_weight(cfg.filter, jnp.float32(0.0), r2, **filter_params)[1]
-    scale = 1.0 / (norm * jnp.pi * r2 * n_light)
+    kernel = merge_kernel(cfg, radius, radius if volume_radius is None else volume_radius,
+                          n_light, filter_params, scene.has_medium)
     active = (z.first_diffuse if cfg.mode == "ppm" else z.connectable).reshape(-1)
-    batch = partial(_merge_batch, scene=scene, cfg=cfg, grid=grid, f=f, r2=r2, scale=scale,
+    batch = partial(_merge_batch, scene=scene, cfg=cfg, grid=grid, fs=fs, kernel=kernel,
                     filter_params=filter_params, table_size=table_size, by_length=by_length,
                     dense_pairs=dense_pairs)
     inputs = _camera_vertex_rows(z)
@@ -798,25 +1025,25 @@ class Techniques(NamedTuple):
     merge: tuple           # weighted, unweighted: [D, N] (or [D, D - 1, N] by light row)
 
 
-def camera_pass(scene: Scene, cfg: VCMConfig, seed, iteration, f: MisFactors, radius,
+def camera_pass(scene: Scene, cfg: VCMConfig, seed, iteration, fs: Factors, radius,
                 filter_params: dict, y_all: LightVertices, cells, pixels: Array,
-                table_size: int, by_technique: bool, dense_pairs: int | None = None
-                ) -> Techniques:
+                table_size: int, by_technique: bool, dense_pairs: int | None = None,
+                volume_radius=None) -> Techniques:
     """Camera subpaths of ``pixels`` in one iteration, with every technique at their vertices."""
     D = cfg.max_depth
     n_light = scene.camera.width * scene.camera.height
     key = rng.path_key(seed, pixels, iteration)
-    z = camera_walk(scene, cfg, key, pixels, f)
+    z = camera_walk(scene, cfg, key, pixels, fs)
     em = (z.emission * z.w_emission, z.emission)
     ne = (z.next_event * z.w_next_event, z.next_event)
     conn = (None, None)
     if cfg.connects and D >= 3:
         y_own = jax.tree_util.tree_map(lambda a: a.reshape(D - 1, -1)[:, pixels], y_all)
-        conn = connections(scene, cfg, y_own, z, f)
+        conn = connections(scene, cfg, y_own, z, fs)
     mrg = (None, None)
     if cfg.merges and D >= 2:
-        mrg = merge_at_camera_vertices(scene, cfg, cells, z, f, radius, filter_params, n_light,
-                                       table_size, by_technique, dense_pairs)
+        mrg = merge_at_camera_vertices(scene, cfg, cells, z, fs, radius, filter_params, n_light,
+                                       table_size, by_technique, dense_pairs, volume_radius)
     return Techniques(em, ne, conn, mrg)
 
 
@@ -829,15 +1056,21 @@ def table_size_for(scene: Scene, cfg: VCMConfig) -> int:
     return int(1 << max(10, int(np.ceil(np.log2(2 * m)))))
 
 
+def _cell_size(scene: Scene, radius, volume_radius):
+    return jnp.maximum(radius, volume_radius) if scene.has_medium else radius
+
+
 @partial(jax.jit, static_argnames=("cfg", "table_size"))
-def _light_stage(scene: Scene, cfg: VCMConfig, seed, iteration, radius, table_size: int):
+def _light_stage(scene: Scene, cfg: VCMConfig, seed, iteration, radius, volume_radius,
+                 table_size: int):
     """All light subpaths of an iteration, their grid, and the t = 1 splat image."""
     W, H = scene.camera.width, scene.camera.height
     n_light = W * H
-    f = mis_factors(radius, n_light, cfg)
-    y, t1 = light_pass(scene, cfg, seed, iteration, f, jnp.arange(n_light, dtype=jnp.int32))
+    fs = factors(scene, cfg, radius, volume_radius, n_light)
+    y, t1 = light_pass(scene, cfg, seed, iteration, fs, jnp.arange(n_light, dtype=jnp.int32))
     y_all = _flatten_light(y)
-    grid = merge_grid(y_all, radius, table_size, n_light, scene) if cfg.merges else None
+    grid = (merge_grid(y_all, _cell_size(scene, radius, volume_radius), table_size, n_light,
+                       scene) if cfg.merges else None)
     img = jnp.zeros((n_light, 3), jnp.float32)
     if t1 is not None:
         pix, wtd, _ = t1
@@ -865,15 +1098,15 @@ def _own_sum(t: Techniques) -> V3:
 
 
 @partial(jax.jit, static_argnames=("cfg", "table_size", "by_technique"))
-def _camera_stage(scene: Scene, cfg: VCMConfig, seed, iteration, radius, filter_params,
-                  y_all, cells, pixel0, table_size: int, by_technique: bool):
+def _camera_stage(scene: Scene, cfg: VCMConfig, seed, iteration, radius, volume_radius,
+                  filter_params, y_all, cells, pixel0, table_size: int, by_technique: bool):
     """Camera subpaths of pixels pixel0 .. pixel0 + chunk - 1 (clamped to the image) with every
     technique; ``by_technique``: the :class:`Techniques`, else their weighted sum ([chunk] V3)."""
     P = scene.camera.width * scene.camera.height
-    f = mis_factors(radius, P, cfg)
+    fs = factors(scene, cfg, radius, volume_radius, P)
     pixels = jnp.minimum(pixel0 + jnp.arange(cfg.chunk, dtype=jnp.int32), P - 1)
-    t = camera_pass(scene, cfg, seed, iteration, f, radius, filter_params, y_all, cells, pixels,
-                    table_size, by_technique)
+    t = camera_pass(scene, cfg, seed, iteration, fs, radius, filter_params, y_all, cells, pixels,
+                    table_size, by_technique, volume_radius=volume_radius)
     return t if by_technique else _own_sum(t)
 
 
@@ -884,6 +1117,8 @@ class _Iterations:
 
     def __init__(self, scene: Scene, cfg: VCMConfig, chunk_limit: int):
         P = scene.camera.width * scene.camera.height
+        if scene.has_medium and cfg.merges:   # volume merges: the filter needs a 3-D form
+            density.volume_filter_weight(cfg.filter, 0.0, 1.0)
         self.scene, self.cfg, self.P = scene, cfg, P
         self.chunk = min(cfg.chunk, chunk_limit, 1 << max(8, int(np.ceil(np.log2(P)))))
         self.key_cfg = replace(cfg.compile_key(), chunk=self.chunk)
@@ -894,11 +1129,12 @@ class _Iterations:
         scene, cfg, kc, ts = self.scene, self.cfg, self.key_cfg, self.table_size
         for i in range(1, spp + 1):
             r = jnp.float32(radius_at(cfg, i))
+            r_v = jnp.float32(volume_radius_at(cfg, i))
             s_, it = jnp.uint32(seed), jnp.uint32(i - 1)
-            y_all, cells, img = _light_stage(scene, kc, s_, it, r, ts)
+            y_all, cells, img = _light_stage(scene, kc, s_, it, r, r_v, ts)
             on_light(i, img)
             for p0 in range(0, self.P, self.chunk):
-                out = _camera_stage(scene, kc, s_, it, r, self.filter_params, y_all, cells,
+                out = _camera_stage(scene, kc, s_, it, r, r_v, self.filter_params, y_all, cells,
                                     jnp.int32(p0), ts, by_technique)
                 on_chunk(i, p0, out)
             if progress:
@@ -977,12 +1213,13 @@ def _add_techniques(imgs, cfg: VCMConfig, p0, t: Techniques):
 
 
 @partial(jax.jit, static_argnames=("cfg",))
-def _add_light_splats(imgs, scene: Scene, cfg: VCMConfig, seed, iteration, radius):
+def _add_light_splats(imgs, scene: Scene, cfg: VCMConfig, seed, iteration, radius,
+                      volume_radius):
     """Add the t = 1 connections of an iteration's light vertex rows to their images."""
     P = scene.camera.width * scene.camera.height
     index = {tech: k for k, tech in enumerate(cfg.techniques())}
-    f = mis_factors(radius, P, cfg)
-    _, t1 = light_pass(scene, cfg, seed, iteration, f, jnp.arange(P, dtype=jnp.int32))
+    fs = factors(scene, cfg, radius, volume_radius, P)
+    _, t1 = light_pass(scene, cfg, seed, iteration, fs, jnp.arange(P, dtype=jnp.int32))
     if t1 is None:
         return imgs
     pix, wtd, unw = t1
@@ -1007,7 +1244,8 @@ def render_techniques(scene: Scene, cfg: VCMConfig = VCMConfig(), *, spp: int = 
 
     def on_light(i, img):
         acc["imgs"] = _add_light_splats(acc["imgs"], scene, loop.key_cfg, jnp.uint32(seed),
-                                        jnp.uint32(i - 1), jnp.float32(radius_at(cfg, i)))
+                                        jnp.uint32(i - 1), jnp.float32(radius_at(cfg, i)),
+                                        jnp.float32(volume_radius_at(cfg, i)))
 
     def on_chunk(i, p0, t):
         acc["imgs"] = _add_techniques(acc["imgs"], loop.key_cfg, jnp.int32(p0), t)
@@ -1038,7 +1276,7 @@ def write_technique_images(folder, images: dict, exposure: float = 0.0) -> list[
 # --- a differentiable iteration -------------------------------------------------------------------
 
 def iteration_image(scene: Scene, cfg: VCMConfig, seed, iteration, radius, filter_params: dict,
-                    pairs_per_vertex: int = 64) -> Array:
+                    pairs_per_vertex: int = 64, volume_radius=None) -> Array:
     """One iteration's image [H, W, 3] as a traced function of the merge ``radius`` and the
     merge filter's parameters (``cfg.filter_params()``; jit it, or differentiate it:
     ``jax.grad`` of a loss of it with respect to r fits r_0, as :mod:`jgi.analysis.density_fit`
@@ -1049,19 +1287,20 @@ def iteration_image(scene: Scene, cfg: VCMConfig, seed, iteration, radius, filte
     P = W * H
     ts = table_size_for(scene, cfg)
     cfg = replace(cfg, chunk=P, compact=False)
-    f = mis_factors(radius, P, cfg)
-    y, t1 = light_pass(scene, cfg, seed, iteration, f, jnp.arange(P, dtype=jnp.int32))
+    r_v = radius if volume_radius is None else volume_radius
+    fs = factors(scene, cfg, radius, r_v, P)
+    y, t1 = light_pass(scene, cfg, seed, iteration, fs, jnp.arange(P, dtype=jnp.int32))
     y_all = _flatten_light(y)
-    cells = (merge_grid(y_all, jax.lax.stop_gradient(radius), ts, P, scene)
-             if cfg.merges else None)
+    cells = (merge_grid(y_all, jax.lax.stop_gradient(_cell_size(scene, radius, r_v)), ts, P,
+                        scene) if cfg.merges else None)
     img = jnp.zeros((P, 3), jnp.float32)
     if t1 is not None:
         img = _splat(img, t1[0], t1[1])
     pixels = jnp.arange(P, dtype=jnp.int32)
-    t = camera_pass(scene, cfg, seed, iteration, f, radius, filter_params, y_all, cells, pixels,
-                    ts, False, pairs_per_vertex * cfg.max_depth * P)
+    t = camera_pass(scene, cfg, seed, iteration, fs, radius, filter_params, y_all, cells, pixels,
+                    ts, False, pairs_per_vertex * cfg.max_depth * P, r_v)
     return _splat(img, pixels, _own_sum(t)).reshape(H, W, 3)
 
 
 register(Estimator("vcm", "vertex connection and merging (modes vcm, bpm, bpt, ppm), progressive",
-                   render, VCMConfig, renamed={"kernel": "filter"}))
+                   render, VCMConfig, renamed={"kernel": "filter"}, media=True))

@@ -94,6 +94,8 @@ def connect_vertices(scene: Scene, y, z, ok: Array,
         pdf_z_fwd, pdf_z_rev = jnp.where(z_m, p_z, pdf_z_fwd), jnp.where(z_m, p_z, pdf_z_rev)
     if continuation is not None:
         q_y, q_z = continuation(my), continuation(mz)
+        if medium:   # no roulette at a medium vertex (VCM's q is a material's)
+            q_y, q_z = jnp.where(y_m, 1.0, q_y), jnp.where(z_m, 1.0, q_z)
         pdf_y_fwd, pdf_y_rev, pdf_z_fwd, pdf_z_rev = (pdf_y_fwd * q_y, pdf_y_rev * q_y,
                                                       pdf_z_fwd * q_z, pdf_z_rev * q_z)
     cos_y, cos_z = jnp.abs(dot(y.n, w)), jnp.abs(dot(z.n, w))   # geometric: G, area densities

@@ -239,6 +239,47 @@ class WalkState(NamedTuple):
     alive: Array
 
 
+def free_flight(scene: Scene, o: V3, d: V3, hit: geometry.Hit, alive: Array, u_channel: Array,
+                u_distance: Array) -> tuple[geometry.Hit, Array, V3]:
+    """The free flight of a subpath segment from o along d in a scene filled by a homogeneous
+    medium (detached sampling, uniform channel choice: :func:`jgi.physics.media.
+    sample_free_flight`), every subpath's (BDPT's, light tracing's, MMLT's, VCM's): a medium
+    vertex before the surface ``hit``, or the surface reached. Returns (the hit, a medium
+    vertex there where ``in_medium``: its position, a zero normal, no emitter; ``in_medium``;
+    the weight T sigma_s / p(t) or T / P(t) that multiplies the throughput)."""
+    sg = jax.lax.stop_gradient
+    medium = scene.medium
+    ff = media.sample_free_flight(sg(medium.sigma_t), sg(medium.albedo), None,
+                                  jnp.where(hit.valid, hit.t, jnp.inf), u_channel, u_distance)
+    in_med = alive & ff.scattered
+    p_m = o + d * jnp.where(in_med, ff.t, 0.0)
+    zero = jnp.zeros_like(hit.t)
+    Z = V3(zero, zero, zero)
+    hit = hit._replace(valid=hit.valid | in_med, p=where(in_med, p_m, hit.p),
+                       n=where(in_med, Z, hit.n), emitter=jnp.where(in_med, -1, hit.emitter),
+                       ns=None if hit.ns is None else where(in_med, Z, hit.ns))
+    return hit, in_med, media.free_flight_weight(medium.sigma_t, medium.albedo, ff.t,
+                                                 ff.scattered, ff.pdf)
+
+
+def scatter_in_medium(scene: Scene, bs, pdf_back: Array, d: V3, in_medium: Array, u1: Array,
+                      u2: Array):
+    """The BSDF sample ``bs`` (and its reverse density ``pdf_back``) replaced, where
+    ``in_medium``, by the phase function's sample for a subpath arriving along d: weight 1
+    (p / p; for detached derivatives 1 + (p - sg(p)) / sg(p), the derivative of p alone),
+    density the phase value, the same backwards (reciprocity), never Dirac."""
+    sg = jax.lax.stop_gradient
+    g = scene.medium.g
+    ps = phase.sample(sg(g), d, u1, u2)
+    p_g = phase.henyey_greenstein(ps.mu, g)
+    one = 1.0 + (p_g - sg(p_g)) / jnp.where(sg(p_g) > 0, sg(p_g), 1.0)
+    bs = bs._replace(wi=where(in_medium, ps.d_out, bs.wi),
+                     weight=where(in_medium, V3(one, one, one), bs.weight),
+                     pdf=jnp.where(in_medium, ps.pdf, bs.pdf), delta=bs.delta & ~in_medium,
+                     valid=bs.valid | in_medium)
+    return bs, jnp.where(in_medium, ps.pdf, pdf_back)
+
+
 class Visit(NamedTuple):
     """What a walk's per-vertex callback sees (all [N])."""
     step: Array
@@ -282,7 +323,6 @@ def random_walk(scene: Scene, key: Array, dim0: int, dims_per_step: int, n_steps
     mats = scene.materials
     kinds = mats.kinds
     medium = scene.medium
-    sg = jax.lax.stop_gradient
 
     def step(s: WalkState, j):
         base = dim0 + j * dims_per_step
@@ -291,22 +331,10 @@ def random_walk(scene: Scene, key: Array, dim0: int, dims_per_step: int, n_steps
         hit = geometry.intersect(scene, s.o, s.d)
         in_med = None
         if medium is not None:
-            # ---- free flight (detached sampling, uniform channel choice): a medium vertex
-            # before the surface, or the surface reached; beta *= T sigma_s / p(t) or T / P(t)
-            ff = media.sample_free_flight(sg(medium.sigma_t), sg(medium.albedo), None,
-                                          jnp.where(hit.valid, hit.t, jnp.inf),
-                                          u(dims_per_step - MEDIUM_DIMS),
-                                          u(dims_per_step - MEDIUM_DIMS + 1))
-            in_med = s.alive & ff.scattered
-            p_m = s.o + s.d * jnp.where(in_med, ff.t, 0.0)
-            zero = jnp.zeros_like(hit.t)
-            Z = V3(zero, zero, zero)
-            hit = hit._replace(valid=hit.valid | in_med, p=where(in_med, p_m, hit.p),
-                               n=where(in_med, Z, hit.n),
-                               emitter=jnp.where(in_med, -1, hit.emitter),
-                               ns=None if hit.ns is None else where(in_med, Z, hit.ns))
-            s = s._replace(beta=s.beta * media.free_flight_weight(
-                medium.sigma_t, medium.albedo, ff.t, ff.scattered, ff.pdf))
+            hit, in_med, w_ff = free_flight(scene, s.o, s.d, hit, s.alive,
+                                            u(dims_per_step - MEDIUM_DIMS),
+                                            u(dims_per_step - MEDIUM_DIMS + 1))
+            s = s._replace(beta=s.beta * w_ff)
         valid = s.alive & hit.valid
         v = hit.p - s.prev_p
         d2 = dot(v, v)
@@ -331,18 +359,8 @@ def random_walk(scene: Scene, key: Array, dim0: int, dims_per_step: int, n_steps
         delta_s = bsdf.sampled_delta(kinds, mp, bs)
         _, pdf_back = bsdf.evaluate(kinds, mp, ns, bs.wi, wo)
         if in_med is not None:
-            # a medium vertex scatters by the phase function: weight 1 (p / p; for detached
-            # derivatives 1 + (p - sg(p)) / sg(p), the derivative of p alone), pdf = the phase
-            # value, the same backwards (reciprocity)
-            ps = phase.sample(sg(medium.g), s.d, u(0), u(1))
-            p_g = phase.henyey_greenstein(ps.mu, medium.g)
-            one = 1.0 + (p_g - sg(p_g)) / jnp.where(sg(p_g) > 0, sg(p_g), 1.0)
-            bs = bs._replace(wi=where(in_med, ps.d_out, bs.wi),
-                             weight=where(in_med, V3(one, one, one), bs.weight),
-                             pdf=jnp.where(in_med, ps.pdf, bs.pdf), delta=bs.delta & ~in_med,
-                             valid=bs.valid | in_med)
+            bs, pdf_back = scatter_in_medium(scene, bs, pdf_back, s.d, in_med, u(0), u(1))
             delta_s = delta_s & ~in_med
-            pdf_back = jnp.where(in_med, ps.pdf, pdf_back)
             # the previous vertex from here: P(d) if a surface, p(d) if a medium vertex
             pdf_rev_prev = jnp.where(valid & ~delta_s, area_density(
                 scene, pdf_back, d2, dot(s.prev_n, s.d), s.prev_surface, ~s.prev_surface), 0.0)
