@@ -330,3 +330,14 @@ def test_kernel_was_renamed_filter():
     with pytest.raises(ParameterError,
                        match="estimator 'vcm': parameter 'kernel' was renamed 'filter'"):
         jgi.render(scene, "vcm", spp=1, seed=0, kernel="box")
+
+
+def test_volume_merging_refuses_a_filter_without_a_3d_form():
+    """In a medium a merge at a medium vertex needs the filter's 3-D kernel: the Gaussian and
+    cone filters have none in jgi, and the error names the allowed ones (before any compile);
+    connections alone (bpt) need no filter."""
+    scene = builtin.cornell_box_fog(resolution=4)
+    with pytest.raises(ParameterError, match=r"filter 'gaussian'.*box, epanechnikov"):
+        jgi.render(scene, "vcm", spp=1, seed=0, filter="gaussian")
+    img = jgi.render(scene, "vcm", spp=1, seed=0, filter="gaussian", mode="bpt", max_depth=2)
+    assert np.all(np.isfinite(img))
