@@ -25,21 +25,5 @@ def load_mitsuba():
             mi.set_variant(variant)
         except Exception:
             continue
-        if variant.startswith("llvm"):
-            _no_cached_executables()
         return mi
     return None
-
-
-def _no_cached_executables() -> None:
-    """Stop this process from loading XLA executables from the persistent compile cache: with
-    Mitsuba's libLLVM 19 loaded beside XLA's own LLVM, JAX's loading of a cached executable
-    crashed pytest workers (segfaults and aborts in compilation_cache.get_executable_and_time,
-    four full-suite runs, always in a worker that had run a Mitsuba test; never alone).
-    Programs are compiled afresh in this process from then on (jax's cache switch is read
-    once, so the private reset makes it read again)."""
-    import jax
-    from jax._src import compilation_cache
-
-    jax.config.update("jax_enable_compilation_cache", False)
-    compilation_cache.reset_cache()
