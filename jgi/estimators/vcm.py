@@ -687,7 +687,7 @@ def camera_walk(scene: Scene, cfg: VCMConfig, key: Array, pixel: Array,
             pdf_light_y, pdf_bsdf_y = pdf_light_origin(lights, k), ne.pdf_bsdf * q * cos_y * inv_d2
             if medium:   # each end's distance density (the light's: a surface's, P(d))
                 pdf_emit_x = pdf_emit_x * segment_density(scene, d2_y, in_med)
-                pdf_bsdf_y = pdf_bsdf_y * segment_density(scene, d2_y, in_med & False)
+                pdf_bsdf_y = pdf_bsdf_y * segment_density(scene, d2_y, jnp.zeros_like(in_med))
             if has_infinite_lights(lights):
                 # a light at infinity: y_0 is a direction (solid-angle densities, selection
                 # included), x is reached from the bounding disc (SmallVCM's background light)
