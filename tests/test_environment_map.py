@@ -42,7 +42,7 @@ def map_lights(img=None, scale=1.5, to_world=None):
 def test_radiance_is_mitsubas_envmap_lookup():
     """Orientation, seam, poles, bilinear weights, scale and to_world as Mitsuba 3 evaluates
     its envmap (directions at random and exactly at texel centres)."""
-    mi = load_mitsuba()
+    mi = load_mitsuba(vectorized=True)
     if mi is None:
         pytest.skip("mitsuba is not installed")
     import drjit as dr
@@ -61,7 +61,7 @@ def test_radiance_is_mitsubas_envmap_lookup():
 
 def test_png_map_decodes_as_mitsubas(tmp_path):
     """An 8-bit PNG map is sRGB-decoded as Mitsuba's envmap decodes it: equal radiance."""
-    mi = load_mitsuba()
+    mi = load_mitsuba(vectorized=True)
     if mi is None:
         pytest.skip("mitsuba is not installed")
     import drjit as dr

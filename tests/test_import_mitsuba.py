@@ -694,7 +694,7 @@ def test_spot_falloff_is_mitsubas(tmp_path, beam):
     assert np.sum((fall > 0) & (fall < 1)) >= 10   # the ramp is sampled
     np.testing.assert_allclose(out["Li"], INTENSITY * fall[:, None] / dist**2, rtol=2e-5,
                                atol=1e-5)
-    mi = load_mitsuba()
+    mi = load_mitsuba(vectorized=True)
     if mi is not None:
         emitter = mi.load_file(str(xml)).emitters()[0]
         it = mi.Interaction3f()
@@ -797,7 +797,7 @@ def test_texture_to_uv_maps_as_mitsubas(tmp_path, to_uv):
     frac = np.stack([np.asarray(mu) % 0.5, np.asarray(mv) % 0.5])
     clear = np.all(np.minimum(frac, 0.5 - frac) > 1e-4, axis=0)
     assert clear.mean() > 0.99
-    mi = load_mitsuba()
+    mi = load_mitsuba(vectorized=True)
     if mi is None:
         pytest.skip("mitsuba is not installed")
     bsdf = mi.load_file(str(path)).shapes()[0].bsdf()

@@ -88,7 +88,7 @@ def test_back_side_is_black_front_side_unchanged():
 def test_diffuse_evaluates_as_mitsubas_on_both_sides():
     """jgi's f |cos theta_i| and pdf equal Mitsuba 3's eval and pdf for ``diffuse`` (one-sided)
     and ``twosided`` diffuse, with wo and wi on either side of the shading frame."""
-    mi = load_mitsuba()
+    mi = load_mitsuba(vectorized=True)
     if mi is None:
         pytest.skip("mitsuba is not installed")
     rng = np.random.default_rng(5)
@@ -228,7 +228,7 @@ def test_one_sided_and_twosided_planes_render_like_mitsuba(tmp_path):
     ours = load_mitsuba_xml(xml)
     # rows: "one", the twosided copy of it, the emitter's black diffuse (one-sided)
     np.testing.assert_array_equal(np.asarray(ours.materials.one_sided), [True, False, True])
-    mi = load_mitsuba()
+    mi = load_mitsuba(vectorized=True)
     if mi is None:
         pytest.skip("mitsuba is not installed")
     scene_mi = mi.load_file(str(xml))

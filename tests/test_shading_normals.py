@@ -146,7 +146,7 @@ def test_mitsuba_meshes_without_face_normals_shade_like_mitsuba(tmp_path, kind, 
     """OBJ and PLY without face_normals: jgi's shading normal at hits equals Mitsuba's
     ray_intersect sh_frame.n (the file's normals, or Mitsuba's computed ones), under a
     non-uniform to_world."""
-    mi = load_mitsuba()
+    mi = load_mitsuba(vectorized=True)
     if mi is None:
         pytest.skip("mitsuba is not installed")
     import trimesh

@@ -387,7 +387,7 @@ def test_mitsuba_disk_and_cylinder_intersect_as_mitsuba(tmp_path):
     xml.write_text(GEOMETRY_XML)
     scene = load_mitsuba_xml(xml)
     assert scene.disks.count == 1 and scene.cylinders.count == 1
-    mi = load_mitsuba()
+    mi = load_mitsuba(vectorized=True)
     if mi is None:
         pytest.skip("mitsuba is not installed")
     rng = np.random.default_rng(5)

@@ -542,7 +542,7 @@ f 1/1 3/3 4/4
 def test_obj_uv_matches_mitsubas(tmp_path, with_vt):
     """A textured OBJ imported from Mitsuba XML: jgi's hit uv equals Mitsuba's ray_intersect
     uv (Mitsuba flips the file's v; without vt each triangle has (0,0), (1,0), (0,1))."""
-    mi = load_mitsuba()
+    mi = load_mitsuba(vectorized=True)
     if mi is None:
         pytest.skip("mitsuba is not installed")
     text = OBJ_QUAD if with_vt else "".join(
@@ -579,7 +579,7 @@ def _mitsuba_uv(mi, xml, o, d):
 def test_cube_uv_matches_mitsubas(tmp_path):
     """A textured cube under a rotation, a non-uniform scale and a translation: jgi's hit uv
     equals Mitsuba's ray_intersect uv on every face (rays from all directions)."""
-    mi = load_mitsuba()
+    mi = load_mitsuba(vectorized=True)
     if mi is None:
         pytest.skip("mitsuba is not installed")
     xml = tmp_path / "c.xml"
@@ -607,7 +607,7 @@ def test_ply_uv_matches_mitsubas(tmp_path, names, smooth, binary):
     """A textured PLY mesh imported from Mitsuba XML: jgi's hit uv equals Mitsuba's (the file's
     u, v under Mitsuba's three names, v not flipped; (0,0), (1,0), (0,1) per triangle
     without them), flat and smooth-shaded, ASCII and binary."""
-    mi = load_mitsuba()
+    mi = load_mitsuba(vectorized=True)
     if mi is None:
         pytest.skip("mitsuba is not installed")
     ply_quad(tmp_path / "q.ply", names, binary)
