@@ -29,6 +29,7 @@ from jgi.analysis.chi2 import pearson
 from jgi.analysis.stats import region_agreement
 from jgi.core import rng
 from jgi.core import transform as xf
+from jgi.core.errors import ParameterError
 from jgi.core.vec import V3
 from jgi.physics import grid_media
 from jgi.scene import builtin
@@ -547,7 +548,6 @@ def test_toml_grid_medium(tmp_path):
 
 
 def test_estimators_without_media_refuse_grid_media_by_name():
-    from jgi.core.errors import ParameterError
     from jgi.estimators import registry
 
     scene = _fog_room("zero_grid", res=4)
@@ -625,3 +625,28 @@ def test_pssmlt_renders_a_grid_medium_like_the_path_tracer():
     pt = np.stack([jgi.render(scene, "pt", spp=32, seed=100 + k, max_depth=6) for k in range(16)])
     r = region_agreement(mlt, pt, 3)
     assert r.agree, f"pssmlt vs pt, grid medium: worst t {r.t[r.worst]:.1f}"
+
+
+def test_derivatives_with_respect_to_a_grid_medium_are_refused_by_name():
+    """A derivative of the path tracer's estimate with respect to a grid medium's parameters
+    raises a ParameterError naming them (the trackings have no pathwise derivative; it was
+    silently zero), while one with respect to a wall's reflectance, the grid held constant, is
+    computed: finite, and positive for the light the walls reflect."""
+    import equinox as eqx
+
+    from jgi.estimators.path_tracer import PathTracerConfig, trace_pixels
+
+    scene = _fog_room("grid", res=4)
+    cfg = PathTracerConfig(max_depth=3, rr_depth=-1)
+    pixel = jnp.tile(jnp.arange(16, dtype=jnp.int32), 4)
+    sample = jnp.repeat(jnp.arange(4, dtype=jnp.int32), 16)
+
+    def estimate(sc):
+        return trace_pixels(sc, cfg, jnp.uint32(0), pixel, sample).x.mean()
+
+    for where in (lambda s: s.medium.density, lambda s: s.medium.g):
+        with pytest.raises(ParameterError, match="grid medium's parameters"):
+            jax.grad(lambda k, w=where: estimate(eqx.tree_at(w, scene, w(scene) * k)))(1.0)
+    d = float(jax.grad(lambda k: estimate(eqx.tree_at(
+        lambda s: s.materials.diffuse, scene, scene.materials.diffuse * k)))(1.0))
+    assert np.isfinite(d) and d > 0

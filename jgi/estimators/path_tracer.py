@@ -43,7 +43,8 @@ scattering tracking (:mod:`jgi.physics.grid_media`): free flights by spectral de
 whose RGB weight multiplies the throughput, shadow rays' transmittance by ratio tracking, both
 drawing from a stream hashed from the bounce's two free-flight numbers
 (:func:`jgi.core.rng.substream`). Grid media are not differentiated (their sampling and
-weights are constants for derivatives).
+weights are constants for derivatives): :func:`radiance` refuses, by name, a derivative with
+respect to a grid medium's parameters, which would otherwise come out zero.
 
 Derivatives (``gradient``): with ``"attached"`` (default) ``jax.grad`` differentiates the
 estimate itself, the sampled directions moving with the parameters (reparametrised sampling;
@@ -340,6 +341,8 @@ def radiance(scene: Scene, cfg: PathTracerConfig, uniform: Callable[[Array], Arr
     primary-sample vectors (Metropolis). Dimensions 0 and 1 are the camera's pixel jitter;
     bounce b uses dimensions 2 + b * cfg.dims_per_bounce onwards."""
     max_depth = cfg.path_length if cfg.path_length > 0 else cfg.max_depth
+    if scene.has_grid_medium:   # its derivatives would come out zero: refused by name
+        grid_media.refuse_derivatives(scene.medium)
 
     def bounce(depth, s: PathState) -> PathState:
         base = 2 + depth * dims_per_bounce(cfg, scene)

@@ -54,8 +54,11 @@ along the ray, finite with probability 1 (no cap, so no truncation bias;
 per crossing of the box exceed ``jgi.scene.builder.MAX_OPTICAL_DEPTH``). The random numbers of
 a flight are a stream of their own (:func:`jgi.core.rng.substream` of the bounce's two
 free-flight numbers), two per tentative collision. Grid media are rendered, not
-differentiated: the tracking runs on stop_gradient'ed parameters, so derivatives with respect
-to a grid medium are zero.
+differentiated: the tracking runs on stop_gradient'ed parameters (its collision decisions have
+no pathwise derivative), so a render refuses, by name, to be differentiated with respect to a
+grid medium's parameters (:func:`differentiated`, checked by ``jgi.render``) rather than
+returning a derivative of zero; derivatives with respect to the rest of the scene, the grid held
+constant, are computed as usual.
 
 Cost: a batch's loop runs as long as its longest tracking, so what the majorant grid saves is
 the longest lane's tentative collisions, against the crossings it adds. Measured on a 32^3
@@ -75,8 +78,38 @@ import jax.numpy as jnp
 from jax import Array
 
 from ..core import rng
+from ..core.errors import ParameterError
 from ..core.vec import V3
 from ..core.vec import length as length_of
+
+
+def differentiated(medium) -> bool:
+    """Whether a derivative is being traced with respect to some float of ``medium``: one of its
+    leaves is a forward-mode or linearisation tracer carrying a tangent (``jax.grad``,
+    ``jax.jvp`` and their kin over a function that builds the scene from the parameters)."""
+    for leaf in jax.tree_util.tree_leaves(medium):
+        tangent = getattr(leaf, "tangent", None) if isinstance(leaf, jax.core.Tracer) else None
+        if tangent is not None and type(tangent).__name__ != "Zero":
+            return True
+    return False
+
+
+def refuse_derivatives(medium) -> None:
+    """A :class:`jgi.core.errors.ParameterError` if a derivative is being traced with respect to
+    some float of ``medium`` (``jax.grad``, ``jax.jvp`` and their kin over a function that puts
+    the parameter into the scene: one of its leaves is then a tracer carrying a tangent). Call
+    it where the scene enters the estimator, outside loops (whose bodies JAX traces before it
+    differentiates them)."""
+    for leaf in jax.tree_util.tree_leaves(medium):
+        tangent = getattr(leaf, "tangent", None) if isinstance(leaf, jax.core.Tracer) else None
+        if tangent is not None and type(tangent).__name__ != "Zero":
+            raise ParameterError(
+                "derivatives with respect to a grid medium's parameters (density, sigma_t, "
+                "albedo, g, box) are not computed: its null-scattering trackings have no "
+                "pathwise derivative, so they would come out zero. Hold the grid medium "
+                "constant (differentiate a function that puts only the parameters you fit into "
+                "the scene, e.g. with equinox.tree_at), or use a homogeneous medium, whose "
+                "sigma_t, albedo and g are differentiable")
 
 
 def density(grid: Array, lo: V3, hi: V3, p: V3) -> Array:
