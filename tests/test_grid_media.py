@@ -55,11 +55,33 @@ def _ramp_grid():
     return np.broadcast_to(A0 + AX * xc[None, None, :] + AY * yc[None, :, None], SHAPE).copy()
 
 
-def _medium(grid, sigma=SIGMA, albedo=(1.0, 1.0, 1.0), lo=LO, hi=HI, resolution=16):
+def _medium(grid, sigma=SIGMA, albedo=(1.0, 1.0, 1.0), lo=LO, hi=HI, resolution=16,
+            border="clamp"):
     f = lambda v: V3(*(jnp.float32(c) for c in v))  # noqa: E731
     grid = np.asarray(grid, np.float32)
     return GridMedium(f(sigma), f(albedo), jnp.float32(0.0), jnp.asarray(grid), f(lo), f(hi),
-                      jnp.float32(grid.max()), jnp.asarray(majorant_grid(grid, resolution)))
+                      jnp.float32(grid.max()), jnp.asarray(majorant_grid(grid, resolution)),
+                      border=border)
+
+
+def _pbrt_lookup(grid, p):
+    """pbrt-v4's SampledGrid::Lookup of the grid [nz, ny, nx] over the box [LO, HI] at points
+    p [..., 3], written from its definition: sample coordinates u n - 1/2, trilinear between
+    the 8 integer samples around, a sample outside [0, n) giving 0; 0 outside the box (the
+    medium's bounds)."""
+    u = (p - LO) / (HI - LO)
+    n = np.array(grid.shape[::-1])
+    s = u * n - 0.5
+    i0 = np.floor(s).astype(int)
+    d = s - i0
+    out = np.zeros(p.shape[:-1])
+    for corner in np.ndindex(2, 2, 2):
+        i = i0 + np.array(corner)
+        ok = np.all((i >= 0) & (i < n), axis=-1)
+        c = np.clip(i, 0, n - 1)
+        w = np.prod(np.where(np.array(corner) == 1, d, 1 - d), axis=-1)
+        out += np.where(ok, w * grid[c[..., 2], c[..., 1], c[..., 0]], 0.0)
+    return np.where(np.all((u >= 0) & (u <= 1), axis=-1), out, 0.0)
 
 
 def _ramp_density(p):
@@ -161,6 +183,26 @@ def _v3(v):
     return V3(*(jnp.float32(c) for c in v))
 
 
+def test_zero_border_lookup_is_pbrts_sampled_grid():
+    """border="zero" is pbrt-v4's grid lookup (:func:`_pbrt_lookup`), at random points and in
+    the half-voxel shells by the faces where it and Mitsuba's clamp differ (which they do
+    there, and only there)."""
+    rs = np.random.default_rng(6)
+    grid = rs.random(SHAPE) + 0.2
+    h = 0.5 / np.array(SHAPE[::-1]) * (HI - LO)        # half a voxel per axis
+    shell = LO + rs.random((1000, 3)) * h                # near the low faces
+    p = np.concatenate([LO + rs.random((2000, 3)) * (HI - LO), shell, HI - (shell - LO)])
+
+    def ours(border):
+        return np.asarray(grid_media.density(jnp.asarray(grid, jnp.float32), _v3(LO), _v3(HI),
+                                             V3(*(jnp.asarray(c, jnp.float32) for c in p.T)),
+                                             border))
+    np.testing.assert_allclose(ours("zero"), _pbrt_lookup(grid, p), rtol=2e-5, atol=2e-6)
+    interior = np.all((p > LO + 2 * h) & (p < HI - 2 * h), axis=-1)
+    np.testing.assert_allclose(ours("clamp")[interior], ours("zero")[interior], rtol=1e-6)
+    assert np.all(ours("zero")[2000:] < ours("clamp")[2000:])
+
+
 def test_majorant_grid_bounds_the_density():
     """Each coarse cell's majorant bounds the interpolated density at every point of the cell
     (random points, and points on the cells' faces); resolution 1 is the global max, and the
@@ -186,13 +228,25 @@ def test_majorant_grid_bounds_the_density():
 
 
 @pytest.mark.parametrize("grid,resolution", [("ramp", 1), ("ramp", 2), ("ramp", 16),
-                                             ("constant", 8)])
+                                             ("constant", 8), ("pbrt", 2)])
 def test_ratio_tracking_transmittance(grid, resolution):
-    """E[ratio tracking] = exp(-sigma_c tau) per channel and ray (tau exact, see the module),
+    """E[ratio tracking] = exp(-sigma_c tau) per channel and ray (tau exact, see the module;
+    for pbrt-v4's zero border, the trapezoid rule over 20,001 points of the ray in the box),
     with one global majorant, a coarse majorant grid and one majorant per voxel; rays that miss
     the box or have no length give exactly 1."""
     if grid == "ramp":
         medium, depth = _medium(_ramp_grid(), resolution=resolution), _ramp_depth
+    elif grid == "pbrt":
+        values = _ramp_grid()
+        medium = _medium(values, resolution=resolution, border="zero")
+
+        def depth(o, d, t_max):
+            t0, t1 = _box_interval(o, d, t_max)
+            if t0 >= t1:
+                return 0.0
+            ts = np.linspace(t0, t1, 20_001)
+            pts = np.asarray(o, float) + ts[:, None] * np.asarray(d, float)
+            return float(np.trapezoid(_pbrt_lookup(values, pts), ts))
     else:
         medium = _medium(np.full(SHAPE, 0.8), resolution=resolution)
         depth = lambda o, d, t: 0.8 * _clipped_length(o, d, t)  # noqa: E731
@@ -526,7 +580,9 @@ def test_toml_grid_medium(tmp_path):
     write_vol(tmp_path / "a.vol", np.full((2, 2, 2, 3), 0.25))
     m = load('file = "d.vol"\nalbedo_file = "a.vol"\n').medium
     np.testing.assert_array_equal(np.asarray(m.albedo_grid), 0.25)
+    assert m.border == "clamp" and load('file = "d.vol"\nborder = "zero"\n').medium.border == "zero"
     cases = [
+        ('file = "d.vol"\nborder = "wrap"\n', r"medium\[0\].*border 'wrap'.*'clamp'.*'zero'"),
         ("", r"medium\[0\].*file .* or density"),
         ('file = "d.vol"\ndensity = [[[1]]]\n', r"medium\[0\].*one of the two"),
         ('file = "nope.vol"\n', r"medium\[0\]\.file.*nope\.vol.*cannot read"),

@@ -590,8 +590,12 @@ def test_a_pbrt_fog_renders_like_the_same_fog_built_in_jgi(tmp_path):
 
 
 @pytest.mark.parametrize("body, message", [
-    ('MakeNamedMedium "g" "string type" "uniformgrid" "float density" [1]',
-     'medium type "uniformgrid" is not supported yet; supported: homogeneous'),
+    ('MakeNamedMedium "g" "string type" "rgbgrid" "float density" [1]',
+     'medium type "rgbgrid" is not supported yet; supported: homogeneous, uniformgrid'),
+    ('MakeNamedMedium "g" "string type" "uniformgrid" "float temperature" [1]',
+     r"emissive media \(temperature\)"),
+    ('MakeNamedMedium "g" "string type" "uniformgrid" "float sigma_t" [1]',
+     "unknown parameter 'sigma_t'; uniformgrid takes: type, density"),
     ('MakeNamedMedium "g" "string type" "smoke"', 'medium type "smoke" is unknown'),
     ('MakeNamedMedium "g" "string type" "homogeneous" "float density" 1',
      "unknown parameter 'density'"),
@@ -618,3 +622,67 @@ def test_a_camera_medium_nobody_defines_is_refused(tmp_path):
     with pytest.raises(SceneError, match=r'x\.pbrt:7: the Camera\'s MediumInterface names '
                                          r'medium "mist".*defined: fog, unused'):
         load_pbrt(p)
+
+
+GRID_HEADER = """MakeNamedMedium "unused" "string type" "homogeneous"
+MediumInterface "" "{camera_medium}"
+LookAt 0 1 5  0 0 0  0 1 0
+Camera "perspective" "float fov" [ 40 ]
+Film "rgb" "integer xresolution" [ 8 ] "integer yresolution" [ 6 ]
+WorldBegin
+AttributeBegin
+{transform}
+MakeNamedMedium "smoke" "string type" "uniformgrid" "integer nx" 3 "integer ny" 2 "integer nz" 2
+  "float density" [ {density} ] "point3 p0" [ -1 0 -1 ] "point3 p1" [ 1 1 1 ]
+  "rgb sigma_a" [ 0.2 0.3 0.4 ] "rgb sigma_s" [ 0.6 0.5 0.4 ] "float scale" 2 "float g" 0.3
+AttributeEnd
+Material "diffuse"
+Shape "trianglemesh" "point3 P" [-2 -0.5 -2  2 -0.5 -2  2 -0.5 2  -2 -0.5 2]
+  "integer indices" [0 1 2  0 2 3]
+LightSource "point" "rgb I" [3 3 3] "point3 from" [0 2 0]
+"""
+
+
+def _grid_file(tmp_path, transform="", density=None, camera_medium="smoke"):
+    """A uniformgrid medium outside the Camera (pbrt-v4's camera medium), defined in the world
+    block under ``transform`` (pbrt-v4 resolves medium names after parsing, as jgi does)."""
+    density = " ".join(map(str, range(1, 13))) if density is None else density
+    p = tmp_path / "smoke.pbrt"
+    p.write_text(GRID_HEADER.format(transform=transform, density=density,
+                                    camera_medium=camera_medium))
+    return p
+
+
+def test_uniformgrid_is_a_grid_medium_with_pbrts_zero_border(tmp_path):
+    """pbrt-v4's uniformgrid as the camera's medium: densities x fastest ([nz, ny, nx]), the box
+    p0 p1 through the transform current at MakeNamedMedium (a scale and a translation, and a
+    mirrored x that reverses the samples), extinction (sigma_a + sigma_s) scale d, albedo
+    sigma_s / sigma_t, pbrt's zero border; it renders, finite and dimmer than an empty grid."""
+    m = load_pbrt(_grid_file(tmp_path)).medium
+    assert m.border == "zero"
+    np.testing.assert_array_equal(np.asarray(m.density), 2 * np.arange(1, 13).reshape(2, 2, 3))
+    np.testing.assert_allclose([float(c) for c in m.lo], [-1, 0, -1])
+    np.testing.assert_allclose([float(c) for c in m.hi], [1, 1, 1])
+    np.testing.assert_allclose([float(c) for c in m.sigma_t], [0.8, 0.8, 0.8], rtol=1e-6)
+    np.testing.assert_allclose([float(c) for c in m.albedo], [0.75, 0.625, 0.5], rtol=1e-6)
+    assert float(m.g) == pytest.approx(0.3)
+    t = load_pbrt(_grid_file(tmp_path, "Translate 0 1 0\nScale -2 1 0.5")).medium
+    np.testing.assert_allclose([float(c) for c in t.lo], [-2, 1, -0.5])
+    np.testing.assert_allclose([float(c) for c in t.hi], [2, 2, 0.5])
+    np.testing.assert_array_equal(np.asarray(t.density), np.asarray(m.density)[:, :, ::-1])
+    a = jgi.render(load_pbrt(_grid_file(tmp_path)), "pt", spp=4, seed=3, max_depth=3)
+    c = jgi.render(load_pbrt(_grid_file(tmp_path, density=" ".join(["0"] * 12))), "pt", spp=4,
+                   seed=3, max_depth=3)
+    assert np.isfinite(a).all() and 0 < a.mean() < 0.95 * c.mean()
+
+
+@pytest.mark.parametrize("transform, density, message", [
+    ("Rotate 30 0 1 0", None, "rotates, shears or projects the grid"),
+    ("", "1 2 3", r'"density" has 3 values; nx ny nz = 3 x 2 x 2 needs 12'),
+])
+def test_unsupported_uniformgrids_name_file_line_and_what_is_allowed(tmp_path, transform,
+                                                                     density, message):
+    path = _grid_file(tmp_path, transform, density)
+    with pytest.raises(SceneError, match=message) as e:
+        load_pbrt(path)
+    assert f"{path}:" in str(e.value)

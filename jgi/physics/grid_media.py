@@ -112,27 +112,47 @@ def refuse_derivatives(medium) -> None:
                 "sigma_t, albedo and g are differentiable")
 
 
-def density(grid: Array, lo: V3, hi: V3, p: V3) -> Array:
-    """The trilinearly interpolated density at points p (Mitsuba 3's voxel-centre convention,
-    clamped at the faces); 0 outside the box [lo, hi]."""
+def density(grid: Array, lo: V3, hi: V3, p: V3, border: str = "clamp") -> Array:
+    """The trilinearly interpolated density at points p, voxel centres at (i + 1/2) / n of the
+    box; 0 outside the box [lo, hi]. Between a face and the outermost voxel centres the density
+    is that of the outermost voxels (``border="clamp"``: Mitsuba 3's gridvolume) or falls
+    linearly towards 0 at a sample half a voxel beyond the face (``"zero"``: pbrt-v4's
+    SampledGrid, whose lookups outside the samples give 0)."""
     nz, ny, nx = grid.shape
+    zero = border == "zero"
     inside = None
-    idx, frac = [], []
+    idx, frac, valid = [], [], []
     for pc, lc, hc, n in zip(p, lo, hi, (nx, ny, nz)):
         ext = hc - lc
         u = (pc - lc) / jnp.where(ext > 0, ext, 1.0)
         ok = (u >= 0.0) & (u <= 1.0)
         inside = ok if inside is None else inside & ok
+        if zero:   # corners i0 and i0 + 1 in [-1, n]; those outside [0, n - 1] weigh 0
+            f = jnp.clip(u * n - 0.5, -0.5, n - 0.5)
+            i0 = jnp.floor(f).astype(jnp.int32)
+            frac.append(f - i0.astype(f.dtype))
+            valid.append(((i0 >= 0), (i0 + 1 <= n - 1)))
+            idx.append(i0)
+            continue
         f = jnp.clip(u * n - 0.5, 0.0, n - 1.0)
         i0 = jnp.clip(jnp.floor(f), 0.0, max(n - 2, 0)).astype(jnp.int32)
         idx.append(i0)
         frac.append(jnp.where(n > 1, f - i0.astype(f.dtype), 0.0))
     (ix, iy, iz), (fx, fy, fz) = idx, frac
     flat = grid.reshape(-1)
+    value = 0.0
+    if zero:
+        (vx, vy, vz) = valid
+        for dz, wz, okz in ((0, 1.0 - fz, vz[0]), (1, fz, vz[1])):
+            for dy, wy, oky in ((0, 1.0 - fy, vy[0]), (1, fy, vy[1])):
+                for dx, wx, okx in ((0, 1.0 - fx, vx[0]), (1, fx, vx[1])):
+                    at = ((jnp.clip(iz + dz, 0, nz - 1) * ny + jnp.clip(iy + dy, 0, ny - 1)) * nx
+                          + jnp.clip(ix + dx, 0, nx - 1))
+                    value = value + jnp.where(okz & oky & okx, wz * wy * wx * flat[at], 0.0)
+        return jnp.where(inside, value, 0.0)
     sx, sy = (1 if nx > 1 else 0), (nx if ny > 1 else 0)
     sz = nx * ny if nz > 1 else 0
     base = (iz * ny + iy) * nx + ix
-    value = 0.0
     for dz, wz in ((0, 1.0 - fz), (sz, fz)):
         for dy, wy in ((0, 1.0 - fy), (sy, fy)):
             for dx, wx in ((0, 1.0 - fx), (sx, fx)):
@@ -168,11 +188,12 @@ def albedo(medium, p: V3) -> V3:
     if medium.albedo_grid is None:
         return a
     g = medium.albedo_grid
-    return V3(*(ac * density(g[..., c], medium.lo, medium.hi, p) for c, ac in enumerate(a)))
+    return V3(*(ac * density(g[..., c], medium.lo, medium.hi, p, medium.border)
+                 for c, ac in enumerate(a)))
 
 
 def _sigma_t(medium, p: V3) -> V3:
-    d = density(medium.density, medium.lo, medium.hi, p)
+    d = density(medium.density, medium.lo, medium.hi, p, medium.border)
     return V3(*(d * s for s in medium.sigma_t))
 
 

@@ -358,7 +358,7 @@ class SceneBuilder:
 
     def grid_medium(self, density, bbox_min=(0.0, 0.0, 0.0), bbox_max=(1.0, 1.0, 1.0), *,
                     sigma_t=1.0, albedo=1.0, g=0.0, scale=1.0,
-                    majorant_resolution=MAJORANT_RESOLUTION):
+                    majorant_resolution=MAJORANT_RESOLUTION, border="clamp"):
         """Fill the box [bbox_min, bbox_max] with a heterogeneous medium (vacuum around it; the
         camera's medium, both sides of every surface): extinction
         sigma_t,c(x) = scale density(x) sigma_t,c, ``density`` a [nz, ny, nx] grid (x fastest,
@@ -366,7 +366,13 @@ class SceneBuilder:
         (:mod:`jgi.physics.grid_media`), ``albedo`` RGB or grey, or a grid over the same box
         ([nz', ny', nx'] or [nz', ny', nx', 3], values in [0, 1]), HG ``g``. The
         trackings' majorant is the density's max over the cells of a coarse grid of
-        ``majorant_resolution`` cells per axis (at most the grid's; 1: one global majorant)."""
+        ``majorant_resolution`` cells per axis (at most the grid's; 1: one global majorant).
+        ``border``: the density between a face and the outermost voxel centres, "clamp"
+        (Mitsuba's gridvolume: the outermost voxels') or "zero" (pbrt-v4's grids: falling
+        towards 0 half a voxel beyond the face); the majorants bound both."""
+        if border not in ("clamp", "zero"):
+            raise SceneError(f"grid medium: border {border!r} is not one of 'clamp' (Mitsuba), "
+                             "'zero' (pbrt-v4)")
         grid = np.asarray(density, np.float64)
         if grid.ndim != 3 or min(grid.shape) < 1:
             raise SceneError(f"grid medium: density must be a [nz, ny, nx] array, got shape "
@@ -409,7 +415,7 @@ class SceneBuilder:
         self.medium_args = dict(sigma_t=tuple(st), albedo=tuple(alb), g=float(g), grid=grid,
                                 lo=tuple(lo), hi=tuple(hi),
                                 majorants=majorant_grid(grid, int(majorant_resolution)),
-                                albedo_grid=alb_grid)
+                                albedo_grid=alb_grid, border=border)
 
     # --- textures ---------------------------------------------------------------------------
     def texture(self, name: str, kind: str, *, color0=(0.4, 0.4, 0.4), color1=(0.2, 0.2, 0.2),
@@ -893,7 +899,8 @@ class SceneBuilder:
             return GridMedium(f(m["sigma_t"]), f(m["albedo"]), jnp.float32(m["g"]),
                               jnp.asarray(grid), f(m["lo"]), f(m["hi"]),
                               jnp.float32(grid.max()), jnp.asarray(m["majorants"]),
-                              None if m["albedo_grid"] is None else jnp.asarray(m["albedo_grid"]))
+                              None if m["albedo_grid"] is None else jnp.asarray(m["albedo_grid"]),
+                              border=m["border"])
         return Medium(f(m["sigma_t"]), f(m["albedo"]), jnp.float32(m["g"]))
 
     def _material_name(self, m: int) -> str:

@@ -65,7 +65,8 @@ MEDIUM_KEYS = {"homogeneous": {"name": "str", "type": "str", "sigma_t": "rgb", "
                # default) or inline, density = [[[x values] per y] per z]
                "grid": {"name": "str", "type": "str", "file": "str", "density": "grid",
                         "bbox_min": "vec3", "bbox_max": "vec3", "sigma_t": "rgb", "albedo": "rgb",
-                        "albedo_file": "str", "g": "number", "scale": "number"}}
+                        "albedo_file": "str", "g": "number", "scale": "number",
+                        "border": "str"}}
 
 # Each material type accepts only the parameters its BSDF uses (a key another type uses is a
 # likely mistake, e.g. `ior` on a mirror). Defaults are filled in by `_material`.
@@ -525,7 +526,8 @@ class _TomlLoader:
             albedo = self.vol(f"{key}.albedo_file", m["albedo_file"], (1, 3))[0]
         try:
             b.grid_medium(grid, lo, hi, sigma_t=m.get("sigma_t", 1.0), albedo=albedo,
-                          g=m.get("g", 0.0), scale=m.get("scale", 1.0))
+                          g=m.get("g", 0.0), scale=m.get("scale", 1.0),
+                          border=m.get("border", "clamp"))
         except SceneError as e:
             self.fail(key, str(e))
 

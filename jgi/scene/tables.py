@@ -420,6 +420,9 @@ class GridMedium(eqx.Module):
     # [nz', ny', nx', 3] RGB in [0, 1] over the same box, multiplying ``albedo`` (None: a constant
     # albedo, whose kernels are those of a medium before albedo grids)
     albedo_grid: Array | None = None
+    # between a face and the outermost voxel centres: "clamp" (Mitsuba's gridvolume) or "zero"
+    # (pbrt-v4's grids: towards 0 half a voxel beyond the face); see grid_media.density
+    border: str = eqx.field(static=True, default="clamp")
 
 
 class Camera(eqx.Module):

@@ -64,9 +64,12 @@ supported):
              Camera fills the scene, as in pbrt-v4, where a ray keeps its medium at every
              surface that is no medium transition, and which it gives the rays an opaque
              shape reflects: a Shape's interface must be no transition or have the camera's
-             medium outside an opaque material. Refused by name: other transitions (media
-             bounded by shapes, e.g. fog inside glass), other medium types
-             (uniformgrid, rgbgrid, cloud, nanovdb), "preset", emissive media (Le)
+             medium outside an opaque material. "uniformgrid" (density [nx ny nz] values, x
+             fastest, over the box p0 p1 in the medium's space, sigma_a, sigma_s, scale, g):
+             jgi's grid medium with pbrt-v4's zero border, its box mapped by the transform
+             current at MakeNamedMedium (scales and translations; rotations refused). Refused
+             by name: other transitions (media bounded by shapes, e.g. fog inside glass), other
+             medium types (rgbgrid, cloud, nanovdb), "preset", emissive media (Le, temperature)
   files      Include / Import; relative file names (includes, meshes, images, spectra)
              are found in the main scene file's folder, also from included files, as pbrt-v4
              resolves them
@@ -127,6 +130,11 @@ IGNORED = {"Sampler", "Integrator", "PixelFilter", "ColorSpace", "Option", "Acce
            "WorldEnd", "Attribute"}
 HOMOGENEOUS_MEDIUM_PARAMETERS = ("type", "sigma_a", "sigma_s", "scale", "g", "preset", "Le",
                                  "Lescale")
+UNIFORMGRID_PARAMETERS = ("type", "density", "nx", "ny", "nz", "p0", "p1", "sigma_a", "sigma_s",
+                          "scale", "g", "Le", "Lescale", "temperature", "temperaturecutoff",
+                          "temperaturescale")
+SUPPORTED_MEDIUM_TYPES = {"homogeneous": HOMOGENEOUS_MEDIUM_PARAMETERS,
+                          "uniformgrid": UNIFORMGRID_PARAMETERS}
 PBRT_MEDIUM_TYPES = ("homogeneous", "uniformgrid", "rgbgrid", "cloud", "nanovdb")
 SUPPORTED = {
     "Camera": ("perspective",), "Film": ("rgb", "gbuffer", "spectral"),
@@ -1123,23 +1131,27 @@ class _Importer:
         typ = self._get(p, "type", None, where)
         if typ is None:
             self.fail(where, f"MakeNamedMedium \"{name}\" needs \"string type\"")
-        if typ[0] != "homogeneous":
-            known = typ[0] in PBRT_MEDIUM_TYPES
-            self.fail(where, f"MakeNamedMedium \"{name}\": medium type \"{typ[0]}\" is "
+        typ = typ[0]
+        if typ not in SUPPORTED_MEDIUM_TYPES:
+            known = typ in PBRT_MEDIUM_TYPES
+            self.fail(where, f"MakeNamedMedium \"{name}\": medium type \"{typ}\" is "
                              f"{'not supported yet' if known else 'unknown'}; supported: "
-                             "homogeneous")
+                             f"{', '.join(SUPPORTED_MEDIUM_TYPES)}")
+        allowed = SUPPORTED_MEDIUM_TYPES[typ]
         for key in p:
-            if key not in HOMOGENEOUS_MEDIUM_PARAMETERS:
-                self.fail(where, f"MakeNamedMedium \"{name}\" (homogeneous): unknown parameter "
-                                 f"'{key}'; homogeneous takes: "
-                                 f"{', '.join(HOMOGENEOUS_MEDIUM_PARAMETERS)}")
+            if key not in allowed:
+                self.fail(where, f"MakeNamedMedium \"{name}\" ({typ}): unknown parameter "
+                                 f"'{key}'; {typ} takes: {', '.join(allowed)}")
         if "preset" in p:
             self.fail(where, f"MakeNamedMedium \"{name}\": \"preset\" (pbrt's measured media) is "
                              "not supported; give sigma_a and sigma_s")
         if "Le" in p and np.any(np.asarray(self._get(p, "Le", np.zeros(3), where)) != 0):
             self.fail(where, f"MakeNamedMedium \"{name}\": emissive media (Le) are not "
                              "supported")
-        self.media[name] = (p, where)
+        if "temperature" in p:
+            self.fail(where, f"MakeNamedMedium \"{name}\": emissive media (temperature) are not "
+                             "supported")
+        self.media[name] = (p, where, self.ctm.copy())
 
     def fill_medium(self):
         """The medium outside the Camera fills the scene (pbrt-v4 keeps a ray's medium at
@@ -1151,7 +1163,7 @@ class _Importer:
             self.fail(where, f"the Camera's MediumInterface names medium \"{name}\", which no "
                              "MakeNamedMedium defines; defined: "
                              f"{', '.join(self.media) or '(none)'}")
-        p, mwhere = self.media[name]
+        p, mwhere, to_world = self.media[name]
 
         def rgb(key):
             v = np.asarray(self._get(p, key, np.ones(3), mwhere), float).reshape(-1)
@@ -1159,12 +1171,55 @@ class _Importer:
                 self.fail(mwhere, f"MakeNamedMedium \"{name}\": '{key}' takes an rgb or one "
                                   f"float, got {v.size} values")
             return np.broadcast_to(v, (3,))
+        scale = float(self._get(p, "scale", 1.0, mwhere, 1))
+        g = float(self._get(p, "g", 0.0, mwhere, 1))
         try:
-            self.b.medium(sigma_a=rgb("sigma_a"), sigma_s=rgb("sigma_s"),
-                          scale=float(self._get(p, "scale", 1.0, mwhere, 1)),
-                          g=float(self._get(p, "g", 0.0, mwhere, 1)))
+            if self._get(p, "type", None, mwhere)[0] == "uniformgrid":
+                self.fill_uniformgrid(name, p, mwhere, to_world, rgb("sigma_a"), rgb("sigma_s"),
+                                      scale, g)
+                return
+            self.b.medium(sigma_a=rgb("sigma_a"), sigma_s=rgb("sigma_s"), scale=scale, g=g)
         except SceneError as e:
             self.fail(mwhere, f"MakeNamedMedium \"{name}\": {e}")
+
+    def fill_uniformgrid(self, name, p, where, to_world, sigma_a, sigma_s, scale, g):
+        """pbrt-v4's GridMedium: densities d[(z ny + y) nx + x] over the box [p0, p1] of the
+        medium's space (its sample i at (i + 1/2) / n, lookups beyond the samples 0: jgi's
+        "zero" border), extinction (sigma_a + sigma_s) scale d(x), albedo sigma_s / sigma_t.
+        The box goes to world space by the transform current at MakeNamedMedium, which jgi's
+        axis-aligned grid takes if it only scales (per axis, flips too) and translates."""
+        dims = [int(self._get(p, k, 1, where, 1)) for k in ("nx", "ny", "nz")]
+        if min(dims) < 1:
+            self.fail(where, f"MakeNamedMedium \"{name}\" (uniformgrid): nx, ny, nz must be "
+                             f">= 1, got {dims}")
+        if "density" not in p:
+            self.fail(where, f"MakeNamedMedium \"{name}\" (uniformgrid) needs \"float density\" "
+                             f"(nx ny nz = {int(np.prod(dims))} values)")
+        values = np.asarray(self._get(p, "density", None, where), float).reshape(-1)
+        if values.size != int(np.prod(dims)):
+            self.fail(where, f"MakeNamedMedium \"{name}\" (uniformgrid): \"density\" has "
+                             f"{values.size} values; nx ny nz = {dims[0]} x {dims[1]} x "
+                             f"{dims[2]} needs {int(np.prod(dims))}")
+        grid = values.reshape(dims[2], dims[1], dims[0])
+        p0 = np.asarray(self._get(p, "p0", np.zeros(3), where, 3), float)
+        p1 = np.asarray(self._get(p, "p1", np.ones(3), where, 3), float)
+        if not np.all(p1 > p0):
+            self.fail(where, f"MakeNamedMedium \"{name}\" (uniformgrid): p1 {p1.tolist()} must "
+                             f"exceed p0 {p0.tolist()} in every axis")
+        linear = to_world[:3, :3]
+        if np.any(np.abs(linear - np.diag(np.diag(linear))) > 1e-9 * np.abs(linear).max()) \
+                or np.any(np.diag(linear) == 0) or np.any(to_world[3] != (0, 0, 0, 1)):
+            self.fail(where, f"MakeNamedMedium \"{name}\" (uniformgrid): the current transform "
+                             "rotates, shears or projects the grid; jgi's grids are axis-aligned "
+                             "boxes, so only scales and translations are supported here")
+        a, b = (xf.apply_point(to_world, q) for q in (p0, p1))
+        for axis, flip in enumerate(np.diag(linear) < 0):   # a mirrored axis: samples reversed
+            if flip:
+                grid = np.flip(grid, axis=2 - axis)
+        sigma_t = np.asarray(sigma_a) + np.asarray(sigma_s)
+        albedo = np.divide(sigma_s, sigma_t, out=np.zeros(3), where=sigma_t > 0)
+        self.b.grid_medium(grid, np.minimum(a, b), np.maximum(a, b), sigma_t=sigma_t,
+                           albedo=albedo, g=g, scale=scale, border="zero")
 
     def run(self) -> Scene:
         self.run_file(self.path)
