@@ -706,3 +706,32 @@ def test_derivatives_with_respect_to_a_grid_medium_are_refused_by_name():
     d = float(jax.grad(lambda k: estimate(eqx.tree_at(
         lambda s: s.materials.diffuse, scene, scene.materials.diffuse * k)))(1.0))
     assert np.isfinite(d) and d > 0
+
+
+def _smoke_room(scale=1.0, res=16):
+    """The Cornell room with one cube, a 7 x 6 x 5 smoke grid in a box around the cube and the
+    room's lower middle (vacuum above and around it), RGB extinction, HG g 0.3."""
+    b = SceneBuilder("smoke_room")
+    builtin.cornell_room(b, res)
+    T, R, S = xf.translate, xf.rotate, xf.scale
+    b.cube(T([0.335, -0.7, 0.38]) @ R([0, 1, 0], -17) @ S(0.3), "white")
+    b.grid_medium(_smoke_grid() * scale, (-0.9, -1.0, -0.9), (0.9, 0.6, 0.9),
+                  sigma_t=(0.8, 1.0, 1.3), albedo=0.8, g=0.3)
+    return b.build()
+
+
+def test_light_tracing_renders_a_grid_medium_like_the_path_tracer():
+    """Light subpaths tracked through the grid (spectral tracking, phase scattering) and
+    splatted through ratio tracking's transmittance agree with the path tracer per 4 x 4 region
+    and channel (Welch, 16 seeds a side; measured worst |t| 2.6 against a critical 5.9); the
+    power check, light tracing a grid 30% denser, fails it (measured |t| 16.6)."""
+    pt = np.stack([jgi.render(_smoke_room(), "pt", spp=64, seed=s, max_depth=5)
+                   for s in range(16)])
+    lt = np.stack([jgi.render(_smoke_room(), "lt", spp=32, seed=100 + s, max_depth=5)
+                   for s in range(16)])
+    assert np.all(np.isfinite(lt))
+    r = region_agreement(lt, pt, 4)
+    assert r.agree, f"lt vs pt: worst t {r.t[r.worst]:.1f} > {r.critical[r.worst]:.1f}"
+    denser = np.stack([jgi.render(_smoke_room(1.3), "lt", spp=32, seed=200 + s, max_depth=5)
+                       for s in range(16)])
+    assert not region_agreement(denser, pt, 4).agree

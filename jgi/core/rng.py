@@ -81,7 +81,8 @@ SALTS: dict[str, int] = {
     "pssmlt": 0x2545F491,             # PSSMLT bootstrap; + 1: its chains, per (chain, step)
     "mmlt": 0x5F3759DF,               # MMLT chains of path length L: + 1 + L, per (chain, step)
     # ratio tracking of shadow ray j through a grid medium: + j, from the bounce's flight stream
-    # (substream), per (path, bounce)
+    # (substream), per (path, bounce); light tracing's camera segments: + 0 (y_0), + 1 + i
+    # (vertex i + 1), from the light subpath's stream
     "ratio_tracking": 0x6A09E667,
     # Veach's MLT: bootstrap paths; + 1: chain steps. The bootstrap shares its value with
     # "final_gather": harmless, as no estimate uses both (pm_jensen never runs an MLT chain,

@@ -38,21 +38,25 @@ Participating media (a scene filled by a homogeneous medium): the light subpath 
 flight on every segment and scatters at medium vertices by the phase function
 (:mod:`jgi.transport.subpath`); every vertex, surface or medium, is connected to the pinhole
 with the segment's transmittance T(d) (:func:`~jgi.transport.connection.connect_camera`), and
-y_0 seen directly is attenuated by T(d) too.
+y_0 seen directly is attenuated by T(d) too. In a grid medium (a density grid in a box) the
+subpath's flights are spectral tracking's and each T(d) is ratio tracking's unbiased estimate
+(:mod:`jgi.physics.grid_media`) on a stream of its own per (light subpath, vertex).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 from jax import Array
 
+from ..core import rng
 from ..core.configured import Configured
-from ..core.vec import V3, dot, where
+from ..core.vec import V3, dot, max_component, where
 from ..drivers.splat import render_splats
-from ..physics import camera, geometry, media
+from ..physics import camera, geometry, grid_media, media
 from ..physics.lights import emitted
 from ..scene.tables import Scene
 from ..transport.connection import connect_camera, occluded_many
@@ -72,6 +76,7 @@ def trace_light_paths(scene: Scene, cfg: LightTracerConfig, seed, pixel: Array, 
     """One light subpath per (pixel, sample), connected to the camera at every vertex."""
     lights = scene.lights
     path = light_subpath(scene, light_key(seed, pixel, sample), cfg.max_depth, infinite=True)
+    # (the subpath's densities are not read here, so grid media need none)
     v = path.vertices
     out = []
     # ---- s = 1: an area light seen directly (y_0 splatted with L_e / p(y_0)) ----
@@ -84,7 +89,13 @@ def trace_light_paths(scene: Scene, cfg: LightTracerConfig, seed, pixel: Array, 
     pdf0 = y0.pdf_fwd
     ok0 = y0.valid & y0.on_surface & proj.visible & (pdf0 > 0)
     val0 = where(ok0, le * (proj.importance * g / jnp.where(ok0, pdf0, 1.0)), V3.full(0.0, g))
-    if scene.has_medium:   # the light seen through the medium: T(d)
+    lkey = light_key(seed, pixel, sample)
+    if scene.has_grid_medium:   # the light seen through the grid: ratio tracking's T(d)
+        medium = jax.tree_util.tree_map(jax.lax.stop_gradient, scene.medium)
+        val0 = val0 * grid_media.ratio_tracking(medium, y0.p, proj.wi, proj.dist,
+                                                ok0 & (max_component(val0) > 0),
+                                                rng.derive(lkey, rng.SALTS["ratio_tracking"]))
+    elif scene.has_medium:   # the light seen through the medium: T(d)
         val0 = val0 * media.transmittance(scene.medium.sigma_t, proj.dist)
     W = scene.camera.width
     pix0 = jnp.where(ok0, jnp.clip(jnp.floor(proj.py).astype(jnp.int32), 0,
@@ -93,7 +104,11 @@ def trace_light_paths(scene: Scene, cfg: LightTracerConfig, seed, pixel: Array, 
     rays = [geometry.shadow_ray(y0.p, y0.n, proj.wi, proj.dist)]
     # ---- s >= 2: every surface vertex of the light subpath, all at once ([max_depth - 1, N]) ----
     if cfg.max_depth > 1:
-        conn = connect_camera(scene, rows(v, slice(1, None)))
+        keys = None
+        if scene.has_grid_medium:   # a stream per vertex for its camera segment's tracking
+            keys = jnp.stack([rng.derive(lkey, rng.SALTS["ratio_tracking"] + 1 + i)
+                              for i in range(cfg.max_depth - 1)])
+        conn = connect_camera(scene, rows(v, slice(1, None)), keys)
         rays.append(conn.shadow)
     occ = occluded_many(scene, rays)
     out.append((0, jnp.where(occ[0], -1, pix0), val0))
@@ -115,4 +130,4 @@ def render(scene: Scene, cfg: LightTracerConfig = LightTracerConfig(), *, spp: i
 
 
 register(Estimator("lt", "light tracing: light subpaths splatted onto the pinhole film (t = 1)",
-                   render, LightTracerConfig, media=True))
+                   render, LightTracerConfig, media=True, grid_media=True))

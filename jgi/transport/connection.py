@@ -28,13 +28,14 @@ from __future__ import annotations
 
 from typing import Callable, NamedTuple
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 from jax import Array
 
 from .._xla import materialize
-from ..core.vec import V3, dot, where
-from ..physics import bsdf, camera, geometry, media
+from ..core.vec import V3, dot, max_component, where
+from ..physics import bsdf, camera, geometry, grid_media, media
 from ..scene.tables import Scene
 from .subpath import Vertices, convert_density, phase_value, segment_density, shading
 
@@ -141,11 +142,12 @@ class CameraConnection(NamedTuple):
     ok: Array
 
 
-def connect_camera(scene: Scene, y: Vertices) -> CameraConnection:
+def connect_camera(scene: Scene, y: Vertices, key: Array | None = None) -> CameraConnection:
     """Connect vertices y (any array shape; surface, or medium vertices in a medium scene) to
     the pinhole (strategy t = 1). In a medium the camera sits in it: the value takes T(d), a
     medium vertex the phase function and no cosine, and the camera's area density of y the
-    p_dist of y's kind (p(d) or P(d))."""
+    p_dist of y's kind (p(d) or P(d)). In a grid medium T(d) is ratio tracking's unbiased
+    estimate on the stream ``key`` (one per vertex, y's shape), which such scenes require."""
     cam = scene.camera
     kinds = scene.materials.kinds
     proj = camera.project(cam, y.p)
@@ -182,7 +184,13 @@ def connect_camera(scene: Scene, y: Vertices) -> CameraConnection:
     pixel = jnp.where(ok, iy * W + ix, -1)
     shadow = geometry.shadow_ray(y.p, y.n, w, proj.dist)
     pdf_cam = jnp.where(ok, proj.pdf_dir * cos_y * inv_d2, 0.0)
-    if scene.has_medium:
+    if scene.has_grid_medium:
+        if key is None:
+            raise ValueError("connect_camera in a grid medium needs a key (ratio tracking)")
+        medium = jax.tree_util.tree_map(jax.lax.stop_gradient, scene.medium)
+        value = value * grid_media.ratio_tracking(medium, y.p, w, proj.dist,
+                                                  ok & (max_component(value) > 0), key)
+    elif scene.has_medium:
         value = value * media.transmittance(scene.medium.sigma_t, proj.dist)
         pdf_cam = pdf_cam * segment_density(scene, d2, y.in_medium)
     return CameraConnection(pixel, value, shadow, pdf_cam, pdf_y_rev, ok)

@@ -66,7 +66,7 @@ from .. import _xla
 from .._xla import materialize
 from ..core import rng, warps
 from ..core.vec import EDGE_ON_COS, V3, dot, max_component, normalize, where
-from ..physics import bsdf, camera, geometry, media, phase
+from ..physics import bsdf, camera, geometry, grid_media, media, phase
 from ..physics.lights import LightSample, cylinder_normal, emitted, sample_emission, sample_li
 from ..scene.tables import (
     AREA_CYLINDER,
@@ -152,7 +152,12 @@ def vertex_in_medium(scene: Scene, like: Array) -> Array | None:
 
 def segment_density(scene: Scene, d2: Array, at_medium: Array) -> Array:
     """p_dist of a segment of squared length d2 (medium scenes): p(d) if it ends at a medium
-    vertex (``at_medium``), P(d) if at a surface (:func:`jgi.physics.media.segment_pdf`)."""
+    vertex (``at_medium``), P(d) if at a surface (:func:`jgi.physics.media.segment_pdf`).
+    In a grid medium the distance density of a tracked flight has no closed form: 1 here, so
+    a subpath's densities there leave it out, and the estimators that weigh strategies by
+    them (BDPT, MMLT, VCM) refuse grid media by name; light tracing reads none."""
+    if scene.has_grid_medium:
+        return jnp.ones_like(d2)
     return media.segment_pdf(scene.medium.sigma_t, jnp.sqrt(d2), at_medium)
 
 
@@ -240,26 +245,40 @@ class WalkState(NamedTuple):
 
 
 def free_flight(scene: Scene, o: V3, d: V3, hit: geometry.Hit, alive: Array, u_channel: Array,
-                u_distance: Array) -> tuple[geometry.Hit, Array, V3]:
-    """The free flight of a subpath segment from o along d in a scene filled by a homogeneous
-    medium (detached sampling, uniform channel choice: :func:`jgi.physics.media.
-    sample_free_flight`), every subpath's (BDPT's, light tracing's, MMLT's, VCM's): a medium
-    vertex before the surface ``hit``, or the surface reached. Returns (the hit, a medium
-    vertex there where ``in_medium``: its position, a zero normal, no emitter; ``in_medium``;
-    the weight T sigma_s / p(t) or T / P(t) that multiplies the throughput)."""
+                u_distance: Array, throughput: V3 | None = None) -> tuple[geometry.Hit, Array, V3]:
+    """The free flight of a subpath segment from o along d in a scene filled by a medium, every
+    subpath's (BDPT's, light tracing's, MMLT's, VCM's): a medium vertex before the surface
+    ``hit``, or the surface reached. Returns (the hit, a medium vertex there where
+    ``in_medium``: its position, a zero normal, no emitter; ``in_medium``; the weight that
+    multiplies the throughput).
+
+    A homogeneous medium: detached sampling with the uniform channel choice
+    (:func:`jgi.physics.media.sample_free_flight`), weight T sigma_s / p(t) or T / P(t). A grid
+    medium: spectral tracking (:func:`jgi.physics.grid_media.sample_free_flight`) on a stream
+    hashed from the two numbers, history-aware through ``throughput``, its weight the
+    tracking's; not differentiated (the grid is a constant, see that module)."""
     sg = jax.lax.stop_gradient
     medium = scene.medium
-    ff = media.sample_free_flight(sg(medium.sigma_t), sg(medium.albedo), None,
-                                  jnp.where(hit.valid, hit.t, jnp.inf), u_channel, u_distance)
-    in_med = alive & ff.scattered
-    p_m = o + d * jnp.where(in_med, ff.t, 0.0)
+    t_hit = jnp.where(hit.valid, hit.t, jnp.inf)
+    if scene.has_grid_medium:
+        beta = V3.full(1.0, t_hit) if throughput is None else throughput
+        gf = grid_media.sample_free_flight(jax.tree_util.tree_map(sg, medium), o, d, t_hit,
+                                           sg(beta), alive, rng.substream(u_channel, u_distance))
+        t_ff, scattered, weight = gf.t, gf.scattered, gf.weight
+    else:
+        ff = media.sample_free_flight(sg(medium.sigma_t), sg(medium.albedo), None, t_hit,
+                                      u_channel, u_distance)
+        t_ff, scattered = ff.t, ff.scattered
+        weight = media.free_flight_weight(medium.sigma_t, medium.albedo, ff.t, ff.scattered,
+                                          ff.pdf)
+    in_med = alive & scattered
+    p_m = o + d * jnp.where(in_med, t_ff, 0.0)
     zero = jnp.zeros_like(hit.t)
     Z = V3(zero, zero, zero)
     hit = hit._replace(valid=hit.valid | in_med, p=where(in_med, p_m, hit.p),
                        n=where(in_med, Z, hit.n), emitter=jnp.where(in_med, -1, hit.emitter),
                        ns=None if hit.ns is None else where(in_med, Z, hit.ns))
-    return hit, in_med, media.free_flight_weight(medium.sigma_t, medium.albedo, ff.t,
-                                                 ff.scattered, ff.pdf)
+    return hit, in_med, weight
 
 
 def scatter_in_medium(scene: Scene, bs, pdf_back: Array, d: V3, in_medium: Array, u1: Array,
@@ -317,9 +336,6 @@ def random_walk(scene: Scene, key: Array, dim0: int, dims_per_step: int, n_steps
     Returns (vertices 1..n_steps as :class:`Vertices` [n_steps, N], pdf_rev of vertex 0 [N],
     the stacked outputs of ``visit``). Each vertex's ``pdf_rev`` is filled in by the next step
     (the density of sampling it backwards from there); the last one's is 0."""
-    if scene.has_grid_medium:
-        raise ValueError("subpaths sample homogeneous media only; the scene's medium is a grid "
-                         "(heterogeneous media: the path tracer)")
     mats = scene.materials
     kinds = mats.kinds
     medium = scene.medium
@@ -333,7 +349,7 @@ def random_walk(scene: Scene, key: Array, dim0: int, dims_per_step: int, n_steps
         if medium is not None:
             hit, in_med, w_ff = free_flight(scene, s.o, s.d, hit, s.alive,
                                             u(dims_per_step - MEDIUM_DIMS),
-                                            u(dims_per_step - MEDIUM_DIMS + 1))
+                                            u(dims_per_step - MEDIUM_DIMS + 1), s.beta)
             s = s._replace(beta=s.beta * w_ff)
         valid = s.alive & hit.valid
         v = hit.p - s.prev_p
@@ -494,9 +510,9 @@ def light_subpath(scene: Scene, key: Array, max_depth: int, infinite: bool = Fal
     its p_rev a solid-angle density too; y_1's p_fwd is the disc's area density times |cos| at
     y_1 (:func:`random_walk`'s ``infinite_start``)."""
     lights = scene.lights
-    if scene.has_medium:
+    if scene.has_medium and not scene.has_grid_medium:
         # in a medium filling the scene, light from infinity is extinguished (T(inf) = 0, as
-        # the path tracer finds: its escaping rays weigh T / P = 0)
+        # the path tracer finds: its escaping rays weigh T / P = 0); a grid is bounded
         infinite = False
     u = (lambda k: rng.uniform(key, k)) if uniform is None else uniform  # noqa: E731
     em = sample_emission(lights, u(0), u(1), u(2), u(3), u(4))
