@@ -40,6 +40,9 @@ beta sigma_s sum_p T(t_p) p DeltaPhi_p / (pi r^2) (:func:`jgi.transport.density.
 from the same grid. ``ppm`` / ``sppm``
 keep a pixel's volume points' statistics apart from its surface points' and shrink their
 radius in three dimensions: R^3 <- R^3 (N + a M) / (N + M) (Knaus and Zwicker 2011).
+A grid medium (a density grid in a box) takes the point estimate only: photons and camera
+chains track it (:mod:`jgi.physics.grid_media`), and the beam estimate, which needs the
+transmittance along whole segments in closed form, is refused by name there.
 
 Parameters: :class:`PMConfig`, :class:`JensenConfig`, :class:`ProgressiveConfig`; each
 ``render_*`` returns a :class:`~jgi.estimators.registry.Render` (image and stats).
@@ -152,6 +155,10 @@ def render_pm(scene: Scene, cfg: PMConfig = PMConfig(), *, spp: int = 4, seed: i
     pm = trace_photons(scene, photons, seed=seed, max_depth=max_depth)
     pix, smp = _pixels(scene, spp)
     beams = scene.has_medium and cfg.volume == "beam"
+    if beams and scene.has_grid_medium:
+        raise ParameterError("pm: the beam estimate (volume='beam') needs closed-form "
+                             "transmittance along whole segments, which a grid medium has not; "
+                             "allowed there: volume='point'")
     if beams and (k or filter != "box"):
         raise ParameterError("pm: the beam estimate (volume='beam') takes every photon within "
                              "radius with the box filter; allowed: k = 0, filter = 'box'")
@@ -362,11 +369,13 @@ def _sppm(scene: Scene, cfg: ProgressiveConfig, *, spp: int, seed: int,
 
 register(Estimator("pm", "photon mapping, direct visualisation of the global map", _pm, PMConfig,
                    renamed={"alpha": "gauss_alpha", "beta": "gauss_beta",
-                            "max_depth": "max_bounces"}, media=True))
+                            "max_depth": "max_bounces"}, media=True, grid_media=True))
 register(Estimator("pm_jensen", "photon mapping with Jensen's split (direct, specular, "
                    "caustic map, final gathering)", _jensen, JensenConfig))
 register(Estimator("ppm", "progressive photon mapping (Hachisuka 2008)", _ppm, ProgressiveConfig,
-                   renamed={"alpha": "radius_alpha", "max_depth": "max_bounces"}, media=True))
+                   renamed={"alpha": "radius_alpha", "max_depth": "max_bounces"}, media=True,
+                   grid_media=True))
 register(Estimator("sppm", "stochastic progressive photon mapping (Hachisuka & Jensen 2009)", _sppm,
                    ProgressiveConfig, renamed={"alpha": "radius_alpha",
-                                               "max_depth": "max_bounces"}, media=True))
+                                               "max_depth": "max_bounces"}, media=True,
+                   grid_media=True))

@@ -192,6 +192,11 @@ def albedo(medium, p: V3) -> V3:
                  for c, ac in enumerate(a)))
 
 
+def scattering(medium, p: V3) -> V3:
+    """sigma_s,c(x) = albedo_c(x) sigma_t,c(x) at points p (0 outside the box)."""
+    return V3(*(a * st for a, st in zip(albedo(medium, p), _sigma_t(medium, p))))
+
+
 def _sigma_t(medium, p: V3) -> V3:
     d = density(medium.density, medium.lo, medium.hi, p, medium.border)
     return V3(*(d * s for s in medium.sigma_t))

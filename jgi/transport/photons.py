@@ -27,7 +27,10 @@ P T(t) / p(t): the free-flight weight without sigma, so that sum_p P_p delta(x -
 estimates int L_i(x, w) h(w) dw, the in-scattered radiance's integrand; a volume radiance
 estimate (:func:`jgi.transport.density.volume_sum_within`) divides by the kernel's volume.
 The photon then continues with the weight T sigma_s / p (Russian roulette on it) in a direction
-sampled from the phase function. Reaching a surface weighs it by T / P.
+sampled from the phase function. Reaching a surface weighs it by T / P. In a grid medium the
+flight is spectral tracking's (:mod:`jgi.physics.grid_media`, on a stream hashed from the two
+numbers) and its weight at a collision carries sigma_s(x): the photon is stored with that
+weight divided by sigma_s(x), the grid's T / p.
 
 Two maps are distinguished by a flag per stored photon:
   * global: every non-specular hit;
@@ -50,7 +53,7 @@ from ..core import rng
 from ..core.calls import ordered_calls
 from ..core.sharding import device_mesh, sharded_calls
 from ..core.vec import V3, dot, max_component, where
-from ..physics import bsdf, geometry, media, phase
+from ..physics import bsdf, geometry, grid_media, media, phase
 from ..physics.lights import sample_emission
 from ..scene.tables import Scene
 from .visible_points import is_lookup_surface, samples_through
@@ -97,6 +100,9 @@ def trace_photon_paths(scene: Scene, seed, photon_index: Array, n_emitted, max_d
     state = (em.p, em.d, power, power.x >= 0, z > 0, z == 0)
 
     medium = scene.medium
+    grid = scene.has_grid_medium
+    if grid:   # rendered, not differentiated (jgi.physics.grid_media)
+        medium = jax.tree_util.tree_map(jax.lax.stop_gradient, medium)
 
     def bounce(state, depth):
         o, d, pw, alive, spec_seen, only_spec = state
@@ -104,11 +110,18 @@ def trace_photon_paths(scene: Scene, seed, photon_index: Array, n_emitted, max_d
         base = 5 + depth * DIMS_PER_BOUNCE
         if medium is not None:   # a free flight before the surface (see the module)
             dm = 5 + max_depth * DIMS_PER_BOUNCE + 2 * depth
-            ff = media.sample_free_flight(medium.sigma_t, medium.albedo, pw,
-                                          jnp.where(hit.valid, hit.t, jnp.inf), u(dm), u(dm + 1))
-            in_medium = alive & ff.scattered
+            t_hit = jnp.where(hit.valid, hit.t, jnp.inf)
+            if grid:   # spectral tracking; its weight at a collision carries sigma_s(x)
+                gf = grid_media.sample_free_flight(medium, o, d, t_hit, pw, alive,
+                                                   rng.substream(u(dm), u(dm + 1)))
+                ff_t, ff_scattered, ff_weight = gf.t, gf.scattered, gf.weight
+            else:
+                ff = media.sample_free_flight(medium.sigma_t, medium.albedo, pw, t_hit, u(dm),
+                                              u(dm + 1))
+                ff_t, ff_scattered, ff_weight = ff.t, ff.scattered, ff.weight
+            in_medium = alive & ff_scattered
             pw_arrival = pw
-            pw = where(in_medium, pw, pw * ff.weight)    # T / P where it reaches the surface
+            pw = where(in_medium, pw, pw * ff_weight)    # T / P where it reaches the surface
             alive = alive & (hit.valid | in_medium)
             hit = hit._replace(valid=hit.valid & ~in_medium)
         alive = alive & hit.valid if medium is None else alive
@@ -133,11 +146,16 @@ def trace_photon_paths(scene: Scene, seed, photon_index: Array, n_emitted, max_d
         if medium is not None:
             # a medium interaction takes the surface's place: stored with the free-flight
             # weight without sigma (T / p), continued with T sigma_s / p along a phase sample
-            x = o + d * ff.t
+            x = o + d * jnp.where(in_medium, ff_t, 0.0)
             ph = phase.sample(medium.g, d, u(base), u(base + 1))
-            pdf = jnp.where(ff.pdf > 0, ff.pdf, 1.0)
-            t_over_p = V3(*(jnp.where(ff.pdf > 0, c / pdf, 0.0)
-                            for c in media.transmittance(medium.sigma_t, ff.t)))
+            if grid:   # the tracking's weight without sigma_s(x): its T / p
+                sigma_s = grid_media.scattering(medium, x)
+                t_over_p = V3(*(jnp.where(sc > 0, wc / jnp.where(sc > 0, sc, 1.0), 0.0)
+                                for wc, sc in zip(ff_weight, sigma_s)))
+            else:
+                pdf = jnp.where(ff.pdf > 0, ff.pdf, 1.0)
+                t_over_p = V3(*(jnp.where(ff.pdf > 0, c / pdf, 0.0)
+                                for c in media.transmittance(medium.sigma_t, ff.t)))
             stored_pw = where(in_medium, pw_arrival * t_over_p, stored_pw)
             store = store | in_medium
             through = through & ~in_medium
@@ -146,7 +164,7 @@ def trace_photon_paths(scene: Scene, seed, photon_index: Array, n_emitted, max_d
             n_at = where(in_medium, V3(zero, zero, zero), n_arrival)
             origin = where(in_medium, x, geometry.offset_origin(hit.p, hit.n, bs.wi))
             bs = bsdf.BSDFSample(where(in_medium, ph.d_out, bs.wi),
-                                 where(in_medium, ff.weight, bs.weight),
+                                 where(in_medium, ff_weight, bs.weight),
                                  jnp.where(in_medium, ph.pdf, bs.pdf), bs.delta & ~in_medium,
                                  bs.valid | in_medium)
         record = (p_at, stored_pw, -d, n_at, store & ~through & spec_seen & only_spec, store)
@@ -194,9 +212,6 @@ def trace_photons(scene: Scene, n_photons: int, seed: int = 0, max_depth: int = 
     :mod:`jgi.core.sharding`); chunks keep memory bounded (13 floats per stored photon)."""
     if scene.lights.count == 0:
         raise ValueError("the scene has no lights to emit photons from")
-    if scene.has_grid_medium:
-        raise ValueError("photon tracing samples homogeneous media only; the scene's medium is "
-                         "a grid (heterogeneous media: the path tracer)")
     chunk = int(min(chunk, max(256, 1 << int(np.ceil(np.log2(max(n_photons, 1)))))))
     starts = list(range(0, n_photons, chunk))
     devices = list(devices if devices is not None else jax.devices())

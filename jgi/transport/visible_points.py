@@ -21,7 +21,7 @@ from jax import Array
 
 from ..core import rng
 from ..core.vec import V3, where
-from ..physics import bsdf, geometry, media
+from ..physics import bsdf, geometry, grid_media, media
 from ..physics.lights import emitted, environment_radiance
 from ..scene.tables import DIFFUSE, PHONG, PLASTIC, ROUGH_DIELECTRIC, ROUGH_KINDS, Scene
 from .subpath import (
@@ -118,14 +118,19 @@ def trace_to_diffuse(scene: Scene, uniform, o: V3, d: V3, *, max_depth: int,
     chain there, a *volume* visible point (``in_medium``; its beta times T sigma_s / p), where a
     volume photon estimate (:func:`jgi.transport.density.volume_sum_within`) takes over; the
     surface, reached, weighs the chain by T / P. Only without direct light (light_samples 0).
+    A grid medium is tracked (:mod:`jgi.physics.grid_media`: spectral tracking on a stream
+    hashed from the same two numbers), its weights the tracking's; no beams there.
     With ``beams``, no free flight is sampled: every segment crosses the medium to its surface,
     weighed by its transmittance T(s), and is returned (``segments``) for the beam radiance
     estimate (:func:`jgi.transport.density.beam_sum`)."""
     mats, lights = scene.materials, scene.lights
     medium = scene.medium
-    if scene.has_grid_medium:
-        raise ValueError("trace_to_diffuse samples homogeneous media only; the scene's medium is "
-                         "a grid (heterogeneous media: the path tracer)")
+    grid = scene.has_grid_medium
+    if grid and beams:
+        raise ValueError("trace_to_diffuse: beams (transmittance along whole segments) are not "
+                         "implemented in grid media")
+    if grid:   # rendered, not differentiated (jgi.physics.grid_media)
+        medium = jax.tree_util.tree_map(jax.lax.stop_gradient, medium)
     if medium is not None and light_samples:
         raise ValueError("trace_to_diffuse: direct light at visible points is not implemented "
                          "in participating media (light_samples must be 0)")
@@ -152,13 +157,18 @@ def trace_to_diffuse(scene: Scene, uniform, o: V3, d: V3, *, max_depth: int,
             beta = beta * media.transmittance(medium.sigma_t, jnp.where(active, t_seg, 0.0))
         elif medium is not None:   # a free flight first: a volume visible point, or T / P
             dm = medium_dim0 + 2 * depth
-            ff = media.sample_free_flight(medium.sigma_t, medium.albedo, beta,
-                                          jnp.where(hit.valid, hit.t, jnp.inf), uniform(dm),
-                                          uniform(dm + 1))
+            t_hit = jnp.where(hit.valid, hit.t, jnp.inf)
+            if grid:   # spectral tracking; weight sigma_s(x) (null products) / (mu P_r)
+                ff = grid_media.sample_free_flight(medium, o, d, t_hit, beta, active,
+                                                   rng.substream(uniform(dm), uniform(dm + 1)))
+            else:
+                ff = media.sample_free_flight(medium.sigma_t, medium.albedo, beta, t_hit,
+                                              uniform(dm), uniform(dm + 1))
             scattered = active & ff.scattered
             v = v._replace(
                 beta=where(scattered, beta * ff.weight, v.beta),
-                p=where(scattered, o + d * ff.t, v.p), n=where(scattered, Z, v.n),
+                p=where(scattered, o + d * jnp.where(scattered, ff.t, 0.0), v.p),
+                n=where(scattered, Z, v.n),
                 wo=where(scattered, wo, v.wo), found=v.found | scattered,
                 in_medium=v.in_medium | scattered)
             beta = beta * ff.weight     # T / P where the surface is reached
