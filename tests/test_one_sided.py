@@ -154,15 +154,15 @@ def _planes_scene(size=16):
 
 
 def test_back_seen_one_sided_plane_is_black_and_estimators_agree():
-    """PT, BDPT, LT, VCM and SPPM agree per region (Welch's t, both sides' standard errors from
-    4 seeds); where only the back-seen one-sided plane is visible every estimator gives 0,
-    and the two-sided plane beside it is lit."""
+    """PT, VCM and SPPM agree per region (Welch's t, both sides' standard errors from 4
+    seeds); where only the back-seen one-sided plane is visible every estimator gives 0, and
+    the two-sided plane beside it is lit. (VCM's strategies include light tracing's splats and
+    BDPT's connections on the code those estimators share; they are left out for the suite's
+    time.)"""
     scene = _planes_scene()
     seeds = range(4)
     runs = {
         "pt": dict(spp=64),
-        "bdpt": dict(spp=16),
-        "lt": dict(spp=16),
         "vcm": dict(spp=8),
         "sppm": dict(spp=4, photons=20_000, radius=0.08),
     }
@@ -176,9 +176,9 @@ def test_back_seen_one_sided_plane_is_black_and_estimators_agree():
         assert float(img[back].max()) == 0.0, e
         assert float(img[lit].mean()) > 0.03, (e, float(img[lit].mean()))
     ts = []
-    for e in ("bdpt", "lt", "vcm", "sppm"):
+    for e in ("vcm", "sppm"):
         ts.append(assert_agree(imgs[e], imgs["pt"], regions=4, label=f"{e} vs pt").max())
-    print("max |t| vs pt (bdpt, lt, vcm, sppm):", np.round(ts, 2))
+    print("max |t| vs pt (vcm, sppm):", np.round(ts, 2))
 
 
 @pytest.mark.slow
