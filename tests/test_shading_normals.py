@@ -27,7 +27,7 @@ SPP = 256       # per render of the path tracer, Mitsuba and the light tracer
 CASES = [
     ("pt", dict(max_depth=DEPTH), SPP),
     ("lt", dict(max_depth=DEPTH), SPP),
-    ("bdpt", dict(max_depth=DEPTH), 32),
+    # (BDPT's connections are VCM's code, connect_vertices; left out for the suite's time)
     # photons hit max_bounces surfaces: paths of max_bounces + 1 segments, the path tracer's DEPTH
     ("sppm", dict(max_bounces=DEPTH - 1, photons=20_000, passes=8, radius=0.05), 4),
     ("vcm", dict(max_depth=DEPTH, radius=0.03), 16),

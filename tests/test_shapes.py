@@ -321,19 +321,21 @@ def _disk_and_cylinder_scene(size=16):
 
 @pytest.mark.slow
 def test_estimators_agree_with_disk_and_cylinder_lights():
-    """PT, BDPT, LT, VCM and SPPM agree per 4 x 4 region (Welch's t, both sides' standard
-    errors from 4 seeds, Bonferroni) on a scene lit by a disk light and an inward-emitting
-    tube, with a diffuse tube: every estimator's area-light sampling, emission sampling and
-    densities for the two new kinds (measured max |t| 1.6, 2.1, 5.4, 2.6; with 8 seeds each
-    VCM 1.7, BDPT 2.5)."""
+    """PT, VCM and SPPM agree per 4 x 4 region (Welch's t, both sides' standard errors from 8
+    seeds, Bonferroni) on a scene lit by a disk light and an inward-emitting tube, with a
+    diffuse tube: every estimator's area-light sampling, emission sampling and densities for
+    the two new kinds (VCM's light subpaths, t = 1 splats and connections use the emission
+    sampling and the densities pdf_light_origin / pdf_emission_dir that LT and BDPT use, so
+    those two are left out for the suite's time; measured earlier with 8 seeds each: VCM 1.7,
+    BDPT 2.5)."""
     scene = _disk_and_cylinder_scene()
-    runs = {"pt": dict(spp=64), "bdpt": dict(spp=16), "lt": dict(spp=16), "vcm": dict(spp=8),
+    runs = {"pt": dict(spp=64), "vcm": dict(spp=8),
             "sppm": dict(spp=4, photons=20_000, radius=0.05)}
-    imgs = {e: np.stack([jgi.render(scene, e, seed=10 * k + s, **kw) for s in range(4)])
+    imgs = {e: np.stack([jgi.render(scene, e, seed=10 * k + s, **kw) for s in range(8)])
             for k, (e, kw) in enumerate(runs.items())}
     ts = [assert_agree(imgs[e], imgs["pt"], regions=4, label=f"{e} vs pt").max()
-          for e in ("bdpt", "lt", "vcm", "sppm")]
-    print("max |t| vs pt (bdpt, lt, vcm, sppm):", np.round(ts, 2))
+          for e in ("vcm", "sppm")]
+    print("max |t| vs pt (vcm, sppm):", np.round(ts, 2))
 
 
 # --- importers ----------------------------------------------------------------------------
