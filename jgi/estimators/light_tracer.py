@@ -47,7 +47,6 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-import jax
 import jax.numpy as jnp
 import numpy as np
 from jax import Array
@@ -91,7 +90,7 @@ def trace_light_paths(scene: Scene, cfg: LightTracerConfig, seed, pixel: Array, 
     val0 = where(ok0, le * (proj.importance * g / jnp.where(ok0, pdf0, 1.0)), V3.full(0.0, g))
     lkey = light_key(seed, pixel, sample)
     if scene.has_grid_medium:   # the light seen through the grid: ratio tracking's T(d)
-        medium = jax.tree_util.tree_map(jax.lax.stop_gradient, scene.medium)
+        medium = grid_media.held_constant(scene.medium)
         val0 = val0 * grid_media.ratio_tracking(medium, y0.p, proj.wi, proj.dist,
                                                 ok0 & (max_component(val0) > 0),
                                                 rng.derive(lkey, rng.SALTS["ratio_tracking"]))

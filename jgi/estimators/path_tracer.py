@@ -179,7 +179,7 @@ def _shade(scene: Scene, cfg: PathTracerConfig, s: PathState, hit: geometry.Hit,
     grid = scene.has_grid_medium
     if grid:   # delta (spectral) tracking; not differentiated (jgi.physics.grid_media)
         dm = cfg.dims_per_bounce
-        medium = jax.tree_util.tree_map(jax.lax.stop_gradient, medium)
+        medium = grid_media.held_constant(medium)
         key_m = rng.substream(u(dm), u(dm + 1))
         gf = grid_media.sample_free_flight(medium, s.o, s.d, jnp.where(hit.valid, hit.t, jnp.inf),
                                            jax.lax.stop_gradient(s.beta), s.active, key_m)

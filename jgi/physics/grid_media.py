@@ -94,6 +94,12 @@ def differentiated(medium) -> bool:
     return False
 
 
+def held_constant(medium):
+    """The grid medium as the trackings use it: every leaf a constant for derivatives (they
+    have no pathwise derivative; see the module and :func:`refuse_derivatives`)."""
+    return jax.tree_util.tree_map(jax.lax.stop_gradient, medium)
+
+
 def refuse_derivatives(medium) -> None:
     """A :class:`jgi.core.errors.ParameterError` if a derivative is being traced with respect to
     some float of ``medium`` (``jax.grad``, ``jax.jvp`` and their kin over a function that puts

@@ -28,7 +28,6 @@ from __future__ import annotations
 
 from typing import Callable, NamedTuple
 
-import jax
 import jax.numpy as jnp
 import numpy as np
 from jax import Array
@@ -187,7 +186,7 @@ def connect_camera(scene: Scene, y: Vertices, key: Array | None = None) -> Camer
     if scene.has_grid_medium:
         if key is None:
             raise ValueError("connect_camera in a grid medium needs a key (ratio tracking)")
-        medium = jax.tree_util.tree_map(jax.lax.stop_gradient, scene.medium)
+        medium = grid_media.held_constant(scene.medium)
         value = value * grid_media.ratio_tracking(medium, y.p, w, proj.dist,
                                                   ok & (max_component(value) > 0), key)
     elif scene.has_medium:

@@ -102,7 +102,7 @@ def trace_photon_paths(scene: Scene, seed, photon_index: Array, n_emitted, max_d
     medium = scene.medium
     grid = scene.has_grid_medium
     if grid:   # rendered, not differentiated (jgi.physics.grid_media)
-        medium = jax.tree_util.tree_map(jax.lax.stop_gradient, medium)
+        medium = grid_media.held_constant(medium)
 
     def bounce(state, depth):
         o, d, pw, alive, spec_seen, only_spec = state

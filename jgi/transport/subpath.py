@@ -262,7 +262,7 @@ def free_flight(scene: Scene, o: V3, d: V3, hit: geometry.Hit, alive: Array, u_c
     t_hit = jnp.where(hit.valid, hit.t, jnp.inf)
     if scene.has_grid_medium:
         beta = V3.full(1.0, t_hit) if throughput is None else throughput
-        gf = grid_media.sample_free_flight(jax.tree_util.tree_map(sg, medium), o, d, t_hit,
+        gf = grid_media.sample_free_flight(grid_media.held_constant(medium), o, d, t_hit,
                                            sg(beta), alive, rng.substream(u_channel, u_distance))
         t_ff, scattered, weight = gf.t, gf.scattered, gf.weight
     else:

@@ -130,7 +130,7 @@ def trace_to_diffuse(scene: Scene, uniform, o: V3, d: V3, *, max_depth: int,
         raise ValueError("trace_to_diffuse: beams (transmittance along whole segments) are not "
                          "implemented in grid media")
     if grid:   # rendered, not differentiated (jgi.physics.grid_media)
-        medium = jax.tree_util.tree_map(jax.lax.stop_gradient, medium)
+        medium = grid_media.held_constant(medium)
     if medium is not None and light_samples:
         raise ValueError("trace_to_diffuse: direct light at visible points is not implemented "
                          "in participating media (light_samples must be 0)")
