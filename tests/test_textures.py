@@ -278,8 +278,7 @@ def test_photon_mapping_of_the_checkerboard_converges(checker_plane, estimator, 
 
 # --- scenes without textures: unchanged --------------------------------------------------------
 
-@pytest.mark.parametrize("name,estimator", [("cornell_box", "pt"), ("veach_plates", "pt"),
-                                            ("cornell_box", "bdpt")])
+@pytest.mark.parametrize("name,estimator", [("cornell_box", "pt"), ("veach_plates", "pt")])
 def test_untextured_scenes_render_bit_for_bit_as_before(name, estimator):
     """References rendered by jgi before textures (main at e294946, 16^2, 4 spp, seed 0, LLVM
     unroll threshold 1000 as in the suite): a scene without textures compiles to the same code."""
