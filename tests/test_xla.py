@@ -15,7 +15,7 @@ from jgi import _xla
 
 ROOT = Path(__file__).resolve().parents[1]
 # Veach's plates: Phong's exp(n log cos), the most rounding-sensitive kernel (tests/test_cpu.py
-# compares the caustic box and light tracing across processors)
+# compares it, and the BSDFs', lights' and intersections' decisions, across processors)
 CASES = [("veach_plates", dict(strategy="mis"))]
 PRODUCTION_THRESHOLD = _xla.DEFAULT_UNROLL_THRESHOLD
 
