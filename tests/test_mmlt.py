@@ -128,18 +128,37 @@ def test_stats_and_registry(cornell, mmlt_renders):
     assert "mmlt" in jgi.REGISTRY
 
 
-@pytest.mark.parametrize("scene_name", ["cornell_box_caustics", "env_scene", "fog"])
+def _grid_room():
+    """The Cornell room with a random 4 x 5 x 6 density grid (0.2 to 2.2) in a box around its
+    lower part, RGB extinction, HG g 0.3."""
+    from jgi.scene import builtin
+    from jgi.scene.builder import SceneBuilder
+
+    b = SceneBuilder("grid_room")
+    builtin.cornell_room(b, 8)
+    density = 0.2 + 2.0 * np.random.default_rng(5).random((4, 5, 6))
+    b.grid_medium(density, (-0.9, -1.0, -0.9), (0.9, 0.5, 0.9), sigma_t=(0.8, 1.0, 1.3),
+                  albedo=0.8, g=0.3)
+    return b.build()
+
+
+@pytest.mark.parametrize("scene_name", ["cornell_box_caustics", "env_scene", "fog", "grid"])
 def test_single_strategy_evaluation_matches_bdpt(scene_name, rng_np):
     """:func:`mmlt.evaluate` (the chain kernel's target: one strategy per lane, path lengths
     mixed over the lanes) gives, lane by lane, what BDPT's all-strategy evaluation gives for the
     strategy the lane chose (:func:`mmlt.select`), with the same primary samples: value, target
     and pixel. Glass (Dirac vertices) in the caustic box, infinite lights under the map, medium
-    vertices (their distance densities in every MIS ratio) in an RGB, anisotropic fog."""
+    vertices (their distance densities in every MIS ratio) in an RGB, anisotropic fog; in a grid
+    medium, tracked flights, ratio tracking along each connection's shadow ray (MMLT tracks
+    only its lane's strategy, BDPT every strategy: the same estimate, its stream hashed from
+    the ray) and the proxy distance densities."""
     if scene_name == "env_scene":
         scene = env_scene(8)
     elif scene_name == "fog":
         scene = jgi.load_scene("cornell_box_fog", resolution=8, sigma_t=(0.45, 0.6, 0.8),
                                albedo=(0.9, 0.8, 0.7), g=0.4)
+    elif scene_name == "grid":
+        scene = _grid_room()
     else:
         scene = jgi.load_scene(scene_name, resolution=8)
     D, N = 3, 1536

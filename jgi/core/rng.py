@@ -81,8 +81,8 @@ SALTS: dict[str, int] = {
     "pssmlt": 0x2545F491,             # PSSMLT bootstrap; + 1: its chains, per (chain, step)
     "mmlt": 0x5F3759DF,               # MMLT chains of path length L: + 1 + L, per (chain, step)
     # ratio tracking of shadow ray j through a grid medium: + j, from the bounce's flight stream
-    # (substream), per (path, bounce); light tracing's camera segments: + 0 (y_0), + 1 + i
-    # (vertex i + 1), from the light subpath's stream
+    # (substream), per (path, bounce), in the path tracer; the connections of the other
+    # estimators (transport.connection.shadow_transmittance): + 0, from the shadow ray (ray_key)
     "ratio_tracking": 0x6A09E667,
     # Veach's MLT: bootstrap paths; + 1: chain steps. The bootstrap shares its value with
     # "final_gather": harmless, as no estimate uses both (pm_jensen never runs an MLT chain,
@@ -111,15 +111,22 @@ def substream(u1: Array, u2: Array) -> Array:
     return lowbias32(lowbias32(bits[0] ^ _U32(0x7F4A7C15)) ^ bits[1])
 
 
-def ray_uniform(o, d, key: Array) -> Array:
-    """A uniform float32 in [0, 1) that is a pure function of a ray (origin ``o``, direction
-    ``d``, each three float32 arrays) and an integer ``key`` (a primitive): the bits of the
-    seven numbers chained through the mixer. pbrt-v4's HashFloat(ray.o, ray.d) for alpha
-    masks; the ray is itself random, so the number is a fresh uniform for every ray and
-    primitive, with no stream to carry through the traversal."""
+def ray_key(o, d, key: Array) -> Array:
+    """A stream key that is a pure function of a ray (origin ``o``, direction ``d``, each three
+    float32 arrays) and an integer ``key``: the bits of the seven numbers chained through the
+    mixer. The ray is itself random, so this is a fresh stream for every ray, with nothing to
+    carry to where it is used (pbrt-v4 seeds its shadow rays' ratio tracking from a hash of the
+    ray alike)."""
     h = lowbias32(jnp.asarray(key).astype(_U32) ^ _U32(0x2C1B3C6D))
     for c in (*o, *d):   # (bits have no derivative: the ray's gradient is stopped here)
         bits = jax.lax.bitcast_convert_type(
             jax.lax.stop_gradient(jnp.asarray(c, jnp.float32)), _U32)
         h = lowbias32(h ^ bits)
-    return (h >> 8).astype(jnp.float32) * jnp.float32(1.0 / 16777216.0)
+    return h
+
+
+def ray_uniform(o, d, key: Array) -> Array:
+    """A uniform float32 in [0, 1) that is a pure function of a ray and an integer ``key`` (a
+    primitive): the top 24 bits of :func:`ray_key`. pbrt-v4's HashFloat(ray.o, ray.d) for alpha
+    masks."""
+    return (ray_key(o, d, key) >> 8).astype(jnp.float32) * jnp.float32(1.0 / 16777216.0)

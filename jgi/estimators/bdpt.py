@@ -54,7 +54,11 @@ flights and carry medium vertices (:mod:`jgi.transport.subpath`: phase function 
 Dirac, always connectable); every area density along a segment includes its distance density
 (p(d) at a medium vertex, P(d) at a surface, the same from either end), so the ratio chains
 above hold unchanged; connections and light sampling take the transmittance T(d). Light from
-infinite lights is extinguished in such a scene (no light subpaths start there).
+infinite lights is extinguished in such a scene (no light subpaths start there). In a grid
+medium the flights are spectral tracking's, each T(d) is ratio tracking's estimate along the
+connection's shadow ray (:func:`jgi.transport.connection.shadow_transmittance`), and the
+distance densities are a proxy common to every strategy
+(:func:`jgi.transport.subpath.segment_density`): the weights still sum to one per path.
 
 Parameters: ``max_depth`` (segments, the path tracer's convention), ``heuristic``
 ("balance" | "power"), ``power`` (power exponent), ``path_length`` (> 0: only paths of exactly
@@ -77,12 +81,17 @@ from .._xla import materialize
 from ..core import rng
 from ..core.configured import Configured
 from ..core.imageio import write_exr, write_png
-from ..core.vec import V3, dot, where
+from ..core.vec import V3, dot, max_component, where
 from ..drivers.splat import render_splats
-from ..physics import bsdf, camera, geometry, media
+from ..physics import bsdf, camera, geometry
 from ..physics.lights import emitted, environment_pdf, environment_radiance, select_light
 from ..scene.tables import Scene
-from ..transport.connection import connect_camera, connect_vertices, occluded_many
+from ..transport.connection import (
+    connect_camera,
+    connect_vertices,
+    occluded_many,
+    transmittance,
+)
 from ..transport.subpath import (
     CAMERA_DIMS0,
     Vertices,
@@ -391,7 +400,7 @@ def next_event_strategy(scene: Scene, mp, p: V3, n: V3, ns: V3 | None, wo: V3, b
     k = select_light(lights, u_select)
     value = next_event_value(ne, beta)
     if in_medium is not None:
-        value = value * media.transmittance(scene.medium.sigma_t, ls.dist)
+        value = value * transmittance(scene, ls.dist, ne.shadow, max_component(value) > 0)
     dist = ls.dist
     if has_infinite_lights(lights):
         infinite = is_infinite(lights, k)
@@ -731,4 +740,4 @@ def render(scene: Scene, cfg: BDPTConfig = BDPTConfig(), *, spp: int, seed: int,
 
 
 register(Estimator("bdpt", "bidirectional path tracing, all (s, t) strategies with MIS", render,
-                   BDPTConfig, renamed={"beta": "power"}, media=True))
+                   BDPTConfig, renamed={"beta": "power"}, media=True, grid_media=True))

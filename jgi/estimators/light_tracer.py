@@ -40,7 +40,8 @@ flight on every segment and scatters at medium vertices by the phase function
 with the segment's transmittance T(d) (:func:`~jgi.transport.connection.connect_camera`), and
 y_0 seen directly is attenuated by T(d) too. In a grid medium (a density grid in a box) the
 subpath's flights are spectral tracking's and each T(d) is ratio tracking's unbiased estimate
-(:mod:`jgi.physics.grid_media`) on a stream of its own per (light subpath, vertex).
+(:mod:`jgi.physics.grid_media`) along the shadow ray, on a stream hashed from that ray
+(:func:`jgi.transport.connection.shadow_transmittance`).
 """
 
 from __future__ import annotations
@@ -51,14 +52,13 @@ import jax.numpy as jnp
 import numpy as np
 from jax import Array
 
-from ..core import rng
 from ..core.configured import Configured
 from ..core.vec import V3, dot, max_component, where
 from ..drivers.splat import render_splats
-from ..physics import camera, geometry, grid_media, media
+from ..physics import camera, geometry
 from ..physics.lights import emitted
 from ..scene.tables import Scene
-from ..transport.connection import connect_camera, occluded_many
+from ..transport.connection import connect_camera, occluded_many, transmittance
 from ..transport.subpath import light_key, light_subpath, rows
 from .registry import Estimator, Render, param, register
 
@@ -88,26 +88,17 @@ def trace_light_paths(scene: Scene, cfg: LightTracerConfig, seed, pixel: Array, 
     pdf0 = y0.pdf_fwd
     ok0 = y0.valid & y0.on_surface & proj.visible & (pdf0 > 0)
     val0 = where(ok0, le * (proj.importance * g / jnp.where(ok0, pdf0, 1.0)), V3.full(0.0, g))
-    lkey = light_key(seed, pixel, sample)
-    if scene.has_grid_medium:   # the light seen through the grid: ratio tracking's T(d)
-        medium = grid_media.held_constant(scene.medium)
-        val0 = val0 * grid_media.ratio_tracking(medium, y0.p, proj.wi, proj.dist,
-                                                ok0 & (max_component(val0) > 0),
-                                                rng.derive(lkey, rng.SALTS["ratio_tracking"]))
-    elif scene.has_medium:   # the light seen through the medium: T(d)
-        val0 = val0 * media.transmittance(scene.medium.sigma_t, proj.dist)
+    shadow0 = geometry.shadow_ray(y0.p, y0.n, proj.wi, proj.dist)
+    if scene.has_medium:   # the light seen through the medium: T(d)
+        val0 = val0 * transmittance(scene, proj.dist, shadow0, ok0 & (max_component(val0) > 0))
     W = scene.camera.width
     pix0 = jnp.where(ok0, jnp.clip(jnp.floor(proj.py).astype(jnp.int32), 0,
                                    scene.camera.height - 1) * W
                      + jnp.clip(jnp.floor(proj.px).astype(jnp.int32), 0, W - 1), -1)
-    rays = [geometry.shadow_ray(y0.p, y0.n, proj.wi, proj.dist)]
+    rays = [shadow0]
     # ---- s >= 2: every surface vertex of the light subpath, all at once ([max_depth - 1, N]) ----
     if cfg.max_depth > 1:
-        keys = None
-        if scene.has_grid_medium:   # a stream per vertex for its camera segment's tracking
-            keys = jnp.stack([rng.derive(lkey, rng.SALTS["ratio_tracking"] + 1 + i)
-                              for i in range(cfg.max_depth - 1)])
-        conn = connect_camera(scene, rows(v, slice(1, None)), keys)
+        conn = connect_camera(scene, rows(v, slice(1, None)))
         rays.append(conn.shadow)
     occ = occluded_many(scene, rays)
     out.append((0, jnp.where(occ[0], -1, pix0), val0))

@@ -29,7 +29,11 @@ checks it lane by lane against BDPT's all-strategy evaluation (:func:`select`).
 
 Participating media (a scene filled by a homogeneous medium) come with BDPT's subpaths: each
 walk step draws its two free-flight numbers too (:func:`stream_dims`), and the strategies'
-densities carry the segments' distance densities as BDPT's do.
+densities carry the segments' distance densities as BDPT's do. In a grid medium too: the
+trackings' streams are functions of the primary samples (the flights' of two of each step's
+numbers, :func:`jgi.core.rng.substream`; a connection's of its shadow ray,
+:func:`jgi.transport.connection.shadow_transmittance`), so a primary sample still maps to one
+path and one contribution, and a lane tracks only the connection its strategy makes.
 
 Chains: one kernel (:func:`run_chains`) runs chains of every length, L a traced value per
 lane. The bootstrap runs through it with p_large = 1 (lanes assigned lengths round-robin) and
@@ -278,6 +282,10 @@ def evaluate(scene: Scene, cfg: MMLTConfig, u, length):
     is_s0, is_s1, is_t1 = s == 0, s == 1, t == 1
     z, zm = _at(cam, t - 1), _at(cam, jnp.maximum(t - 2, 0))
     y, ym = _at(light, jnp.maximum(s - 1, 0)), _at(light, jnp.maximum(s - 2, 0))
+    # in a grid medium each connection below tracks its transmittance on the lanes where it is
+    # valid: only the lanes whose strategy makes it (the others' values are not read)
+    grid = scene.has_grid_medium
+    only = lambda v, kind: v._replace(valid=v.valid & kind) if grid else v  # noqa: E731
     zero = jnp.zeros_like(u_strat)
     Z = V3(zero, zero, zero)
     # z_{t-1} and the vertex before it, as the walk that found z_{t-1} saw them
@@ -303,14 +311,16 @@ def evaluate(scene: Scene, cfg: MMLTConfig, u, length):
                            for j in range(D)]), jnp.maximum(t - 2, 0)) for k in (3, 4, 5)]
     mp = bsdf.lookup_specialised(mats, z.material, z.uv)
     c1, shadow1, d1 = next_event_strategy(scene, mp, z.p, z.n, z.ns, z.wo, z.beta, *ne_u,
-                                          z.valid, d2_prev, cos_prev, zm.on_surface, z.in_medium)
+                                          only(z, is_s1).valid, d2_prev, cos_prev,
+                                          zm.on_surface, z.in_medium)
     # ---- t = 1: y_{s-1} seen from the pinhole, splatted where it projects ----
-    conn = connect_camera(scene, y)
+    conn = connect_camera(scene, only(y, is_t1))
     vy = ym.p - y.p
     qsm_t1 = reverse_at_predecessor(lights, lp, s - 1, conn.pdf_y_rev, area_density(
         scene, conn.pdf_y_rev, dot(vy, vy), dot(ym.n, y.wo), ym.on_surface, ym.in_medium))
     # ---- s, t >= 2: y_{s-1} <-> z_{t-1} ----
-    c_in, shadow_in, rev_in = interior_connection(scene, y, ym, z, zm)
+    c_in, shadow_in, rev_in = interior_connection(scene, y, ym,
+                                                  only(z, ~is_s0 & ~is_s1 & ~is_t1), zm)
     qsm_in = reverse_at_predecessor(lights, lp, s - 1, rev_in.get("qsm_solid"), rev_in["qsm"])
     # ---- one shadow ray per lane: the one its connection needs (none for s = 0) ----
     occ, = occluded_many(scene, [_select_ray([(is_s1, shadow1), (is_t1, conn.shadow)],
@@ -524,7 +534,7 @@ def render(scene: Scene, cfg: MMLTConfig = MMLTConfig(), *, spp: int, seed: int,
 
 register(Estimator(
     "mmlt", "multiplexed Metropolis light transport over BDPT (strategy in the chain state)",
-    render, MMLTConfig, renamed={"beta": "power"}, media=True))
+    render, MMLTConfig, renamed={"beta": "power"}, media=True, grid_media=True))
 
 
 def small_step_density(u, v, s1: float = MMLTConfig.s1, s2: float = MMLTConfig.s2):

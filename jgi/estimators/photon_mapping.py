@@ -152,16 +152,16 @@ def render_pm(scene: Scene, cfg: PMConfig = PMConfig(), *, spp: int = 4, seed: i
     photons, radius, k, filter, max_depth = (cfg.photons, cfg.radius, cfg.k, cfg.filter,
                                              cfg.max_bounces)
     cap, thickness = cfg.cap, cfg.thickness
-    pm = trace_photons(scene, photons, seed=seed, max_depth=max_depth)
-    pix, smp = _pixels(scene, spp)
     beams = scene.has_medium and cfg.volume == "beam"
-    if beams and scene.has_grid_medium:
+    if beams and scene.has_grid_medium:   # (refused before any photon is traced)
         raise ParameterError("pm: the beam estimate (volume='beam') needs closed-form "
                              "transmittance along whole segments, which a grid medium has not; "
                              "allowed there: volume='point'")
     if beams and (k or filter != "box"):
         raise ParameterError("pm: the beam estimate (volume='beam') takes every photon within "
                              "radius with the box filter; allowed: k = 0, filter = 'box'")
+    pm = trace_photons(scene, photons, seed=seed, max_depth=max_depth)
+    pix, smp = _pixels(scene, spp)
     v = visible_points(scene, jnp.uint32(seed), pix, smp, max_depth=max_depth, light_samples=0,
                        beams=beams)
     fp = (dict(k=cfg.cone_k) if filter == "cone" else

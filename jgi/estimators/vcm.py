@@ -80,7 +80,11 @@ normalised over the ball (the light vertex's sigma_s is the camera vertex's to b
 MIS densities take the segments' distance densities (p(d) towards a medium vertex, P(d)
 towards a surface: at arrival, :func:`mis_arrive`) and the merge vertex's own eta: eta_V =
 4/3 pi r_V^3 N_L at a medium vertex (:class:`MisFactors`), r_V,i = r_V,0 i^((alpha - 1) / 3).
-With the same random numbers ``bpt`` mode is BDPT path for path in fog too.
+With the same random numbers ``bpt`` mode is BDPT path for path in fog too. In a grid medium the
+walks track (spectral tracking), every transmittance is ratio tracking's along the shadow ray,
+the MIS distance densities are BDPT's proxy (:func:`jgi.transport.subpath.segment_density`),
+and a merge divides by sigma_s(y) at the light vertex (the camera vertex brings its own
+sigma_s(z): equal as r_V -> 0).
 
 Random numbers: iteration i of pixel p draws the camera subpath from the stream (seed, p, i)
 and the light subpath from :func:`jgi.transport.subpath.light_key` (seed, p, i), with BDPT's
@@ -105,7 +109,7 @@ from ..core.compaction import compact_map
 from ..core.imageio import write_exr, write_png
 from ..core.progress import advance
 from ..core.vec import V3, dot, max_component, where
-from ..physics import bsdf, camera, geometry, media
+from ..physics import bsdf, camera, geometry, grid_media
 from ..physics.lights import (
     emitted,
     environment_pdf,
@@ -115,7 +119,12 @@ from ..physics.lights import (
 )
 from ..scene.tables import DIELECTRIC, ROUGH_DIELECTRIC, Scene
 from ..transport import density, hash_grid
-from ..transport.connection import connect_camera, connect_vertices, occluded_many
+from ..transport.connection import (
+    connect_camera,
+    connect_vertices,
+    occluded_many,
+    transmittance,
+)
 from ..transport.subpath import (
     CAMERA_DIMS0,
     LIGHT_DIMS0,
@@ -201,9 +210,11 @@ class VCMConfig:
         return {}
 
     def compile_key(self) -> "VCMConfig":
-        """The settings a compiled function depends on (the rest are traced or host-side)."""
+        """The settings a compiled function depends on (the rest are traced or host-side;
+        without merges, ``bpt`` mode, the filter too: one compile serves every filter)."""
         return replace(self, radius=0.0, volume_radius=0.0, radius_alpha=1.0, cone_k=1.0,
-                       gauss_alpha=1.0, gauss_beta=1.0, technique_images="")
+                       gauss_alpha=1.0, gauss_beta=1.0, technique_images="",
+                       filter=self.filter if self.merges else "box")
 
     def techniques(self) -> list[tuple]:
         """Every technique with its own image, in pyramid order: ("connect", s, t) for
@@ -461,6 +472,8 @@ def light_walk(scene: Scene, cfg: VCMConfig, key: Array, fs: Factors):
     f = fs.surface
     medium = scene.has_medium
     dims = light_dims_per_step(scene)
+    if scene.has_grid_medium:   # the trackings' derivatives would come out zero: refused
+        grid_media.refuse_derivatives(scene.medium)
     u = lambda k: rng.uniform(key, k)  # noqa: E731
     em = sample_emission(lights, u(0), u(1), u(2), u(3), u(4))
     ok = (em.pdf_pos > 0) & (max_component(em.weight) > 0)
@@ -616,6 +629,8 @@ def camera_walk(scene: Scene, cfg: VCMConfig, key: Array, pixel: Array,
     b, D = cfg.exponent, cfg.max_depth
     medium = scene.has_medium
     dims = camera_dims_per_step(scene)
+    if scene.has_grid_medium:   # the trackings' derivatives would come out zero: refused
+        grid_media.refuse_derivatives(scene.medium)
     u0 = lambda k: rng.uniform(key, k)  # noqa: E731
     o, d = camera_ray(cam, pixel, u0)
     z = jnp.zeros_like(o.x)
@@ -700,7 +715,8 @@ def camera_walk(scene: Scene, cfg: VCMConfig, key: Array, pixel: Array,
             Z = V3.full(0.0, z)
             ne_value = where(~geometry.occluded(scene, *ne.shadow), next_event_value(ne, beta), Z)
             if medium:
-                ne_value = ne_value * media.transmittance(scene.medium.sigma_t, ls.dist)
+                ne_value = ne_value * transmittance(scene, ls.dist, ne.shadow,
+                                                    max_component(ne_value) > 0)
         else:
             ne_value, w_ne = V3.full(0.0, z), z
         rec = CameraVertices(hit.p, hit.n, wo, beta, m, connectable,
@@ -808,8 +824,9 @@ def merge_grid(y_all: LightVertices, radius, table_size: int, n_light: int,
     o = cells.order
     row = (o // n_light).astype(jnp.float32)
     beta = y_all.beta
-    if y_all.in_medium is not None:
-        sigma_s = scene.medium.sigma_t * scene.medium.albedo
+    if y_all.in_medium is not None:   # (a grid medium's sigma_s at the vertex)
+        sigma_s = (grid_media.scattering(grid_media.held_constant(scene.medium), y_all.p)
+                   if scene.has_grid_medium else scene.medium.sigma_t * scene.medium.albedo)
         inv_s = V3(*(jnp.where(c > 0, 1.0 / jnp.where(c > 0, c, 1.0), 0.0) for c in sigma_s))
         beta = where(y_all.in_medium, beta * inv_s, beta)
     if scene is not None and scene.materials.has_masks:
@@ -1123,7 +1140,7 @@ class _Iterations:
         self.chunk = min(cfg.chunk, chunk_limit, 1 << max(8, int(np.ceil(np.log2(P)))))
         self.key_cfg = replace(cfg.compile_key(), chunk=self.chunk)
         self.table_size = table_size_for(scene, cfg)
-        self.filter_params = cfg.filter_params()
+        self.filter_params = cfg.filter_params() if cfg.merges else {}
 
     def run(self, spp: int, seed: int, on_light, on_chunk, by_technique: bool, progress=False):
         scene, cfg, kc, ts = self.scene, self.cfg, self.key_cfg, self.table_size
@@ -1303,4 +1320,5 @@ def iteration_image(scene: Scene, cfg: VCMConfig, seed, iteration, radius, filte
 
 
 register(Estimator("vcm", "vertex connection and merging (modes vcm, bpm, bpt, ppm), progressive",
-                   render, VCMConfig, renamed={"kernel": "filter"}, media=True))
+                   render, VCMConfig, renamed={"kernel": "filter"}, media=True,
+                   grid_media=True))

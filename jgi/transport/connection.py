@@ -21,7 +21,9 @@ value takes the transmittance T_c(d) = exp(-sigma_t,c d) of the segment (the sha
 binary visibility test), a medium vertex contributes the phase function in place of f and no
 cosine, and every area density across the connection multiplies by the distance density p_dist
 of the vertex it reaches (p(d) at a medium vertex, P(d) at a surface): the density with which a
-subpath's free flight would have made that segment.
+subpath's free flight would have made that segment. In a grid medium T is ratio tracking's
+unbiased estimate along the shadow ray (:func:`shadow_transmittance`), and p_dist the proxy of
+:func:`jgi.transport.subpath.segment_density`.
 """
 
 from __future__ import annotations
@@ -33,6 +35,7 @@ import numpy as np
 from jax import Array
 
 from .._xla import materialize
+from ..core import rng
 from ..core.vec import V3, dot, max_component, where
 from ..physics import bsdf, camera, geometry, grid_media, media
 from ..scene.tables import Scene
@@ -122,11 +125,11 @@ def connect_vertices(scene: Scene, y, z, ok: Array,
         g_value = over_d2(cs_y * cs_z)
     value = where(ok, y.beta * f_y * f_z * z.beta * g_value, V3.full(0.0, d2))
     pdf_z_from_y, pdf_y_from_z = to_area(pdf_y_fwd, cos_z), to_area(pdf_z_fwd, cos_y)
+    shadow = geometry.shadow_ray(y.p, y.n, w, dist)
     if medium:      # T(d) in the value; p_dist of the reached vertex's kind in the densities
-        value = value * media.transmittance(scene.medium.sigma_t, dist)
+        value = value * transmittance(scene, dist, shadow, ok & (max_component(value) > 0))
         pdf_z_from_y = pdf_z_from_y * segment_density(scene, d2, z_m)
         pdf_y_from_z = pdf_y_from_z * segment_density(scene, d2, y_m)
-    shadow = geometry.shadow_ray(y.p, y.n, w, dist)
     return VertexConnection(value, shadow, pdf_z_from_y, pdf_y_from_z, pdf_y_rev, pdf_z_rev)
 
 
@@ -141,12 +144,11 @@ class CameraConnection(NamedTuple):
     ok: Array
 
 
-def connect_camera(scene: Scene, y: Vertices, key: Array | None = None) -> CameraConnection:
+def connect_camera(scene: Scene, y: Vertices) -> CameraConnection:
     """Connect vertices y (any array shape; surface, or medium vertices in a medium scene) to
-    the pinhole (strategy t = 1). In a medium the camera sits in it: the value takes T(d), a
-    medium vertex the phase function and no cosine, and the camera's area density of y the
-    p_dist of y's kind (p(d) or P(d)). In a grid medium T(d) is ratio tracking's unbiased
-    estimate on the stream ``key`` (one per vertex, y's shape), which such scenes require."""
+    the pinhole (strategy t = 1). In a medium the camera sits in it: the value takes T(d)
+    (:func:`transmittance`), a medium vertex the phase function and no cosine, and the camera's
+    area density of y the p_dist of y's kind (p(d) or P(d))."""
     cam = scene.camera
     kinds = scene.materials.kinds
     proj = camera.project(cam, y.p)
@@ -183,16 +185,36 @@ def connect_camera(scene: Scene, y: Vertices, key: Array | None = None) -> Camer
     pixel = jnp.where(ok, iy * W + ix, -1)
     shadow = geometry.shadow_ray(y.p, y.n, w, proj.dist)
     pdf_cam = jnp.where(ok, proj.pdf_dir * cos_y * inv_d2, 0.0)
-    if scene.has_grid_medium:
-        if key is None:
-            raise ValueError("connect_camera in a grid medium needs a key (ratio tracking)")
-        medium = grid_media.held_constant(scene.medium)
-        value = value * grid_media.ratio_tracking(medium, y.p, w, proj.dist,
-                                                  ok & (max_component(value) > 0), key)
-    elif scene.has_medium:
-        value = value * media.transmittance(scene.medium.sigma_t, proj.dist)
+    if scene.has_medium:
+        value = value * transmittance(scene, proj.dist, shadow, ok & (max_component(value) > 0))
         pdf_cam = pdf_cam * segment_density(scene, d2, y.in_medium)
     return CameraConnection(pixel, value, shadow, pdf_cam, pdf_y_rev, ok)
+
+
+# --- transmittance along a connection ------------------------------------------------------------
+
+def transmittance(scene: Scene, dist: Array, shadow: tuple, active: Array) -> V3:
+    """T(d) of a connection or light sample of length ``dist`` (inf towards an infinite light)
+    in a scene filled by a medium: exp(-sigma_t d) per channel in a homogeneous medium, ratio
+    tracking's unbiased estimate along the ``shadow`` ray in a grid medium
+    (:func:`shadow_transmittance`; 1 where not ``active``)."""
+    if scene.has_grid_medium:
+        return shadow_transmittance(scene, shadow, active)
+    return media.transmittance(scene.medium.sigma_t, dist)
+
+
+def shadow_transmittance(scene: Scene, shadow: tuple, active: Array) -> V3:
+    """Ratio tracking's estimate of the grid medium's transmittance along a shadow ray (origin,
+    direction of any length, t_max; :func:`jgi.physics.geometry.shadow_ray`) for lanes
+    ``active`` (1 elsewhere), on a stream hashed from the ray itself
+    (:func:`jgi.core.rng.ray_key`): the ray is random, so the stream is fresh for every
+    connection and the same for a connection however it is reached (BDPT's strategies and
+    MMLT's single one), with no key to carry from the subpaths. Not differentiated (the grid
+    is held constant: :mod:`jgi.physics.grid_media`)."""
+    o, d, t_max = shadow
+    key = rng.ray_key(o, d, rng.SALTS["ratio_tracking"])
+    return grid_media.ratio_tracking(grid_media.held_constant(scene.medium), o, d, t_max,
+                                     active, key)
 
 
 # --- shadow rays ----------------------------------------------------------------------------------

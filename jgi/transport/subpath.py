@@ -153,12 +153,26 @@ def vertex_in_medium(scene: Scene, like: Array) -> Array | None:
 def segment_density(scene: Scene, d2: Array, at_medium: Array) -> Array:
     """p_dist of a segment of squared length d2 (medium scenes): p(d) if it ends at a medium
     vertex (``at_medium``), P(d) if at a surface (:func:`jgi.physics.media.segment_pdf`).
-    In a grid medium the distance density of a tracked flight has no closed form: 1 here, so
-    a subpath's densities there leave it out, and the estimators that weigh strategies by
-    them (BDPT, MMLT, VCM) refuse grid media by name; light tracing reads none."""
+
+    In a grid medium the distance density of a tracked flight has no closed form (it holds the
+    transmittance along the segment, which tracking only estimates). There the densities MIS
+    reads take a proxy: the homogeneous medium's p(d) or P(d) at the grid's mean extinction
+    (:func:`mean_extinction`). It is a function of the segment alone, the same in every
+    strategy's density of the path, so the MIS weights of a path still sum to one and BDPT,
+    MMLT and VCM stay unbiased (consistent, for VCM's merges); what the proxy costs is variance
+    where the medium is far from its mean. (pbrt-v3's BDPT leaves the distance densities out
+    altogether; the proxy keeps their units, a medium vertex's 1 / length, so that merging in
+    the volume and connecting stay in proportion.)"""
     if scene.has_grid_medium:
-        return jnp.ones_like(d2)
+        return media.segment_pdf(mean_extinction(scene.medium), jnp.sqrt(d2), at_medium)
     return media.segment_pdf(scene.medium.sigma_t, jnp.sqrt(d2), at_medium)
+
+
+def mean_extinction(medium) -> V3:
+    """A grid medium's extinction averaged over its voxels, RGB (sigma_t times the mean
+    density): the homogeneous stand-in of :func:`segment_density`'s proxy."""
+    d = jnp.mean(jax.lax.stop_gradient(medium.density))
+    return V3(*(d * jax.lax.stop_gradient(c) for c in medium.sigma_t))
 
 
 def area_density(scene: Scene, pdf_solid: Array, d2: Array, cos_at: Array, on_surface: Array,
@@ -339,6 +353,8 @@ def random_walk(scene: Scene, key: Array, dim0: int, dims_per_step: int, n_steps
     mats = scene.materials
     kinds = mats.kinds
     medium = scene.medium
+    if scene.has_grid_medium:   # the trackings' derivatives would come out zero: refused
+        grid_media.refuse_derivatives(medium)
 
     def step(s: WalkState, j):
         base = dim0 + j * dims_per_step
