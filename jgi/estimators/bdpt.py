@@ -740,4 +740,5 @@ def render(scene: Scene, cfg: BDPTConfig = BDPTConfig(), *, spp: int, seed: int,
 
 
 register(Estimator("bdpt", "bidirectional path tracing, all (s, t) strategies with MIS", render,
-                   BDPTConfig, renamed={"beta": "power"}, media=True, grid_media=True))
+                   BDPTConfig, renamed={"beta": "power"}, media=True, grid_media=True,
+                   grid_media_infinite_lights=False))

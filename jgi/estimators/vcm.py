@@ -1321,4 +1321,4 @@ def iteration_image(scene: Scene, cfg: VCMConfig, seed, iteration, radius, filte
 
 register(Estimator("vcm", "vertex connection and merging (modes vcm, bpm, bpt, ppm), progressive",
                    render, VCMConfig, renamed={"kernel": "filter"}, media=True,
-                   grid_media=True))
+                   grid_media=True, grid_media_infinite_lights=False))
