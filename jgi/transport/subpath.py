@@ -161,8 +161,10 @@ def segment_density(scene: Scene, d2: Array, at_medium: Array) -> Array:
     strategy's density of the path, so the MIS weights of a path still sum to one and BDPT,
     MMLT and VCM stay unbiased (consistent, for VCM's merges); what the proxy costs is variance
     where the medium is far from its mean. (pbrt-v3's BDPT leaves the distance densities out
-    altogether; the proxy keeps their units, a medium vertex's 1 / length, so that merging in
-    the volume and connecting stay in proportion.)"""
+    altogether; the proxy keeps their units, a medium vertex's 1 / length, and is exact in a
+    constant grid. Measured in tests/test_grid_media.py's smoke room, 16 seeds: BDPT's and
+    VCM's per-pixel variance within 0.5% of leaving them out, so the choice is a principle
+    there, not yet a measured gain.)"""
     if scene.has_grid_medium:
         return media.segment_pdf(mean_extinction(scene.medium), jnp.sqrt(d2), at_medium)
     return media.segment_pdf(scene.medium.sigma_t, jnp.sqrt(d2), at_medium)
