@@ -54,11 +54,14 @@ flights and carry medium vertices (:mod:`jgi.transport.subpath`: phase function 
 Dirac, always connectable); every area density along a segment includes its distance density
 (p(d) at a medium vertex, P(d) at a surface, the same from either end), so the ratio chains
 above hold unchanged; connections and light sampling take the transmittance T(d). Light from
-infinite lights is extinguished in such a scene (no light subpaths start there). In a grid
-medium the flights are spectral tracking's, each T(d) is ratio tracking's estimate along the
-connection's shadow ray (:func:`jgi.transport.connection.shadow_transmittance`), and the
-distance densities are a proxy common to every strategy
-(:func:`jgi.transport.subpath.segment_density`): the weights still sum to one per path.
+infinite lights is extinguished in such a scene (no light subpaths start there); a grid
+medium is bounded, so there they start from the bounding disc as in vacuum, a medium vertex
+reached from the disc has no cosine, and the segment from infinity no distance density in any
+strategy. In a grid medium the flights are spectral tracking's, each T(d) is ratio tracking's
+estimate along the connection's shadow ray
+(:func:`jgi.transport.connection.shadow_transmittance`), and the distance densities are a proxy
+common to every strategy (:func:`jgi.transport.subpath.segment_density`): the weights still
+sum to one per path.
 
 Parameters: ``max_depth`` (segments, the path tracer's convention), ``heuristic``
 ("balance" | "power"), ``power`` (power exponent), ``path_length`` (> 0: only paths of exactly
@@ -395,8 +398,10 @@ def next_event_strategy(scene: Scene, mp, p: V3, n: V3, ns: V3 | None, wo: V3, b
         ne = at_medium_vertex(ne, in_medium, f_m, valid)
         pdf_p_rev = jnp.where(in_medium, f_m, pdf_p_rev)
     pdf_p_fwd = ne.pdf_bsdf
-    # the light's density at z_{t-1} converts with the geometric cosine
+    # the light's density at z_{t-1} converts with the geometric cosine (none at a medium vertex)
     cos_p = ne.cos if ns is None else jnp.abs(dot(ls.wi, n))
+    if in_medium is not None and ns is not None:
+        cos_p = jnp.where(in_medium, 1.0, cos_p)
     k = select_light(lights, u_select)
     value = next_event_value(ne, beta)
     if in_medium is not None:
@@ -740,5 +745,4 @@ def render(scene: Scene, cfg: BDPTConfig = BDPTConfig(), *, spp: int, seed: int,
 
 
 register(Estimator("bdpt", "bidirectional path tracing, all (s, t) strategies with MIS", render,
-                   BDPTConfig, renamed={"beta": "power"}, media=True, grid_media=True,
-                   grid_media_infinite_lights=False))
+                   BDPTConfig, renamed={"beta": "power"}, media=True, grid_media=True))

@@ -534,8 +534,7 @@ def render(scene: Scene, cfg: MMLTConfig = MMLTConfig(), *, spp: int, seed: int,
 
 register(Estimator(
     "mmlt", "multiplexed Metropolis light transport over BDPT (strategy in the chain state)",
-    render, MMLTConfig, renamed={"beta": "power"}, media=True, grid_media=True,
-    grid_media_infinite_lights=False))
+    render, MMLTConfig, renamed={"beta": "power"}, media=True, grid_media=True))
 
 
 def small_step_density(u, v, s1: float = MMLTConfig.s1, s2: float = MMLTConfig.s2):

@@ -31,7 +31,6 @@ from typing import Any, Callable, Mapping, NamedTuple
 import numpy as np
 
 from ..core.errors import ParameterError
-from ..transport.subpath import has_infinite_lights
 
 _METADATA_KEY = "jgi.param"
 _TYPES = (bool, int, float, str)
@@ -129,8 +128,6 @@ class Estimator:
     check: Callable[[Any], None] | None = field(default=None, compare=False)
     media: bool = False      # renders scenes filled by a homogeneous participating medium
     grid_media: bool = False  # and by a heterogeneous (grid) one
-    # a grid medium together with directional or environment lights (False: refused, by name)
-    grid_media_infinite_lights: bool = True
     params: tuple[Param, ...] = field(init=False)
 
     def __post_init__(self):
@@ -157,15 +154,6 @@ class Estimator:
             raise ParameterError(
                 f"estimator '{self.name}' does not render heterogeneous (grid) media (yet), and "
                 f"the scene '{scene.name}' is filled by one; estimators that do: {able}")
-        if (getattr(scene, "has_grid_medium", False) and not self.grid_media_infinite_lights
-                and _has_infinite_lights(scene)):
-            able = ", ".join(e.name for e in REGISTRY.values()
-                             if e.grid_media and e.grid_media_infinite_lights)
-            raise ParameterError(
-                f"estimator '{self.name}' does not render a grid medium lit by a directional or "
-                f"environment light (yet: its MIS densities for the segment from infinity into "
-                f"the grid are not consistent), and the scene '{scene.name}' has both; "
-                f"estimators that do: {able}")
 
     def lookup(self, key: str) -> Param:
         """The parameter ``key``; a former name or an unknown key is a :class:`ParameterError`
@@ -228,7 +216,3 @@ def get(name: str) -> Estimator:
         raise ParameterError(
             f"unknown estimator '{name}'; registered: {', '.join(sorted(REGISTRY))}"
         ) from None
-
-
-def _has_infinite_lights(scene) -> bool:
-    return bool(has_infinite_lights(scene.lights))

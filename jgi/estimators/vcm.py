@@ -84,7 +84,10 @@ With the same random numbers ``bpt`` mode is BDPT path for path in fog too. In a
 walks track (spectral tracking), every transmittance is ratio tracking's along the shadow ray,
 the MIS distance densities are BDPT's proxy (:func:`jgi.transport.subpath.segment_density`),
 and a merge divides by sigma_s(y) at the light vertex (the camera vertex brings its own
-sigma_s(z): equal as r_V -> 0).
+sigma_s(z): equal as r_V -> 0). Light from directional and environment lights, extinguished by a
+medium filling the scene, enters a grid (bounded) as in vacuum: the first segment from the
+bounding disc takes no distance density (:func:`_arrive`), as an escaping camera subpath's
+last takes none.
 
 Random numbers: iteration i of pixel p draws the camera subpath from the stream (seed, p, i)
 and the light subpath from :func:`jgi.transport.subpath.light_key` (seed, p, i), with BDPT's
@@ -479,7 +482,9 @@ def light_walk(scene: Scene, cfg: VCMConfig, key: Array, fs: Factors):
     ok = (em.pdf_pos > 0) & (max_component(em.weight) > 0)
     delta_light = em.delta_pos | em.delta_dir
     at_infinity = None
-    if medium and has_infinite_lights(lights):
+    if medium and not scene.has_grid_medium and has_infinite_lights(lights):
+        # a medium filling the scene extinguishes light from infinity (T(inf) = 0); a grid is
+        # bounded, so there the subpaths start from the bounding disc as in vacuum
         ok = ok & ~is_infinite(lights, em.element)
         mis = mis_light_start(em.pdf_dir, em.pdf_pos, jnp.abs(dot(em.n, em.d)), delta_light, f, b)
     elif has_infinite_lights(lights):   # y_0 a direction, the subpath leaves the bounding disc
@@ -506,9 +511,11 @@ def light_walk(scene: Scene, cfg: VCMConfig, key: Array, fs: Factors):
         valid = alive & hit.valid
         v = hit.p - prev_p
         d2 = dot(v, v)
+        from_infinity = None
         if at_infinity is not None:   # from infinity: solid angle, no 1 / d^2 (tech. rep. 5.1)
-            d2 = jnp.where(at_infinity & (j == 0), 1.0, d2)
-        m = _arrive(scene, m, d2, dot(hit.n, d), prev_medium, in_med, b)
+            from_infinity = at_infinity & (j == 0)
+            d2 = jnp.where(from_infinity, 1.0, d2)
+        m = _arrive(scene, m, d2, dot(hit.n, d), prev_medium, in_med, b, from_infinity)
         mp = bsdf.lookup_specialised(mats, hit.material, hit.uv)
         wo = -d
         delta = bsdf.is_delta(mp) if in_med is None else bsdf.is_delta(mp) & ~in_med
@@ -546,14 +553,19 @@ def _continuation_at(scene: Scene, cfg: VCMConfig, v) -> Array:
 
 
 def _arrive(scene: Scene, m: Mis, d2: Array, cos_in: Array, prev_medium: Array,
-            in_medium: Array | None, b: float) -> Mis:
+            in_medium: Array | None, b: float, from_infinity: Array | None = None) -> Mis:
     """:func:`mis_arrive` at a new vertex (a medium vertex: no cosine, and the segment's
-    distance densities towards both ends' kinds)."""
+    distance densities towards both ends' kinds; none for a segment ``from_infinity``, a light
+    subpath's first from a directional or environment light into a bounded grid medium, as
+    the camera subpath that escapes to infinity has none for its last)."""
     if in_medium is None:
         return mis_arrive(m, d2, cos_in, b)
-    return mis_arrive(m, d2, jnp.where(in_medium, 1.0, cos_in), b,
-                      segment_density(scene, d2, prev_medium),
-                      segment_density(scene, d2, in_medium))
+    dist_prev = segment_density(scene, d2, prev_medium)
+    dist_new = segment_density(scene, d2, in_medium)
+    if from_infinity is not None:
+        dist_prev = jnp.where(from_infinity, 1.0, dist_prev)
+        dist_new = jnp.where(from_infinity, 1.0, dist_new)
+    return mis_arrive(m, d2, jnp.where(in_medium, 1.0, cos_in), b, dist_prev, dist_new)
 
 
 def _as_vertices(scene: Scene, y: LightVertices) -> Vertices:
@@ -1321,4 +1333,4 @@ def iteration_image(scene: Scene, cfg: VCMConfig, seed, iteration, radius, filte
 
 register(Estimator("vcm", "vertex connection and merging (modes vcm, bpm, bpt, ppm), progressive",
                    render, VCMConfig, renamed={"kernel": "filter"}, media=True,
-                   grid_media=True, grid_media_infinite_lights=False))
+                   grid_media=True))

@@ -402,8 +402,13 @@ def random_walk(scene: Scene, key: Array, dim0: int, dims_per_step: int, n_steps
             pdf_rev_prev = jnp.where(valid & ~delta_s, convert_density(
                 pdf_back, d2, dot(s.prev_n, s.d), s.prev_surface), 0.0)
         if infinite_start is not None:
+            # (no distance density for the segment from infinity, in any strategy; a medium
+            # vertex there, in a bounded grid, has no cosine)
             at_infinity = infinite_start[0] & (j == 0) & valid
-            pdf_fwd = jnp.where(at_infinity, infinite_start[1] * jnp.abs(dot(hit.n, s.d)), pdf_fwd)
+            cos_in = jnp.abs(dot(hit.n, s.d))
+            if in_med is not None:
+                cos_in = jnp.where(in_med, 1.0, cos_in)
+            pdf_fwd = jnp.where(at_infinity, infinite_start[1] * cos_in, pdf_fwd)
             pdf_rev_prev = jnp.where(at_infinity & ~delta_s, pdf_back, pdf_rev_prev)
         surface = valid if in_med is None else valid & ~in_med
         vert = Vertices(hit.p, hit.n, wo, s.beta, pdf_fwd, pdf_rev_prev, delta, surface, valid,
