@@ -165,9 +165,8 @@ def segment_density(scene: Scene, d2: Array, at_medium: Array) -> Array:
     constant grid. Measured in tests/test_grid_media.py's smoke room, 16 seeds: BDPT's and
     VCM's per-pixel variance within 0.5% of leaving them out, so the choice is a principle
     there, not yet a measured gain.)"""
-    if scene.has_grid_medium:
-        return media.segment_pdf(mean_extinction(scene.medium), jnp.sqrt(d2), at_medium)
-    return media.segment_pdf(scene.medium.sigma_t, jnp.sqrt(d2), at_medium)
+    sigma_t = mean_extinction(scene.medium) if scene.has_grid_medium else scene.medium.sigma_t
+    return media.segment_pdf(sigma_t, jnp.sqrt(d2), at_medium)
 
 
 def mean_extinction(medium) -> V3:
