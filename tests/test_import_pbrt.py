@@ -547,10 +547,14 @@ def test_the_medium_outside_the_camera_fills_the_scene(tmp_path):
                  'LightSource "point" "rgb I" [1 1 1] "point3 from" [0 2 0]\n')
     m = load_pbrt(p).medium
     np.testing.assert_allclose([float(c) for c in m.sigma_t], [0.8, 1.2, 1.1], rtol=1e-6)
-    # glass with fog outside and vacuum inside bounds a medium: refused by name
+    # glass with fog outside and vacuum inside bounds a medium: vacuum, bounded by the ball
     p.write_text(FOG_HEADER + 'Material "dielectric"\nShape "sphere" "float radius" 0.5\n')
-    with pytest.raises(SceneError, match=r'fog\.pbrt:11: Shape "sphere" bounds media'):
-        load_pbrt(p)
+    glass = load_pbrt(p)
+    assert glass.has_bounded_media
+    assert [float(c[0]) for c in glass.bounded_media.sigma_t] == [0.0, 0.0, 0.0]
+    row = int(glass.spheres.material[0])
+    assert (int(glass.medium_interfaces.interior[row]),
+            int(glass.medium_interfaces.exterior[row])) == (1, 0)
     np.testing.assert_allclose([float(c) for c in m.albedo], [0.3 / 0.4, 0.4 / 0.6, 0.5 / 0.55],
                                rtol=1e-6)
     assert float(m.g) == pytest.approx(0.4)
@@ -566,6 +570,43 @@ def test_the_medium_outside_the_camera_fills_the_scene(tmp_path):
     np.testing.assert_allclose([float(c) for c in m.sigma_t], [2, 2, 2])
     np.testing.assert_allclose([float(c) for c in m.albedo], [0.5, 0.5, 0.5])
     assert float(m.g) == 0.0
+
+
+def test_pbrt_shapes_bound_media(tmp_path):
+    """A Shape whose MediumInterface differs inside and outside bounds media as in pbrt-v4:
+    inside on the side away from its normal; the camera's medium is jgi's scene medium and
+    other homogeneous media become bounded ones. Refused by name: a grid medium bounded by a
+    shape, an area light whose outside is not the camera's medium."""
+    head = FOG_HEADER.replace('MakeNamedMedium "unused" "string type" "homogeneous"',
+                              'MakeNamedMedium "milk" "string type" "homogeneous" '
+                              '"rgb sigma_a" [0.1 0.1 0.1] "rgb sigma_s" [2 3 4] "float g" 0.3')
+    p = tmp_path / "milk.pbrt"
+    p.write_text(head + 'Material "dielectric"\nMediumInterface "milk" "fog"\n'
+                 'Shape "sphere" "float radius" 0.5\n'
+                 'Shape "trianglemesh" "point3 P" [-1 -1 -1  1 -1 -1  1 -1 1]\n'
+                 '  "integer indices" [0 1 2]\n')
+    scene = load_pbrt(p)
+    np.testing.assert_allclose([float(c[0]) for c in scene.bounded_media.sigma_t], [2.1, 3.1, 4.1],
+                               rtol=1e-6)
+    assert float(scene.bounded_media.g[0]) == pytest.approx(0.3)
+    faces = scene.medium_interfaces
+    for table in (scene.spheres, scene.triangles):
+        row = int(table.material[0])
+        assert (int(faces.interior[row]), int(faces.exterior[row])) == (1, 0)
+    grid = tmp_path / "grid.pbrt"
+    grid.write_text(head + 'MakeNamedMedium "smoke" "string type" "uniformgrid" '
+                    '"float density" [1] "integer nx" 1 "integer ny" 1 "integer nz" 1\n'
+                    'Material "dielectric"\nMediumInterface "smoke" "fog"\n'
+                    'Shape "sphere" "float radius" 0.5\n')
+    with pytest.raises(SceneError, match=r'grid\.pbrt:13: Shape "sphere" bounds medium '
+                                         r'"smoke" \(uniformgrid\)'):
+        load_pbrt(grid)
+    lamp = tmp_path / "lamp.pbrt"
+    lamp.write_text(head + 'AreaLightSource "diffuse" "rgb L" [1 1 1]\n'
+                    'MediumInterface "fog" "milk"\nShape "sphere" "float radius" 0.5\n')
+    with pytest.raises(SceneError, match=r'lamp\.pbrt:12: Shape "sphere" is an area light with '
+                                         r'outside medium "milk"'):
+        load_pbrt(lamp)
 
 
 def test_a_pbrt_fog_renders_like_the_same_fog_built_in_jgi(tmp_path):
@@ -603,10 +644,8 @@ def test_a_pbrt_fog_renders_like_the_same_fog_built_in_jgi(tmp_path):
      '"preset"'),
     ('MakeNamedMedium "g" "string type" "homogeneous" "rgb Le" [1 1 1]', "emissive media"),
     ('MakeNamedMedium "g" "rgb sigma_a" [1 1 1]', 'needs "string type"'),
-    ('MediumInterface "" "fog"\nShape "sphere"', r'bounds media \(MediumInterface inside '
-     r'"", outside "fog", material diffuse\): media bounded by shapes are not supported'),
-    ('MediumInterface "fog" ""\nMaterial "dielectric"\nShape "sphere"',
-     r'inside "fog", outside "", material dielectric'),
+    ('MediumInterface "nothing" ""\nMaterial "dielectric"\nShape "sphere"',
+     r'MediumInterface names medium "nothing", which no MakeNamedMedium defines'),
     ('MediumInterface\nShape "sphere"', "MediumInterface expects one or two quoted"),
 ])
 def test_unsupported_media_name_file_line_and_what_is_allowed(tmp_path, body, message):

@@ -282,18 +282,20 @@ def test_mitsuba_media_refusals(tmp_path):
     from jgi.scene.importers import load_mitsuba_xml
     from jgi.scene.importers._common import ImportError_
 
-    bad_shape = FOG_XML.format(depth=6).replace(
-        '<ref id="grey"/></shape>', '<ref id="grey"/><ref name="interior" id="fog"/></shape>', 1)
-    (tmp_path / "a.xml").write_text(bad_shape)
-    with pytest.raises(ImportError_, match=r"a\.xml.*rectangle: interior 'fog', exterior none: "
-                                          r"media bounded by shapes are not supported yet"):
-        load_mitsuba_xml(tmp_path / "a.xml")
-    glass = FOG_XML.format(depth=6).replace(
+    # shape media jgi cannot bound: a heterogeneous medium, an emitter's exterior
+    grid_inside = FOG_XML.format(depth=6).replace(
         '<ref id="grey"/></shape>', '<bsdf type="dielectric"/><ref name="exterior" id="fog"/>'
-        '</shape>', 1)
-    (tmp_path / "d.xml").write_text(glass)
-    with pytest.raises(ImportError_, match=r"d\.xml.*interior none, exterior 'fog' \(it "
-                                          r"transmits light\)"):
+        '<medium type="heterogeneous" name="interior"/></shape>', 1)
+    (tmp_path / "a.xml").write_text(grid_inside)
+    with pytest.raises(ImportError_, match=r"a\.xml.*rectangle: medium 'heterogeneous' "
+                                          r"\(heterogeneous\) bounded by a shape"):
+        load_mitsuba_xml(tmp_path / "a.xml")
+    lamp = FOG_XML.format(depth=6).replace(
+        '<emitter type="area">', '<medium type="homogeneous" name="exterior"/>'
+        '<emitter type="area">', 1)
+    (tmp_path / "d.xml").write_text(lamp)
+    with pytest.raises(ImportError_, match=r"d\.xml.*an area emitter whose exterior medium is "
+                                          r"not the sensor's"):
         load_mitsuba_xml(tmp_path / "d.xml")
     other = FOG_XML.format(depth=6).replace('type="homogeneous"', 'type="sggx"')
     (tmp_path / "b.xml").write_text(other)
@@ -344,7 +346,7 @@ def test_toml_medium(tmp_path):
     cases = [
         ('medium = "fog"', fog + "sigma_t = 1\nsigma_a = 1\n", r"medium\[0\].*one of the two"),
         ('medium = "haze"', fog + "sigma_t = 1\n", r"camera\.medium.*unknown medium 'haze'.*fog"),
-        ("", fog + "sigma_t = 1\n", r"medium\[0\].*nothing uses.*camera\.medium"),
+        ("", fog + "sigma_t = 1\n", r"medium\[0\].*'fog' is not used.*camera\.medium.*interior"),
         ('medium = "fog"', fog + "sigma_t = 1\nalbedo = 1.5\n", r"medium\[0\].*albedo.*\[0, 1\]"),
         ('medium = "fog"', fog + "sigma_t = 1\ng = -1\n", r"medium\[0\].*g = -1.*\(-1, 1\)"),
         ('medium = "fog"', fog + "sigma_t = 1\ndensity = 3\n", r"medium\[0\]\.density.*unknown"),

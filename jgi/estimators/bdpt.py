@@ -86,7 +86,7 @@ from ..core.configured import Configured
 from ..core.imageio import write_exr, write_png
 from ..core.vec import V3, dot, max_component, where
 from ..drivers.splat import render_splats
-from ..physics import bsdf, camera, geometry
+from ..physics import bsdf, camera, geometry, medium_interfaces
 from ..physics.lights import emitted, environment_pdf, environment_radiance, select_light
 from ..scene.tables import Scene
 from ..transport.connection import (
@@ -375,7 +375,8 @@ def environment_strategy(lights, escaped: Array, beta: V3, d: V3, pdf_dir: Array
 
 def next_event_strategy(scene: Scene, mp, p: V3, n: V3, ns: V3 | None, wo: V3, beta: V3,
                         u_select: Array, u1: Array, u2: Array, valid: Array, d2_prev: Array,
-                        cos_prev: Array, prev_surface: Array, in_medium: Array | None = None):
+                        cos_prev: Array, prev_surface: Array, in_medium: Array | None = None,
+                        medium: Array | None = None, material: Array | None = None):
     """Strategy s = 1 at camera vertex z = z_{t-1} (material ``mp``, point p, normals n and
     ``ns``, ``wo`` towards z_{t-2}, throughput beta): light sampling
     (:func:`~jgi.transport.subpath.sample_next_event`). Returns (value before the visibility
@@ -386,15 +387,20 @@ def next_event_strategy(scene: Scene, mp, p: V3, n: V3, ns: V3 | None, wo: V3, b
     function p(-wo -> wi) in place of f, no cosine, its density both ways; the value takes the
     shadow segment's transmittance T(d), and every area density across a segment its distance
     density (:func:`~jgi.transport.subpath.area_density`: p(d) at a medium vertex, P(d) at a
-    surface)."""
+    surface).
+
+    ``medium`` and ``material`` (scenes with media bounded by shapes): the id of the medium z
+    was reached in and z's material row, whose interface gives the shadow segment's medium
+    (:func:`jgi.physics.medium_interfaces.leaving`)."""
     lights = scene.lights
     kinds = scene.materials.kinds
     out = {}
     ne = sample_next_event(scene, mp, p, n, wo, u_select, u1, u2, valid, ns=ns)
     ls = ne.light
+    shadow_medium = medium_interfaces.leaving(scene, medium, material, n, ls.wi, in_medium)
     _, pdf_p_rev = bsdf.evaluate(kinds, mp, n if ns is None else ns, ls.wi, wo)
     if in_medium is not None:
-        f_m = phase_value(scene, -wo, ls.wi)
+        f_m = phase_value(scene, -wo, ls.wi, medium)
         ne = at_medium_vertex(ne, in_medium, f_m, valid)
         pdf_p_rev = jnp.where(in_medium, f_m, pdf_p_rev)
     pdf_p_fwd = ne.pdf_bsdf
@@ -405,7 +411,8 @@ def next_event_strategy(scene: Scene, mp, p: V3, n: V3, ns: V3 | None, wo: V3, b
     k = select_light(lights, u_select)
     value = next_event_value(ne, beta)
     if in_medium is not None:
-        value = value * transmittance(scene, ls.dist, ne.shadow, max_component(value) > 0)
+        value = value * transmittance(scene, ls.dist, ne.shadow, max_component(value) > 0,
+                                      shadow_medium)
     dist = ls.dist
     if has_infinite_lights(lights):
         infinite = is_infinite(lights, k)
@@ -420,9 +427,9 @@ def next_event_strategy(scene: Scene, mp, p: V3, n: V3, ns: V3 | None, wo: V3, b
                                            True)
     else:
         out["s1_rev_y"] = area_density(scene, pdf_p_fwd, d2, dot(n_y, ls.wi), y_surface,
-                                       ~y_surface)
+                                       ~y_surface, shadow_medium)
         out["s1_rev_pt"] = area_density(scene, pdf_emission_dir(lights, k, n_y, -ls.wi), d2,
-                                        cos_p, ~in_medium, in_medium)
+                                        cos_p, ~in_medium, in_medium, shadow_medium)
     if has_infinite_lights(lights):
         # y_0 at infinity: its densities are solid-angle ones (light sampling's, with
         # selection, and BSDF sampling's at z_{t-1}); z_{t-1} from the bounding disc
@@ -434,7 +441,7 @@ def next_event_strategy(scene: Scene, mp, p: V3, n: V3, ns: V3 | None, wo: V3, b
         out["s1_rev_ptm"] = convert_density(pdf_p_rev, d2_prev, cos_prev, prev_surface)
     else:
         out["s1_rev_ptm"] = area_density(scene, pdf_p_rev, d2_prev, cos_prev, prev_surface,
-                                         ~prev_surface)
+                                         ~prev_surface, medium)
     out["s1_delta_light"] = ls.delta
     return value, ne.shadow, out
 
@@ -453,7 +460,7 @@ def _camera_visit(scene: Scene, exponent: float):
                                s.prev_surface)
         if v.in_medium is not None:   # z_{t-2} reached from the light across a medium segment
             out["s0_rev_ptm"] = out["s0_rev_ptm"] * segment_density(scene, v.d2_prev,
-                                                                    ~s.prev_surface)
+                                                                    ~s.prev_surface, s.medium)
         # ---- s = 0 on the environment, at infinity ----
         if lights.environment >= 0:
             out.update(environment_strategy(lights, s.alive & ~hit.valid, s.beta, s.d,
@@ -461,7 +468,8 @@ def _camera_visit(scene: Scene, exponent: float):
         # ---- s = 1: light sampling at z_{t-1} ----
         value, shadow, s1 = next_event_strategy(scene, mp, hit.p, hit.n, hit.ns, wo, s.beta,
                                                 u(3), u(4), u(5), v.valid, v.d2_prev, cos_prev,
-                                                s.prev_surface, v.in_medium)
+                                                s.prev_surface, v.in_medium, s.medium,
+                                                hit.material)
         visible = ~geometry.occluded(scene, *shadow)
         out["s1_value"] = where(visible, value, Z)
         out.update(s1)
@@ -486,8 +494,10 @@ def camera_subpath(scene: Scene, cfg: BDPTConfig, key: Array, pixel: Array, unif
     pdf_dir = camera.project(cam, o + d).pdf_dir            # 1 / (A cos^3): the film's density
     z0 = Vertices(o, Z, Z, one, z + 1, z, z > 0, z > 0, z == 0, z.astype(jnp.int32),
                   z.astype(jnp.int32) - 1, no_uv(scene, z), vertex_ns(scene, Z),
-                  vertex_lobe_delta(scene, z), vertex_in_medium(scene, z))
-    start = WalkState(o, d, one, pdf_dir, o, Z, z > 0, z > 0, z == 0)
+                  vertex_lobe_delta(scene, z), vertex_in_medium(scene, z),
+                  medium_interfaces.start(scene, z))
+    start = WalkState(o, d, one, pdf_dir, o, Z, z > 0, z > 0, z == 0,
+                      medium_interfaces.start(scene, z))
     verts, pdf_rev0, rec = random_walk(scene, key, CAMERA_DIMS0, camera_dims_per_step(scene),
                                        cfg.max_depth, start, bsdf.RADIANCE,
                                        _camera_visit(scene, cfg.exponent) if visit is None
@@ -510,10 +520,10 @@ def interior_connection(scene: Scene, y: Vertices, ym: Vertices, z: Vertices, zm
     rev = dict(
         pt=conn.pdf_z_from_y,
         ptm=area_density(scene, conn.pdf_z_rev, dot(vm_z, vm_z), dot(zm.n, z.wo), zm.on_surface,
-                         zm.in_medium),
+                         zm.in_medium, z.medium),
         qs=conn.pdf_y_from_z,
         qsm=area_density(scene, conn.pdf_y_rev, dot(vm_y, vm_y), dot(ym.n, y.wo), ym.on_surface,
-                         ym.in_medium),
+                         ym.in_medium, y.medium),
     )
     if has_infinite_lights(scene.lights):   # y_{s-2} may be y_0 at infinity
         rev["qsm_solid"] = conn.pdf_y_rev
@@ -562,7 +572,8 @@ def contributions(scene: Scene, cfg: BDPTConfig, seed, pixel: Array, sample: Arr
         conn = materialize(connect_camera(scene, y))
         vm = ym.p - y.p
         rev_qsm = reverse_at_predecessor(lights, lp, y_rows, conn.pdf_y_rev, area_density(
-            scene, conn.pdf_y_rev, dot(vm, vm), dot(ym.n, y.wo), ym.on_surface, ym.in_medium))
+            scene, conn.pdf_y_rev, dot(vm, vm), dot(ym.n, y.wo), ym.on_surface, ym.in_medium,
+            y.medium))
         rays.append(conn.shadow)
     if inner:
         ls = np.array([s - 1 for s, _ in inner])

@@ -90,7 +90,8 @@ def trace_light_paths(scene: Scene, cfg: LightTracerConfig, seed, pixel: Array, 
     val0 = where(ok0, le * (proj.importance * g / jnp.where(ok0, pdf0, 1.0)), V3.full(0.0, g))
     shadow0 = geometry.shadow_ray(y0.p, y0.n, proj.wi, proj.dist)
     if scene.has_medium:   # the light seen through the medium: T(d)
-        val0 = val0 * transmittance(scene, proj.dist, shadow0, ok0 & (max_component(val0) > 0))
+        val0 = val0 * transmittance(scene, proj.dist, shadow0, ok0 & (max_component(val0) > 0),
+                                    y0.medium)
     W = scene.camera.width
     pix0 = jnp.where(ok0, jnp.clip(jnp.floor(proj.py).astype(jnp.int32), 0,
                                    scene.camera.height - 1) * W

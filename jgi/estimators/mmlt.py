@@ -297,7 +297,7 @@ def evaluate(scene: Scene, cfg: MMLTConfig, u, length):
                           zm.on_surface)
     c0, pt0, ptm0 = em["s0_value"], em["s0_rev_pt"], em["s0_rev_ptm"]
     if cam.in_medium is not None:   # z_{t-2} reached from the light across a medium segment
-        ptm0 = ptm0 * segment_density(scene, d2_prev, ~zm.on_surface)
+        ptm0 = ptm0 * segment_density(scene, d2_prev, ~zm.on_surface, z.medium)
     if env:
         alive, pdf_dir = _at((rec["alive"], rec["pdf_dir"]), jnp.maximum(t - 2, 0))
         escaped = alive & ~z.valid
@@ -312,12 +312,13 @@ def evaluate(scene: Scene, cfg: MMLTConfig, u, length):
     mp = bsdf.lookup_specialised(mats, z.material, z.uv)
     c1, shadow1, d1 = next_event_strategy(scene, mp, z.p, z.n, z.ns, z.wo, z.beta, *ne_u,
                                           only(z, is_s1).valid, d2_prev, cos_prev,
-                                          zm.on_surface, z.in_medium)
+                                          zm.on_surface, z.in_medium, z.medium, z.material)
     # ---- t = 1: y_{s-1} seen from the pinhole, splatted where it projects ----
     conn = connect_camera(scene, only(y, is_t1))
     vy = ym.p - y.p
     qsm_t1 = reverse_at_predecessor(lights, lp, s - 1, conn.pdf_y_rev, area_density(
-        scene, conn.pdf_y_rev, dot(vy, vy), dot(ym.n, y.wo), ym.on_surface, ym.in_medium))
+        scene, conn.pdf_y_rev, dot(vy, vy), dot(ym.n, y.wo), ym.on_surface, ym.in_medium,
+        y.medium))
     # ---- s, t >= 2: y_{s-1} <-> z_{t-1} ----
     c_in, shadow_in, rev_in = interior_connection(scene, y, ym,
                                                   only(z, ~is_s0 & ~is_s1 & ~is_t1), zm)

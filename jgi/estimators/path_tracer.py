@@ -77,7 +77,7 @@ from ..core.configured import Configured
 from ..core.vec import V3, max_component, where
 from ..core.vec import length as length_of
 from ..drivers.wavefront import render_wavefront
-from ..physics import bsdf, geometry, grid_media, media, phase
+from ..physics import bsdf, geometry, grid_media, media, medium_interfaces, phase
 from ..physics.lights import emitted, environment_pdf, environment_radiance, pdf_li
 from ..scene.tables import ROUGH_KINDS, Scene
 from ..transport import mis
@@ -134,6 +134,8 @@ class PathState(NamedTuple):
     prev_pdf: Array      # solid-angle pdf of the BSDF sample that produced d
     prev_delta: Array    # that sample came from a Dirac lobe (no MIS possible)
     prev_p: V3           # the vertex d left from (reference point for pdf_li)
+    medium: Array | None = None   # the id of the medium d travels in (scenes with media
+                                  # bounded by shapes: jgi.physics.medium_interfaces)
 
 
 def detach_sample(kinds, mp: bsdf.MaterialParams, n: V3, wo: V3,
@@ -187,7 +189,8 @@ def _shade(scene: Scene, cfg: PathTracerConfig, s: PathState, hit: geometry.Hit,
         reached = ~gf.scattered
         p_m = s.o + s.d * jnp.where(in_medium, gf.t, 0.0)
         beta_in = s.beta * gf.weight
-    elif medium is not None:
+    elif scene.has_medium:
+        medium = medium_interfaces.parameters(scene, s.medium)   # the ray's medium, per lane
         dm = cfg.dims_per_bounce
         sg = jax.lax.stop_gradient   # medium sampling is detached (see the module)
         ff = media.sample_free_flight(sg(medium.sigma_t), sg(medium.albedo), sg(s.beta),
@@ -247,6 +250,9 @@ def _shade(scene: Scene, cfg: PathTracerConfig, s: PathState, hit: geometry.Hit,
                                    nee_active, ns=hit.ns, stored=store)
             if in_medium is not None:
                 ne = _medium_next_event(medium, ne, in_medium, p_m, s.d, nee_active)
+            # the shadow ray's medium (bounded media): the side of the light at a surface
+            shadow_medium = medium_interfaces.leaving(scene, s.medium, hit.material, hit.n,
+                                                      ne.light.wi, in_medium)
             if cfg.strategy == "mis":
                 w_g = mis.heuristic_weight(n_g, ne.light.pdf, [(n_f, ne.pdf_bsdf)], cfg.exponent)
                 w_g = jnp.where(ne.light.delta, 1.0, w_g)
@@ -260,9 +266,10 @@ def _shade(scene: Scene, cfg: PathTracerConfig, s: PathState, hit: geometry.Hit,
                 key_j = rng.derive(key_m, rng.SALTS["ratio_tracking"] + j)
                 lit = nee_active & (max_component(value) > 0)
                 value = value * grid_media.ratio_tracking(medium, o_s, d_s, t_s, lit, key_j)
-            elif medium is not None:   # exact transmittance along the shadow ray
+            elif scene.has_medium:   # exact transmittance along the shadow ray
                 o_s, d_s, t_s = ne.shadow
-                value = value * media.transmittance(medium.sigma_t, t_s * length_of(d_s))
+                sigma_t = medium_interfaces.parameters(scene, shadow_medium).sigma_t
+                value = value * media.transmittance(sigma_t, t_s * length_of(d_s))
             shadow.append((*ne.shadow, value))
 
     # ---- BSDF sampling: extend the path ----
@@ -304,9 +311,12 @@ def _shade(scene: Scene, cfg: PathTracerConfig, s: PathState, hit: geometry.Hit,
         L = L + where(~geometry.occluded(scene, o_s, d_s, t_max), value, Z)
 
     # computed once; downstream reads the path's fate (perf: docs/performance.md#vertex-results)
+    # the next ray's medium (bounded media): a surface that bounds media is crossed or not
+    medium_next = medium_interfaces.leaving(scene, s.medium, hit.material, hit.n, bs.wi,
+                                            in_medium)
     wi, pdf, delta, beta, active, o_next, L = materialize(
         (bs.wi, bs.pdf, bs.delta, beta, active, o_next, L))
-    return PathState(o_next, wi, beta, L, active, pdf, delta, p_vertex)
+    return PathState(o_next, wi, beta, L, active, pdf, delta, p_vertex, medium_next)
 
 
 def _medium_next_event(medium, ne, in_medium, p_m: V3, d: V3, active):
@@ -327,9 +337,10 @@ def _as_bsdf_sample(bs: bsdf.BSDFSample, ps: phase.PhaseSample, one) -> tuple:
     return tuple(values.get(k, getattr(bs, k)) for k in bs._fields)
 
 
-def _camera_state(o: V3, d: V3) -> PathState:
+def _camera_state(scene: Scene, o: V3, d: V3) -> PathState:
     z = jnp.zeros_like(o.x)
-    return PathState(o, d, V3(z + 1, z + 1, z + 1), V3(z, z, z), z == 0, z, z == 0, o)
+    return PathState(o, d, V3(z + 1, z + 1, z + 1), V3(z, z, z), z == 0, z, z == 0, o,
+                     medium_interfaces.start(scene, z))
 
 
 def radiance(scene: Scene, cfg: PathTracerConfig, uniform: Callable[[Array], Array], o: V3,
@@ -349,7 +360,7 @@ def radiance(scene: Scene, cfg: PathTracerConfig, uniform: Callable[[Array], Arr
         hit = geometry.intersect(scene, s.o, s.d)
         return _shade(scene, cfg, s, hit, depth, lambda k: uniform(base + k))
 
-    return jax.lax.fori_loop(0, max_depth, bounce, _camera_state(o, d)).L
+    return jax.lax.fori_loop(0, max_depth, bounce, _camera_state(scene, o, d)).L
 
 
 def trace_pixels(scene: Scene, cfg: PathTracerConfig, seed, pixel: Array, sample: Array) -> V3:
@@ -373,7 +384,7 @@ def _start(scene: Scene, seed, pixel: Array, sample: Array) -> _Lane:
     key = rng.path_key(seed, pixel, sample)
     c = rng.counter(key, 0)
     o, d = camera_ray(scene.camera, pixel, lambda k: rng.uniform_at(c, k))
-    return _Lane(_camera_state(o, d), jnp.zeros_like(pixel), key)
+    return _Lane(_camera_state(scene, o, d), jnp.zeros_like(pixel), key)
 
 
 def _step(scene: Scene, cfg: PathTracerConfig, lane: _Lane):

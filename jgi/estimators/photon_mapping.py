@@ -157,6 +157,10 @@ def render_pm(scene: Scene, cfg: PMConfig = PMConfig(), *, spp: int = 4, seed: i
         raise ParameterError("pm: the beam estimate (volume='beam') needs closed-form "
                              "transmittance along whole segments, which a grid medium has not; "
                              "allowed there: volume='point'")
+    if beams and scene.has_bounded_media:
+        raise ParameterError("pm: the beam estimate (volume='beam') is not implemented with "
+                             "media bounded by shapes (a beam would cross media); allowed "
+                             "there: volume='point'")
     if beams and (k or filter != "box"):
         raise ParameterError("pm: the beam estimate (volume='beam') takes every photon within "
                              "radius with the box filter; allowed: k = 0, filter = 'box'")
@@ -177,7 +181,7 @@ def render_pm(scene: Scene, cfg: PMConfig = PMConfig(), *, spp: int = 4, seed: i
             surface_live = surface_live & ~in_medium
             surface_map = pm.select(~np.asarray(pm.volume))
             Lv, _ = density.volume_sum_within(scene, pm, v.p, v.wo, r2, live=in_medium,
-                                              kind=filter)
+                                              kind=filter, medium=v.medium)
             Lv = Lv / (4.0 / 3.0 * np.pi * radius**3
                        * float(density.volume_filter_weight(filter, 0.0, 1.0)[1]))
         L = density.sum_within(scene, surface_map, v.p, v.n, v.wo, v.material, r2,
@@ -324,7 +328,7 @@ def render_progressive(scene: Scene, cfg: ProgressiveConfig = ProgressiveConfig(
             in_medium = np.asarray(v.in_medium)
             surface = found & ~in_medium
             phi_v, M_v = density.volume_sum_within(scene, pm, v.p, v.wo, R2_v,
-                                                   live=found & in_medium)
+                                                   live=found & in_medium, medium=v.medium)
             phi_v = np.where(found & in_medium, beta_ * phi_v, 0.0)
             tau_v, R2_v, N_v = _progressive_update(tau_v, R2_v, N_v, phi_v, M_v, radius_alpha, 3)
             pm = pm.select(~np.asarray(pm.volume))

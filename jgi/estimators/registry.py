@@ -148,7 +148,7 @@ class Estimator:
             able = ", ".join(e.name for e in REGISTRY.values() if e.media) or "none"
             raise ParameterError(
                 f"estimator '{self.name}' does not render participating media (yet), and the "
-                f"scene '{scene.name}' is filled by a medium; estimators that do: {able}")
+                f"scene '{scene.name}' has one; estimators that do: {able}")
         if getattr(scene, "has_grid_medium", False) and not self.grid_media:
             able = ", ".join(e.name for e in REGISTRY.values() if e.grid_media) or "none"
             raise ParameterError(

@@ -112,7 +112,7 @@ from ..core.compaction import compact_map
 from ..core.imageio import write_exr, write_png
 from ..core.progress import advance
 from ..core.vec import V3, dot, max_component, where
-from ..physics import bsdf, camera, geometry, grid_media
+from ..physics import bsdf, camera, geometry, grid_media, medium_interfaces
 from ..physics.lights import (
     emitted,
     environment_pdf,
@@ -459,6 +459,7 @@ class LightVertices(NamedTuple):
     uv: tuple | None
     ns: V3 | None       # shading normal, in scenes with vertex normals
     in_medium: Array | None = None   # a medium vertex (zero normal), in scenes with a medium
+    medium: Array | None = None      # the medium id it was reached in (bounded media)
 
 
 def light_walk(scene: Scene, cfg: VCMConfig, key: Array, fs: Factors):
@@ -482,7 +483,7 @@ def light_walk(scene: Scene, cfg: VCMConfig, key: Array, fs: Factors):
     ok = (em.pdf_pos > 0) & (max_component(em.weight) > 0)
     delta_light = em.delta_pos | em.delta_dir
     at_infinity = None
-    if medium and not scene.has_grid_medium and has_infinite_lights(lights):
+    if scene.fills_with_homogeneous_medium and has_infinite_lights(lights):
         # a medium filling the scene extinguishes light from infinity (T(inf) = 0); a grid is
         # bounded, so there the subpaths start from the bounding disc as in vacuum
         ok = ok & ~is_infinite(lights, em.element)
@@ -495,18 +496,19 @@ def light_walk(scene: Scene, cfg: VCMConfig, key: Array, fs: Factors):
     else:
         mis = mis_light_start(em.pdf_dir, em.pdf_pos, jnp.abs(dot(em.n, em.d)), delta_light, f, b)
     start = (geometry.offset_origin(em.p, em.n, em.d), em.d, em.weight, em.p, jnp.zeros_like(ok),
-             mis, ok)
+             mis, ok, medium_interfaces.start(scene, em.pdf_pos))
     rr_dim0 = LIGHT_DIMS0 + (cfg.max_depth - 1) * dims   # past BDPT's dimensions
 
     def step(s, j):
-        o, d, beta, prev_p, prev_medium, m, alive = s
+        o, d, beta, prev_p, prev_medium, m, alive, medium_id = s
         base = LIGHT_DIMS0 + j * dims
         hit = geometry.intersect(scene, o, d)
         in_med = None
         if medium:
             hit, in_med, w_ff = free_flight(scene, o, d, hit, alive,
                                             u(base + dims - MEDIUM_DIMS),
-                                            u(base + dims - MEDIUM_DIMS + 1))
+                                            u(base + dims - MEDIUM_DIMS + 1),
+                                            medium_id=medium_id)
             beta = beta * w_ff
         valid = alive & hit.valid
         v = hit.p - prev_p
@@ -515,12 +517,13 @@ def light_walk(scene: Scene, cfg: VCMConfig, key: Array, fs: Factors):
         if at_infinity is not None:   # from infinity: solid angle, no 1 / d^2 (tech. rep. 5.1)
             from_infinity = at_infinity & (j == 0)
             d2 = jnp.where(from_infinity, 1.0, d2)
-        m = _arrive(scene, m, d2, dot(hit.n, d), prev_medium, in_med, b, from_infinity)
+        m = _arrive(scene, m, d2, dot(hit.n, d), prev_medium, in_med, b, from_infinity,
+                    medium_id)
         mp = bsdf.lookup_specialised(mats, hit.material, hit.uv)
         wo = -d
         delta = bsdf.is_delta(mp) if in_med is None else bsdf.is_delta(mp) & ~in_med
         vert = LightVertices(hit.p, hit.n, wo, beta, m, valid & ~delta, hit.material,
-                             hit.uv, hit.ns, in_med)
+                             hit.uv, hit.ns, in_med, medium_id)
         ns = shading(hit)       # BSDFs about the shading normal; densities convert with hit.n
         bs = materialize(bsdf.sample(kinds, mp, ns, wo, u(base), u(base + 1), u(base + 2),
                                      mode=bsdf.IMPORTANCE))
@@ -528,7 +531,8 @@ def light_walk(scene: Scene, cfg: VCMConfig, key: Array, fs: Factors):
         q = continuation(mp, cfg.roulette)
         cos_out = dot(hit.n, bs.wi)
         if medium:
-            bs, pdf_rev = scatter_in_medium(scene, bs, pdf_rev, d, in_med, u(base), u(base + 1))
+            bs, pdf_rev = scatter_in_medium(scene, bs, pdf_rev, d, in_med, u(base), u(base + 1),
+                                            medium_id)
             q, cos_out = jnp.where(in_med, 1.0, q), jnp.where(in_med, 1.0, cos_out)
         m = mis_scatter(m, cos_out, bs.pdf * q, pdf_rev * q, bs.delta, fs.at(in_med), b)
         beta = beta * bs.weight / q
@@ -539,7 +543,8 @@ def light_walk(scene: Scene, cfg: VCMConfig, key: Array, fs: Factors):
         if cfg.roulette:
             alive = alive & (rng.uniform(key, rr_dim0 + j) < q)
         nxt = (geometry.offset_origin(hit.p, hit.n, bs.wi), bs.wi, beta, hit.p,
-               jnp.zeros_like(valid) if in_med is None else in_med, m, alive)
+               jnp.zeros_like(valid) if in_med is None else in_med, m, alive,
+               medium_interfaces.leaving(scene, medium_id, hit.material, hit.n, bs.wi, in_med))
         return nxt, vert
 
     _, verts = jax.lax.scan(step, start, jnp.arange(cfg.max_depth - 1))
@@ -553,15 +558,17 @@ def _continuation_at(scene: Scene, cfg: VCMConfig, v) -> Array:
 
 
 def _arrive(scene: Scene, m: Mis, d2: Array, cos_in: Array, prev_medium: Array,
-            in_medium: Array | None, b: float, from_infinity: Array | None = None) -> Mis:
+            in_medium: Array | None, b: float, from_infinity: Array | None = None,
+            medium_id: Array | None = None) -> Mis:
     """:func:`mis_arrive` at a new vertex (a medium vertex: no cosine, and the segment's
     distance densities towards both ends' kinds; none for a segment ``from_infinity``, a light
     subpath's first from a directional or environment light into a bounded grid medium, as
-    the camera subpath that escapes to infinity has none for its last)."""
+    the camera subpath that escapes to infinity has none for its last). ``medium_id``: the
+    segment's medium (scenes with media bounded by shapes)."""
     if in_medium is None:
         return mis_arrive(m, d2, cos_in, b)
-    dist_prev = segment_density(scene, d2, prev_medium)
-    dist_new = segment_density(scene, d2, in_medium)
+    dist_prev = segment_density(scene, d2, prev_medium, medium_id)
+    dist_new = segment_density(scene, d2, in_medium, medium_id)
     if from_infinity is not None:
         dist_prev = jnp.where(from_infinity, 1.0, dist_prev)
         dist_new = jnp.where(from_infinity, 1.0, dist_new)
@@ -574,7 +581,7 @@ def _as_vertices(scene: Scene, y: LightVertices) -> Vertices:
     on_surface = y.stored if y.in_medium is None else y.stored & ~y.in_medium
     return Vertices(y.p, y.n, y.wo, y.beta, z, z, ~y.stored, on_surface, y.stored, y.material,
                     y.material * 0 - 1, y.uv if y.uv is not None else no_uv(scene, z), y.ns,
-                    None, y.in_medium)
+                    None, y.in_medium, y.medium)
 
 
 def light_pass(scene: Scene, cfg: VCMConfig, seed, iteration, fs: Factors, paths: Array):
@@ -629,6 +636,7 @@ class CameraVertices(NamedTuple):
     next_event: V3         # s = 1, unweighted (visibility tested)
     w_next_event: Array
     in_medium: Array | None = None   # a medium vertex (zero normal), in scenes with a medium
+    medium: Array | None = None      # the medium id it was reached in (bounded media)
 
 
 def camera_walk(scene: Scene, cfg: VCMConfig, key: Array, pixel: Array,
@@ -648,24 +656,24 @@ def camera_walk(scene: Scene, cfg: VCMConfig, key: Array, pixel: Array,
     z = jnp.zeros_like(o.x)
     one = V3(z + 1, z + 1, z + 1)
     mis = mis_camera_start(camera.project(cam, o + d).pdf_dir, b)
-    start = (o, d, one, o, z != 0, mis, z == 0, z == 0)
+    start = (o, d, one, o, z != 0, mis, z == 0, z == 0, medium_interfaces.start(scene, z))
     rr_dim0 = CAMERA_DIMS0 + D * dims   # past BDPT's dimensions
 
     def step(s, j):
-        o, d, beta, prev_p, prev_medium, m, alive, specular_path = s
+        o, d, beta, prev_p, prev_medium, m, alive, specular_path, medium_id = s
         base = CAMERA_DIMS0 + j * dims
         u = lambda k: rng.uniform(key, base + k)  # noqa: E731
         hit = geometry.intersect(scene, o, d)
         in_med = None
         if medium:
             hit, in_med, w_ff = free_flight(scene, o, d, hit, alive, u(dims - MEDIUM_DIMS),
-                                            u(dims - MEDIUM_DIMS + 1))
+                                            u(dims - MEDIUM_DIMS + 1), medium_id=medium_id)
             beta = beta * w_ff
         valid = alive & hit.valid
         v = hit.p - prev_p
         d2 = dot(v, v)
         m_left = m            # as the subpath left its last vertex (an escaped ray's)
-        m = _arrive(scene, m, d2, dot(hit.n, d), prev_medium, in_med, b)
+        m = _arrive(scene, m, d2, dot(hit.n, d), prev_medium, in_med, b, None, medium_id)
         mp = bsdf.lookup_specialised(mats, hit.material, hit.uv)
         wo = -d
         delta = bsdf.is_delta(mp) if in_med is None else bsdf.is_delta(mp) & ~in_med
@@ -698,10 +706,13 @@ def camera_walk(scene: Scene, cfg: VCMConfig, key: Array, pixel: Array,
                                    ns=hit.ns)
             ls = ne.light
             k = select_light(lights, u(3))
+            # the shadow segment's medium (bounded media): the light's side of the surface
+            shadow_medium = medium_interfaces.leaving(scene, medium_id, hit.material, hit.n,
+                                                      ls.wi, in_med)
             _, pdf_bsdf_rev = bsdf.evaluate(kinds, mp, ns, ls.wi, wo)
             cos_x = jnp.abs(dot(ls.wi, hit.n))
             if medium:   # the phase function at a medium vertex, no cosine
-                f_m = phase_value(scene, d, ls.wi)
+                f_m = phase_value(scene, d, ls.wi, medium_id)
                 ne = at_medium_vertex(ne, in_med, f_m, ne_active)
                 pdf_bsdf_rev = jnp.where(in_med, f_m, pdf_bsdf_rev)
                 cos_x = jnp.where(in_med, 1.0, cos_x)
@@ -713,8 +724,9 @@ def camera_walk(scene: Scene, cfg: VCMConfig, key: Array, pixel: Array,
             pdf_emit_x = pdf_emission_dir(lights, k, n_y, -ls.wi) * cos_x * inv_d2
             pdf_light_y, pdf_bsdf_y = pdf_light_origin(lights, k), ne.pdf_bsdf * q * cos_y * inv_d2
             if medium:   # each end's distance density (the light's: a surface's, P(d))
-                pdf_emit_x = pdf_emit_x * segment_density(scene, d2_y, in_med)
-                pdf_bsdf_y = pdf_bsdf_y * segment_density(scene, d2_y, jnp.zeros_like(in_med))
+                pdf_emit_x = pdf_emit_x * segment_density(scene, d2_y, in_med, shadow_medium)
+                pdf_bsdf_y = pdf_bsdf_y * segment_density(scene, d2_y, jnp.zeros_like(in_med),
+                                                          shadow_medium)
             if has_infinite_lights(lights):
                 # a light at infinity: y_0 is a direction (solid-angle densities, selection
                 # included), x is reached from the bounding disc (SmallVCM's background light)
@@ -728,18 +740,19 @@ def camera_walk(scene: Scene, cfg: VCMConfig, key: Array, pixel: Array,
             ne_value = where(~geometry.occluded(scene, *ne.shadow), next_event_value(ne, beta), Z)
             if medium:
                 ne_value = ne_value * transmittance(scene, ls.dist, ne.shadow,
-                                                    max_component(ne_value) > 0)
+                                                    max_component(ne_value) > 0, shadow_medium)
         else:
             ne_value, w_ne = V3.full(0.0, z), z
         rec = CameraVertices(hit.p, hit.n, wo, beta, m, connectable,
                              connectable & specular_path, hit.material, hit.uv, hit.ns, emission,
-                             w_e, ne_value, w_ne, in_med)
+                             w_e, ne_value, w_ne, in_med, medium_id)
         # ---- the next direction ----
         bs = materialize(bsdf.sample(kinds, mp, ns, wo, u(0), u(1), u(2)))
         _, pdf_rev = bsdf.evaluate(kinds, mp, ns, bs.wi, wo)
         cos_out = dot(hit.n, bs.wi)
         if medium:
-            bs, pdf_rev = scatter_in_medium(scene, bs, pdf_rev, d, in_med, u(0), u(1))
+            bs, pdf_rev = scatter_in_medium(scene, bs, pdf_rev, d, in_med, u(0), u(1),
+                                            medium_id)
             cos_out = jnp.where(in_med, 1.0, cos_out)
         m = mis_scatter(m, cos_out, bs.pdf * q, pdf_rev * q, bs.delta, f, b)
         beta = beta * bs.weight / q
@@ -754,7 +767,8 @@ def camera_walk(scene: Scene, cfg: VCMConfig, key: Array, pixel: Array,
         if cfg.mode == "ppm":   # the subpath ends at its first merge
             alive = alive & delta_s
         nxt = (geometry.offset_origin(hit.p, hit.n, bs.wi), bs.wi, beta, hit.p,
-               prev_medium if in_med is None else in_med, m, alive, specular_path & delta_s)
+               prev_medium if in_med is None else in_med, m, alive, specular_path & delta_s,
+               medium_interfaces.leaving(scene, medium_id, hit.material, hit.n, bs.wi, in_med))
         return nxt, rec
 
     _, verts = jax.lax.scan(step, start, jnp.arange(D))
@@ -837,8 +851,11 @@ def merge_grid(y_all: LightVertices, radius, table_size: int, n_light: int,
     row = (o // n_light).astype(jnp.float32)
     beta = y_all.beta
     if y_all.in_medium is not None:   # (a grid medium's sigma_s at the vertex)
-        sigma_s = (grid_media.scattering(grid_media.held_constant(scene.medium), y_all.p)
-                   if scene.has_grid_medium else scene.medium.sigma_t * scene.medium.albedo)
+        if scene.has_grid_medium:
+            sigma_s = grid_media.scattering(grid_media.held_constant(scene.medium), y_all.p)
+        else:   # the vertex's medium's (bounded media: its own)
+            at = medium_interfaces.parameters(scene, y_all.medium)
+            sigma_s = at.sigma_t * at.albedo
         inv_s = V3(*(jnp.where(c > 0, 1.0 / jnp.where(c > 0, c, 1.0), 0.0) for c in sigma_s))
         beta = where(y_all.in_medium, beta * inv_s, beta)
     if scene is not None and scene.materials.has_masks:
@@ -923,7 +940,7 @@ def _merge_pairs(scene: Scene, cfg: VCMConfig, z: "CameraVertexRows", y: Array, 
     if z.in_medium is not None:
         # the phase function for the photon's propagation -wi scattered towards the camera (its
         # value its density both ways), the 3-D kernel, no roulette at a medium vertex
-        p_z = phase_value(scene, -wi, z.wo)
+        p_z = phase_value(scene, -wi, z.wo, z.medium)
         f_z = where(z.in_medium, V3(p_z, p_z, p_z), f_z)
         pdf_fwd, pdf_rev = jnp.where(z.in_medium, p_z, pdf_fwd), jnp.where(z.in_medium, p_z,
                                                                             pdf_rev)
@@ -952,6 +969,7 @@ class CameraVertexRows(NamedTuple):
     ns: V3 | None
     j: Array
     in_medium: Array | None = None
+    medium: Array | None = None
 
 
 def _camera_vertex_rows(z: CameraVertices) -> CameraVertexRows:
@@ -961,7 +979,8 @@ def _camera_vertex_rows(z: CameraVertices) -> CameraVertexRows:
                             z.material.reshape(-1), flat(z.uv) if z.uv is not None else None,
                             flat(z.ns) if z.ns is not None else None,
                             jnp.repeat(jnp.arange(D, dtype=jnp.int32), N),
-                            None if z.in_medium is None else z.in_medium.reshape(-1))
+                            None if z.in_medium is None else z.in_medium.reshape(-1),
+                            None if z.medium is None else z.medium.reshape(-1))
 
 
 def _within_max_depth(q: Array, y: Array, *, j: Array, max_depth: int) -> Array:

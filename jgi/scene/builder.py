@@ -9,7 +9,7 @@ read by :meth:`SceneBuilder.material`.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from dataclasses import field as dc_field
 
 import jax.numpy as jnp
@@ -58,6 +58,7 @@ from .tables import (
     Lights,
     Materials,
     Medium,
+    MediumInterfaces,
     Quads,
     Rects,
     Scene,
@@ -278,6 +279,9 @@ class _Material:
     opacity: float = 1.0                # probability that a ray stops at the surface
     opacity_texture: int = -1           # texture row of a textured opacity, -1: constant
     textures: dict = dc_field(default_factory=dict)  # TEX_* column -> texture row
+    # the media its surfaces bound (SceneBuilder.medium_interface): (interior, exterior) names
+    # of bounded media, None for the scene's own medium; None: no medium transition
+    interface: tuple | None = None
 
 
 @dataclass
@@ -304,6 +308,31 @@ def uv_transform(scale=None, offset=None, matrix=None) -> tuple:
     return (float(su), 0.0, float(du), 0.0, float(sv), float(dv))
 
 
+def _homogeneous_medium(sigma_t, albedo, sigma_a, sigma_s, g, scale) -> dict:
+    """A homogeneous medium's parameters checked and in Mitsuba's form (sigma_t, albedo, g)."""
+    if (sigma_t is None) == (sigma_a is None and sigma_s is None):
+        raise SceneError("a medium takes sigma_t (and albedo) or sigma_a and sigma_s; "
+                         "allowed: one of the two forms")
+    if sigma_t is not None:
+        st = np.asarray(_rgb(sigma_t)) * float(scale)
+        alb = np.asarray(_rgb(1.0 if albedo is None else albedo))
+    else:
+        sa = np.asarray(_rgb(0.0 if sigma_a is None else sigma_a)) * float(scale)
+        ss = np.asarray(_rgb(0.0 if sigma_s is None else sigma_s)) * float(scale)
+        if np.any(sa < 0) or np.any(ss < 0):
+            raise SceneError(f"medium sigma_a {sa.tolist()} and sigma_s {ss.tolist()} "
+                             "must be >= 0")
+        st = sa + ss
+        alb = np.where(st > 0, ss / np.where(st > 0, st, 1.0), 0.0)
+    if np.any(st < 0):
+        raise SceneError(f"medium sigma_t {st.tolist()} must be >= 0")
+    if np.any(alb < 0) or np.any(alb > 1):
+        raise SceneError(f"medium albedo {alb.tolist()} must lie in [0, 1]")
+    if not -1.0 < float(g) < 1.0:
+        raise SceneError(f"medium g = {g} must lie in (-1, 1) (Henyey-Greenstein)")
+    return dict(sigma_t=tuple(st), albedo=tuple(alb), g=float(g))
+
+
 @dataclass
 class SceneBuilder:
     """Accumulates materials, shapes, lights and a camera; ``build()`` makes the pytree."""
@@ -327,6 +356,7 @@ class SceneBuilder:
     # (base, axis_u, axis_v, axis_w, radius, height, outward, material, emission|None)
     cylinders: list = dc_field(default_factory=list)
     medium_args: dict | None = None   # the homogeneous medium filling the scene, if any
+    bounded_media: dict = dc_field(default_factory=dict)   # name -> homogeneous medium args
 
     # --- participating medium ----------------------------------------------------------------
     def medium(self, *, sigma_t=None, albedo=None, sigma_a=None, sigma_s=None, g=0.0,
@@ -334,27 +364,49 @@ class SceneBuilder:
         """Fill the scene's space (the camera's medium, both sides of every surface) with a
         homogeneous medium: Mitsuba's ``sigma_t`` and ``albedo``, or pbrt-v4's ``sigma_a`` and
         ``sigma_s`` (RGB or grey), times ``scale``; Henyey-Greenstein asymmetry ``g``."""
-        if (sigma_t is None) == (sigma_a is None and sigma_s is None):
-            raise SceneError("a medium takes sigma_t (and albedo) or sigma_a and sigma_s; "
-                             "allowed: one of the two forms")
-        if sigma_t is not None:
-            st = np.asarray(_rgb(sigma_t)) * float(scale)
-            alb = np.asarray(_rgb(1.0 if albedo is None else albedo))
-        else:
-            sa = np.asarray(_rgb(0.0 if sigma_a is None else sigma_a)) * float(scale)
-            ss = np.asarray(_rgb(0.0 if sigma_s is None else sigma_s)) * float(scale)
-            if np.any(sa < 0) or np.any(ss < 0):
-                raise SceneError(f"medium sigma_a {sa.tolist()} and sigma_s {ss.tolist()} "
-                                 "must be >= 0")
-            st = sa + ss
-            alb = np.where(st > 0, ss / np.where(st > 0, st, 1.0), 0.0)
-        if np.any(st < 0):
-            raise SceneError(f"medium sigma_t {st.tolist()} must be >= 0")
-        if np.any(alb < 0) or np.any(alb > 1):
-            raise SceneError(f"medium albedo {alb.tolist()} must lie in [0, 1]")
-        if not -1.0 < float(g) < 1.0:
-            raise SceneError(f"medium g = {g} must lie in (-1, 1) (Henyey-Greenstein)")
-        self.medium_args = dict(sigma_t=tuple(st), albedo=tuple(alb), g=float(g))
+        self.medium_args = _homogeneous_medium(sigma_t, albedo, sigma_a, sigma_s, g, scale)
+
+    def bounded_medium(self, name: str, *, sigma_t=None, albedo=None, sigma_a=None,
+                       sigma_s=None, g=0.0, scale=1.0) -> int:
+        """Define homogeneous medium ``name`` (parameters as :meth:`medium`'s; zero extinction
+        makes a vacuum) to be bounded by shapes: the surfaces of a material made by
+        :meth:`medium_interface` hold it inside or outside. Returns its medium id (1, 2, ...;
+        0 is the scene's own medium)."""
+        if name in self.bounded_media:
+            raise SceneError(f"medium '{name}' is defined twice")
+        try:
+            self.bounded_media[name] = _homogeneous_medium(sigma_t, albedo, sigma_a, sigma_s, g,
+                                                           scale)
+        except SceneError as e:
+            raise SceneError(f"medium '{name}': {e}") from None
+        return len(self.bounded_media)
+
+    def medium_interface(self, material, *, interior: str | None = None,
+                         exterior: str | None = None) -> int:
+        """A material row like ``material`` whose surfaces bound media (Mitsuba's ``interior``
+        and ``exterior`` of a shape, pbrt-v4's ``MediumInterface``): a ray leaving such a
+        surface on the side of its normal travels in ``exterior``, on the other side in
+        ``interior`` (names of :meth:`bounded_medium`; None: the scene's own medium, or
+        vacuum). Shapes made with the returned row bound the media; a closed shape with
+        outward normals holds ``interior`` inside. One row per (material, interior, exterior)."""
+        m = self._mat(material)
+        for side, name in (("interior", interior), ("exterior", exterior)):
+            if name is not None and name not in self.bounded_media:
+                raise SceneError(f"medium interface of material '{self._material_name(m)}': "
+                                 f"{side} names medium '{name}', which is not defined; defined: "
+                                 f"{', '.join(self.bounded_media) or '(none)'} (bounded_medium)")
+        if interior == exterior:
+            return m   # no transition
+        base = self.materials[m]
+        if _masked(base):
+            raise SceneError(f"material '{self._material_name(m)}' has an opacity mask and "
+                             "cannot bound a medium (a ray through its holes would change "
+                             "media without crossing a surface); allowed: opaque materials")
+        key = f"{self._material_name(m)}|{interior or ''}|{exterior or ''}"
+        if key not in self.material_names:
+            self.materials.append(replace(base, interface=(interior, exterior)))
+            self.material_names[key] = len(self.materials) - 1
+        return self.material_names[key]
 
     def grid_medium(self, density, bbox_min=(0.0, 0.0, 0.0), bbox_max=(1.0, 1.0, 1.0), *,
                     sigma_t=1.0, albedo=1.0, g=0.0, scale=1.0,
@@ -887,7 +939,36 @@ class SceneBuilder:
             disks=self._build_disks(disk_emit) if self.disks else None,
             cylinders=self._build_cylinders(cyl_emit) if self.cylinders else None,
             medium=self._build_medium(),
+            **self._build_bounded_media(),
         )
+
+    def _build_bounded_media(self) -> dict:
+        """Scene.bounded_media and Scene.medium_interfaces (none: a scene before them)."""
+        bounding = [m for m in self.materials if m.interface is not None]
+        if not bounding:
+            return {}
+        if self.medium_args is not None and "grid" in self.medium_args:
+            raise SceneError("media bounded by shapes (medium_interface) with a grid medium "
+                             "around them: allowed: a homogeneous medium or vacuum around "
+                             "bounded media")
+        emitting = {m for *_, m, e in (*self.spheres, *self.quads, *self.triangles, *self.disks,
+                                       *self.cylinders) if e is not None}
+        for i in sorted(emitting):
+            face = self.materials[i].interface
+            if face is not None and face[1] is not None:
+                raise SceneError(f"material '{self._material_name(i)}' is used by an emitting "
+                                 f"shape and has exterior medium '{face[1]}': lights shine into "
+                                 "the scene's own medium; allowed: exterior None")
+        ids = {name: k + 1 for k, name in enumerate(self.bounded_media)}
+        rows = [m.interface for m in (self.materials or [_Material(DIFFUSE)])]
+        f = lambda key: V3(*(jnp.asarray([a[key][c] for a in self.bounded_media.values()],  # noqa: E731
+                                         jnp.float32) for c in range(3)))
+        media = Medium(f("sigma_t"), f("albedo"),
+                       jnp.asarray([a["g"] for a in self.bounded_media.values()], jnp.float32))
+        side = lambda r, k: -1 if r is None else (0 if r[k] is None else ids[r[k]])  # noqa: E731
+        faces = MediumInterfaces(jnp.asarray([side(r, 0) for r in rows], jnp.int32),
+                                 jnp.asarray([side(r, 1) for r in rows], jnp.int32))
+        return dict(bounded_media=media, medium_interfaces=faces)
 
     def _build_medium(self) -> Medium | None:
         m = self.medium_args

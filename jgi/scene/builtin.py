@@ -90,6 +90,31 @@ def cornell_box_fog(resolution: int = 256, sigma_t=0.6, albedo=0.8, g=0.0) -> Sc
     return b.build()
 
 
+def milk_ball(resolution: int = 256, sigma_t=(2.0, 3.0, 5.0), albedo=0.6, g=0.4,
+              haze: float = 0.0) -> Scene:
+    """A medium bounded by a shape, backlit: a rough glass ball (ior 1.33, GGX alpha 0.2,
+    radius 0.8) holding milk-like fog (RGB extinction ``sigma_t``, 3.2-8 mean free paths
+    across the ball, albedo, Henyey-Greenstein g), on a grey floor, in front of a large
+    emitter (radiance 1) that faces the camera: what reaches the camera through the ball is
+    light the milk let through or scattered towards it. ``haze`` > 0 fills the space around
+    the ball with a thin grey medium (extinction ``haze``, albedo 0.8), so rays cross between
+    two media. The rough interface lets every estimator connect to the ball's surface, and
+    through it to the milk."""
+    b = SceneBuilder("milk_ball")
+    b.material("floor", "diffuse", diffuse=(0.5, 0.5, 0.5))
+    b.material("black", "diffuse", diffuse=(0.0, 0.0, 0.0))
+    b.material("rough_glass", "roughdielectric", ior=1.33, alpha=0.2)
+    b.bounded_medium("milk", sigma_t=sigma_t, albedo=albedo, g=g)
+    b.quad((-4, -0.8, 4), (8, 0, 0), (0, 0, -8), "floor")                         # normal +y
+    b.quad((-4, -0.8, -2), (8, 0, 0), (0, 6, 0), "black", (1.0, 1.0, 1.0))        # normal +z
+    b.sphere((0.0, 0.0, 0.0), 0.8, b.medium_interface("rough_glass", interior="milk"))
+    if haze > 0:
+        b.medium(sigma_t=haze, albedo=0.8)
+    b.camera(position=(0, 0.6, 4), look_at=(0, 0, 0), fov=40, width=resolution,
+             height=resolution)
+    return b.build()
+
+
 def glass_sphere_fog(resolution: int = 256, sigma_t=0.25, albedo=0.9, g=0.3) -> Scene:
     """A volumetric caustic (the case mitsuba3#181 asks for): a glass sphere (ior 1.5, radius
     0.6) in fog under a spot light whose cone (15 degrees) lies within the sphere's silhouette
@@ -414,6 +439,7 @@ BUILTINS = {
     "smallvcm_box": smallvcm_box,
     "cornell_box_fog": cornell_box_fog,
     "glass_sphere_fog": glass_sphere_fog,
+    "milk_ball": milk_ball,
 }
 
 

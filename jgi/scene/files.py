@@ -121,7 +121,10 @@ METAL_WORDS = {"gold": "Au", "silver": "Ag", "copper": "Cu", "aluminium": "Al",
 # Material types that the importers know but the TOML format refuses, with what to use instead.
 MATERIAL_ALTERNATIVES: dict = {}
 
-SHAPE_COMMON = {"type": "str", "material": "str", "emission": "rgb", "transform": "table"}
+SHAPE_COMMON = {"type": "str", "material": "str", "emission": "rgb", "transform": "table",
+                # media the shape bounds: [[medium]] names (SceneBuilder.medium_interface; a
+                # side left out is the camera's medium, the scene's own)
+                "interior": "str", "exterior": "str"}
 SHAPE_KEYS = {
     "sphere": {"center": "vec3", "radius": "number"},
     "quad": {"origin": "vec3", "edge_u": "vec3", "edge_v": "vec3"},
@@ -239,6 +242,8 @@ class _TomlLoader:
 
     def __init__(self, path: Path):
         self.path = path
+        self.medium_tables: dict = {}   # [[medium]] name -> (key, table)
+        self.camera_medium = None
 
     def fail(self, key: str, msg: str):
         raise SceneError(f"{self.path}: {key}: {msg}" if key else f"{self.path}: {msg}")
@@ -429,6 +434,10 @@ class _TomlLoader:
             self.material(b, f"material[{i}]", m)
         for i, s in enumerate(self.array_of_tables(doc, "shape")):
             self.shape(b, f"shape[{i}]", s)
+        for name, (key, _) in self.medium_tables.items():
+            if name != self.camera_medium and name not in b.bounded_media:
+                self.fail(key, f"medium '{name}' is not used; allowed: name it as the camera's "
+                               "(camera.medium), or as a shape's interior or exterior")
         for i, l in enumerate(self.array_of_tables(doc, "light")):
             self.light(b, f"light[{i}]", l)
         if not b.lights and not any(s[-1] is not None for s in b.spheres + b.quads + b.triangles):
@@ -462,8 +471,9 @@ class _TomlLoader:
         b.camera(pos, look, up=up, fov=fov, width=w, height=h, fov_axis=axis)
 
     def media(self, b: SceneBuilder, tables: list, camera_medium):
-        """The [[medium]] tables; the one named by camera.medium fills the scene (per-shape
-        media are not supported yet, so a medium the camera does not name is refused)."""
+        """The [[medium]] tables; the one named by camera.medium is the scene's own medium (the
+        camera's, filling the space no shape bounds); shapes' ``interior`` / ``exterior`` name
+        the others, homogeneous media bounded by those shapes (:meth:`shape_media`)."""
         names = {}
         for i, t in enumerate(tables):
             key = f"medium[{i}]"
@@ -473,23 +483,22 @@ class _TomlLoader:
                 self.fail(f"{key}.name",
                           f"'{m['name']}' is already the name of {names[m['name']][0]}")
             names[m["name"]] = (key, m)
+        self.medium_tables, self.camera_medium = names, camera_medium
         if camera_medium is None:
-            if names:
-                key = next(iter(names.values()))[0]
-                self.fail(key, "a medium that nothing uses; allowed: name it as the camera's "
-                               "(camera.medium), which fills the scene (per-shape media are not "
-                               "supported yet)")
             return
         if camera_medium not in names:
             self.fail("camera.medium", f"unknown medium {camera_medium!r}; defined: "
                                        f"{', '.join(names) or '(none: add a [[medium]])'}")
-        for name, (key, m) in names.items():
-            if name != camera_medium:
-                self.fail(key, f"medium '{name}' is not used; only the camera's medium "
-                               f"('{camera_medium}') is supported, and it fills the scene")
         key, m = names[camera_medium]
         if m["type"] == "grid":
             return self.grid_medium(b, key, m)
+        try:
+            b.medium(**self.homogeneous(key, m))
+        except SceneError as e:
+            self.fail(key, str(e))
+
+    def homogeneous(self, key: str, m: dict) -> dict:
+        """The builder's parameters of a homogeneous [[medium]] table, its forms checked."""
         has_t = "sigma_t" in m or "albedo" in m
         has_as = "sigma_a" in m or "sigma_s" in m
         if has_t == has_as:
@@ -497,9 +506,38 @@ class _TomlLoader:
                            "the two forms")
         if has_t and "sigma_t" not in m:
             self.fail(f"{key}.sigma_t", "missing (required with albedo)")
+        return dict(sigma_t=m.get("sigma_t"), albedo=m.get("albedo"), sigma_a=m.get("sigma_a"),
+                    sigma_s=m.get("sigma_s"), g=m.get("g", 0.0), scale=m.get("scale", 1.0))
+
+    def shape_media(self, b: SceneBuilder, key: str, t: dict, mat: str):
+        """The material row of shape ``key`` that bounds the media its ``interior`` and
+        ``exterior`` name (SceneBuilder.medium_interface; the camera's medium, or a side left
+        out, is the scene's own). Those media must be homogeneous [[medium]] tables."""
+        sides = {}
+        for side in ("interior", "exterior"):
+            name = t.get(side)
+            if name is None or name == self.camera_medium:
+                sides[side] = None
+                continue
+            if name not in self.medium_tables:
+                self.fail(f"{key}.{side}", f"unknown medium {name!r}; defined: "
+                                           f"{', '.join(self.medium_tables) or '(none)'}")
+            mkey, m = self.medium_tables[name]
+            if m["type"] != "homogeneous":
+                self.fail(f"{key}.{side}", f"medium '{name}' is a {m['type']} medium; media "
+                                           "bounded by shapes are homogeneous (a grid medium "
+                                           "is supported as the camera's)")
+            if name not in b.bounded_media:
+                try:
+                    b.bounded_medium(name, **self.homogeneous(mkey, m))
+                except SceneError as e:
+                    self.fail(mkey, str(e))
+            sides[side] = name
+        if sides["exterior"] is not None and t.get("emission") is not None:
+            self.fail(f"{key}.exterior", "an emitting shape's exterior must be the camera's "
+                                         "medium (lights shine into the scene's own medium)")
         try:
-            b.medium(sigma_t=m.get("sigma_t"), albedo=m.get("albedo"), sigma_a=m.get("sigma_a"),
-                     sigma_s=m.get("sigma_s"), g=m.get("g", 0.0), scale=m.get("scale", 1.0))
+            return b.medium_interface(mat, **sides)
         except SceneError as e:
             self.fail(key, str(e))
 
@@ -671,6 +709,8 @@ class _TomlLoader:
         if mat not in b.material_names:
             self.fail(f"{key}.material", f"unknown material '{mat}'; defined: "
                                          f"{', '.join(b.material_names) or '(none)'}")
+        if "interior" in t or "exterior" in t:
+            mat = self.shape_media(b, key, t, mat)
         m = self.transform(f"{key}.transform", t["transform"]) if "transform" in t else np.eye(4)
         e = t.get("emission")
         if kind == "sphere":
@@ -698,7 +738,8 @@ class _TomlLoader:
             # the file's vertex normals shade it smoothly, unless flat = true; emitters are
             # flat (they radiate about the geometric normal)
             smooth = not t.get("flat", False) and e is None
-            textured = bool(b.materials[b.material_names[mat]].textures)
+            row = mat if isinstance(mat, int) else b.material_names[mat]
+            textured = bool(b.materials[row].textures)
             v, f, normals, uv = self.mesh(f"{key}.file", t["file"], smooth, textured)
             b.mesh(v, f, mat, e, to_world=m, normals=normals, uv=uv)
 

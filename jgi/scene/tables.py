@@ -398,6 +398,18 @@ class Medium(eqx.Module):
     g: Array        # in (-1, 1)
 
 
+class MediumInterfaces(eqx.Module):
+    """Which media a material's surfaces bound (Mitsuba's shape ``interior`` / ``exterior``,
+    pbrt-v4's ``MediumInterface``), one row per material: medium ids, 0 the scene's own medium
+    (``Scene.medium``, or vacuum) and k >= 1 row k - 1 of ``Scene.bounded_media``. A ray leaving
+    such a surface on the side of its normal travels in ``exterior``, on the other side in
+    ``interior``; ``interior`` -1 marks a material whose surfaces are no medium transition
+    (the ray keeps the medium it arrived in, as in both renderers)."""
+
+    interior: Array   # int32 [M]
+    exterior: Array   # int32 [M]
+
+
 class GridMedium(eqx.Module):
     """A heterogeneous medium (:mod:`jgi.physics.grid_media`): extinction
     sigma_t,c(x) = density(x) sigma_t,c inside the axis-aligned box [lo, hi] (0 outside), the
@@ -456,11 +468,29 @@ class Scene(eqx.Module):
     # (pbrt-v4 with one MediumInterface for all shapes). None: vacuum (kernels as before media)
     # (a GridMedium: a heterogeneous medium in a box, vacuum around it)
     medium: Medium | GridMedium | None = None
+    # homogeneous media bounded by shapes (medium ids 1..K, each field [K]), and the interfaces
+    # of the materials whose surfaces bound them; None in a scene without (its kernels are those
+    # of a scene before bounded media)
+    bounded_media: Medium | None = None
+    medium_interfaces: MediumInterfaces | None = None
 
     @property
     def has_medium(self) -> bool:
-        """Static: the scene's space is filled by a participating medium."""
-        return self.medium is not None
+        """Static: some of the scene's space holds a participating medium (paths then sample
+        free flights)."""
+        return self.medium is not None or self.bounded_media is not None
+
+    @property
+    def has_bounded_media(self) -> bool:
+        """Static: media bounded by shapes; rays and path vertices carry the id of the medium
+        they travel in (:mod:`jgi.transport.media_ids`)."""
+        return self.bounded_media is not None
+
+    @property
+    def fills_with_homogeneous_medium(self) -> bool:
+        """Static: a homogeneous medium fills the space around every shape (light from infinity
+        never reaches into the scene)."""
+        return isinstance(self.medium, Medium)
 
     @property
     def has_grid_medium(self) -> bool:

@@ -39,7 +39,15 @@ from ..core import rng
 from ..core.vec import V3, dot, max_component, where
 from ..physics import bsdf, camera, geometry, grid_media, media
 from ..scene.tables import Scene
-from .subpath import Vertices, convert_density, phase_value, segment_density, shading
+from .subpath import (
+    Vertices,
+    convert_density,
+    medium_parameters,
+    phase_value,
+    segment_density,
+    segment_medium,
+    shading,
+)
 
 # --- s, t >= 2: a light vertex joined to a camera vertex -----------------------------------------
 
@@ -89,8 +97,11 @@ def connect_vertices(scene: Scene, y, z, ok: Array,
         # medium vertices: the phase function for the propagation directions (in: -wo, out:
         # towards the other end), its value its density both ways (reciprocity)
         y_m, z_m = y.in_medium, z.in_medium
-        p_y = phase_value(scene, -y.wo, w)
-        p_z = phase_value(scene, -z.wo, -w)
+        p_y = phase_value(scene, -y.wo, w, y.medium)
+        p_z = phase_value(scene, -z.wo, -w, z.medium)
+        # the segment's medium (bounded media): on its side of y; z's side agrees unless a
+        # boundary occludes the segment
+        segment = segment_medium(scene, y, w)
         f_y = where(y_m, V3(p_y, p_y, p_y), f_y)
         f_z = where(z_m, V3(p_z, p_z, p_z), f_z)
         pdf_y_fwd, pdf_y_rev = jnp.where(y_m, p_y, pdf_y_fwd), jnp.where(y_m, p_y, pdf_y_rev)
@@ -127,9 +138,10 @@ def connect_vertices(scene: Scene, y, z, ok: Array,
     pdf_z_from_y, pdf_y_from_z = to_area(pdf_y_fwd, cos_z), to_area(pdf_z_fwd, cos_y)
     shadow = geometry.shadow_ray(y.p, y.n, w, dist)
     if medium:      # T(d) in the value; p_dist of the reached vertex's kind in the densities
-        value = value * transmittance(scene, dist, shadow, ok & (max_component(value) > 0))
-        pdf_z_from_y = pdf_z_from_y * segment_density(scene, d2, z_m)
-        pdf_y_from_z = pdf_y_from_z * segment_density(scene, d2, y_m)
+        value = value * transmittance(scene, dist, shadow, ok & (max_component(value) > 0),
+                                      segment)
+        pdf_z_from_y = pdf_z_from_y * segment_density(scene, d2, z_m, segment)
+        pdf_y_from_z = pdf_y_from_z * segment_density(scene, d2, y_m, segment)
     return VertexConnection(value, shadow, pdf_z_from_y, pdf_y_from_z, pdf_y_rev, pdf_z_rev)
 
 
@@ -166,7 +178,7 @@ def connect_camera(scene: Scene, y: Vertices) -> CameraConnection:
             corr, cos_f = jnp.where(y.in_medium, 1.0, corr), jnp.where(y.in_medium, 1.0, cos_f)
         f = f * corr
     if scene.has_medium:             # a medium vertex: the phase function, no cosine
-        p_y = phase_value(scene, -y.wo, w)
+        p_y = phase_value(scene, -y.wo, w, y.medium)
         f = where(y.in_medium, V3(p_y, p_y, p_y), f)
         pdf_y_rev = jnp.where(y.in_medium, p_y, pdf_y_rev)
         cos_y = jnp.where(y.in_medium, 1.0, cos_y)
@@ -186,21 +198,24 @@ def connect_camera(scene: Scene, y: Vertices) -> CameraConnection:
     shadow = geometry.shadow_ray(y.p, y.n, w, proj.dist)
     pdf_cam = jnp.where(ok, proj.pdf_dir * cos_y * inv_d2, 0.0)
     if scene.has_medium:
-        value = value * transmittance(scene, proj.dist, shadow, ok & (max_component(value) > 0))
-        pdf_cam = pdf_cam * segment_density(scene, d2, y.in_medium)
+        segment = segment_medium(scene, y, w)
+        value = value * transmittance(scene, proj.dist, shadow, ok & (max_component(value) > 0),
+                                      segment)
+        pdf_cam = pdf_cam * segment_density(scene, d2, y.in_medium, segment)
     return CameraConnection(pixel, value, shadow, pdf_cam, pdf_y_rev, ok)
 
 
 # --- transmittance along a connection ------------------------------------------------------------
 
-def transmittance(scene: Scene, dist: Array, shadow: tuple, active: Array) -> V3:
+def transmittance(scene: Scene, dist: Array, shadow: tuple, active: Array,
+                  medium: Array | None = None) -> V3:
     """T(d) of a connection or light sample of length ``dist`` (inf towards an infinite light)
-    in a scene filled by a medium: exp(-sigma_t d) per channel in a homogeneous medium, ratio
-    tracking's unbiased estimate along the ``shadow`` ray in a grid medium
-    (:func:`shadow_transmittance`; 1 where not ``active``)."""
+    in a scene with a medium: exp(-sigma_t d) per channel in a homogeneous medium (that of ids
+    ``medium`` in scenes with bounded media), ratio tracking's unbiased estimate along the
+    ``shadow`` ray in a grid medium (:func:`shadow_transmittance`; 1 where not ``active``)."""
     if scene.has_grid_medium:
         return shadow_transmittance(scene, shadow, active)
-    return media.transmittance(scene.medium.sigma_t, dist)
+    return media.transmittance(medium_parameters(scene, medium).sigma_t, dist)
 
 
 def shadow_transmittance(scene: Scene, shadow: tuple, active: Array) -> V3:

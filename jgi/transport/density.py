@@ -38,7 +38,7 @@ from jax import Array
 
 from ..core.errors import ParameterError
 from ..core.vec import V3, dot, where
-from ..physics import bsdf, phase
+from ..physics import bsdf, medium_interfaces, phase
 from ..scene.tables import PLASTIC, Scene
 from .hash_grid import (
     CellIndex,
@@ -339,6 +339,7 @@ def _add_volume_photons(acc: Array, q: Array, slot: Array, ok: Array, *, rows: A
     at = lambda v: V3(*(c[q] for c in v))                                      # noqa: E731
     diff = V3(y[:, 0], y[:, 1], y[:, 2]) - at(x)
     w, _ = volume_filter_weight(kind, dot(diff, diff), r2[q])
+    g = g if jnp.ndim(g) == 0 else g[q]   # per point: its medium's (bounded media)
     p = phase.evaluate(g, -V3(y[:, 6], y[:, 7], y[:, 8]), at(wo))
     terms = [jnp.where(ok, p * y[:, 9 + c] * w, 0.0) for c in range(3)]
     return acc.at[q].add(jnp.stack([ok.astype(acc.dtype), *terms], -1))
@@ -355,13 +356,19 @@ def _volume_sum_within(photons: PhotonRows, table_size: int, x: V3, wo: V3, r2: 
     return V3(acc[:, 1], acc[:, 2], acc[:, 3]), acc[:, 0]
 
 
-def volume_sum_within(scene: Scene, pm, x: V3, wo: V3, r2, *, live=None, kind: str = "box"):
+def volume_sum_within(scene: Scene, pm, x: V3, wo: V3, r2, *, live=None, kind: str = "box",
+                      medium=None):
     """(sum_p p(-w_p, wo) W(d_p) DeltaPhi_p, count) over every *volume* photon of ``pm`` within
     each point's radius (r2 per point), numpy [3, N] and [N]: the in-scattered radiance
     int p(w, wo) L_i(x, w) dw is the sum divided by K = (the filter's constant) 4/3 pi r^3
     (:func:`volume_filter_weight`), the volume photons' power being the flux times T / p
     (:mod:`jgi.transport.photons`). x's throughput carries sigma_s already (its free-flight
-    weight). Exact as :func:`sum_within`: every pair of the 27 cells is read."""
+    weight). Exact as :func:`sum_within`: every pair of the 27 cells is read.
+
+    ``medium`` (scenes with media bounded by shapes): each point's medium id, whose phase
+    function weighs the photons. Photons are not told apart by medium: near a boundary the
+    estimate mixes the two sides' photons, a bias of the kernel's width like a surface's
+    boundary bias, which shrinks with the radius."""
     volume_filter_weight(kind, 0.0, 1.0)     # refuses filters without a 3-D form
     vol = pm.select(np.asarray(pm.volume))
     N = x.x.shape[0]
@@ -371,6 +378,10 @@ def volume_sum_within(scene: Scene, pm, x: V3, wo: V3, r2, *, live=None, kind: s
     live = np.ones(N, bool) if live is None else np.asarray(live, bool)
     photons, table_size = _device_rows(vol, float(np.sqrt(max(float(r2[live].max(initial=0.0)),
                                                               1e-12))))
+    if scene.has_bounded_media:
+        g = medium_interfaces.parameters(scene, jnp.asarray(medium, jnp.int32)).g
+        return _by_chunks(N, live, lambda take, alive: _volume_sum_within(
+            photons, table_size, take(x), take(wo), take(r2), alive, take(g), kind))
     g = jnp.float32(scene.medium.g)
     return _by_chunks(N, live, lambda take, alive: _volume_sum_within(
         photons, table_size, take(x), take(wo), take(r2), alive, g, kind))

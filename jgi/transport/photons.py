@@ -30,7 +30,9 @@ The photon then continues with the weight T sigma_s / p (Russian roulette on it)
 sampled from the phase function. Reaching a surface weighs it by T / P. In a grid medium the
 flight is spectral tracking's (:mod:`jgi.physics.grid_media`, on a stream hashed from the two
 numbers) and its weight at a collision carries sigma_s(x): the photon is stored with that
-weight divided by sigma_s(x), the grid's T / p.
+weight divided by sigma_s(x), the grid's T / p. With media bounded by shapes each photon carries
+the id of the medium it travels in (:mod:`jgi.physics.medium_interfaces`) and each flight takes
+that medium's parameters.
 
 Two maps are distinguished by a flag per stored photon:
   * global: every non-specular hit;
@@ -53,7 +55,7 @@ from ..core import rng
 from ..core.calls import ordered_calls
 from ..core.sharding import device_mesh, sharded_calls
 from ..core.vec import V3, dot, max_component, where
-from ..physics import bsdf, geometry, grid_media, media, phase
+from ..physics import bsdf, geometry, grid_media, media, medium_interfaces, phase
 from ..physics.lights import sample_emission
 from ..scene.tables import Scene
 from .visible_points import is_lookup_surface, samples_through
@@ -96,19 +98,19 @@ def trace_photon_paths(scene: Scene, seed, photon_index: Array, n_emitted, max_d
     inv_n = 1.0 / jnp.asarray(n_emitted, jnp.float32)
     power = em.weight * inv_n
     z = jnp.zeros_like(power.x)
-    # o, d, power, alive, specular_seen, only_specular
-    state = (em.p, em.d, power, power.x >= 0, z > 0, z == 0)
+    # o, d, power, alive, specular_seen, only_specular, the medium id (bounded media)
+    state = (em.p, em.d, power, power.x >= 0, z > 0, z == 0, medium_interfaces.start(scene, z))
 
-    medium = scene.medium
-    grid = scene.has_grid_medium
-    if grid:   # rendered, not differentiated (jgi.physics.grid_media)
-        medium = grid_media.held_constant(medium)
+    grid = scene.has_grid_medium   # rendered, not differentiated (jgi.physics.grid_media)
 
     def bounce(state, depth):
-        o, d, pw, alive, spec_seen, only_spec = state
+        o, d, pw, alive, spec_seen, only_spec, medium_id = state
         hit = geometry.intersect(scene, o, d)
         base = 5 + depth * DIMS_PER_BOUNCE
-        if medium is not None:   # a free flight before the surface (see the module)
+        medium = (grid_media.held_constant(scene.medium) if grid
+                  else medium_interfaces.parameters(scene, medium_id))
+        in_medium = None
+        if scene.has_medium:   # a free flight before the surface (see the module)
             dm = 5 + max_depth * DIMS_PER_BOUNCE + 2 * depth
             t_hit = jnp.where(hit.valid, hit.t, jnp.inf)
             if grid:   # spectral tracking; its weight at a collision carries sigma_s(x)
@@ -124,7 +126,7 @@ def trace_photon_paths(scene: Scene, seed, photon_index: Array, n_emitted, max_d
             pw = where(in_medium, pw, pw * ff_weight)    # T / P where it reaches the surface
             alive = alive & (hit.valid | in_medium)
             hit = hit._replace(valid=hit.valid & ~in_medium)
-        alive = alive & hit.valid if medium is None else alive
+        alive = alive & hit.valid if not scene.has_medium else alive
         mp = bsdf.lookup(mats, hit.material, hit.uv)
         store = alive & is_lookup_surface(mp, mats.kinds)
         # caustic: L S+ D with S what Jensen's split samples through (Dirac and microfacet
@@ -143,7 +145,7 @@ def trace_photon_paths(scene: Scene, seed, photon_index: Array, n_emitted, max_d
         if hit.ns is not None:   # Veach's adjoint correction for shading normals
             bs = bs._replace(weight=bs.weight * bsdf.adjoint_correction(ns, hit.n, -d, bs.wi))
         p_at, n_at, origin = hit.p, n_arrival, None
-        if medium is not None:
+        if scene.has_medium:
             # a medium interaction takes the surface's place: stored with the free-flight
             # weight without sigma (T / p), continued with T sigma_s / p along a phase sample
             x = o + d * jnp.where(in_medium, ff_t, 0.0)
@@ -174,7 +176,9 @@ def trace_photon_paths(scene: Scene, seed, photon_index: Array, n_emitted, max_d
         o_next = geometry.offset_origin(hit.p, hit.n, bs.wi) if origin is None else origin
         only_spec = only_spec & (bs.delta | through)
         spec_seen = spec_seen | bs.delta | through
-        return (o_next, bs.wi, pw, survive, spec_seen, only_spec), record
+        medium_id = medium_interfaces.leaving(scene, medium_id, hit.material, hit.n, bs.wi,
+                                              in_medium)
+        return (o_next, bs.wi, pw, survive, spec_seen, only_spec, medium_id), record
 
     _, rec = jax.lax.scan(bounce, state, jnp.arange(max_depth))
     p, pw, wi, n, caustic, valid = rec

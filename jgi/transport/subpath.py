@@ -51,6 +51,12 @@ along a segment of length d multiply by the distance density of the vertex reach
 
 (:func:`area_density`), and connections multiply their values by the transmittance T(d).
 Vacuum scenes compile to the programs they compiled to before (``in_medium`` is None there).
+
+Media bounded by shapes (:mod:`jgi.physics.medium_interfaces`): every walk state and vertex
+carries the id of the medium it was reached in (``medium``; None in scenes without bounded
+media), and each segment's free flight, distance densities and transmittance take that
+medium's parameters: the segment from a vertex to the next lies in the medium the walk leaves
+the vertex into (:func:`jgi.physics.medium_interfaces.leaving`).
 """
 
 from __future__ import annotations
@@ -66,7 +72,7 @@ from .. import _xla
 from .._xla import materialize
 from ..core import rng, warps
 from ..core.vec import EDGE_ON_COS, V3, dot, max_component, normalize, where
-from ..physics import bsdf, camera, geometry, grid_media, media, phase
+from ..physics import bsdf, camera, geometry, grid_media, media, medium_interfaces, phase
 from ..physics.lights import LightSample, cylinder_normal, emitted, sample_emission, sample_li
 from ..scene.tables import (
     AREA_CYLINDER,
@@ -142,6 +148,9 @@ class Vertices(NamedTuple):
     # a medium vertex (a free-flight interaction; phase function, no normal), in scenes filled
     # by a medium; None in vacuum scenes
     in_medium: Array | None = None
+    # the id of the medium the vertex was reached in (jgi.physics.medium_interfaces), in scenes
+    # with media bounded by shapes; None elsewhere
+    medium: Array | None = None
 
 
 def vertex_in_medium(scene: Scene, like: Array) -> Array | None:
@@ -150,7 +159,19 @@ def vertex_in_medium(scene: Scene, like: Array) -> Array | None:
     return (like != like) if scene.has_medium else None
 
 
-def segment_density(scene: Scene, d2: Array, at_medium: Array) -> Array:
+def segment_medium(scene: Scene, v, w: V3) -> Array | None:
+    """The medium id of a segment that leaves vertex ``v`` (a :class:`Vertices` or any record
+    with n, material, in_medium and medium) in direction w: the side of w at a surface that
+    bounds media, else the medium v was reached in. None in scenes without bounded media. (Not
+    for a subpath's vertex 0, whose material is no surface's: the pinhole and the lights sit in
+    the scene's own medium, its ``medium``.)"""
+    if not scene.has_bounded_media:
+        return None
+    return medium_interfaces.leaving(scene, v.medium, v.material, v.n, w, v.in_medium)
+
+
+def segment_density(scene: Scene, d2: Array, at_medium: Array, medium: Array | None = None
+                    ) -> Array:
     """p_dist of a segment of squared length d2 (medium scenes): p(d) if it ends at a medium
     vertex (``at_medium``), P(d) if at a surface (:func:`jgi.physics.media.segment_pdf`).
 
@@ -165,8 +186,17 @@ def segment_density(scene: Scene, d2: Array, at_medium: Array) -> Array:
     constant grid. Measured in tests/test_grid_media.py's smoke room, 16 seeds: BDPT's and
     VCM's per-pixel variance within 0.5% of leaving them out, so the choice is a principle
     there, not yet a measured gain.)"""
-    sigma_t = mean_extinction(scene.medium) if scene.has_grid_medium else scene.medium.sigma_t
+    sigma_t = (mean_extinction(scene.medium) if scene.has_grid_medium
+               else medium_parameters(scene, medium).sigma_t)
     return media.segment_pdf(sigma_t, jnp.sqrt(d2), at_medium)
+
+
+def medium_parameters(scene: Scene, medium: Array | None):
+    """The homogeneous medium of each lane's segment (``medium``: its ids, required in scenes
+    with bounded media; :func:`jgi.physics.medium_interfaces.parameters`)."""
+    if scene.has_bounded_media and medium is None:
+        raise ValueError("a scene with media bounded by shapes needs the segment's medium id")
+    return medium_interfaces.parameters(scene, medium)
 
 
 def mean_extinction(medium) -> V3:
@@ -177,20 +207,23 @@ def mean_extinction(medium) -> V3:
 
 
 def area_density(scene: Scene, pdf_solid: Array, d2: Array, cos_at: Array, on_surface: Array,
-                 at_medium: Array | None) -> Array:
+                 at_medium: Array | None, medium: Array | None = None) -> Array:
     """:func:`convert_density`, times the segment's distance density p_dist of the target's kind
-    in a medium scene (p(d) at a medium vertex, ``at_medium``; P(d) elsewhere). In vacuum
-    scenes exactly :func:`convert_density`."""
+    in a medium scene (p(d) at a medium vertex, ``at_medium``; P(d) elsewhere), in the
+    segment's medium ``medium`` (ids; scenes with bounded media). In vacuum scenes exactly
+    :func:`convert_density`."""
     pdf = convert_density(pdf_solid, d2, cos_at, on_surface)
     if not scene.has_medium:
         return pdf
-    return pdf * segment_density(scene, d2, at_medium)
+    return pdf * segment_density(scene, d2, at_medium, medium)
 
 
-def phase_value(scene: Scene, d_in: V3, d_out: V3) -> Array:
-    """The medium's phase function for propagation directions d_in -> d_out (= its sampling
-    density; reciprocal: the reversed pair -d_out -> -d_in has the same value)."""
-    return phase.evaluate(jax.lax.stop_gradient(scene.medium.g), d_in, d_out)
+def phase_value(scene: Scene, d_in: V3, d_out: V3, medium: Array | None = None) -> Array:
+    """The phase function of the medium (ids ``medium`` in scenes with bounded media) for
+    propagation directions d_in -> d_out (= its sampling density; reciprocal: the reversed
+    pair -d_out -> -d_in has the same value)."""
+    g = medium_parameters(scene, medium).g
+    return phase.evaluate(jax.lax.stop_gradient(g), d_in, d_out)
 
 
 def mis_delta(v: Vertices) -> Array:
@@ -257,10 +290,12 @@ class WalkState(NamedTuple):
     prev_surface: Array
     prev_delta: Array
     alive: Array
+    medium: Array | None = None   # the id of the medium the ray travels in (bounded media)
 
 
 def free_flight(scene: Scene, o: V3, d: V3, hit: geometry.Hit, alive: Array, u_channel: Array,
-                u_distance: Array, throughput: V3 | None = None) -> tuple[geometry.Hit, Array, V3]:
+                u_distance: Array, throughput: V3 | None = None, medium_id: Array | None = None
+                ) -> tuple[geometry.Hit, Array, V3]:
     """The free flight of a subpath segment from o along d in a scene filled by a medium, every
     subpath's (BDPT's, light tracing's, MMLT's, VCM's): a medium vertex before the surface
     ``hit``, or the surface reached. Returns (the hit, a medium vertex there where
@@ -271,9 +306,10 @@ def free_flight(scene: Scene, o: V3, d: V3, hit: geometry.Hit, alive: Array, u_c
     (:func:`jgi.physics.media.sample_free_flight`), weight T sigma_s / p(t) or T / P(t). A grid
     medium: spectral tracking (:func:`jgi.physics.grid_media.sample_free_flight`) on a stream
     hashed from the two numbers, history-aware through ``throughput``, its weight the
-    tracking's; not differentiated (the grid is a constant, see that module)."""
+    tracking's; not differentiated (the grid is a constant, see that module). ``medium_id``:
+    the medium the ray travels in (scenes with bounded media)."""
     sg = jax.lax.stop_gradient
-    medium = scene.medium
+    medium = scene.medium if scene.has_grid_medium else medium_parameters(scene, medium_id)
     t_hit = jnp.where(hit.valid, hit.t, jnp.inf)
     if scene.has_grid_medium:
         beta = V3.full(1.0, t_hit) if throughput is None else throughput
@@ -297,13 +333,13 @@ def free_flight(scene: Scene, o: V3, d: V3, hit: geometry.Hit, alive: Array, u_c
 
 
 def scatter_in_medium(scene: Scene, bs, pdf_back: Array, d: V3, in_medium: Array, u1: Array,
-                      u2: Array):
+                      u2: Array, medium_id: Array | None = None):
     """The BSDF sample ``bs`` (and its reverse density ``pdf_back``) replaced, where
     ``in_medium``, by the phase function's sample for a subpath arriving along d: weight 1
     (p / p; for detached derivatives 1 + (p - sg(p)) / sg(p), the derivative of p alone),
     density the phase value, the same backwards (reciprocity), never Dirac."""
     sg = jax.lax.stop_gradient
-    g = scene.medium.g
+    g = medium_parameters(scene, medium_id).g
     ps = phase.sample(sg(g), d, u1, u2)
     p_g = phase.henyey_greenstein(ps.mu, g)
     one = 1.0 + (p_g - sg(p_g)) / jnp.where(sg(p_g) > 0, sg(p_g), 1.0)
@@ -363,10 +399,10 @@ def random_walk(scene: Scene, key: Array, dim0: int, dims_per_step: int, n_steps
              else (lambda k: uniform(base + k)))
         hit = geometry.intersect(scene, s.o, s.d)
         in_med = None
-        if medium is not None:
+        if scene.has_medium:
             hit, in_med, w_ff = free_flight(scene, s.o, s.d, hit, s.alive,
                                             u(dims_per_step - MEDIUM_DIMS),
-                                            u(dims_per_step - MEDIUM_DIMS + 1), s.beta)
+                                            u(dims_per_step - MEDIUM_DIMS + 1), s.beta, s.medium)
             s = s._replace(beta=s.beta * w_ff)
         valid = s.alive & hit.valid
         v = hit.p - s.prev_p
@@ -375,7 +411,7 @@ def random_walk(scene: Scene, key: Array, dim0: int, dims_per_step: int, n_steps
             pdf_fwd = jnp.where(valid, convert_density(s.pdf_dir, d2, dot(hit.n, s.d), True), 0.0)
         else:
             pdf_fwd = jnp.where(valid, area_density(scene, s.pdf_dir, d2, dot(hit.n, s.d),
-                                                    ~in_med, in_med), 0.0)
+                                                    ~in_med, in_med, s.medium), 0.0)
         mp = bsdf.lookup_specialised(mats, hit.material, hit.uv)
         wo = -s.d
         delta = bsdf.is_delta(mp)
@@ -392,11 +428,13 @@ def random_walk(scene: Scene, key: Array, dim0: int, dims_per_step: int, n_steps
         delta_s = bsdf.sampled_delta(kinds, mp, bs)
         _, pdf_back = bsdf.evaluate(kinds, mp, ns, bs.wi, wo)
         if in_med is not None:
-            bs, pdf_back = scatter_in_medium(scene, bs, pdf_back, s.d, in_med, u(0), u(1))
+            bs, pdf_back = scatter_in_medium(scene, bs, pdf_back, s.d, in_med, u(0), u(1),
+                                             s.medium)
             delta_s = delta_s & ~in_med
             # the previous vertex from here: P(d) if a surface, p(d) if a medium vertex
             pdf_rev_prev = jnp.where(valid & ~delta_s, area_density(
-                scene, pdf_back, d2, dot(s.prev_n, s.d), s.prev_surface, ~s.prev_surface), 0.0)
+                scene, pdf_back, d2, dot(s.prev_n, s.d), s.prev_surface, ~s.prev_surface,
+                s.medium), 0.0)
         else:
             pdf_rev_prev = jnp.where(valid & ~delta_s, convert_density(
                 pdf_back, d2, dot(s.prev_n, s.d), s.prev_surface), 0.0)
@@ -413,7 +451,7 @@ def random_walk(scene: Scene, key: Array, dim0: int, dims_per_step: int, n_steps
         vert = Vertices(hit.p, hit.n, wo, s.beta, pdf_fwd, pdf_rev_prev, delta, surface, valid,
                         hit.material, jnp.where(valid, hit.emitter, -1), hit.uv, hit.ns,
                         delta_s if PLASTIC in kinds else None,
-                        None if in_med is None else valid & in_med)
+                        None if in_med is None else valid & in_med, s.medium)
         beta = s.beta * bs.weight
         if mode == bsdf.IMPORTANCE and hit.ns is not None:   # Veach's adjoint correction
             corr = bsdf.adjoint_correction(ns, hit.n, wo, bs.wi)
@@ -421,7 +459,9 @@ def random_walk(scene: Scene, key: Array, dim0: int, dims_per_step: int, n_steps
         alive = valid & bs.valid & (max_component(beta) > 0)
         # a medium vertex has a zero normal: the next ray leaves from it, not offset
         nxt = WalkState(geometry.offset_origin(hit.p, hit.n, bs.wi), bs.wi, beta,
-                        jnp.where(bs.delta, 0.0, bs.pdf), hit.p, hit.n, surface, delta_s, alive)
+                        jnp.where(bs.delta, 0.0, bs.pdf), hit.p, hit.n, surface, delta_s, alive,
+                        medium_interfaces.leaving(scene, s.medium, hit.material, hit.n, bs.wi,
+                                                  in_med))
         return nxt, (vert, extra)
 
     body = step
@@ -532,7 +572,7 @@ def light_subpath(scene: Scene, key: Array, max_depth: int, infinite: bool = Fal
     its p_rev a solid-angle density too; y_1's p_fwd is the disc's area density times |cos| at
     y_1 (:func:`random_walk`'s ``infinite_start``)."""
     lights = scene.lights
-    if scene.has_medium and not scene.has_grid_medium:
+    if scene.fills_with_homogeneous_medium:
         # in a medium filling the scene, light from infinity is extinguished (T(inf) = 0, as
         # the path tracer finds: its escaping rays weigh T / P = 0); a grid is bounded
         infinite = False
@@ -553,12 +593,14 @@ def light_subpath(scene: Scene, key: Array, max_depth: int, infinite: bool = Fal
         infinite_start = (inf, pdf_bounding_disc(lights))
     v0 = Vertices(em.p, em.n, V3(z, z, z), le, pdf_y0, z, z > 0, on_surface, ok,
                   jnp.zeros_like(em.element), em.element, no_uv(scene, z), vertex_ns(scene, em.n),
-                  vertex_lobe_delta(scene, z), vertex_in_medium(scene, z))
+                  vertex_lobe_delta(scene, z), vertex_in_medium(scene, z),
+                  medium_interfaces.start(scene, z))
     v0 = jax.tree_util.tree_map(lambda x: x[None], v0)
     if max_depth <= 1:
         return LightPath(v0, delta_light, em.element)
     start = WalkState(geometry.offset_origin(em.p, em.n, em.d), em.d, em.weight,
-                      em.pdf_dir, em.p, em.n, on_surface, z > 0, ok)
+                      em.pdf_dir, em.p, em.n, on_surface, z > 0, ok,
+                      medium_interfaces.start(scene, z))
     verts, pdf_rev0, _ = random_walk(scene, key, LIGHT_DIMS0, light_dims_per_step(scene),
                                      max_depth - 1,
                                      start, bsdf.IMPORTANCE, uniform=uniform,

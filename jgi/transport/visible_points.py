@@ -21,7 +21,7 @@ from jax import Array
 
 from ..core import rng
 from ..core.vec import V3, where
-from ..physics import bsdf, geometry, grid_media, media
+from ..physics import bsdf, geometry, grid_media, media, medium_interfaces
 from ..physics.lights import emitted, environment_radiance
 from ..scene.tables import DIFFUSE, PHONG, PLASTIC, ROUGH_DIELECTRIC, ROUGH_KINDS, Scene
 from .subpath import (
@@ -90,6 +90,9 @@ class DiffuseVertex(NamedTuple):
     # a medium interaction (zero normal; its beta includes T sigma_s / p), in scenes filled by
     # a participating medium (else None)
     in_medium: Array | None = None
+    # the id of the medium a volume visible point lies in, in scenes with media bounded by
+    # shapes (jgi.physics.medium_interfaces; else None)
+    medium: Array | None = None
     # with beam estimates (``beams=True``): the chain's segments through the medium, each
     # (origin V3, direction V3, length, throughput V3 at its start) stacked [max_depth, N]
     # (length 0 where unused; inf where the ray escapes)
@@ -122,16 +125,16 @@ def trace_to_diffuse(scene: Scene, uniform, o: V3, d: V3, *, max_depth: int,
     hashed from the same two numbers), its weights the tracking's; no beams there.
     With ``beams``, no free flight is sampled: every segment crosses the medium to its surface,
     weighed by its transmittance T(s), and is returned (``segments``) for the beam radiance
-    estimate (:func:`jgi.transport.density.beam_sum`)."""
+    estimate (:func:`jgi.transport.density.beam_sum`). With media bounded by shapes the chain
+    carries the id of the medium it travels in (:mod:`jgi.physics.medium_interfaces`), each
+    flight takes that medium's parameters, and a volume visible point keeps its id
+    (``medium``); no beams there."""
     mats, lights = scene.materials, scene.lights
-    medium = scene.medium
     grid = scene.has_grid_medium
-    if grid and beams:
+    if (grid or scene.has_bounded_media) and beams:
         raise ValueError("trace_to_diffuse: beams (transmittance along whole segments) are not "
-                         "implemented in grid media")
-    if grid:   # rendered, not differentiated (jgi.physics.grid_media)
-        medium = grid_media.held_constant(medium)
-    if medium is not None and light_samples:
+                         "implemented in grid media or media bounded by shapes")
+    if scene.has_medium and light_samples:
         raise ValueError("trace_to_diffuse: direct light at visible points is not implemented "
                          "in participating media (light_samples must be 0)")
     medium_dim0 = 2 + max_depth * (3 + 3 * light_samples)
@@ -144,18 +147,21 @@ def trace_to_diffuse(scene: Scene, uniform, o: V3, d: V3, *, max_depth: int,
     plastic = lookup_rough and PLASTIC in kinds     # a lookup surface with a Dirac lobe
 
     def step(depth, s):
-        o, d, beta, L, active, v = s
+        o, d, beta, L, active, v, medium_id = s
         hit = geometry.intersect(scene, o, d)
         wo = -d
         base = 2 + depth * dims
-        if medium is not None and beams:   # the segment, for the beam estimate; T(s)
+        medium = (grid_media.held_constant(scene.medium) if grid   # rendered, not differentiated
+                  else medium_interfaces.parameters(scene, medium_id))
+        scattered = None
+        if scene.has_medium and beams:   # the segment, for the beam estimate; T(s)
             t_seg = jnp.where(active, jnp.where(hit.valid, hit.t, jnp.inf), 0.0)
             so, sd, st, sb = v.segments
             put = lambda a, x: a.at[depth].set(x)    # noqa: E731
             v = v._replace(segments=(V3(*map(put, so, o)), V3(*map(put, sd, d)),
                                      put(st, t_seg), V3(*map(put, sb, beta))))
             beta = beta * media.transmittance(medium.sigma_t, jnp.where(active, t_seg, 0.0))
-        elif medium is not None:   # a free flight first: a volume visible point, or T / P
+        elif scene.has_medium:   # a free flight first: a volume visible point, or T / P
             dm = medium_dim0 + 2 * depth
             t_hit = jnp.where(hit.valid, hit.t, jnp.inf)
             if grid:   # spectral tracking; weight sigma_s(x) (null products) / (mu P_r)
@@ -170,7 +176,8 @@ def trace_to_diffuse(scene: Scene, uniform, o: V3, d: V3, *, max_depth: int,
                 p=where(scattered, o + d * jnp.where(scattered, ff.t, 0.0), v.p),
                 n=where(scattered, Z, v.n),
                 wo=where(scattered, wo, v.wo), found=v.found | scattered,
-                in_medium=v.in_medium | scattered)
+                in_medium=v.in_medium | scattered,
+                medium=None if medium_id is None else jnp.where(scattered, medium_id, v.medium))
             beta = beta * ff.weight     # T / P where the surface is reached
             active = active & ~scattered
         if lights.count:
@@ -207,23 +214,26 @@ def trace_to_diffuse(scene: Scene, uniform, o: V3, d: V3, *, max_depth: int,
                           None if v.uv is None else
                           tuple(jnp.where(diffuse_end, a, b) for a, b in zip(hit.uv, v.uv)),
                           None if v.ns is None else where(diffuse_end, hit.ns, v.ns),
-                          v.in_medium, v.segments)
+                          v.in_medium, v.medium, v.segments)
         # ---- follow the specular (or glossy) chain ----
         if not plastic:
             bs = bsdf.sample(kinds, mp, shading(hit), wo, uniform(base), u1, u2)
         active = active & specular & bs.valid
-        return (geometry.offset_origin(hit.p, hit.n, bs.wi), bs.wi, beta * bs.weight, L, active, v)
+        medium_id = medium_interfaces.leaving(scene, medium_id, hit.material, hit.n, bs.wi)
+        return (geometry.offset_origin(hit.p, hit.n, bs.wi), bs.wi, beta * bs.weight, L, active, v,
+                medium_id)
 
     one = jnp.ones_like(z)
     segments0 = None
-    if medium is not None and beams:
+    if scene.has_medium and beams:
         zz = jnp.zeros((max_depth,) + z.shape, z.dtype)
         segments0 = (V3(zz, zz, zz), V3(zz, zz, zz), zz, V3(zz, zz, zz))
     v0 = DiffuseVertex(Z, Z, o, V3(z, z, one), V3(z, z, one), jnp.zeros_like(z, jnp.int32), z > 0,
                        no_uv(scene, z), vertex_ns(scene, V3(z, z, one)),
-                       None if medium is None else z > 0, segments0)
-    state = (o, d, V3(one, one, one), Z, z == 0, v0)
-    _, _, _, L, _, v = jax.lax.fori_loop(0, max_depth, step, state)
+                       None if not scene.has_medium else z > 0,
+                       medium_interfaces.start(scene, z), segments0)
+    state = (o, d, V3(one, one, one), Z, z == 0, v0, medium_interfaces.start(scene, z))
+    _, _, _, L, _, v, _ = jax.lax.fori_loop(0, max_depth, step, state)
     return v._replace(L=L)
 
 

@@ -71,13 +71,14 @@ supported):
              envmap (filename: EXR, Radiance HDR, PNG or JPEG latitude-longitude image;
              scale; to_world)
   media      homogeneous (sigma_t, albedo, scale; phase isotropic or hg), nested in or
-             referenced by the <sensor>: it fills the scene, as Mitsuba 3's volpath renders a
-             sensor medium when no shape is a medium transition. Shapes may name media
-             (<ref name="interior"/"exterior"> or nested) where that leaves the fog filling
-             the scene: the sensor's medium on both sides, or outside an opaque shape (no
-             dielectric, no mask), whose inside no ray reaches. Other shape media (fog
-             bounded by a shape, glass containing another medium) and other medium plugins
-             are refused
+             referenced by the <sensor>: the camera's medium, jgi's scene medium. Shapes may
+             name media (<ref name="interior"/"exterior"> or nested): a ray takes the medium
+             on the side it leaves such a shape to, as in Mitsuba 3's volpath; homogeneous
+             media other than the sensor's (and vacuum, where the sensor has a medium) become
+             media bounded by shapes (glass holding milk, a fog inside a dielectric shell).
+             Refused: a heterogeneous medium bounded by a shape, an area emitter whose
+             exterior is not the sensor's medium, a shape medium on a masked bsdf, and other
+             medium plugins
   values     rgb, float, spectrum (a constant, wavelength:value pairs, a filename= .spd
              file, blackbody in emitters: converted to RGB as Mitsuba 3's RGB variants
              do, jgi.scene.spectra; a blackbody as its spectral variants' RGB film sees
@@ -222,8 +223,8 @@ class _Importer:
         self.n_anon = 0
         self.checkerboards: dict[str, dict] = {}   # name -> the builder's checkerboard kwargs
         self.sensor_done = False
-        self.sensor_medium = None    # its id, or its nested <medium> element
-        self.shape_media: list = []  # (shape element, kind, interior, exterior, transmits)
+        self.sensor_medium_of_file = None   # the sensor's medium id, or nested <medium>
+        self.nested_media: dict = {}         # id() of a shape's nested <medium> -> its name
         self.source: dict = {}
         self.integrator: IntegratorSettings | None = None
         # ids of the transforms with a non-unit rotation axis: Mitsuba moves normals by such
@@ -737,16 +738,20 @@ class _Importer:
                 emission = self.emitted(c, "radiance")
         if material in self.anisotropic and kind not in ("obj", "ply", "serialized"):
             self.check_anisotropy_frame(el, kind, p, m, material)
-        if material is None:  # Mitsuba's default: diffuse, reflectance 0.5
+        if material is None:
+            # Mitsuba 3's default: diffuse, reflectance 0.5; 0 on a shape that emits (measured:
+            # an emitter without a bsdf reflects nothing in Mitsuba 3.5)
             material = f"_default{self.n_anon}"
             self.n_anon += 1
-            self.b.material(material, "diffuse", diffuse=(0.5, 0.5, 0.5), one_sided=True)
+            grey = 0.0 if emission is not None else 0.5
+            self.b.material(material, "diffuse", diffuse=(grey, grey, grey), one_sided=True)
         row = self.b.materials[self.b.material_names[material]]
         if shape_media:
             transmits = (row.kind in (DIELECTRIC, ROUGH_DIELECTRIC) or row.opacity < 1.0
                          or row.opacity_texture >= 0)
-            self.shape_media.append((el, kind, shape_media.get("interior"),
-                                     shape_media.get("exterior"), transmits))
+            material = self.medium_interface(el, kind, material, shape_media.get("interior"),
+                                             shape_media.get("exterior"), transmits,
+                                             emission is not None)
         if emission is not None and (row.opacity < 1.0 or row.opacity_texture >= 0):
             self.fail(el, f"{kind}: an area emitter on a shape whose bsdf is a 'mask' is not "
                           "supported (jgi's emitters are opaque: they are sampled over their "
@@ -1029,32 +1034,69 @@ class _Importer:
             self.fail(el, "a sensor takes one medium")
         if media:
             self.medium(media[0])
-            ref = [c.get("id") for c in el if c.tag == "ref" and c.get("id") in self.media]
-            self.sensor_medium = ref[0] if ref else media[0]
 
-    def check_shape_media(self):
-        """Shapes' interior / exterior media must leave the sensor's medium filling the scene,
-        as Mitsuba 3's volpath then renders it: the ray takes the medium on the side its next
-        direction leaves to, at shapes that name a medium (elsewhere it keeps its own). Allowed:
-        interior and exterior both the sensor's, or an opaque shape (no dielectric, no mask)
-        with the sensor's medium outside (its interior is never reached)."""
-        fill = self.sensor_medium
+    def sensor_medium_element(self, el):
+        """The medium of sensor ``el``: the id it references, its nested <medium>, or None."""
+        for c in el:
+            if c.tag == "ref" and (c.get("name") == "medium" or c.get("id") in self.media):
+                return c.get("id")
+        nested = [c for c in el if c.tag == "medium"]
+        return nested[0] if nested else None
+
+    def medium_interface(self, el, kind: str, material, interior, exterior, transmits: bool,
+                         emits: bool = False):
+        """The material row of shape ``el`` that names media (interior / exterior: a medium id,
+        a nested element, or None for vacuum), as Mitsuba 3's volpath renders them: a ray takes
+        the medium on the side its next direction leaves to, at shapes that name a medium
+        (elsewhere it keeps its own), and the sensor's medium is the camera's, jgi's scene
+        medium (id 0). Sides that are the sensor's medium map to it; other homogeneous media,
+        and vacuum where the sensor has a medium, become media bounded by the shape
+        (:meth:`jgi.scene.builder.SceneBuilder.bounded_medium`). An opaque shape (no
+        dielectric, no mask) with the sensor's medium outside keeps its material: its inside is
+        never reached."""
+        fill = self.sensor_medium_of_file
 
         def same(m):
-            return m is not None and m is fill if not isinstance(m, str) else m == fill
-        for el, kind, interior, exterior, transmits in self.shape_media:
-            if same(exterior) and (same(interior) or not transmits):
-                continue
+            if m is None or fill is None:
+                return m is fill
+            return m == fill if isinstance(m, str) and isinstance(fill, str) else m is fill
+        if same(exterior) and (same(interior) or not transmits):
+            return material
+        if emits and not same(exterior):
+            self.fail(el, f"{kind}: an area emitter whose exterior medium is not the sensor's: "
+                          "jgi's lights shine into the scene's own medium (the sensor's); "
+                          "allowed: exterior the sensor's medium")
+        names = [None if same(m) else self.bounded_medium(el, kind, m)
+                 for m in (interior, exterior)]
+        try:
+            return self.b.medium_interface(material, interior=names[0], exterior=names[1])
+        except SceneError as e:
+            self.fail(el, f"{kind}: {e}")
 
-            def name(m):
-                return ("none" if m is None else f"'{m}'" if isinstance(m, str)
-                        else f"a nested {m.get('type')}")
-            sensor = name(fill) if fill is not None else "none"
-            self.fail(el, f"{kind}: interior {name(interior)}, exterior {name(exterior)}"
-                          f"{' (it transmits light)' if transmits else ''}: media bounded by "
-                          "shapes are not supported yet; supported: one medium that fills "
-                          f"the scene, the sensor's ({sensor} here), as both media of a shape "
-                          "or as the exterior of an opaque one")
+    def bounded_medium(self, shape, kind: str, m) -> str:
+        """The builder's name of medium ``m`` (an id, a nested element, or None: vacuum) bounded
+        by a shape, defined on first use: homogeneous media only."""
+        if m is None:
+            name = "_vacuum"
+            if name not in self.b.bounded_media:
+                self.b.bounded_medium(name, sigma_t=0.0)
+            return name
+        el = self.media[m] if isinstance(m, str) else m
+        if isinstance(m, str):
+            name = m
+        else:
+            name = self.nested_media.setdefault(id(m), f"_medium{len(self.nested_media)}")
+        if name not in self.b.bounded_media:
+            if self.check_type(el) != "homogeneous":
+                self.fail(shape, f"{kind}: medium '{m if isinstance(m, str) else el.get('type')}'"
+                                 f" ({el.get('type')}) bounded by a shape: jgi's media bounded "
+                                 "by shapes are homogeneous; a heterogeneous medium is supported "
+                                 "as the sensor's (its grid's box bounds it)")
+            try:
+                self.b.bounded_medium(name, **self.homogeneous_params(el))
+            except SceneError as e:
+                self.fail(el, str(e))
+        return name
 
     def medium(self, el):
         """Mitsuba's homogeneous medium (sigma_t, albedo, scale; an isotropic or hg phase), as
@@ -1062,6 +1104,13 @@ class _Importer:
         heterogeneous one (:meth:`heterogeneous`)."""
         if self.check_type(el) == "heterogeneous":
             return self.heterogeneous(el)
+        try:
+            self.b.medium(**self.homogeneous_params(el))
+        except SceneError as e:
+            self.fail(el, str(e))
+
+    def homogeneous_params(self, el) -> dict:
+        """The builder's parameters of Mitsuba's homogeneous medium ``el``."""
         p = self.props(el)
         for k in p:
             if k not in ("sigma_t", "albedo", "scale", "sample_emitted"):
@@ -1070,12 +1119,8 @@ class _Importer:
             if isinstance(p[k], TextureRef):
                 self.fail(el, f"homogeneous medium: '{k}' must be a constant (a value or an "
                               "rgb), not a texture")
-        g = self.phase_g(el)
-        try:
-            self.b.medium(sigma_t=p.get("sigma_t", 1.0), albedo=p.get("albedo", 0.75), g=g,
-                          scale=float(p.get("scale", 1.0)))
-        except SceneError as e:
-            self.fail(el, str(e))
+        return dict(sigma_t=p.get("sigma_t", 1.0), albedo=p.get("albedo", 0.75),
+                    g=self.phase_g(el), scale=float(p.get("scale", 1.0)))
 
     def phase_g(self, el) -> float:
         """The asymmetry g of the medium ``el``'s phase function (isotropic: 0)."""
@@ -1253,12 +1298,15 @@ class _Importer:
         self.area_emitters = {el.get("id"): el for el in root if el.tag == "emitter"
                               and el.get("type") == "area" and el.get("id")}
         self.media = {el.get("id"): el for el in root if el.tag == "medium" and el.get("id")}
+        # the sensor's medium, which shapes' media are told apart from wherever the sensor
+        # stands in the file
+        sensors = [el for el in root if el.tag == "sensor"]
+        self.sensor_medium_of_file = self.sensor_medium_element(sensors[0]) if sensors else None
         self.children(root, self.path, settings_only)
         if settings_only:
             return None
         if not self.sensor_done:
             raise ImportError_(f"{self.path}: the scene has no <sensor>")
-        self.check_shape_media()
         return self.b.build()
 
 

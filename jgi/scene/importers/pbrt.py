@@ -61,15 +61,18 @@ supported):
   media      MakeNamedMedium "name" "string type" "homogeneous" (sigma_a, sigma_s as rgb or a
              grey float, scale, g: pbrt-v4's defaults 1, 1, 1, 0) and MediumInterface
              ("inside" "outside", or one name for both; "" is vacuum): the medium outside the
-             Camera fills the scene, as in pbrt-v4, where a ray keeps its medium at every
-             surface that is no medium transition, and which it gives the rays an opaque
-             shape reflects: a Shape's interface must be no transition or have the camera's
-             medium outside an opaque material. "uniformgrid" (density [nx ny nz] values, x
+             Camera is jgi's scene medium; a ray keeps its medium at every surface that is no
+             medium transition and, at a Shape whose inside and outside differ, takes the
+             outside on the side of the shape's normal (turned towards the shading normals N
+             on meshes that have them, as pbrt-v4 does) and the inside on the other: other
+             homogeneous media (and vacuum, where the camera sits in a medium) become media
+             bounded by shapes (fog inside glass). "uniformgrid" (density [nx ny nz] values, x
              fastest, over the box p0 p1 in the medium's space, sigma_a, sigma_s, scale, g):
              jgi's grid medium with pbrt-v4's zero border, its box mapped by the transform
-             current at MakeNamedMedium (scales and translations; rotations refused). Refused
-             by name: other transitions (media bounded by shapes, e.g. fog inside glass), other
-             medium types (rgbgrid, cloud, nanovdb), "preset", emissive media (Le, temperature)
+             current at MakeNamedMedium (scales and translations; rotations refused), as the
+             camera's medium. Refused by name: a grid medium bounded by a shape, an area light
+             whose outside is not the camera's medium, other medium types (rgbgrid, cloud,
+             nanovdb), "preset", emissive media (Le, temperature)
   files      Include / Import; relative file names (includes, meshes, images, spectra)
              are found in the main scene file's folder, also from included files, as pbrt-v4
              resolves them
@@ -884,6 +887,8 @@ class _Importer:
                              "\"point2 uv\" and plymesh shapes whose file has texture "
                              "coordinates only (pbrt's sphere parametrisation differs from "
                              "jgi's, which is Mitsuba's)")
+        name = mat
+        mat = self.interface_material(kind, mat, where, emission is not None)
         if kind in ("disk", "cylinder"):
             self.quadric(kind, p, where, mat, emission)
             return
@@ -894,10 +899,12 @@ class _Importer:
                 self.fail(where, "sphere under a non-uniform scale is not supported")
             r = float(self._get(p, "radius", 1.0, where, 1)) * s[0]
             if self.flips_normals() and (emission is not None
-                                         or self.material_kind.get(mat) == "dielectric"):
+                                         or self.material_kind.get(name) == "dielectric"
+                                         or mat != name):
                 self.fail(where, "sphere with inward normals (ReverseOrientation, or a "
-                                 "transform that swaps handedness) as an area light or a "
-                                 "dielectric is not supported: jgi's spheres face outwards; "
+                                 "transform that swaps handedness) as an area light, a "
+                                 "dielectric or a medium boundary is not supported: jgi's "
+                                 "spheres face outwards; "
                                  "use a trianglemesh")
             if emission is not None and self.area[1] > 0:
                 emission = emission * self.area[1] / (math.pi * 4 * math.pi * r * r
@@ -946,6 +953,14 @@ class _Importer:
         if self.flips_normals():
             f = f[:, ::-1]
         v = xf.apply_point(self.ctm, v)
+        if normals is not None and mat != name:
+            # a medium boundary: pbrt-v4 turns a mesh's geometric normal towards its shading
+            # normals N (FaceForward), whose side is then the outside
+            n_rs = normals @ np.linalg.inv(self.ctm[:3, :3])
+            n_rs = -n_rs if self.reverse else n_rs
+            geo = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
+            away = np.einsum("ij,ij->i", geo, n_rs[f].sum(1)) < 0
+            f = np.where(away[:, None], f[:, ::-1], f)
         if normals is not None:
             # pbrt-v4's TriangleMesh: N to render space (the inverse transpose), negated under
             # ReverseOrientation; the hit's shading normal is their interpolation
@@ -1089,7 +1104,6 @@ class _Importer:
             elif tok == "Shape":
                 k = kind()
                 self.check("Shape", k, where)
-                self.check_interface(k, where)
                 self.shape(k, self.params(toks, where), where)
             elif tok == "Texture":
                 tex_name, tex_type, tex_class = kind(), kind(), kind()
@@ -1109,21 +1123,66 @@ class _Importer:
                                  "MakeNamedMedium, MediumInterface, AttributeBegin/End, "
                                  "Include")
 
-    def check_interface(self, shape, where):
-        """A Shape's MediumInterface must leave the camera's medium filling the scene: no
-        transition (inside = outside), or an opaque shape (no dielectric: rays never enter
-        it) with the camera's medium outside, which pbrt-v4 gives the rays it reflects."""
+    def interface_material(self, shape, mat: str, where, emits: bool):
+        """The material row of a Shape under the current MediumInterface, as pbrt-v4 renders
+        it: a shape whose inside and outside differ is a medium transition (a ray leaving it
+        on the side of its normal travels outside, else inside); the camera's medium is jgi's
+        scene medium, other homogeneous media (and vacuum, where the camera sits in a medium)
+        become media bounded by the shape. An opaque shape (no dielectric) with the camera's
+        medium outside keeps its material: no ray reaches its inside."""
         if self.inside == self.outside:
-            return
-        kind = self.material_kind.get(self.material, "diffuse")
-        if kind != "dielectric" and self.outside == self.camera_medium[0]:
-            return
-        self.fail(where, f"Shape \"{shape}\" bounds media (MediumInterface inside "
-                         f"\"{self.inside}\", outside \"{self.outside}\", material {kind}): "
-                         "media bounded by shapes are not supported yet; supported: one "
-                         "homogeneous medium that fills the scene, the one outside the Camera "
-                         f"(\"{self.camera_medium[0]}\" here), on both sides of every shape or "
-                         "outside opaque ones")
+            return mat
+        kind = self.material_kind.get(mat, "diffuse")
+        camera = self.camera_medium[0]
+        if kind != "dielectric" and self.outside == camera:
+            return mat
+        if emits and self.outside != camera:
+            self.fail(where, f"Shape \"{shape}\" is an area light with outside medium "
+                             f"\"{self.outside}\": jgi's lights shine into the camera's medium "
+                             f"(\"{camera}\" here); allowed: that medium outside")
+        names = [None if m == camera else self.bounded_medium(m, shape, where)
+                 for m in (self.inside, self.outside)]
+        try:
+            return self.b.medium_interface(mat, interior=names[0], exterior=names[1])
+        except SceneError as e:
+            self.fail(where, f"Shape \"{shape}\": {e}")
+
+    def bounded_medium(self, name: str, shape, where) -> str:
+        """The builder's name of medium ``name`` ("": vacuum) bounded by a shape, defined on
+        first use: homogeneous media only."""
+        key = name or "_vacuum"
+        if key in self.b.bounded_media:
+            return key
+        if not name:
+            self.b.bounded_medium(key, sigma_t=0.0)
+            return key
+        if name not in self.media:
+            defined = ", ".join(self.media) or "(none)"
+            self.fail(where, f"MediumInterface names medium \"{name}\", which no "
+                             f"MakeNamedMedium defines; defined: {defined}")
+        p, mwhere, _ = self.media[name]
+        if self._get(p, "type", None, mwhere)[0] != "homogeneous":
+            self.fail(where, f"Shape \"{shape}\" bounds medium \"{name}\" "
+                             f"({self._get(p, 'type', None, mwhere)[0]}): jgi's media bounded by "
+                             "shapes are homogeneous; a grid medium is supported as the "
+                             "camera's (its box bounds it)")
+        try:
+            self.b.bounded_medium(key, **self.homogeneous_params(name, p, mwhere))
+        except SceneError as e:
+            self.fail(mwhere, f"MakeNamedMedium \"{name}\": {e}")
+        return key
+
+    def homogeneous_params(self, name, p, where) -> dict:
+        """The builder's parameters of pbrt-v4's homogeneous medium ``name``."""
+        def rgb(key):
+            v = np.asarray(self._get(p, key, np.ones(3), where), float).reshape(-1)
+            if v.size not in (1, 3):
+                self.fail(where, f"MakeNamedMedium \"{name}\": '{key}' takes an rgb or one "
+                                 f"float, got {v.size} values")
+            return np.broadcast_to(v, (3,))
+        return dict(sigma_a=rgb("sigma_a"), sigma_s=rgb("sigma_s"),
+                    scale=float(self._get(p, "scale", 1.0, where, 1)),
+                    g=float(self._get(p, "g", 0.0, where, 1)))
 
     def make_medium(self, name, p, where):
         """MakeNamedMedium: pbrt-v4's homogeneous medium, checked here and built if the Camera
@@ -1164,21 +1223,13 @@ class _Importer:
                              "MakeNamedMedium defines; defined: "
                              f"{', '.join(self.media) or '(none)'}")
         p, mwhere, to_world = self.media[name]
-
-        def rgb(key):
-            v = np.asarray(self._get(p, key, np.ones(3), mwhere), float).reshape(-1)
-            if v.size not in (1, 3):
-                self.fail(mwhere, f"MakeNamedMedium \"{name}\": '{key}' takes an rgb or one "
-                                  f"float, got {v.size} values")
-            return np.broadcast_to(v, (3,))
-        scale = float(self._get(p, "scale", 1.0, mwhere, 1))
-        g = float(self._get(p, "g", 0.0, mwhere, 1))
+        params = self.homogeneous_params(name, p, mwhere)
         try:
             if self._get(p, "type", None, mwhere)[0] == "uniformgrid":
-                self.fill_uniformgrid(name, p, mwhere, to_world, rgb("sigma_a"), rgb("sigma_s"),
-                                      scale, g)
+                self.fill_uniformgrid(name, p, mwhere, to_world, params["sigma_a"],
+                                      params["sigma_s"], params["scale"], params["g"])
                 return
-            self.b.medium(sigma_a=rgb("sigma_a"), sigma_s=rgb("sigma_s"), scale=scale, g=g)
+            self.b.medium(**params)
         except SceneError as e:
             self.fail(mwhere, f"MakeNamedMedium \"{name}\": {e}")
 

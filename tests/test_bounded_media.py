@@ -1,0 +1,286 @@
+"""Media bounded by shapes (issue 34): a medium interface on a material, rays that carry the id
+of the medium they travel in, in every estimator that renders media.
+
+Closed form: a glass slab holding an absorbing ink, seen along its normal against an emitter
+behind it, in a room of absorbing air: T_air (1 - R)^2 T / (1 - R^2 T^2) with R the Fresnel
+reflectance at normal incidence and T the ink's transmittance across the slab (every internal
+reflection summed). Agreement: every estimator that renders media against the path tracer per
+image region on a backlit rough glass ball of milk in haze, with the power check
+(a 30% denser milk must fail the same test). Tolerances: 4 measured standard errors, or
+Welch's test with both sides' seed spreads.
+"""
+
+from __future__ import annotations
+
+import functools
+
+import numpy as np
+import pytest
+
+import jgi
+from jgi.analysis.stats import region_agreement
+from jgi.core.errors import ParameterError
+from jgi.scene.builder import SceneBuilder, SceneError
+from tests.support.stats import mean_change, tells_apart
+
+INK, AIR, IOR = 1.0, 0.05, 1.5
+
+
+def _slab(ink: float = INK, air: float = AIR):
+    """A glass slab z in [0, 1] holding ink (absorbing), its faces' normals outwards, an
+    emitter of radiance 1 at z = 2 facing it, the camera at z = -5 looking along +z through a
+    1 degree field of view, all in absorbing air (everything else black)."""
+    b = SceneBuilder("ink_slab")
+    b.material("glass", "dielectric", ior=IOR)
+    b.material("black", "diffuse", diffuse=(0, 0, 0))
+    b.bounded_medium("ink", sigma_t=ink, albedo=0.0)
+    if air > 0:
+        b.medium(sigma_t=air, albedo=0.0)
+    glass = b.medium_interface("glass", interior="ink")
+    c, w = np.array, 50.0
+    b.quad(c([-w, -w, 0.0]), c([0, 2 * w, 0]), c([2 * w, 0, 0]), glass)    # normal -z
+    b.quad(c([-w, -w, 1.0]), c([2 * w, 0, 0]), c([0, 2 * w, 0]), glass)    # normal +z
+    b.quad(c([-w, -w, 2.0]), c([0, 2 * w, 0]), c([2 * w, 0, 0]), "black", (1.0, 1.0, 1.0))
+    b.camera((0, 0, -5.0), (0, 0, 0), fov=1.0, width=4, height=4)
+    return b.build()
+
+
+def _slab_exact(ink: float = INK, air: float = AIR) -> float:
+    r = ((IOR - 1) / (IOR + 1)) ** 2
+    t = np.exp(-ink)
+    # air: 5 units to the slab, 1 from it to the emitter (rays within 0.5 degrees of the axis:
+    # path lengths and Fresnel within 1e-4 of the axis')
+    return float(np.exp(-6 * air) * (1 - r) ** 2 * t / (1 - r * r * t * t))
+
+
+@pytest.mark.parametrize("name", ["pt", "bdpt"])
+def test_ink_slab_transmits_its_closed_form(name):
+    """The camera sees the emitter through the slab: every path crosses air, glass, ink,
+    glass, air (bouncing inside the ink between the faces). Measured: pt 0.2556 +- 0.0030,
+    bdpt 0.2443 +- 0.0045 against 0.2512; the ink left out would give 0.68, the air left out
+    0.34."""
+    scene = _slab()
+    spp = 256 if name == "pt" else 64
+    means = np.stack([jgi.render(scene, name, spp=spp, seed=s, max_depth=16).reshape(-1, 3)
+                      .mean(0) for s in range(6)])
+    assert np.all(np.isfinite(means))
+    mean, err = means.mean(0), means.std(0, ddof=1) / np.sqrt(len(means))
+    print(f"{name}: {mean} +- {err} against {_slab_exact():.4f}")
+    np.testing.assert_array_less(np.abs(mean - _slab_exact()), 4 * err)
+
+
+MILK_RES, MILK_SEEDS, MILK_DEPTH = 16, 16, 6
+
+
+def _milk(sigma_scale: float = 1.0):
+    return jgi.load_scene("milk_ball", resolution=MILK_RES, haze=0.1,
+                          sigma_t=tuple(sigma_scale * s for s in (2.0, 3.0, 5.0)))
+
+
+@functools.lru_cache(maxsize=None)
+def milk_reference() -> np.ndarray:
+    scene = _milk()
+    return np.stack([jgi.render(scene, "pt", spp=64, seed=1000 + k, max_depth=MILK_DEPTH)
+                     for k in range(MILK_SEEDS)])
+
+
+@functools.lru_cache(maxsize=None)
+def denser_milk_change() -> np.ndarray:
+    def render(scale, seed):
+        return jgi.render(_milk(scale), "pt", spp=64, seed=seed, max_depth=MILK_DEPTH)
+    return mean_change(render, 1.0, 1.3, range(MILK_SEEDS))
+
+
+# sppm and ppm are left out for the suite's time: they run pm's photon tracing, visible points
+# and volume estimate (jgi.transport.photons, visible_points, density), which pm checks here
+MILK_ESTIMATORS = {
+    "lt": dict(spp=2048, max_depth=MILK_DEPTH),
+    "bdpt": dict(spp=16, max_depth=MILK_DEPTH),
+    "mmlt": dict(spp=128, max_depth=MILK_DEPTH, chains=4096, bootstrap_samples=8192),
+    "vcm": dict(spp=8, max_depth=MILK_DEPTH),
+    "pm": dict(spp=8, max_bounces=MILK_DEPTH - 1, photons=200_000, radius=0.1),
+}
+
+
+@pytest.mark.parametrize("name", list(MILK_ESTIMATORS))
+def test_estimators_render_a_bounded_medium_like_the_path_tracer(name):
+    """Per 3 x 3 region and channel against the path tracer (Welch, both sides' seed spreads),
+    and the power check: the estimator's own stack offset by what a 30% denser milk changes
+    must fail the same test. Measured worst |t| / offset by the denser milk / critical:
+    lt 4.2 / 11.7 / 6.3, bdpt 1.8 / 10.6 / 6.5, mmlt 2.1 / 10.2 / 6.7, vcm
+    2.0 / 8.2 / 6.7, pm 1.5 / 8.9 / 6.5. (The milk left out offsets the path tracer's own
+    16-spp stack by |t| 44.)"""
+    scene = _milk()
+    stack = np.stack([jgi.render(scene, name, seed=k, **MILK_ESTIMATORS[name])
+                      for k in range(MILK_SEEDS)])
+    assert np.all(np.isfinite(stack))
+    ref = milk_reference()
+    r = region_agreement(stack, ref, 3)
+    control = tells_apart(stack, ref, denser_milk_change(), 3)
+    print(f"{name}: worst |t| {np.abs(r.t).max():.2f}, with the denser milk's change "
+          f"{np.abs(control.t).max():.2f} (critical {r.critical[r.worst]:.2f})")
+    assert r.agree, f"{name} vs pt: worst t {r.t[r.worst]:.1f} > {r.critical[r.worst]:.1f}"
+    assert not control.agree, f"{name}: a 30% denser milk passes too: the test has no power"
+
+
+def test_medium_interface_errors_name_what_is_allowed():
+    b = SceneBuilder("bad")
+    b.material("glass", "dielectric", ior=1.5)
+    with pytest.raises(SceneError, match="interior names medium 'milk', which is not defined"):
+        b.medium_interface("glass", interior="milk")
+    b.bounded_medium("milk", sigma_t=2.0, albedo=0.9)
+    with pytest.raises(SceneError, match="medium 'milk' is defined twice"):
+        b.bounded_medium("milk", sigma_t=1.0)
+    with pytest.raises(SceneError, match="medium 'ink': medium albedo"):
+        b.bounded_medium("ink", sigma_t=1.0, albedo=2.0)
+    # a light inside a bounded medium: refused (lights shine into the scene's own medium)
+    lamp = b.medium_interface("glass", exterior="milk")
+    b.sphere((0, 0, 0), 1.0, lamp, emission=(1, 1, 1))
+    b.camera((0, 0, 5), (0, 0, 0))
+    with pytest.raises(SceneError, match="emitting shape and has exterior medium 'milk'"):
+        b.build()
+    # around a grid medium: refused
+    b2 = SceneBuilder("bad_grid")
+    b2.material("glass", "dielectric", ior=1.5)
+    b2.bounded_medium("milk", sigma_t=2.0)
+    b2.sphere((0, 0, 0), 1.0, b2.medium_interface("glass", interior="milk"))
+    b2.grid_medium(np.ones((2, 2, 2)), (-2, -2, -2), (2, 2, 2))
+    b2.camera((0, 0, 5), (0, 0, 0))
+    with pytest.raises(SceneError, match="grid medium around them"):
+        b2.build()
+
+
+def test_estimators_without_bounded_media_refuse_by_name():
+    with pytest.raises(ParameterError, match="pm: the beam estimate"):
+        jgi.render(_milk(), "pm", spp=1, seed=0, photons=1000, volume="beam")
+    with pytest.raises(ParameterError, match="does not render participating media"):
+        jgi.render(_milk(), "whitted", spp=1, seed=0)
+
+
+def test_scenes_without_bounded_media_are_unchanged():
+    """No medium ids in a scene without bounded media: its pytree (so its compiled programs)
+    is that of a scene before them."""
+    scene = jgi.load_scene("cornell_box_fog", resolution=4)
+    assert scene.bounded_media is None and scene.medium_interfaces is None
+    assert not scene.has_bounded_media
+
+
+MILK_XML = """<scene version="3.0.0">
+  <integrator type="volpath"><integer name="max_depth" value="8"/></integrator>
+  <medium type="homogeneous" id="haze">
+    <float name="sigma_t" value="0.1"/><float name="albedo" value="0.8"/>
+  </medium>
+  <sensor type="perspective"><float name="fov" value="40"/>
+    <transform name="to_world"><lookat origin="0, 0.6, 4" target="0, 0, 0" up="0, 1, 0"/>
+    </transform>
+    <film type="hdrfilm"><integer name="width" value="16"/><integer name="height" value="16"/>
+      <rfilter type="box"/></film>
+    <ref name="medium" id="haze"/>
+  </sensor>
+  <shape type="rectangle"><transform name="to_world"><scale value="4"/><rotate x="1" angle="-90"/>
+    <translate y="-0.8"/></transform>
+    <bsdf type="diffuse"><rgb name="reflectance" value="0.5, 0.5, 0.5"/></bsdf></shape>
+  <shape type="rectangle"><transform name="to_world"><scale x="4" y="3"/>
+    <translate y="2.2" z="-2"/></transform>
+    <emitter type="area"><rgb name="radiance" value="1, 1, 1"/></emitter></shape>
+  <shape type="sphere"><float name="radius" value="0.8"/>
+    <bsdf type="dielectric"><float name="int_ior" value="1.33"/><float name="ext_ior" value="1"/>
+    </bsdf>
+    <ref name="exterior" id="haze"/>
+    <medium type="homogeneous" name="interior">
+      <rgb name="sigma_t" value="0.4, 0.6, 1.0"/><float name="scale" value="5"/>
+      <rgb name="albedo" value="0.95, 0.9, 0.8"/>
+      <phase type="hg"><float name="g" value="0.3"/></phase>
+    </medium></shape>
+</scene>
+"""
+
+
+def test_a_medium_inside_glass_renders_like_mitsuba_volpath(tmp_path):
+    """Mitsuba's shape media: a glass ball whose interior is a nested homogeneous medium (RGB
+    sigma_t and albedo, hg phase) and whose exterior is the sensor's haze, which fills the
+    rest of the scene; backlit by an emitter behind it (milk_ball's layout). jgi imports the
+    ball's interior as a bounded medium and its exterior as the scene's own; its path tracer
+    against Mitsuba 3's volpath per 3 x 3 region and over the image, Welch's t with both
+    sides' seed spreads. Measured worst |t| 3.9 per region (critical 6.7), 0.7 over the image;
+    with jgi's milk 20% denser 7.3 per region (critical 6.8), left out 258."""
+    from jgi.scene.importers import load_mitsuba_xml
+    from tests.support.mitsuba import load_mitsuba
+    from tests.support.stats import assert_agree
+
+    assert MILK_XML.count("<medium") == 2
+    xml = tmp_path / "milk.xml"
+    xml.write_text(MILK_XML)
+    ours = load_mitsuba_xml(xml)
+    assert ours.has_bounded_media
+    np.testing.assert_allclose([float(c[0]) for c in ours.bounded_media.sigma_t], [2, 3, 5])
+    assert abs(float(ours.bounded_media.g[0]) - 0.3) < 1e-7
+    mi = load_mitsuba()
+    if mi is None:
+        pytest.skip("mitsuba is not installed")
+    scene_mi = mi.load_file(str(xml))
+    seeds = range(16)
+    theirs = np.stack([np.asarray(mi.render(scene_mi, spp=64, seed=s))[..., :3] for s in seeds])
+    mine = np.stack([jgi.render(ours, "pt", spp=64, seed=100 + s, max_depth=8, rr_depth=5)
+                     for s in seeds])
+    assert_agree(mine, theirs, regions=3, label="jgi pt vs Mitsuba 3 volpath (3 x 3 regions)")
+    assert_agree(mine, theirs, regions=1, label="jgi pt vs Mitsuba 3 volpath (whole image)")
+
+
+MILK_TOML = """[camera]
+position = [0, 0, 4]
+look_at = [0, 0, 0]
+width = 4
+height = 4
+medium = "haze"
+[[medium]]
+name = "haze"
+type = "homogeneous"
+sigma_t = 0.1
+[[medium]]
+name = "milk"
+type = "{milk_type}"
+{milk}
+[[material]]
+name = "glass"
+type = "dielectric"
+[[shape]]
+type = "sphere"
+center = [0, 0, 0]
+radius = 1
+material = "glass"
+{sides}
+[[light]]
+type = "point"
+position = [0, 3, 0]
+intensity = [1, 1, 1]
+"""
+
+
+def test_toml_shapes_bound_media(tmp_path):
+    """A [[shape]]'s interior / exterior name [[medium]] tables (a side left out, or the
+    camera's medium, is the scene's own); errors name the file, the key and what is allowed."""
+    def load(sides, milk='sigma_t = [1, 2, 3]\nalbedo = 0.9\ng = 0.2', milk_type="homogeneous"):
+        f = tmp_path / "milk.toml"
+        f.write_text(MILK_TOML.format(sides=sides, milk=milk, milk_type=milk_type))
+        return jgi.load_scene(f)
+
+    scene = load('interior = "milk"\nexterior = "haze"')
+    np.testing.assert_allclose([float(c[0]) for c in scene.bounded_media.sigma_t], [1, 2, 3])
+    row = int(scene.spheres.material[0])
+    faces = scene.medium_interfaces
+    assert (int(faces.interior[row]), int(faces.exterior[row])) == (1, 0)
+    assert float(scene.medium.sigma_t.x) == pytest.approx(0.1)
+    cases = [
+        ('interior = "cream"', "", r"shape\[0\]\.interior: unknown medium 'cream'; defined: "
+                                   r"haze, milk"),
+        ("", "", r"medium\[1\]: medium 'milk' is not used"),
+        ('interior = "milk"', "grid", r"shape\[0\]\.interior: medium 'milk' is a grid medium"),
+    ]
+    for sides, kind, message in cases:
+        with pytest.raises(SceneError, match=r"milk\.toml: " + message):
+            if kind:
+                load(sides, milk="density = [[[1.0]]]\nbbox_min = [-1, -1, -1]\n"
+                                 "bbox_max = [1, 1, 1]", milk_type="grid")
+            else:
+                load(sides)
