@@ -679,7 +679,8 @@ BAD = {
     "material key for its type": (material("type = 'mirror'\nior = 1.5\n"), "material[0].ior",
                                   "allowed: name, one_sided, opacity, specular, type"),
     "shape key": (sphere(centre="[0, 0, 0]", center=None), "shape[0].centre",
-                  "allowed: center, emission, material, radius, transform, type"),
+                  "allowed: center, emission, exterior, interior, material, radius, transform, "
+                  "type"),
     "light key": (light("type = 'point'\nposition = [0, 1, 0]\nintensity = 1\npower = 3\n"),
                   "light[0].power", "allowed: intensity, position, type"),
     "transform key": (cube("{ shear = 1 }"), "shape[0].transform.shear",

@@ -35,8 +35,11 @@ supported):
              as Mitsuba does), specular_reflectance 1, conductor material "none", dielectric
              int_ior bk7 (1.5046), (rough)plastic diffuse_reflectance 0.5, int_ior
              polypropylene (1.49), nonlinear false, ext_ior air (1.000277). Unknown parameters
-             are refused (Mitsuba refuses unreferenced properties too). Refused: the other
-             plugins.
+             are refused (Mitsuba refuses unreferenced properties too). null: no surface; a
+             shape with it is left out, or, an axis-aligned cube holding a medium in vacuum
+             (Mitsuba's usual volume), becomes jgi's grid medium over the cube's box (see
+             _Importer.null_shape). A shape without a bsdf is diffuse 0.5, or black if it
+             emits (as in Mitsuba 3). Refused: the other plugins.
   texture    bitmap (filename: PNG, JPEG or EXR; filter_type bilinear; wrap_mode repeat; raw;
              to_uv: the 4 x 4 transform's rows / columns 0, 1, 3, as Mitsuba takes them) and
              checkerboard (color0, color1, to_uv), nested or at the top level with an
@@ -125,7 +128,7 @@ from .volgrid import VolError, read_vol
 SUPPORTED = {
     "sensor": ("perspective",),
     "bsdf": ("diffuse", "conductor", "roughconductor", "dielectric", "roughdielectric",
-             "roughplastic", "plastic", "twosided", "mask"),
+             "roughplastic", "plastic", "twosided", "mask", "null"),
     "shape": ("rectangle", "cube", "sphere", "disk", "cylinder", "obj", "ply", "serialized"),
     "emitter": ("area", "point", "spot", "directional", "constant", "envmap"),
     "medium": ("homogeneous", "heterogeneous"),
@@ -151,6 +154,7 @@ BSDF_PARAMETERS = {
     "plastic": ("diffuse_reflectance", "specular_reflectance", "int_ior", "ext_ior", "nonlinear"),
     "twosided": (),
     "mask": ("opacity",),
+    "null": (),
 }
 DISTRIBUTIONS = ("beckmann", "ggx")
 # Texture plugins and their parameters (Mitsuba's names).
@@ -218,6 +222,7 @@ class _Importer:
         self.defaults: dict[str, str] = {}
         self.b = SceneBuilder(path.stem)
         self.bsdfs: dict[str, tuple] = {}   # id -> (kind, kwargs)
+        self.null_bsdfs: set = set()        # names of null bsdfs (no material: see null_shape)
         self.anisotropic: set[str] = set()  # BSDFs with alpha_u != alpha_v
         self.two_sided_rows: dict[int, int] = {}  # one-sided row -> its twosided copy
         self.n_anon = 0
@@ -464,6 +469,10 @@ class _Importer:
                               f"{', '.join(BSDF_PARAMETERS[kind]) or '(none)'}")
         name = el.get("id") or f"_bsdf{self.n_anon}"
         self.n_anon += 1
+        if kind == "null":   # no surface at all (null_shape)
+            self.null_bsdfs.add(name)
+            self.bsdfs[name] = ("null", p)
+            return name
         if kind == "mask":
             self.mask(el, name, p)
             return name
@@ -725,6 +734,8 @@ class _Importer:
             elif c.tag == "ref" and c.get("id") in self.area_emitters:
                 # a top-level area emitter with an id, referenced (before or after it)
                 emission = self.emitted(self.area_emitters[c.get("id")], "radiance")
+            elif c.tag == "ref" and c.get("id") in self.null_bsdfs:
+                material = c.get("id")
             elif c.tag == "ref":
                 rid = c.get("id")
                 if rid not in self.b.material_names:
@@ -736,6 +747,8 @@ class _Importer:
                 if c.get("type") != "area":
                     self.fail(c, f"a shape's emitter must be 'area', got '{c.get('type')}'")
                 emission = self.emitted(c, "radiance")
+        if material in self.null_bsdfs:
+            return self.null_shape(el, kind, m, shape_media, emission)
         if material in self.anisotropic and kind not in ("obj", "ply", "serialized"):
             self.check_anisotropy_frame(el, kind, p, m, material)
         if material is None:
@@ -1073,6 +1086,53 @@ class _Importer:
         except SceneError as e:
             self.fail(el, f"{kind}: {e}")
 
+    def null_shape(self, el, kind: str, m, shape_media: dict, emission):
+        """A shape whose bsdf is ``null``: no surface (rays pass through it unchanged, as in
+        Mitsuba 3). Without media of its own it is left out. A ``cube`` that bounds a medium
+        (its interior) with the sensor's vacuum outside, axis-aligned (to_world a positive
+        scale and a translation), is Mitsuba's usual volume: jgi's grid medium over the cube's
+        box (vacuum around it), a heterogeneous interior's grid over the same box, a
+        homogeneous one a constant grid. Other null boundaries (around a medium the camera
+        sits in, inside another medium, other shapes, rotated cubes) are refused by name:
+        jgi's surfaces that bound media scatter light."""
+        if emission is not None:
+            self.fail(el, f"{kind}: an area emitter on a 'null' bsdf is not supported (the "
+                          "surface does not exist); give the shape a bsdf")
+        interior, exterior = shape_media.get("interior"), shape_media.get("exterior")
+        fill = self.sensor_medium_of_file
+
+        def same(a, b):
+            if a is None or b is None:
+                return a is b
+            return a == b if isinstance(a, str) and isinstance(b, str) else a is b
+        if same(interior, exterior):
+            return   # no surface and no medium transition: nothing to render
+        what = (f"{kind} with a 'null' bsdf bounding media: supported is an axis-aligned cube "
+                "whose interior is a medium and whose exterior is vacuum, the sensor's too (a "
+                "volume in a box)")
+        if kind != "cube" or exterior is not None or fill is not None or interior is None:
+            self.fail(el, what)
+        lin = m[:3, :3]
+        if (np.any(np.abs(lin - np.diag(np.diag(lin))) > 1e-9) or np.any(np.diag(lin) <= 0)
+                or np.any(m[3] != (0, 0, 0, 1))):
+            self.fail(el, f"{what}; its to_world must be a positive scale and a translation")
+        lo, hi = m[:3, 3] - np.diag(lin), m[:3, 3] + np.diag(lin)
+        if self.b.medium_args is not None:
+            self.fail(el, f"{what}; the scene has one already (jgi takes one grid medium)")
+        cam = self.b.camera_args
+        if cam is not None and np.all(np.asarray(cam["position"]) > lo) \
+                and np.all(np.asarray(cam["position"]) < hi):
+            self.fail(el, f"{what}; the sensor lies inside the cube")
+        medium = self.media[interior] if isinstance(interior, str) else interior
+        if self.check_type(medium) == "heterogeneous":
+            return self.heterogeneous(medium, box=(lo, hi))
+        q = self.homogeneous_params(medium)
+        try:
+            self.b.grid_medium(np.ones((1, 1, 1)), lo, hi, sigma_t=q["sigma_t"],
+                               albedo=q["albedo"], g=q["g"], scale=q["scale"])
+        except SceneError as e:
+            self.fail(medium, str(e))
+
     def bounded_medium(self, shape, kind: str, m) -> str:
         """The builder's name of medium ``m`` (an id, a nested element, or None: vacuum) bounded
         by a shape, defined on first use: homogeneous media only."""
@@ -1130,12 +1190,13 @@ class _Importer:
                 g = float(self.props(c).get("g", 0.8))    # Mitsuba's default g
         return g
 
-    def heterogeneous(self, el):
+    def heterogeneous(self, el, box=None):
         """Mitsuba's heterogeneous medium: sigma_t a single-channel ``gridvolume`` (.vol file;
         its box the unit cube or, with use_grid_bbox, the file's, through a to_world of scale
         and translation), an albedo (float, rgb, constvolume, or a gridvolume of 1 or 3 channels
         over the same box), scale, an isotropic or hg phase. Vacuum outside the grid's box, as
-        Mitsuba clips the medium to it."""
+        Mitsuba clips the medium to it. ``box`` (lo, hi): the null cube bounding it, whose box
+        the grid's must be."""
         allowed = ("sigma_t", "albedo", "scale", "sample_emitted", "has_spectral_extinction")
         p, volumes = self.props(el), {}   # (props reads no <volume>)
         for c in el:
@@ -1155,6 +1216,13 @@ class _Importer:
                           "(a constant extinction is a homogeneous medium)")
         grid, lo, hi = self.gridvolume(volumes["sigma_t"], "sigma_t", (1,))
         grid = grid[..., 0]
+        if box is not None and not (np.allclose(lo, box[0], rtol=0, atol=1e-6)
+                                    and np.allclose(hi, box[1], rtol=0, atol=1e-6)):
+            r = lambda v: np.round(v, 6).tolist()   # noqa: E731
+            self.fail(el, f"heterogeneous medium: its grid's box {r(lo)} - {r(hi)} differs "
+                          f"from the null cube's {r(box[0])} - {r(box[1])} "
+                          "that bounds it; allowed: the same box (a gridvolume to_world that "
+                          "maps it onto the cube)")
         albedo = p.get("albedo", 0.75)
         if "albedo" in volumes:
             v = volumes["albedo"]
