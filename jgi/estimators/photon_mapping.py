@@ -290,6 +290,12 @@ def render_jensen(scene: Scene, cfg: JensenConfig = JensenConfig(), *, spp: int 
     return Render(_to_image(scene, total, spp), dict(stored=pm.count))
 
 
+def _u32(n: int):
+    """n modulo 2^32 as a uint32 (a pass's seed from any 32-bit seed: a study's seeds times a
+    multiplier exceed 32 bits)."""
+    return jnp.uint32(int(n) % (1 << 32))
+
+
 def render_progressive(scene: Scene, cfg: ProgressiveConfig = ProgressiveConfig(), *, spp: int = 1,
                        seed: int = 0) -> Render:
     """PPM (``cfg.stochastic=False``) or SPPM; ``spp`` visible points per pixel per pass. Each
@@ -315,13 +321,13 @@ def render_progressive(scene: Scene, cfg: ProgressiveConfig = ProgressiveConfig(
     for t in range(passes):
         if stochastic or v is None:
             v = visible_points(scene,
-                               jnp.uint32(rng.lowbias32(jnp.uint32(seed * 65599 + t)).item()),
+                               jnp.uint32(rng.lowbias32(_u32(seed * 65599 + t)).item()),
                                pix, smp, max_depth=max_depth, light_samples=0)
             found = np.asarray(v.found)
             beta_ = np.stack([np.asarray(c) for c in v.beta])
             Lv = np.stack([np.asarray(c) for c in v.L])
         direct += Lv
-        pm = trace_photons(scene, photons, seed=int(rng.lowbias32(jnp.uint32(seed * 7919 + t + 1))),
+        pm = trace_photons(scene, photons, seed=int(rng.lowbias32(_u32(seed * 7919 + t + 1))),
                            max_depth=max_depth)
         surface = found
         if medium:
