@@ -725,3 +725,55 @@ def test_unsupported_uniformgrids_name_file_line_and_what_is_allowed(tmp_path, t
     with pytest.raises(SceneError, match=message) as e:
         load_pbrt(path)
     assert f"{path}:" in str(e.value)
+
+
+BOX = ('Shape "trianglemesh" "point3 P" [-1 -1 -1  1 -1 -1  1 1 -1  -1 1 -1  -1 -1 1  1 -1 1  '
+       '1 1 1  -1 1 1]\n  "integer indices" [0 2 1 0 3 2  4 5 6 4 6 7  0 1 5 0 5 4  2 3 7 2 7 6  '
+       '1 2 6 1 6 5  0 4 7 0 7 3]\n')
+
+
+def test_an_interface_box_holding_a_medium_is_a_grid_medium(tmp_path):
+    """pbrt-v4's usual volume: a box-shaped mesh with the "interface" material (no surface),
+    a medium inside and vacuum outside: jgi's grid medium over the box (a homogeneous medium a
+    constant grid, a uniformgrid its own box, which must be the mesh's); an interface shape
+    without a transition is left out. Refused by name: a box that is not one, a uniformgrid
+    over another box, the camera inside."""
+    head = FOG_HEADER.replace('MediumInterface "" "fog"\n', "")
+    grid = ('MakeNamedMedium "smoke" "string type" "uniformgrid" "float density" [1 2 3 4 5 6 7 8]'
+            ' "integer nx" 2 "integer ny" 2 "integer nz" 2 "point3 p0" [-1 -1 -1]'
+            ' "point3 p1" [1 1 1]\n')
+    body = ('AttributeBegin\n Translate 0 0.5 0\n Scale 0.5 0.5 0.5\n Material "interface"\n'
+            ' MediumInterface "{inside}" ""\n ' + BOX + 'AttributeEnd\n'
+            'Material "interface"\nShape "sphere" "float radius" 3\n'
+            'LightSource "point" "rgb I" [1 1 1] "point3 from" [0 2 0]\n')
+    p = tmp_path / "box.pbrt"
+    p.write_text(head + body.format(inside="fog"))
+    fog = load_pbrt(p)
+    assert fog.has_grid_medium and fog.spheres.count == 0 and fog.triangles.count == 0
+    np.testing.assert_allclose([float(c) for c in fog.medium.lo], [-0.5, 0.0, -0.5], atol=1e-6)
+    np.testing.assert_allclose([float(c) for c in fog.medium.hi], [0.5, 1.0, 0.5], atol=1e-6)
+    # extinction (sigma_a + sigma_s) scale density: the scale 2 folded into the density
+    np.testing.assert_allclose(np.asarray(fog.medium.density), 2.0)
+    np.testing.assert_allclose([float(c) for c in fog.medium.sigma_t], [0.4, 0.6, 0.55],
+                               rtol=1e-6)
+    # a uniformgrid made in the box's frame (MakeNamedMedium under the same transform)
+    p.write_text(head + body.format(inside="smoke").replace(
+        ' Material "interface"\n', ' ' + grid + ' Material "interface"\n', 1))
+    smoke = load_pbrt(p)
+    assert np.asarray(smoke.medium.density).shape == (2, 2, 2)
+    cases = {
+        "not a box": (body.format(inside="fog").replace("-1 1 1]", "-1 1 0.5]"),
+                      "its vertices are not the corners of an axis-aligned box"),
+        "other box": (body.format(inside="smoke").replace("AttributeBegin\n",
+                                                          grid + "AttributeBegin\n"),
+                      r'"smoke" \(uniformgrid\): its box \[-1.0, -1.0, -1.0\] - \[1.0, 1.0, 1.0\]'
+                      r' differs from the interface box'),
+        "sphere": (body.format(inside="fog").replace(BOX, 'Shape "sphere"\n'),
+                   'Shape "sphere" with the "interface" material bounding media'),
+        "camera inside": (body.format(inside="fog").replace("Scale 0.5 0.5 0.5", "Scale 9 9 9"),
+                          "the camera lies inside the box"),
+    }
+    for name, (text, message) in cases.items():
+        p.write_text(head + text)
+        with pytest.raises(SceneError, match=message):
+            load_pbrt(p)

@@ -24,6 +24,9 @@ supported):
              pbrt-v4's TrowbridgeReitzDistribution::RoughnessToAlpha): GGX (Trowbridge-Reitz)
              microfacets, jgi's roughconductor / roughdielectric; where pbrt treats the surface
              as smooth (the smaller alpha below 1e-3) jgi's smooth conductor / dielectric.
+             "interface": no surface; a shape with it is left out, or, a mesh forming an
+             axis-aligned box with a medium inside and vacuum outside (pbrt's usual volume),
+             becomes jgi's grid medium over the box (_Importer.null_shape).
              Refused: "coateddiffuse" (a stochastic layered BSDF that no jgi material equals;
              use a Mitsuba or TOML roughplastic, or plastic for a smooth coating), the other
              materials, displacement and normal
@@ -141,7 +144,7 @@ SUPPORTED_MEDIUM_TYPES = {"homogeneous": HOMOGENEOUS_MEDIUM_PARAMETERS,
 PBRT_MEDIUM_TYPES = ("homogeneous", "uniformgrid", "rgbgrid", "cloud", "nanovdb")
 SUPPORTED = {
     "Camera": ("perspective",), "Film": ("rgb", "gbuffer", "spectral"),
-    "Material": ("diffuse", "conductor", "dielectric"),
+    "Material": ("diffuse", "conductor", "dielectric", "interface"),
     "Shape": ("sphere", "disk", "cylinder", "trianglemesh", "plymesh"),
     "LightSource": ("point", "spot", "distant", "uniform", "infinite"),
     "AreaLightSource": ("diffuse",),
@@ -153,6 +156,7 @@ MATERIAL_PARAMETERS = {
     "diffuse": ("reflectance",),
     "conductor": ("eta", "k", "reflectance") + _ROUGH,
     "dielectric": ("eta",) + _ROUGH,
+    "interface": (),
 }
 PBRT_SMOOTH_ALPHA = 1e-3   # TrowbridgeReitzDistribution::EffectivelySmooth: min(alpha) < 1e-3
 # pbrt-v4's named metal spectra (util/spectrum.cpp), mapped to the builder's metal of that name
@@ -228,6 +232,7 @@ class _Importer:
         self.reverse = False
         self.coordinate_systems: dict[str, np.ndarray] = {}   # CoordinateSystem "name"
         self.material_kind: dict[str, str] = {}              # builder name -> pbrt material
+        self.null_materials: set = set()     # "interface" materials (no surface: null_shape)
         self.named = {}
         self.n_mat = 0
         self.textures: dict[str, str] = {}   # pbrt texture name -> builder texture name
@@ -563,6 +568,9 @@ class _Importer:
             if key != "type" and key not in MATERIAL_PARAMETERS[kind]:
                 self.fail(where, f"material '{kind}': unknown parameter '{key}'; {kind} takes: "
                                  f"{', '.join(MATERIAL_PARAMETERS[kind])}")
+        if kind == "interface":   # no surface at all (null_shape)
+            self.null_materials.add(name)
+            return name
         if kind == "diffuse":
             refl = p.get("reflectance", ("rgb", []))
             if refl[0] == "texture" and refl[1][0] not in {**self.textures,
@@ -872,6 +880,8 @@ class _Importer:
         if self.area is not None:
             L, power, _ = self.area
             emission = L
+        if mat in self.null_materials:
+            return self.null_shape(kind, p, where, emission is not None)
         if "alpha" in p:
             if emission is not None:
                 # pbrt-v4 masks an area light's emission too, by a hash of the point (not of
@@ -1147,6 +1157,68 @@ class _Importer:
         except SceneError as e:
             self.fail(where, f"Shape \"{shape}\": {e}")
 
+    def null_shape(self, kind, p, where, emits: bool):
+        """A Shape with the "interface" material: no surface (rays pass through it, as in
+        pbrt-v4). Without a medium transition it is left out. A triangle mesh whose vertices
+        are corners of their axis-aligned bounding box, with a medium inside and vacuum outside,
+        the camera's too, is pbrt's usual volume: jgi's grid medium over that box (a
+        "uniformgrid" whose box p0 p1 must be it; a homogeneous medium a constant grid).
+        Other interface shapes that bound media are refused by name: jgi's surfaces that bound
+        media scatter light."""
+        if emits:
+            self.fail(where, f"Shape \"{kind}\" with the \"interface\" material is an area "
+                             "light: not supported (the surface does not exist)")
+        if self.inside == self.outside:
+            return
+        what = (f"Shape \"{kind}\" with the \"interface\" material bounding media (inside "
+                f"\"{self.inside}\", outside \"{self.outside}\"): supported is a triangle mesh "
+                "forming an axis-aligned box with a medium inside and vacuum outside, the "
+                "camera's too (a volume in a box)")
+        if (kind not in ("trianglemesh", "plymesh") or self.outside or self.camera_medium[0]
+                or not self.inside):
+            self.fail(where, what)
+        if kind == "trianglemesh":
+            P = self._get(p, "P", None, where)
+            if P is None or len(P) % 3:
+                self.fail(where, "trianglemesh needs \"point3 P\" with 3 numbers per vertex")
+            v = np.asarray(P, float).reshape(-1, 3)
+        else:
+            fname = self._get(p, "filename", None, where)
+            if not fname:
+                self.fail(where, "plymesh needs \"string filename\"")
+            v = load_mesh_with_normals(self.resolve(fname[0]), f"{where[0]}:{where[1]}",
+                                       PBRT_PLY_UV)[0]
+        v = xf.apply_point(self.ctm, v)
+        lo, hi = v.min(0), v.max(0)
+        tol = 1e-6 * max(float(np.abs(v).max()), 1.0)
+        corner = (np.abs(v - lo) <= tol) | (np.abs(v - hi) <= tol)
+        if not (np.all(corner) and np.all(hi - lo > tol)):
+            self.fail(where, f"{what}; its vertices are not the corners of an axis-aligned box")
+        if self.cam is not None:
+            eye = xf.apply_point(self.cam[0], np.zeros(3))
+            if np.all(eye > lo) and np.all(eye < hi):
+                self.fail(where, f"{what}; the camera lies inside the box")
+        if self.inside not in self.media:
+            defined = ", ".join(self.media) or "(none)"
+            self.fail(where, f"MediumInterface names medium \"{self.inside}\", which no "
+                             f"MakeNamedMedium defines; defined: {defined}")
+        if self.b.medium_args is not None:
+            self.fail(where, f"{what}; the scene has one already (jgi takes one grid medium)")
+        mp, mwhere, to_world = self.media[self.inside]
+        params = self.homogeneous_params(self.inside, mp, mwhere)
+        try:
+            if self._get(mp, "type", None, mwhere)[0] == "uniformgrid":
+                self.fill_uniformgrid(self.inside, mp, mwhere, to_world, params["sigma_a"],
+                                      params["sigma_s"], params["scale"], params["g"],
+                                      box=(lo, hi))
+                return
+            sigma_t = np.asarray(params["sigma_a"]) + np.asarray(params["sigma_s"])
+            albedo = np.divide(params["sigma_s"], sigma_t, out=np.zeros(3), where=sigma_t > 0)
+            self.b.grid_medium(np.ones((1, 1, 1)), lo, hi, sigma_t=sigma_t, albedo=albedo,
+                               g=params["g"], scale=params["scale"])
+        except SceneError as e:
+            self.fail(mwhere, f"MakeNamedMedium \"{self.inside}\": {e}")
+
     def bounded_medium(self, name: str, shape, where) -> str:
         """The builder's name of medium ``name`` ("": vacuum) bounded by a shape, defined on
         first use: homogeneous media only."""
@@ -1233,7 +1305,7 @@ class _Importer:
         except SceneError as e:
             self.fail(mwhere, f"MakeNamedMedium \"{name}\": {e}")
 
-    def fill_uniformgrid(self, name, p, where, to_world, sigma_a, sigma_s, scale, g):
+    def fill_uniformgrid(self, name, p, where, to_world, sigma_a, sigma_s, scale, g, box=None):
         """pbrt-v4's GridMedium: densities d[(z ny + y) nx + x] over the box [p0, p1] of the
         medium's space (its sample i at (i + 1/2) / n, lookups beyond the samples 0: jgi's
         "zero" border), extinction (sigma_a + sigma_s) scale d(x), albedo sigma_s / sigma_t.
@@ -1264,13 +1336,20 @@ class _Importer:
                              "rotates, shears or projects the grid; jgi's grids are axis-aligned "
                              "boxes, so only scales and translations are supported here")
         a, b = (xf.apply_point(to_world, q) for q in (p0, p1))
+        lo, hi = np.minimum(a, b), np.maximum(a, b)
+        if box is not None and not (np.allclose(lo, box[0], rtol=0, atol=1e-6)
+                                    and np.allclose(hi, box[1], rtol=0, atol=1e-6)):
+            r = lambda v: np.round(v, 6).tolist()   # noqa: E731
+            self.fail(where, f"MakeNamedMedium \"{name}\" (uniformgrid): its box {r(lo)} - "
+                             f"{r(hi)} differs from the interface box {r(box[0])} - "
+                             f"{r(box[1])} that bounds it; allowed: the same box")
         for axis, flip in enumerate(np.diag(linear) < 0):   # a mirrored axis: samples reversed
             if flip:
                 grid = np.flip(grid, axis=2 - axis)
         sigma_t = np.asarray(sigma_a) + np.asarray(sigma_s)
         albedo = np.divide(sigma_s, sigma_t, out=np.zeros(3), where=sigma_t > 0)
-        self.b.grid_medium(grid, np.minimum(a, b), np.maximum(a, b), sigma_t=sigma_t,
-                           albedo=albedo, g=g, scale=scale, border="zero")
+        self.b.grid_medium(grid, lo, hi, sigma_t=sigma_t, albedo=albedo, g=g, scale=scale,
+                           border="zero")
 
     def run(self) -> Scene:
         self.run_file(self.path)
