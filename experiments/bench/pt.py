@@ -23,6 +23,9 @@ evaluation and sampling.
 sigma_t 0.6, albedo 0.8, isotropic; Mitsuba: the same medium on the sensor, so that it fills
 the room, rendered by its ``volpath`` integrator): free-flight sampling, NEE from medium
 vertices with the transmittance of the shadow ray, and phase sampling.
+``--objects milk`` renders a backlit rough glass ball holding milk-like fog (jgi's ``milk_ball``
+without haze; both load the same Mitsuba XML, the fog the sphere's interior medium): a medium
+bounded by a shape, each lane carrying its medium's id.
 
 By default jgi traces the image with two concurrent loops on one CPU device (see
 ``jgi.core.calls``), and XLA splits each of their large kernels over the cores.
@@ -85,6 +88,46 @@ def envmap_scene_file(resolution: int) -> str:
     return path
 
 
+# --objects milk: jgi's milk_ball (a backlit rough glass ball holding a bounded medium) as a
+# Mitsuba XML file both renderers load: the sphere's interior is the medium
+MILK_XML = """<scene version="3.0.0">
+  <integrator type="volpath"><integer name="max_depth" value="8"/>
+    <integer name="rr_depth" value="5"/></integrator>
+  <sensor type="perspective"><float name="fov" value="40"/><string name="fov_axis" value="x"/>
+    <transform name="to_world"><lookat origin="0, 0.6, 4" target="0, 0, 0" up="0, 1, 0"/>
+    </transform>
+    <film type="hdrfilm"><integer name="width" value="{res}"/>
+      <integer name="height" value="{res}"/><rfilter type="box"/></film>
+  </sensor>
+  <shape type="rectangle"><transform name="to_world"><scale value="4"/>
+    <rotate x="1" angle="-90"/><translate y="-0.8"/></transform>
+    <bsdf type="diffuse"><rgb name="reflectance" value="0.5, 0.5, 0.5"/></bsdf></shape>
+  <shape type="rectangle"><transform name="to_world"><scale x="4" y="3"/>
+    <translate y="2.2" z="-2"/></transform>
+    <emitter type="area"><rgb name="radiance" value="1, 1, 1"/></emitter></shape>
+  <shape type="sphere"><float name="radius" value="0.8"/>
+    <bsdf type="roughdielectric"><string name="distribution" value="ggx"/>
+      <float name="alpha" value="0.2"/><float name="int_ior" value="1.33"/>
+      <float name="ext_ior" value="1"/></bsdf>
+    <medium type="homogeneous" name="interior">
+      <rgb name="sigma_t" value="0.4, 0.6, 1.0"/><float name="scale" value="5"/>
+      <float name="albedo" value="0.6"/>
+      <phase type="hg"><float name="g" value="0.4"/></phase>
+    </medium></shape>
+</scene>
+"""
+
+
+def milk_scene_file(resolution: int) -> str:
+    """The milk bench scene as a Mitsuba XML file in a temporary folder."""
+    import tempfile
+
+    path = os.path.join(tempfile.mkdtemp(prefix="bench_milk_"), "milk.xml")
+    with open(path, "w") as f:
+        f.write(MILK_XML.format(res=resolution))
+    return path
+
+
 def bench_jgi(resolution: int, spp: int, repeats: int, objects: str = "blocks") -> dict:
     import jax
 
@@ -98,6 +141,10 @@ def bench_jgi(resolution: int, spp: int, repeats: int, objects: str = "blocks") 
         scene = load_mitsuba_xml(envmap_scene_file(resolution))
     elif objects == "fog":
         scene = jgi.load_scene("cornell_box_fog", resolution=resolution)
+    elif objects == "milk":
+        from jgi.scene.importers.mitsuba import load_mitsuba_xml
+
+        scene = load_mitsuba_xml(milk_scene_file(resolution))
     elif objects == "spheres":
         from jgi.scene import SceneBuilder
         from jgi.scene.builtin import cornell_room
@@ -144,6 +191,8 @@ def bench_mitsuba(resolution: int, spp: int, repeats: int, objects: str = "block
     desc = mi.cornell_box()
     if objects == "envmap":
         scene = mi.load_file(envmap_scene_file(resolution))
+    elif objects == "milk":
+        scene = mi.load_file(milk_scene_file(resolution))
     elif objects == "veach_ggx":
         from experiments.mitsuba_scene import to_mitsuba
         from jgi.scene import builtin
@@ -154,7 +203,7 @@ def bench_mitsuba(resolution: int, spp: int, repeats: int, objects: str = "block
         for i, (centre, radius) in enumerate(SPHERES):
             desc[f"sphere-{i}"] = {"type": "sphere", "center": list(centre), "radius": radius,
                                    "bsdf": {"type": "ref", "id": "white"}}
-    if objects != "envmap":
+    if objects not in ("envmap", "milk"):
         desc["sensor"]["film"]["width"] = desc["sensor"]["film"]["height"] = resolution
         desc["sensor"]["film"]["rfilter"] = {"type": "box"}
         desc["integrator"] = {"type": "path", "max_depth": 8, "rr_depth": 5}
@@ -162,6 +211,7 @@ def bench_mitsuba(resolution: int, spp: int, repeats: int, objects: str = "block
         desc["sensor"]["medium"] = {"type": "homogeneous", "sigma_t": 0.6, "albedo": 0.8,
                                     "phase": {"type": "isotropic"}}
         desc["integrator"] = {"type": "volpath", "max_depth": 8, "rr_depth": 5}
+    if objects not in ("envmap", "milk"):
         scene = mi.load_dict(desc)
     t0 = time.perf_counter()
     np.asarray(mi.render(scene, spp=1, seed=0))
@@ -187,11 +237,13 @@ def main(argv=None) -> dict:
     ap.add_argument("--devices", type=int, default=1,
                     help="split jgi's lanes over this many virtual CPU devices")
     ap.add_argument("--no-mitsuba", action="store_true")
-    ap.add_argument("--objects", choices=("blocks", "spheres", "veach_ggx", "envmap", "fog"),
+    ap.add_argument("--objects", choices=("blocks", "spheres", "veach_ggx", "envmap", "fog",
+                                          "milk"),
                     default="blocks",
                     help="what stands in the room: the two blocks, or two diffuse spheres; or "
                          "Veach's plates with GGX plates instead of the room; or two balls "
-                         "under an environment map; or the box filled with fog")
+                         "under an environment map; or the box filled with fog; or a "
+                         "backlit glass ball holding a medium (bounded by the sphere)")
     ap.add_argument("--json", default=None)
     a = ap.parse_args(argv)
     if a.devices > 1:
