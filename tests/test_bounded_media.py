@@ -153,6 +153,16 @@ def test_medium_interface_errors_name_what_is_allowed():
     b.camera((0, 0, 5), (0, 0, 0))
     with pytest.raises(SceneError, match="emitting shape and has exterior medium 'milk'"):
         b.build()
+    # a point light inside a sphere that holds a medium: refused
+    b3 = SceneBuilder("bad_lamp")
+    b3.material("glass", "dielectric", ior=1.5)
+    b3.bounded_medium("milk", sigma_t=2.0)
+    b3.sphere((0, 0, 0), 1.0, b3.medium_interface("glass", interior="milk"))
+    b3.point_light((0.2, 0.1, 0.0), (1.0, 1.0, 1.0))
+    b3.camera((0, 0, 5), (0, 0, 0))
+    with pytest.raises(SceneError, match=r"point or spot light at \[0.2, 0.1, 0.0\] lies inside "
+                                         r"the sphere at \[0.0, 0.0, 0.0\].*holds medium 'milk'"):
+        b3.build()
     # around a grid medium: refused
     b2 = SceneBuilder("bad_grid")
     b2.material("glass", "dielectric", ior=1.5)
