@@ -163,6 +163,14 @@ def test_medium_interface_errors_name_what_is_allowed():
     with pytest.raises(SceneError, match=r"point or spot light at \[0.2, 0.1, 0.0\] lies inside "
                                          r"the sphere at \[0.0, 0.0, 0.0\].*holds medium 'milk'"):
         b3.build()
+    # the camera inside it: refused
+    b4 = SceneBuilder("bad_camera")
+    b4.material("glass", "dielectric", ior=1.5)
+    b4.bounded_medium("milk", sigma_t=2.0)
+    b4.cube(np.diag([2.0, 2.0, 2.0, 1.0]), b4.medium_interface("glass", interior="milk"))
+    b4.camera((0, 0, 1.5), (0, 0, 0))
+    with pytest.raises(SceneError, match=r"the camera at \[0.0, 0.0, 1.5\] lies inside the cube"):
+        b4.build()
     # around a grid medium: refused
     b2 = SceneBuilder("bad_grid")
     b2.material("glass", "dielectric", ior=1.5)

@@ -959,25 +959,30 @@ class SceneBuilder:
                 raise SceneError(f"material '{self._material_name(i)}' is used by an emitting "
                                  f"shape and has exterior medium '{face[1]}': lights shine into "
                                  "the scene's own medium; allowed: exterior None")
-        # point and spot lights inside a sphere or cube that bounds a medium would shine into it,
-        # where light subpaths start in the scene's own medium: refused (meshes not checked)
+        # point and spot lights, and the camera, inside a sphere or cube that bounds a medium
+        # would sit in it, where their paths start in the scene's own: refused (meshes not
+        # checked)
         inside = [(f"sphere at {np.round(c, 4).tolist()}",
                    lambda q, c=c, r=r: np.linalg.norm(q - c) < r, m)
                   for c, r, m, _ in self.spheres]
         inside += [(f"cube at {np.round(c, 4).tolist()}",
                     lambda q, c=c, a=a, h=h: bool(np.all(np.abs(a @ (q - c)) < h)), m)
                    for c, a, h, m in self.boxes]
-        for light in self.lights:
-            if light["kind"] not in (POINT, SPOT):
-                continue
-            q = np.asarray(light["p0"], float)
+        points = [(f"a point or spot light at {np.asarray(light['p0'], float).tolist()}",
+                   "lights shine into the scene's own medium", light["p0"])
+                  for light in self.lights if light["kind"] in (POINT, SPOT)]
+        points.append((f"the camera at {np.asarray(self.camera_args['position'], float).tolist()}",
+                       "camera rays start in the scene's own medium",
+                       self.camera_args["position"]))
+        for who, why, q in points:
+            q = np.asarray(q, float)
             for what, contains, m in inside:
                 face = self.materials[m].interface
                 if face is not None and face[0] is not None and contains(q):
-                    raise SceneError(f"a point or spot light at {q.tolist()} lies inside the "
-                                     f"{what}, whose material '{self._material_name(m)}' holds "
-                                     f"medium '{face[0]}': lights shine into the scene's own "
-                                     "medium; allowed: lights outside bounded media")
+                    raise SceneError(f"{who} lies inside the {what}, whose material "
+                                     f"'{self._material_name(m)}' holds medium '{face[0]}': "
+                                     f"{why}; allowed: outside bounded media (or the medium "
+                                     "as the scene's own)")
         ids = {name: k + 1 for k, name in enumerate(self.bounded_media)}
         rows = [m.interface for m in (self.materials or [_Material(DIFFUSE)])]
         f = lambda key: V3(*(jnp.asarray([a[key][c] for a in self.bounded_media.values()],  # noqa: E731
