@@ -179,29 +179,38 @@ def _shade(scene: Scene, cfg: PathTracerConfig, s: PathState, hit: geometry.Hit,
     # reached, weighted T sigma_s / p(t) or T / P(s) (jgi.physics.media; spectral MIS) ----
     medium = scene.medium
     grid = scene.has_grid_medium
+    # a bounded grid: its lanes are tracked, the others sampled in their homogeneous medium
+    in_grid = medium_interfaces.in_grid(scene, s.medium)
     if grid:   # delta (spectral) tracking; not differentiated (jgi.physics.grid_media)
         dm = cfg.dims_per_bounce
-        medium = grid_media.held_constant(medium)
+        medium = grid_media.held_constant(medium_interfaces.grid(scene))
         key_m = rng.substream(u(dm), u(dm + 1))
         gf = grid_media.sample_free_flight(medium, s.o, s.d, jnp.where(hit.valid, hit.t, jnp.inf),
-                                           jax.lax.stop_gradient(s.beta), s.active, key_m)
+                                           jax.lax.stop_gradient(s.beta),
+                                           s.active if in_grid is None else s.active & in_grid,
+                                           key_m)
         in_medium = s.active & gf.scattered
         reached = ~gf.scattered
         p_m = s.o + s.d * jnp.where(in_medium, gf.t, 0.0)
         beta_in = s.beta * gf.weight
-    elif scene.has_medium:
+    if scene.has_medium and (not grid or in_grid is not None):
         medium = medium_interfaces.parameters(scene, s.medium)   # the ray's medium, per lane
         dm = cfg.dims_per_bounce
         sg = jax.lax.stop_gradient   # medium sampling is detached (see the module)
         ff = media.sample_free_flight(sg(medium.sigma_t), sg(medium.albedo), sg(s.beta),
                                       sg(jnp.where(hit.valid, hit.t, jnp.inf)), u(dm), u(dm + 1))
-        in_medium = s.active & ff.scattered
-        reached = ~ff.scattered
-        t_m = jnp.where(in_medium, ff.t, 0.0)          # finite where used
-        p_m = s.o + s.d * t_m
-        beta_in = s.beta * media.free_flight_weight(medium.sigma_t, medium.albedo, ff.t,
-                                                     ff.scattered, ff.pdf)
-    else:
+        in_medium_h = s.active & ff.scattered
+        t_m = jnp.where(in_medium_h, ff.t, 0.0)          # finite where used
+        beta_h = s.beta * media.free_flight_weight(medium.sigma_t, medium.albedo, ff.t,
+                                                    ff.scattered, ff.pdf)
+        if not grid:
+            in_medium, reached, p_m, beta_in = in_medium_h, ~ff.scattered, s.o + s.d * t_m, beta_h
+        else:   # (the phase function: the table's g, the grid's on its lanes)
+            in_medium = jnp.where(in_grid, in_medium, in_medium_h)
+            reached = ~in_medium
+            p_m = where(in_grid, p_m, s.o + s.d * t_m)
+            beta_in = where(in_grid, beta_in, beta_h)
+    if not scene.has_medium:
         in_medium, reached, beta_in = None, True, s.beta
 
     def counts(length):
@@ -265,7 +274,16 @@ def _shade(scene: Scene, cfg: PathTracerConfig, s: PathState, hit: geometry.Hit,
                 o_s, d_s, t_s = ne.shadow
                 key_j = rng.derive(key_m, rng.SALTS["ratio_tracking"] + j)
                 lit = nee_active & (max_component(value) > 0)
-                value = value * grid_media.ratio_tracking(medium, o_s, d_s, t_s, lit, key_j)
+                shadow_in_grid = medium_interfaces.in_grid(scene, shadow_medium)
+                if shadow_in_grid is not None:
+                    lit = lit & shadow_in_grid
+                tr = grid_media.ratio_tracking(medium_interfaces.held_grid(scene), o_s, d_s,
+                                               t_s, lit, key_j)
+                if shadow_in_grid is not None:   # the other lanes: their medium's exp(-s d)
+                    sigma_t = medium_interfaces.parameters(scene, shadow_medium).sigma_t
+                    tr = where(shadow_in_grid, tr,
+                               media.transmittance(sigma_t, t_s * length_of(d_s)))
+                value = value * tr
             elif scene.has_medium:   # exact transmittance along the shadow ray
                 o_s, d_s, t_s = ne.shadow
                 sigma_t = medium_interfaces.parameters(scene, shadow_medium).sigma_t
@@ -353,7 +371,7 @@ def radiance(scene: Scene, cfg: PathTracerConfig, uniform: Callable[[Array], Arr
     bounce b uses dimensions 2 + b * cfg.dims_per_bounce onwards."""
     max_depth = cfg.path_length if cfg.path_length > 0 else cfg.max_depth
     if scene.has_grid_medium:   # its derivatives would come out zero: refused by name
-        grid_media.refuse_derivatives(scene.medium)
+        grid_media.refuse_derivatives(medium_interfaces.grid(scene))
 
     def bounce(depth, s: PathState) -> PathState:
         base = 2 + depth * dims_per_bounce(cfg, scene)

@@ -17,9 +17,12 @@ connection carries a medium id (0: the scene's own medium; k >= 1: bounded mediu
   it: a bounded medium's surface scatters (a dielectric, a diffuse shell), it is not a null
   interface, so no unoccluded segment crosses one.
 
-Each medium is homogeneous, so the maths of :mod:`jgi.physics.media` applies segment by segment,
-with the parameters looked up per lane (:func:`parameters`). Scenes without bounded media carry
-no ids (None) and compile to the programs they compiled to before.
+Each bounded medium is homogeneous, so the maths of :mod:`jgi.physics.media` applies segment
+by segment with the parameters looked up per lane (:func:`parameters`), but for one that may be
+a density grid (``Scene.bounded_grid``): lanes in it (:func:`in_grid`) are tracked
+(:mod:`jgi.physics.grid_media`), and its row of the table is a vacuum with the grid's phase
+function, so that the homogeneous code leaves those lanes alone. Scenes without bounded media
+carry no ids (None) and compile to the programs they compiled to before.
 """
 
 from __future__ import annotations
@@ -28,7 +31,7 @@ import jax.numpy as jnp
 from jax import Array
 
 from ..core.vec import V3, dot
-from ..scene.tables import Medium, Scene
+from ..scene.tables import GridMedium, Medium, Scene
 
 AMBIENT = 0   # the id of the scene's own medium (Scene.medium, or vacuum)
 
@@ -41,19 +44,53 @@ def start(scene: Scene, like: Array) -> Array | None:
     return jnp.full(like.shape, AMBIENT, jnp.int32)
 
 
+def grid(scene: Scene) -> GridMedium | None:
+    """The scene's density grid: its own medium, or the one bounded by shapes; None."""
+    return scene.medium if isinstance(scene.medium, GridMedium) else scene.bounded_grid
+
+
+def held_grid(scene: Scene):
+    """The scene's density grid held constant (rendered, not differentiated:
+    :func:`jgi.physics.grid_media.held_constant`)."""
+    from .grid_media import held_constant
+    return held_constant(grid(scene))
+
+
+def grid_id(scene: Scene) -> int:
+    """The medium id of the bounded grid: one after the homogeneous bounded media (static)."""
+    bounded = scene.bounded_media
+    return 1 + (0 if bounded is None else int(bounded.g.shape[0]))
+
+
+def in_grid(scene: Scene, medium_id: Array | None) -> Array | None:
+    """Which lanes travel in the density grid: None where the grid is the scene's own medium
+    (every lane: it fills its box, vacuum around), the lanes whose medium id is the bounded
+    grid's otherwise."""
+    if scene.bounded_grid is None:
+        return None
+    return medium_id == grid_id(scene)
+
+
 def table(scene: Scene) -> Medium:
-    """Every medium of the scene, id by id ([K + 1] per field): the scene's own (vacuum: zero
-    extinction, albedo and g), then the bounded ones."""
-    own, bounded = scene.medium, scene.bounded_media
-    if own is None:
-        zero = jnp.zeros((1,), jnp.float32)
-        own_rows = (V3(zero, zero, zero), V3(zero, zero, zero), zero)
-    else:
-        own_rows = tuple(jax_row(x) for x in (own.sigma_t, own.albedo, own.g))
-    cat = lambda a, b: jnp.concatenate([a, jnp.asarray(b, jnp.float32)])   # noqa: E731
-    return Medium(V3(*(cat(a, b) for a, b in zip(own_rows[0], bounded.sigma_t))),
-                  V3(*(cat(a, b) for a, b in zip(own_rows[1], bounded.albedo))),
-                  cat(own_rows[2], bounded.g))
+    """Every medium of the scene, id by id ([K + 1] per field, or K + 2 with a bounded grid):
+    the scene's own (vacuum: zero extinction, albedo and g), the bounded homogeneous ones, then
+    the bounded grid's row: a vacuum with the grid's g (its lanes are tracked, not sampled
+    here; their phase function is the grid's)."""
+    own = scene.medium
+    zero = jnp.zeros((1,), jnp.float32)
+    vacuum = (V3(zero, zero, zero), V3(zero, zero, zero), zero)
+    rows = [vacuum if own is None else tuple(jax_row(x) for x in (own.sigma_t, own.albedo,
+                                                                  own.g))]
+    if scene.bounded_media is not None:
+        b = scene.bounded_media
+        f = lambda v: V3(*(jnp.asarray(c, jnp.float32) for c in v))   # noqa: E731
+        rows.append((f(b.sigma_t), f(b.albedo), jnp.asarray(b.g, jnp.float32)))
+    if scene.bounded_grid is not None:
+        rows.append(vacuum[:2] + (jax_row(scene.bounded_grid.g),))
+    cat = lambda parts: jnp.concatenate(parts)   # noqa: E731
+    return Medium(V3(*(cat([r[0][c] for r in rows]) for c in range(3))),
+                  V3(*(cat([r[1][c] for r in rows]) for c in range(3))),
+                  cat([r[2] for r in rows]))
 
 
 def jax_row(x):

@@ -333,6 +333,17 @@ def _homogeneous_medium(sigma_t, albedo, sigma_a, sigma_s, g, scale) -> dict:
     return dict(sigma_t=tuple(st), albedo=tuple(alb), g=float(g))
 
 
+def _grid_medium_of(m: dict) -> GridMedium:
+    """The GridMedium of checked grid medium arguments (SceneBuilder.grid_medium)."""
+    f = lambda v: V3(*(jnp.float32(c) for c in v))  # noqa: E731
+    grid = m["grid"]
+    return GridMedium(f(m["sigma_t"]), f(m["albedo"]), jnp.float32(m["g"]),
+                      jnp.asarray(grid), f(m["lo"]), f(m["hi"]),
+                      jnp.float32(grid.max()), jnp.asarray(m["majorants"]),
+                      None if m["albedo_grid"] is None else jnp.asarray(m["albedo_grid"]),
+                      border=m["border"])
+
+
 @dataclass
 class SceneBuilder:
     """Accumulates materials, shapes, lights and a camera; ``build()`` makes the pytree."""
@@ -357,6 +368,7 @@ class SceneBuilder:
     cylinders: list = dc_field(default_factory=list)
     medium_args: dict | None = None   # the homogeneous medium filling the scene, if any
     bounded_media: dict = dc_field(default_factory=dict)   # name -> homogeneous medium args
+    bounded_grid: tuple | None = None   # (name, grid medium args): a grid bounded by shapes
 
     # --- participating medium ----------------------------------------------------------------
     def medium(self, *, sigma_t=None, albedo=None, sigma_a=None, sigma_s=None, g=0.0,
@@ -381,6 +393,24 @@ class SceneBuilder:
             raise SceneError(f"medium '{name}': {e}") from None
         return len(self.bounded_media)
 
+    def bounded_grid_medium(self, name: str, density, bbox_min=(0.0, 0.0, 0.0),
+                            bbox_max=(1.0, 1.0, 1.0), **params) -> None:
+        """Define heterogeneous medium ``name`` (parameters as :meth:`grid_medium`'s; zero
+        outside its box) to be bounded by shapes, as :meth:`bounded_medium` defines a
+        homogeneous one: smoke in a glass jar. One per scene, and not with a grid medium of
+        the scene's own."""
+        if name in self.bounded_media or self.bounded_grid is not None:
+            raise SceneError(f"medium '{name}': a scene takes one grid medium bounded by shapes, "
+                             "and medium names are unique")
+        saved = self.medium_args
+        try:
+            self.grid_medium(density, bbox_min, bbox_max, **params)
+            self.bounded_grid = (name, self.medium_args)
+        except SceneError as e:
+            raise SceneError(f"medium '{name}': {e}") from None
+        finally:
+            self.medium_args = saved
+
     def medium_interface(self, material, *, interior: str | None = None,
                          exterior: str | None = None) -> int:
         """A material row like ``material`` whose surfaces bound media (Mitsuba's ``interior``
@@ -390,8 +420,9 @@ class SceneBuilder:
         vacuum). Shapes made with the returned row bound the media; a closed shape with
         outward normals holds ``interior`` inside. One row per (material, interior, exterior)."""
         m = self._mat(material)
+        grid_name = None if self.bounded_grid is None else self.bounded_grid[0]
         for side, name in (("interior", interior), ("exterior", exterior)):
-            if name is not None and name not in self.bounded_media:
+            if name is not None and name not in self.bounded_media and name != grid_name:
                 raise SceneError(f"medium interface of material '{self._material_name(m)}': "
                                  f"{side} names medium '{name}', which is not defined; defined: "
                                  f"{', '.join(self.bounded_media) or '(none)'} (bounded_medium)")
@@ -950,7 +981,7 @@ class SceneBuilder:
         if self.medium_args is not None and "grid" in self.medium_args:
             raise SceneError("media bounded by shapes (medium_interface) with a grid medium "
                              "around them: allowed: a homogeneous medium or vacuum around "
-                             "bounded media")
+                             "bounded media (a grid among them: bounded_grid_medium)")
         emitting = {m for *_, m, e in (*self.spheres, *self.quads, *self.triangles, *self.disks,
                                        *self.cylinders) if e is not None}
         for i in sorted(emitting):
@@ -984,15 +1015,22 @@ class SceneBuilder:
                                      f"{why}; allowed: outside bounded media (or the medium "
                                      "as the scene's own)")
         ids = {name: k + 1 for k, name in enumerate(self.bounded_media)}
+        grid = None
+        if self.bounded_grid is not None:   # its id: one after the homogeneous ones
+            ids[self.bounded_grid[0]] = len(self.bounded_media) + 1
+            grid = _grid_medium_of(self.bounded_grid[1])
         rows = [m.interface for m in (self.materials or [_Material(DIFFUSE)])]
         f = lambda key: V3(*(jnp.asarray([a[key][c] for a in self.bounded_media.values()],  # noqa: E731
                                          jnp.float32) for c in range(3)))
-        media = Medium(f("sigma_t"), f("albedo"),
-                       jnp.asarray([a["g"] for a in self.bounded_media.values()], jnp.float32))
+        media = None
+        if self.bounded_media:
+            media = Medium(f("sigma_t"), f("albedo"),
+                           jnp.asarray([a["g"] for a in self.bounded_media.values()],
+                                       jnp.float32))
         side = lambda r, k: -1 if r is None else (0 if r[k] is None else ids[r[k]])  # noqa: E731
         faces = MediumInterfaces(jnp.asarray([side(r, 0) for r in rows], jnp.int32),
                                  jnp.asarray([side(r, 1) for r in rows], jnp.int32))
-        return dict(bounded_media=media, medium_interfaces=faces)
+        return dict(bounded_media=media, medium_interfaces=faces, bounded_grid=grid)
 
     def _build_medium(self) -> Medium | None:
         m = self.medium_args
@@ -1000,12 +1038,7 @@ class SceneBuilder:
             return None
         f = lambda v: V3(*(jnp.float32(c) for c in v))  # noqa: E731
         if "grid" in m:
-            grid = m["grid"]
-            return GridMedium(f(m["sigma_t"]), f(m["albedo"]), jnp.float32(m["g"]),
-                              jnp.asarray(grid), f(m["lo"]), f(m["hi"]),
-                              jnp.float32(grid.max()), jnp.asarray(m["majorants"]),
-                              None if m["albedo_grid"] is None else jnp.asarray(m["albedo_grid"]),
-                              border=m["border"])
+            return _grid_medium_of(m)
         return Medium(f(m["sigma_t"]), f(m["albedo"]), jnp.float32(m["g"]))
 
     def _material_name(self, m: int) -> str:

@@ -91,7 +91,7 @@ def cornell_box_fog(resolution: int = 256, sigma_t=0.6, albedo=0.8, g=0.0) -> Sc
 
 
 def milk_ball(resolution: int = 256, sigma_t=(2.0, 3.0, 5.0), albedo=0.6, g=0.4,
-              haze: float = 0.0) -> Scene:
+              haze: float = 0.0, smoke: bool = False) -> Scene:
     """A medium bounded by a shape, backlit: a rough glass ball (ior 1.33, GGX alpha 0.2,
     radius 0.8) holding milk-like fog (RGB extinction ``sigma_t``, 3.2-8 mean free paths
     across the ball, albedo, Henyey-Greenstein g), on a grey floor, in front of a large
@@ -99,12 +99,20 @@ def milk_ball(resolution: int = 256, sigma_t=(2.0, 3.0, 5.0), albedo=0.6, g=0.4,
     light the milk let through or scattered towards it. ``haze`` > 0 fills the space around
     the ball with a thin grey medium (extinction ``haze``, albedo 0.8), so rays cross between
     two media. The rough interface lets every estimator connect to the ball's surface, and
-    through it to the milk."""
+    through it to the milk. ``smoke``: the ball holds a heterogeneous medium instead, a density
+    grid over the ball's box (a ramp along x times a blob, 0.05 to 1.7) times ``sigma_t``."""
     b = SceneBuilder("milk_ball")
     b.material("floor", "diffuse", diffuse=(0.5, 0.5, 0.5))
     b.material("black", "diffuse", diffuse=(0.0, 0.0, 0.0))
     b.material("rough_glass", "roughdielectric", ior=1.33, alpha=0.2)
-    b.bounded_medium("milk", sigma_t=sigma_t, albedo=albedo, g=g)
+    if smoke:
+        z, y, x = np.meshgrid(*(np.linspace(0, 1, n) for n in (6, 7, 8)), indexing="ij")
+        blob = np.exp(-((x - 0.4) ** 2 + (y - 0.5) ** 2 + (z - 0.5) ** 2) / 0.08)
+        b.bounded_grid_medium("milk", (0.05 + 1.2 * x * blob + 0.5 * blob).astype(np.float32),
+                              (-0.8, -0.8, -0.8), (0.8, 0.8, 0.8), sigma_t=sigma_t,
+                              albedo=albedo, g=g)
+    else:
+        b.bounded_medium("milk", sigma_t=sigma_t, albedo=albedo, g=g)
     b.quad((-4, -0.8, 4), (8, 0, 0), (0, 0, -8), "floor")                         # normal +y
     b.quad((-4, -0.8, -2), (8, 0, 0), (0, 6, 0), "black", (1.0, 1.0, 1.0))        # normal +z
     b.sphere((0.0, 0.0, 0.0), 0.8, b.medium_interface("rough_glass", interior="milk"))

@@ -37,7 +37,7 @@ from jax import Array
 from .._xla import materialize
 from ..core import rng
 from ..core.vec import V3, dot, max_component, where
-from ..physics import bsdf, camera, geometry, grid_media, media
+from ..physics import bsdf, camera, geometry, grid_media, media, medium_interfaces
 from ..scene.tables import Scene
 from .subpath import (
     Vertices,
@@ -212,10 +212,16 @@ def transmittance(scene: Scene, dist: Array, shadow: tuple, active: Array,
     """T(d) of a connection or light sample of length ``dist`` (inf towards an infinite light)
     in a scene with a medium: exp(-sigma_t d) per channel in a homogeneous medium (that of ids
     ``medium`` in scenes with bounded media), ratio tracking's unbiased estimate along the
-    ``shadow`` ray in a grid medium (:func:`shadow_transmittance`; 1 where not ``active``)."""
-    if scene.has_grid_medium:
+    ``shadow`` ray in a grid medium (:func:`shadow_transmittance`; 1 where not ``active``; a
+    bounded grid's lanes only, where ``medium`` is its id)."""
+    if not scene.has_grid_medium:
+        return media.transmittance(medium_parameters(scene, medium).sigma_t, dist)
+    in_grid = medium_interfaces.in_grid(scene, medium)
+    if in_grid is None:
         return shadow_transmittance(scene, shadow, active)
-    return media.transmittance(medium_parameters(scene, medium).sigma_t, dist)
+    tracked = shadow_transmittance(scene, shadow, active & in_grid)
+    return where(in_grid, tracked,
+                 media.transmittance(medium_parameters(scene, medium).sigma_t, dist))
 
 
 def shadow_transmittance(scene: Scene, shadow: tuple, active: Array) -> V3:
@@ -228,7 +234,8 @@ def shadow_transmittance(scene: Scene, shadow: tuple, active: Array) -> V3:
     is held constant: :mod:`jgi.physics.grid_media`)."""
     o, d, t_max = shadow
     key = rng.ray_key(o, d, rng.SALTS["ratio_tracking"])
-    return grid_media.ratio_tracking(grid_media.held_constant(scene.medium), o, d, t_max,
+    return grid_media.ratio_tracking(grid_media.held_constant(medium_interfaces.grid(scene)),
+                                     o, d, t_max,
                                      active, key)
 
 

@@ -107,20 +107,30 @@ def trace_photon_paths(scene: Scene, seed, photon_index: Array, n_emitted, max_d
         o, d, pw, alive, spec_seen, only_spec, medium_id = state
         hit = geometry.intersect(scene, o, d)
         base = 5 + depth * DIMS_PER_BOUNCE
-        medium = (grid_media.held_constant(scene.medium) if grid
+        # the grid's lanes (all, or a bounded grid's) are tracked, the others sampled in their
+        # homogeneous medium (the table's row of a bounded grid: a vacuum with its g)
+        in_grid = medium_interfaces.in_grid(scene, medium_id)
+        medium = (medium_interfaces.held_grid(scene) if grid and in_grid is None
                   else medium_interfaces.parameters(scene, medium_id))
         in_medium = None
         if scene.has_medium:   # a free flight before the surface (see the module)
             dm = 5 + max_depth * DIMS_PER_BOUNCE + 2 * depth
             t_hit = jnp.where(hit.valid, hit.t, jnp.inf)
             if grid:   # spectral tracking; its weight at a collision carries sigma_s(x)
-                gf = grid_media.sample_free_flight(medium, o, d, t_hit, pw, alive,
-                                                   rng.substream(u(dm), u(dm + 1)))
+                gf = grid_media.sample_free_flight(
+                    medium_interfaces.held_grid(scene), o, d, t_hit, pw,
+                    alive if in_grid is None else alive & in_grid,
+                    rng.substream(u(dm), u(dm + 1)))
                 ff_t, ff_scattered, ff_weight = gf.t, gf.scattered, gf.weight
-            else:
+            if not grid or in_grid is not None:
                 ff = media.sample_free_flight(medium.sigma_t, medium.albedo, pw, t_hit, u(dm),
                                               u(dm + 1))
-                ff_t, ff_scattered, ff_weight = ff.t, ff.scattered, ff.weight
+                if not grid:
+                    ff_t, ff_scattered, ff_weight = ff.t, ff.scattered, ff.weight
+                else:
+                    ff_t = jnp.where(in_grid, ff_t, ff.t)
+                    ff_scattered = jnp.where(in_grid, ff_scattered, ff.scattered)
+                    ff_weight = where(in_grid, ff_weight, ff.weight)
             in_medium = alive & ff_scattered
             pw_arrival = pw
             pw = where(in_medium, pw, pw * ff_weight)    # T / P where it reaches the surface
@@ -151,13 +161,14 @@ def trace_photon_paths(scene: Scene, seed, photon_index: Array, n_emitted, max_d
             x = o + d * jnp.where(in_medium, ff_t, 0.0)
             ph = phase.sample(medium.g, d, u(base), u(base + 1))
             if grid:   # the tracking's weight without sigma_s(x): its T / p
-                sigma_s = grid_media.scattering(medium, x)
+                sigma_s = grid_media.scattering(medium_interfaces.held_grid(scene), x)
                 t_over_p = V3(*(jnp.where(sc > 0, wc / jnp.where(sc > 0, sc, 1.0), 0.0)
                                 for wc, sc in zip(ff_weight, sigma_s)))
-            else:
+            if not grid or in_grid is not None:
                 pdf = jnp.where(ff.pdf > 0, ff.pdf, 1.0)
-                t_over_p = V3(*(jnp.where(ff.pdf > 0, c / pdf, 0.0)
-                                for c in media.transmittance(medium.sigma_t, ff.t)))
+                t_over_p_h = V3(*(jnp.where(ff.pdf > 0, c / pdf, 0.0)
+                                  for c in media.transmittance(medium.sigma_t, ff.t)))
+                t_over_p = t_over_p_h if not grid else where(in_grid, t_over_p, t_over_p_h)
             stored_pw = where(in_medium, pw_arrival * t_over_p, stored_pw)
             store = store | in_medium
             through = through & ~in_medium

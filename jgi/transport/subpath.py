@@ -186,8 +186,16 @@ def segment_density(scene: Scene, d2: Array, at_medium: Array, medium: Array | N
     constant grid. Measured in tests/test_grid_media.py's smoke room, 16 seeds: BDPT's and
     VCM's per-pixel variance within 0.5% of leaving them out, so the choice is a principle
     there, not yet a measured gain.)"""
-    sigma_t = (mean_extinction(scene.medium) if scene.has_grid_medium
-               else medium_parameters(scene, medium).sigma_t)
+    grid = medium_interfaces.grid(scene)
+    if grid is None:
+        sigma_t = medium_parameters(scene, medium).sigma_t
+    elif not scene.has_bounded_media:
+        sigma_t = mean_extinction(grid)
+    else:   # the bounded grid's lanes take its proxy, the others their medium's extinction
+        in_grid = medium_interfaces.in_grid(scene, medium)
+        sigma_t = where(in_grid, V3(*(jnp.broadcast_to(c, in_grid.shape)
+                                      for c in mean_extinction(grid))),
+                        medium_parameters(scene, medium).sigma_t)
     return media.segment_pdf(sigma_t, jnp.sqrt(d2), at_medium)
 
 
@@ -307,21 +315,30 @@ def free_flight(scene: Scene, o: V3, d: V3, hit: geometry.Hit, alive: Array, u_c
     medium: spectral tracking (:func:`jgi.physics.grid_media.sample_free_flight`) on a stream
     hashed from the two numbers, history-aware through ``throughput``, its weight the
     tracking's; not differentiated (the grid is a constant, see that module). ``medium_id``:
-    the medium the ray travels in (scenes with bounded media)."""
+    the medium the ray travels in (scenes with bounded media; with a bounded grid, its lanes
+    are tracked and the others sampled)."""
     sg = jax.lax.stop_gradient
-    medium = scene.medium if scene.has_grid_medium else medium_parameters(scene, medium_id)
     t_hit = jnp.where(hit.valid, hit.t, jnp.inf)
-    if scene.has_grid_medium:
+    grid = medium_interfaces.grid(scene)
+    in_grid = medium_interfaces.in_grid(scene, medium_id)
+    if grid is not None:
         beta = V3.full(1.0, t_hit) if throughput is None else throughput
-        gf = grid_media.sample_free_flight(grid_media.held_constant(medium), o, d, t_hit,
-                                           sg(beta), alive, rng.substream(u_channel, u_distance))
+        gf = grid_media.sample_free_flight(grid_media.held_constant(grid), o, d, t_hit,
+                                           sg(beta), alive if in_grid is None else alive & in_grid,
+                                           rng.substream(u_channel, u_distance))
         t_ff, scattered, weight = gf.t, gf.scattered, gf.weight
-    else:
+    if grid is None or in_grid is not None:
+        medium = medium_parameters(scene, medium_id)   # (a grid lane's row: vacuum)
         ff = media.sample_free_flight(sg(medium.sigma_t), sg(medium.albedo), None, t_hit,
                                       u_channel, u_distance)
-        t_ff, scattered = ff.t, ff.scattered
-        weight = media.free_flight_weight(medium.sigma_t, medium.albedo, ff.t, ff.scattered,
-                                          ff.pdf)
+        w_ff = media.free_flight_weight(medium.sigma_t, medium.albedo, ff.t, ff.scattered,
+                                        ff.pdf)
+        if grid is None:
+            t_ff, scattered, weight = ff.t, ff.scattered, w_ff
+        else:
+            t_ff = jnp.where(in_grid, t_ff, ff.t)
+            scattered = jnp.where(in_grid, scattered, ff.scattered)
+            weight = where(in_grid, weight, w_ff)
     in_med = alive & scattered
     p_m = o + d * jnp.where(in_med, t_ff, 0.0)
     zero = jnp.zeros_like(hit.t)
@@ -389,9 +406,8 @@ def random_walk(scene: Scene, key: Array, dim0: int, dims_per_step: int, n_steps
     (the density of sampling it backwards from there); the last one's is 0."""
     mats = scene.materials
     kinds = mats.kinds
-    medium = scene.medium
     if scene.has_grid_medium:   # the trackings' derivatives would come out zero: refused
-        grid_media.refuse_derivatives(medium)
+        grid_media.refuse_derivatives(medium_interfaces.grid(scene))
 
     def step(s: WalkState, j):
         base = dim0 + j * dims_per_step

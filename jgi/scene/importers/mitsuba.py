@@ -78,10 +78,11 @@ supported):
              name media (<ref name="interior"/"exterior"> or nested): a ray takes the medium
              on the side it leaves such a shape to, as in Mitsuba 3's volpath; homogeneous
              media other than the sensor's (and vacuum, where the sensor has a medium) become
-             media bounded by shapes (glass holding milk, a fog inside a dielectric shell).
-             Refused: a heterogeneous medium bounded by a shape, an area emitter whose
-             exterior is not the sensor's medium, a shape medium on a masked bsdf, and other
-             medium plugins
+             media bounded by shapes (glass holding milk, a fog inside a dielectric shell), and
+             so does one heterogeneous medium, the sensor's being homogeneous or none (smoke
+             in a glass jar; zero outside its grid's box). Refused: a second heterogeneous
+             medium, an area emitter whose exterior is not the sensor's medium, a shape medium
+             on a masked bsdf, and other medium plugins
   values     rgb, float, spectrum (a constant, wavelength:value pairs, a filename= .spd
              file, blackbody in emitters: converted to RGB as Mitsuba 3's RGB variants
              do, jgi.scene.spectra; a blackbody as its spectral variants' RGB film sees
@@ -1146,12 +1147,15 @@ class _Importer:
             name = m
         else:
             name = self.nested_media.setdefault(id(m), f"_medium{len(self.nested_media)}")
-        if name not in self.b.bounded_media:
-            if self.check_type(el) != "homogeneous":
-                self.fail(shape, f"{kind}: medium '{m if isinstance(m, str) else el.get('type')}'"
-                                 f" ({el.get('type')}) bounded by a shape: jgi's media bounded "
-                                 "by shapes are homogeneous; a heterogeneous medium is supported "
-                                 "as the sensor's (its grid's box bounds it)")
+        grid_name = None if self.b.bounded_grid is None else self.b.bounded_grid[0]
+        if name not in self.b.bounded_media and name != grid_name:
+            if self.check_type(el) == "heterogeneous":   # a grid bounded by the shape
+                if self.b.bounded_grid is not None:
+                    self.fail(shape, f"{kind}: heterogeneous medium '{name}' bounded by a shape, "
+                                     "in a scene with another: allowed: one heterogeneous "
+                                     "medium")
+                self.heterogeneous(el, bounded=name)
+                return name
             try:
                 self.b.bounded_medium(name, **self.homogeneous_params(el))
             except SceneError as e:
@@ -1190,13 +1194,14 @@ class _Importer:
                 g = float(self.props(c).get("g", 0.8))    # Mitsuba's default g
         return g
 
-    def heterogeneous(self, el, box=None):
+    def heterogeneous(self, el, box=None, bounded: str | None = None):
         """Mitsuba's heterogeneous medium: sigma_t a single-channel ``gridvolume`` (.vol file;
         its box the unit cube or, with use_grid_bbox, the file's, through a to_world of scale
         and translation), an albedo (float, rgb, constvolume, or a gridvolume of 1 or 3 channels
         over the same box), scale, an isotropic or hg phase. Vacuum outside the grid's box, as
         Mitsuba clips the medium to it. ``box`` (lo, hi): the null cube bounding it, whose box
-        the grid's must be."""
+        the grid's must be. ``bounded``: the name of a medium bounded by shapes (a shape's
+        interior or exterior), zero outside its grid's box too."""
         allowed = ("sigma_t", "albedo", "scale", "sample_emitted", "has_spectral_extinction")
         p, volumes = self.props(el), {}   # (props reads no <volume>)
         for c in el:
@@ -1242,8 +1247,12 @@ class _Importer:
                 self.fail(v, f"heterogeneous medium: albedo volume '{v.get('type')}' is not "
                              "supported; allowed: gridvolume, constvolume, <float>, <rgb>")
         try:
-            self.b.grid_medium(grid, lo, hi, sigma_t=1.0, albedo=albedo, g=self.phase_g(el),
-                               scale=float(p.get("scale", 1.0)))
+            if bounded is not None:
+                self.b.bounded_grid_medium(bounded, grid, lo, hi, sigma_t=1.0, albedo=albedo,
+                                           g=self.phase_g(el), scale=float(p.get("scale", 1.0)))
+            else:
+                self.b.grid_medium(grid, lo, hi, sigma_t=1.0, albedo=albedo, g=self.phase_g(el),
+                                   scale=float(p.get("scale", 1.0)))
         except SceneError as e:
             self.fail(el, str(e))
 
