@@ -32,6 +32,7 @@ from jax import Array
 
 from ..core.vec import V3, dot
 from ..scene.tables import GridMedium, Medium, Scene
+from .grid_media import held_constant
 
 AMBIENT = 0   # the id of the scene's own medium (Scene.medium, or vacuum)
 
@@ -52,7 +53,6 @@ def grid(scene: Scene) -> GridMedium | None:
 def held_grid(scene: Scene):
     """The scene's density grid held constant (rendered, not differentiated:
     :func:`jgi.physics.grid_media.held_constant`)."""
-    from .grid_media import held_constant
     return held_constant(grid(scene))
 
 
