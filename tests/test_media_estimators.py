@@ -282,13 +282,14 @@ def test_mitsuba_media_refusals(tmp_path):
     from jgi.scene.importers import load_mitsuba_xml
     from jgi.scene.importers._common import ImportError_
 
-    # shape media jgi cannot bound: a heterogeneous medium, an emitter's exterior
+    # a shape's heterogeneous medium is read as the grid it bounds (its errors name the line);
+    # an emitter's exterior other than the sensor's medium is refused
     grid_inside = FOG_XML.format(depth=6).replace(
         '<ref id="grey"/></shape>', '<bsdf type="dielectric"/><ref name="exterior" id="fog"/>'
         '<medium type="heterogeneous" name="interior"/></shape>', 1)
     (tmp_path / "a.xml").write_text(grid_inside)
-    with pytest.raises(ImportError_, match=r"a\.xml.*rectangle: medium 'heterogeneous' "
-                                          r"\(heterogeneous\) bounded by a shape"):
+    with pytest.raises(ImportError_, match=r"a\.xml:17: heterogeneous medium: sigma_t must be a "
+                                          r"<volume"):
         load_mitsuba_xml(tmp_path / "a.xml")
     lamp = FOG_XML.format(depth=6).replace(
         '<emitter type="area">', '<medium type="homogeneous" name="exterior"/>'
