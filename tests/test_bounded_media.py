@@ -32,6 +32,26 @@ INK, DYE, AIR, IOR = 1.0, 2.0, 0.05, 1.5
 DYE_FROM, DYE_TO = 0.25, 0.5      # the dye layer inside the ink
 
 
+def assert_pt_agrees_with_mitsuba(ours, xml, *, seeds: int, spp: int, **params):
+    """jgi's path tracer on ``ours`` against Mitsuba 3 rendering the XML file ``xml`` (its
+    integrator as the file says), ``seeds`` renders of ``spp`` a side, per 3 x 3 region and
+    over the image (Welch, both sides' seed spreads); skipped without Mitsuba."""
+    from tests.support.mitsuba import load_mitsuba
+    from tests.support.stats import assert_agree
+
+    mi = load_mitsuba()
+    if mi is None:
+        pytest.skip("mitsuba is not installed")
+    scene_mi = mi.load_file(str(xml))
+    theirs = np.stack([np.asarray(mi.render(scene_mi, spp=spp, seed=s))[..., :3]
+                       for s in range(seeds)])
+    mine = np.stack([jgi.render(ours, "pt", spp=spp, seed=100 + s, **params)
+                     for s in range(seeds)])
+    assert np.all(np.isfinite(mine))
+    assert_agree(mine, theirs, regions=3, label="jgi pt vs Mitsuba 3 volpath (3 x 3 regions)")
+    assert_agree(mine, theirs, regions=1, label="jgi pt vs Mitsuba 3 volpath (whole image)")
+
+
 def _slab(ink: float = INK, air: float = AIR):
     """A glass slab z in [0, 1] holding ink (absorbing), its faces' normals outwards, and in
     the ink a layer z in [0.25, 0.5] of dye (absorbing more) behind index-matched films (ior
@@ -246,9 +266,6 @@ def test_a_medium_inside_glass_renders_like_mitsuba_volpath(tmp_path):
     against Mitsuba 3's volpath per 3 x 3 region and over the image, Welch's t with both
     sides' seed spreads. Measured worst |t| 3.9 per region (critical 6.7), 0.7 over the image;
     with jgi's milk 20% denser 7.3 per region (critical 6.8), left out 258."""
-    from tests.support.mitsuba import load_mitsuba
-    from tests.support.stats import assert_agree
-
     assert MILK_XML.count("<medium") == 2
     xml = tmp_path / "milk.xml"
     xml.write_text(MILK_XML)
@@ -256,16 +273,7 @@ def test_a_medium_inside_glass_renders_like_mitsuba_volpath(tmp_path):
     assert ours.has_bounded_media
     np.testing.assert_allclose([float(c[0]) for c in ours.bounded_media.sigma_t], [2, 3, 5])
     assert abs(float(ours.bounded_media.g[0]) - 0.3) < 1e-7
-    mi = load_mitsuba()
-    if mi is None:
-        pytest.skip("mitsuba is not installed")
-    scene_mi = mi.load_file(str(xml))
-    seeds = range(16)
-    theirs = np.stack([np.asarray(mi.render(scene_mi, spp=64, seed=s))[..., :3] for s in seeds])
-    mine = np.stack([jgi.render(ours, "pt", spp=64, seed=100 + s, max_depth=8, rr_depth=5)
-                     for s in seeds])
-    assert_agree(mine, theirs, regions=3, label="jgi pt vs Mitsuba 3 volpath (3 x 3 regions)")
-    assert_agree(mine, theirs, regions=1, label="jgi pt vs Mitsuba 3 volpath (whole image)")
+    assert_pt_agrees_with_mitsuba(ours, xml, seeds=16, spp=64, max_depth=8, rr_depth=5)
 
 
 MILK_TOML = """[camera]
@@ -376,9 +384,6 @@ def test_a_volume_in_a_null_cube_renders_like_mitsuba_volpath(tmp_path, medium):
     crossing of the null surface, paths that long weigh nothing here). Measured worst |t|
     2.0 (grid) and 2.0 (fog) per region against critical 6.6; with jgi's density 10% lower,
     11.1 and 9.3."""
-    from tests.support.mitsuba import load_mitsuba
-    from tests.support.stats import assert_agree
-
     z, y, x = np.meshgrid(*(np.linspace(0, 1, n) for n in (5, 6, 7)), indexing="ij")
     write_vol(tmp_path / "density.vol", (0.3 + 1.5 * x * (1 - 0.5 * y)).astype(np.float32))
     xml = tmp_path / "cube.xml"
@@ -391,17 +396,7 @@ def test_a_volume_in_a_null_cube_renders_like_mitsuba_volpath(tmp_path, medium):
     np.testing.assert_allclose([float(c) for c in ours.medium.lo], [-0.8, -0.95, -0.8],
                                atol=1e-6)
     np.testing.assert_allclose([float(c) for c in ours.medium.hi], [0.8, 0.4, 0.8], atol=1e-6)
-    mi = load_mitsuba()
-    if mi is None:
-        pytest.skip("mitsuba is not installed")
-    scene_mi = mi.load_file(str(xml))
-    seeds = range(12)
-    theirs = np.stack([np.asarray(mi.render(scene_mi, spp=256, seed=s))[..., :3]
-                       for s in seeds])
-    mine = np.stack([jgi.render(ours, "pt", spp=256, seed=100 + s, max_depth=64)
-                     for s in seeds])
-    assert_agree(mine, theirs, regions=3, label="jgi pt vs Mitsuba 3 volpath (3 x 3 regions)")
-    assert_agree(mine, theirs, regions=1, label="jgi pt vs Mitsuba 3 volpath (whole image)")
+    assert_pt_agrees_with_mitsuba(ours, xml, seeds=12, spp=256, max_depth=64)
 
 
 def test_null_boundaries_jgi_cannot_take_are_refused_by_name(tmp_path):
@@ -445,9 +440,6 @@ def test_smoke_inside_glass_renders_like_mitsuba_volpath(tmp_path):
     others sampled in the haze) against Mitsuba 3's volpath per 3 x 3 region and over the
     image, 16 seeds x 64 spp a side. Measured worst |t| 2.6 per region (critical 5.9), 0.2
     over the image; with jgi's grid 20% thinner 17.1, the smoke left out 208."""
-    from tests.support.mitsuba import load_mitsuba
-    from tests.support.stats import assert_agree
-
     assert SMOKE_GLASS_XML.count("heterogeneous") == 1
     z, y, x = np.meshgrid(*(np.linspace(0, 1, n) for n in (5, 6, 7)), indexing="ij")
     write_vol(tmp_path / "density.vol", (0.2 + 1.5 * x * (1 - 0.5 * y)).astype(np.float32))
@@ -456,13 +448,4 @@ def test_smoke_inside_glass_renders_like_mitsuba_volpath(tmp_path):
     ours = load_mitsuba_xml(xml)
     assert ours.bounded_grid is not None and not isinstance(ours.medium, type(ours.bounded_grid))
     np.testing.assert_allclose([float(c) for c in ours.bounded_grid.lo], [-0.8] * 3, atol=1e-6)
-    mi = load_mitsuba()
-    if mi is None:
-        pytest.skip("mitsuba is not installed")
-    scene_mi = mi.load_file(str(xml))
-    seeds = range(16)
-    theirs = np.stack([np.asarray(mi.render(scene_mi, spp=64, seed=s))[..., :3] for s in seeds])
-    mine = np.stack([jgi.render(ours, "pt", spp=64, seed=100 + s, max_depth=8, rr_depth=5)
-                     for s in seeds])
-    assert_agree(mine, theirs, regions=3, label="jgi pt vs Mitsuba 3 volpath (3 x 3 regions)")
-    assert_agree(mine, theirs, regions=1, label="jgi pt vs Mitsuba 3 volpath (whole image)")
+    assert_pt_agrees_with_mitsuba(ours, xml, seeds=16, spp=64, max_depth=8, rr_depth=5)
