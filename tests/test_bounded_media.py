@@ -324,15 +324,30 @@ def test_toml_shapes_bound_media(tmp_path):
         ('interior = "cream"', "", r"shape\[0\]\.interior: unknown medium 'cream'; defined: "
                                    r"haze, milk"),
         ("", "", r"medium\[1\]: medium 'milk' is not used"),
-        ('interior = "milk"', "grid", r"shape\[0\]\.interior: medium 'milk' is a grid medium"),
     ]
     for sides, kind, message in cases:
         with pytest.raises(SceneError, match=r"milk\.toml: " + message):
-            if kind:
-                load(sides, milk="density = [[[1.0]]]\nbbox_min = [-1, -1, -1]\n"
-                                 "bbox_max = [1, 1, 1]", milk_type="grid")
-            else:
-                load(sides)
+            load(sides)
+    # a grid [[medium]] as a shape's interior: the scene's grid bounded by shapes
+    smoke = ("density = [[[1.0, 2.0]]]\nbbox_min = [-1, -1, -1]\nbbox_max = [1, 1, 1]\n"
+             "sigma_t = [1, 2, 3]\nalbedo = 0.5\ng = 0.3\nborder = \"zero\"")
+    scene = load('interior = "milk"\nexterior = "haze"', milk=smoke, milk_type="grid")
+    g = scene.bounded_grid
+    assert g is not None and g.border == "zero" and float(g.g) == pytest.approx(0.3)
+    np.testing.assert_array_equal(np.asarray(g.density), [[[1.0, 2.0]]])
+    np.testing.assert_allclose([float(c) for c in g.sigma_t], [1, 2, 3])
+    row = int(scene.spheres.material[0])
+    assert (int(faces.interior[row]), int(faces.exterior[row])) == (1, 0)
+    assert scene.bounded_media is None
+    f = tmp_path / "two.toml"
+    f.write_text(MILK_TOML.format(sides='interior = "milk"', milk=smoke, milk_type="grid")
+                 + '[[medium]]\nname = "soot"\ntype = "grid"\n' + smoke
+                 + '\n[[shape]]\ntype = "sphere"\ncenter = [0, 0, 0]\nradius = 0.5\n'
+                   'material = "glass"\ninterior = "soot"\n')
+    with pytest.raises(SceneError, match=r"two\.toml: shape\[1\]\.interior: medium 'soot' is "
+                                         r"a second grid medium bounded by shapes \(after "
+                                         r"'milk'\); allowed: one per scene"):
+        jgi.load_scene(f)
 
 
 def test_gradients_with_respect_to_a_bounded_medium():

@@ -575,8 +575,9 @@ def test_the_medium_outside_the_camera_fills_the_scene(tmp_path):
 def test_pbrt_shapes_bound_media(tmp_path):
     """A Shape whose MediumInterface differs inside and outside bounds media as in pbrt-v4:
     inside on the side away from its normal; the camera's medium is jgi's scene medium and
-    other homogeneous media become bounded ones. Refused by name: a grid medium bounded by a
-    shape, an area light whose outside is not the camera's medium."""
+    other homogeneous media become bounded ones, a uniformgrid the grid bounded by shapes.
+    Refused by name: a second such grid, an area light whose outside is not the camera's
+    medium."""
     head = FOG_HEADER.replace('MakeNamedMedium "unused" "string type" "homogeneous"',
                               'MakeNamedMedium "milk" "string type" "homogeneous" '
                               '"rgb sigma_a" [0.1 0.1 0.1] "rgb sigma_s" [2 3 4] "float g" 0.3')
@@ -593,14 +594,33 @@ def test_pbrt_shapes_bound_media(tmp_path):
     for table in (scene.spheres, scene.triangles):
         row = int(table.material[0])
         assert (int(faces.interior[row]), int(faces.exterior[row])) == (1, 0)
+    # a uniformgrid inside glass: the scene's one grid bounded by shapes (id after the
+    # homogeneous ones), its densities x fastest, box p0 p1, pbrt's zero border
+    smoke = ('MakeNamedMedium "smoke" "string type" "uniformgrid" "float density" [1 2 3 4 5 6] '
+             '"integer nx" 3 "integer ny" 2 "integer nz" 1 "point3 p0" [-1 -1 -1] '
+             '"point3 p1" [1 1 1] "rgb sigma_a" [1 1 1] "rgb sigma_s" [1 2 3] "float g" 0.5\n')
     grid = tmp_path / "grid.pbrt"
-    grid.write_text(head + 'MakeNamedMedium "smoke" "string type" "uniformgrid" '
-                    '"float density" [1] "integer nx" 1 "integer ny" 1 "integer nz" 1\n'
-                    'Material "dielectric"\nMediumInterface "smoke" "fog"\n'
-                    'Shape "sphere" "float radius" 0.5\n')
-    with pytest.raises(SceneError, match=r'grid\.pbrt:13: Shape "sphere" bounds medium '
-                                         r'"smoke" \(uniformgrid\)'):
-        load_pbrt(grid)
+    grid.write_text(head + smoke + 'Material "dielectric"\nMediumInterface "smoke" "fog"\n'
+                    'Shape "sphere" "float radius" 0.5\nMediumInterface "milk" "fog"\n'
+                    'Shape "sphere" "float radius" 0.2\n')
+    scene = load_pbrt(grid)
+    g = scene.bounded_grid
+    assert g is not None and g.border == "zero" and float(g.g) == pytest.approx(0.5)
+    np.testing.assert_array_equal(np.asarray(g.density), np.arange(1, 7).reshape(1, 2, 3))
+    np.testing.assert_allclose([float(c) for c in g.sigma_t], [2, 3, 4], rtol=1e-6)
+    np.testing.assert_allclose([float(c) for c in g.albedo], [0.5, 2 / 3, 0.75], rtol=1e-6)
+    rows = [int(r) for r in scene.spheres.material]
+    faces = scene.medium_interfaces
+    assert [(int(faces.interior[r]), int(faces.exterior[r])) for r in rows] == [(2, 0), (1, 0)]
+    twice = tmp_path / "twice.pbrt"
+    twice.write_text(head + smoke + smoke.replace('"smoke"', '"soot"')
+                     + 'Material "dielectric"\nMediumInterface "smoke" "fog"\n'
+                     'Shape "sphere" "float radius" 0.5\nMediumInterface "soot" "fog"\n'
+                     'Shape "sphere" "float radius" 0.2\n')
+    with pytest.raises(SceneError, match=r'twice\.pbrt:16: Shape "sphere" bounds medium "soot" '
+                                         r'\(uniformgrid\), a second grid bounded by shapes '
+                                         r'after "smoke"; allowed: one per scene'):
+        load_pbrt(twice)
     lamp = tmp_path / "lamp.pbrt"
     lamp.write_text(head + 'AreaLightSource "diffuse" "rgb L" [1 1 1]\n'
                     'MediumInterface "fog" "milk"\nShape "sphere" "float radius" 0.5\n')

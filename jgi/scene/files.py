@@ -435,7 +435,8 @@ class _TomlLoader:
         for i, s in enumerate(self.array_of_tables(doc, "shape")):
             self.shape(b, f"shape[{i}]", s)
         for name, (key, _) in self.medium_tables.items():
-            if name != self.camera_medium and name not in b.bounded_media:
+            bounded_grid = None if b.bounded_grid is None else b.bounded_grid[0]
+            if name not in (self.camera_medium, bounded_grid) and name not in b.bounded_media:
                 self.fail(key, f"medium '{name}' is not used; allowed: name it as the camera's "
                                "(camera.medium), or as a shape's interior or exterior")
         for i, l in enumerate(self.array_of_tables(doc, "light")):
@@ -523,11 +524,14 @@ class _TomlLoader:
                 self.fail(f"{key}.{side}", f"unknown medium {name!r}; defined: "
                                            f"{', '.join(self.medium_tables) or '(none)'}")
             mkey, m = self.medium_tables[name]
-            if m["type"] != "homogeneous":
-                self.fail(f"{key}.{side}", f"medium '{name}' is a {m['type']} medium; media "
-                                           "bounded by shapes are homogeneous (a grid medium "
-                                           "is supported as the camera's)")
-            if name not in b.bounded_media:
+            if m["type"] == "grid":
+                if b.bounded_grid is None:
+                    self.grid_medium(b, mkey, m, bounded=name)
+                elif b.bounded_grid[0] != name:
+                    self.fail(f"{key}.{side}", f"medium '{name}' is a second grid medium "
+                                               f"bounded by shapes (after "
+                                               f"'{b.bounded_grid[0]}'); allowed: one per scene")
+            elif name not in b.bounded_media:
                 try:
                     b.bounded_medium(name, **self.homogeneous(mkey, m))
                 except SceneError as e:
@@ -541,10 +545,11 @@ class _TomlLoader:
         except SceneError as e:
             self.fail(key, str(e))
 
-    def grid_medium(self, b: SceneBuilder, key: str, m: dict):
+    def grid_medium(self, b: SceneBuilder, key: str, m: dict, bounded: str | None = None):
         """A [[medium]] of type grid: ``file`` (a Mitsuba .vol file, one channel; its box unless
         bbox_min / bbox_max are given) or ``density`` (inline, with bbox_min and bbox_max); a
-        constant ``albedo`` or an ``albedo_file`` (.vol, 1 or 3 channels, over the same box)."""
+        constant ``albedo`` or an ``albedo_file`` (.vol, 1 or 3 channels, over the same box).
+        The camera's medium, or, with ``bounded`` (its name), the grid bounded by shapes."""
         if ("file" in m) == ("density" in m):
             self.fail(key, "a grid medium takes file (a .vol file) or density (an inline "
                            "[nz][ny][nx] array); allowed: one of the two")
@@ -562,10 +567,13 @@ class _TomlLoader:
             if "albedo" in m:
                 self.fail(key, "give albedo or albedo_file; allowed: one of the two")
             albedo = self.vol(f"{key}.albedo_file", m["albedo_file"], (1, 3))[0]
+        params = dict(sigma_t=m.get("sigma_t", 1.0), albedo=albedo, g=m.get("g", 0.0),
+                      scale=m.get("scale", 1.0), border=m.get("border", "clamp"))
         try:
-            b.grid_medium(grid, lo, hi, sigma_t=m.get("sigma_t", 1.0), albedo=albedo,
-                          g=m.get("g", 0.0), scale=m.get("scale", 1.0),
-                          border=m.get("border", "clamp"))
+            if bounded is None:
+                b.grid_medium(grid, lo, hi, **params)
+            else:
+                b.bounded_grid_medium(bounded, grid, lo, hi, **params)
         except SceneError as e:
             self.fail(key, str(e))
 

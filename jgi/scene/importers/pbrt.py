@@ -73,7 +73,8 @@ supported):
              fastest, over the box p0 p1 in the medium's space, sigma_a, sigma_s, scale, g):
              jgi's grid medium with pbrt-v4's zero border, its box mapped by the transform
              current at MakeNamedMedium (scales and translations; rotations refused), as the
-             camera's medium. Refused by name: a grid medium bounded by a shape, an area light
+             camera's medium or as one grid bounded by shapes (smoke in a glass jar). Refused
+             by name: a second grid, an area light
              whose outside is not the camera's medium, other medium types (rgbgrid, cloud,
              nanovdb), "preset", emissive media (Le, temperature)
   files      Include / Import; relative file names (includes, meshes, images, spectra)
@@ -1221,7 +1222,8 @@ class _Importer:
 
     def bounded_medium(self, name: str, shape, where) -> str:
         """The builder's name of medium ``name`` ("": vacuum) bounded by a shape, defined on
-        first use: homogeneous media only."""
+        first use: a homogeneous medium, or a "uniformgrid" (the scene's one grid bounded by
+        shapes)."""
         key = name or "_vacuum"
         if key in self.b.bounded_media:
             return key
@@ -1232,14 +1234,24 @@ class _Importer:
             defined = ", ".join(self.media) or "(none)"
             self.fail(where, f"MediumInterface names medium \"{name}\", which no "
                              f"MakeNamedMedium defines; defined: {defined}")
-        p, mwhere, _ = self.media[name]
-        if self._get(p, "type", None, mwhere)[0] != "homogeneous":
-            self.fail(where, f"Shape \"{shape}\" bounds medium \"{name}\" "
-                             f"({self._get(p, 'type', None, mwhere)[0]}): jgi's media bounded by "
-                             "shapes are homogeneous; a grid medium is supported as the "
-                             "camera's (its box bounds it)")
+        p, mwhere, to_world = self.media[name]
+        params = self.homogeneous_params(name, p, mwhere)
+        is_grid = self._get(p, "type", None, mwhere)[0] == "uniformgrid"
+        bounded = None if self.b.bounded_grid is None else self.b.bounded_grid[0]
+        if is_grid and bounded not in (None, key):
+            self.fail(where, f"Shape \"{shape}\" bounds medium \"{name}\" (uniformgrid), a "
+                             f"second grid bounded by shapes after \"{bounded}\"; allowed: one "
+                             "per scene")
         try:
-            self.b.bounded_medium(key, **self.homogeneous_params(name, p, mwhere))
+            if is_grid:
+                if bounded is None:
+                    self.fill_uniformgrid(name, p, mwhere, to_world, params["sigma_a"],
+                                          params["sigma_s"], params["scale"], params["g"],
+                                          bounded=key)
+                return key
+            self.b.bounded_medium(key, **params)
+        except ImportError_:
+            raise
         except SceneError as e:
             self.fail(mwhere, f"MakeNamedMedium \"{name}\": {e}")
         return key
@@ -1305,12 +1317,15 @@ class _Importer:
         except SceneError as e:
             self.fail(mwhere, f"MakeNamedMedium \"{name}\": {e}")
 
-    def fill_uniformgrid(self, name, p, where, to_world, sigma_a, sigma_s, scale, g, box=None):
+    def fill_uniformgrid(self, name, p, where, to_world, sigma_a, sigma_s, scale, g, box=None,
+                         bounded: str | None = None):
         """pbrt-v4's GridMedium: densities d[(z ny + y) nx + x] over the box [p0, p1] of the
         medium's space (its sample i at (i + 1/2) / n, lookups beyond the samples 0: jgi's
         "zero" border), extinction (sigma_a + sigma_s) scale d(x), albedo sigma_s / sigma_t.
         The box goes to world space by the transform current at MakeNamedMedium, which jgi's
-        axis-aligned grid takes if it only scales (per axis, flips too) and translates."""
+        axis-aligned grid takes if it only scales (per axis, flips too) and translates. The
+        camera's medium, or, with ``bounded`` (the builder's name), the grid bounded by shapes
+        (smoke in a glass jar)."""
         dims = [int(self._get(p, k, 1, where, 1)) for k in ("nx", "ny", "nz")]
         if min(dims) < 1:
             self.fail(where, f"MakeNamedMedium \"{name}\" (uniformgrid): nx, ny, nz must be "
@@ -1348,8 +1363,11 @@ class _Importer:
                 grid = np.flip(grid, axis=2 - axis)
         sigma_t = np.asarray(sigma_a) + np.asarray(sigma_s)
         albedo = np.divide(sigma_s, sigma_t, out=np.zeros(3), where=sigma_t > 0)
-        self.b.grid_medium(grid, lo, hi, sigma_t=sigma_t, albedo=albedo, g=g, scale=scale,
-                           border="zero")
+        params = dict(sigma_t=sigma_t, albedo=albedo, g=g, scale=scale, border="zero")
+        if bounded is None:
+            self.b.grid_medium(grid, lo, hi, **params)
+        else:
+            self.b.bounded_grid_medium(bounded, grid, lo, hi, **params)
 
     def run(self) -> Scene:
         self.run_file(self.path)
