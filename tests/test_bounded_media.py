@@ -190,8 +190,8 @@ def test_medium_interface_errors_name_what_is_allowed():
     b3.sphere((0, 0, 0), 1.0, b3.medium_interface("glass", interior="milk"))
     b3.point_light((0.2, 0.1, 0.0), (1.0, 1.0, 1.0))
     b3.camera((0, 0, 5), (0, 0, 0))
-    with pytest.raises(SceneError, match=r"point or spot light at \[0.2, 0.1, 0.0\] lies inside "
-                                         r"the sphere at \[0.0, 0.0, 0.0\].*holds medium 'milk'"):
+    with pytest.raises(SceneError, match=r"point or spot light at \[0.2, 0.1, 0.0\] lies in "
+                                         r"medium 'milk', inside the sphere at \[0.0, 0.0, 0.0\]"):
         b3.build()
     # the camera inside it: refused
     b4 = SceneBuilder("bad_camera")
@@ -199,8 +199,32 @@ def test_medium_interface_errors_name_what_is_allowed():
     b4.bounded_medium("milk", sigma_t=2.0)
     b4.cube(np.diag([2.0, 2.0, 2.0, 1.0]), b4.medium_interface("glass", interior="milk"))
     b4.camera((0, 0, 1.5), (0, 0, 0))
-    with pytest.raises(SceneError, match=r"the camera at \[0.0, 0.0, 1.5\] lies inside the cube"):
+    with pytest.raises(SceneError, match=r"the camera at \[0.0, 0.0, 1.5\] lies in medium "
+                                         r"'milk', inside the cube"):
         b4.build()
+    # a mesh (a tetrahedron, outward winding) holding milk, and a glass sphere of ink around
+    # it: the medium a point lies in is that of the nearest bounding surface's side, so a
+    # light between the two surfaces is in the ink, one inside the mesh in the milk, one
+    # outside both in the scene's own medium
+    def nested(light):
+        b5 = SceneBuilder("nested")
+        b5.material("glass", "dielectric", ior=1.5)
+        b5.bounded_medium("milk", sigma_t=2.0)
+        b5.bounded_medium("ink", sigma_t=1.0)
+        tetra = np.array([[1, 1, 1], [1, -1, -1], [-1, 1, -1], [-1, -1, 1]], float) * 0.5
+        b5.mesh(tetra, [[0, 1, 2], [0, 3, 1], [0, 2, 3], [1, 3, 2]],
+                b5.medium_interface("glass", interior="milk", exterior="ink"))
+        b5.sphere((0, 0, 0), 2.0, b5.medium_interface("glass", interior="ink"))
+        b5.point_light(light, (1.0, 1.0, 1.0))
+        b5.camera((0, 0, 5), (0, 0, 0))
+        return b5.build()
+    with pytest.raises(SceneError, match=r"light at \[0.05, 0.0, 0.0\] lies in medium 'milk', "
+                                         r"inside the triangle at"):
+        nested((0.05, 0.0, 0.0))
+    with pytest.raises(SceneError, match=r"light at \[1.2, 0.0, 0.0\] lies in medium 'ink', "
+                                         r"inside the (triangle|sphere) at"):
+        nested((1.2, 0.0, 0.0))
+    assert nested((2.5, 0.0, 0.0)).bounded_media is not None
     # around a grid medium: refused
     b2 = SceneBuilder("bad_grid")
     b2.material("glass", "dielectric", ior=1.5)

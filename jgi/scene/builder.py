@@ -973,6 +973,74 @@ class SceneBuilder:
             **self._build_bounded_media(),
         )
 
+    # directions of the rays cast from a point to find the medium it lies in: three generic
+    # ones, so that no ray runs along a face or through an edge of an axis-aligned shape
+    PROBE_DIRECTIONS = np.array([[0.5377, 0.8301, -0.1466], [-0.6917, 0.1632, 0.7036],
+                                 [0.2893, -0.5601, -0.7763]])
+
+    def _bounded_medium_at(self, q: np.ndarray):
+        """(medium name, shape, material) of the bounded medium point q lies in, or None where it
+        lies in the scene's own. A ray from q finds the nearest surface that bounds media (a
+        sphere, a cube, a quad or a mesh's triangle whose material has an interface): q lies in
+        its interior if the ray leaves through it away from its normal, else in its exterior,
+        as a path crossing it would (Mitsuba's and pbrt-v4's rule). Open shapes (a plane of
+        water) count where a ray meets them; q is in a bounded medium if any of the rays of
+        PROBE_DIRECTIONS says so."""
+        bounding = lambda m: self.materials[m].interface is not None   # noqa: E731
+        for d in self.PROBE_DIRECTIONS / np.linalg.norm(self.PROBE_DIRECTIONS, axis=1)[:, None]:
+            hits = []   # (t, the ray leaves q's side through the normal's side, shape, material)
+            for c, r, m, _ in self.spheres:
+                if bounding(m):
+                    oc = q - c
+                    b, cc = oc @ d, oc @ oc - r * r
+                    disc = b * b - cc
+                    if disc > 0:
+                        t0, t1 = -b - np.sqrt(disc), -b + np.sqrt(disc)
+                        t = t0 if t0 > 0 else t1
+                        if t > 0:   # outward normal: q outside when the ray enters (t0)
+                            hits.append((t, t0 > 0, f"sphere at {np.round(c, 4).tolist()}", m))
+            for c, a, h, m in self.boxes:
+                if bounding(m):
+                    p_local, d_local = a @ (q - c), a @ d
+                    with np.errstate(divide="ignore", invalid="ignore"):
+                        t_lo, t_hi = (-h - p_local) / d_local, (h - p_local) / d_local
+                    near = np.max(np.minimum(t_lo, t_hi))
+                    far = np.min(np.maximum(t_lo, t_hi))
+                    if near < far and far > 0:
+                        hits.append((near if near > 0 else far, near > 0,
+                                     f"cube at {np.round(c, 4).tolist()}", m))
+            planar = [(o, u, v, m, "quad") for o, u, v, m, _ in self.quads if bounding(m)]
+            planar += [(a, b - a, c - a, m, "triangle") for a, b, c, m, _ in self.triangles
+                       if bounding(m)]
+            if planar:
+                o, u, v = (np.array([x[k] for x in planar], float) for k in range(3))
+                n = np.cross(u, v)
+                cos = n @ d
+                with np.errstate(divide="ignore", invalid="ignore"):
+                    t = np.einsum("ij,ij->i", n, o - q) / cos
+                    p = q + t[:, None] * d - o
+                    # the hit's coordinates along u and v (dual basis of the face's plane)
+                    uu, uv, vv = (np.einsum("ij,ij->i", x, y) for x, y in ((u, u), (u, v), (v, v)))
+                    pu, pv = np.einsum("ij,ij->i", p, u), np.einsum("ij,ij->i", p, v)
+                    det = uu * vv - uv * uv
+                    a_, b_ = (vv * pu - uv * pv) / det, (uu * pv - uv * pu) / det
+                triangle = np.array([x[4] == "triangle" for x in planar])
+                inside = (a_ >= 0) & (b_ >= 0) & np.where(triangle, a_ + b_ <= 1,
+                                                           (a_ <= 1) & (b_ <= 1))
+                ok = np.isfinite(t) & (t > 0) & inside & (np.abs(cos) > 1e-12)
+                for i in np.flatnonzero(ok):
+                    o_i, _, _, m, kind = planar[i]
+                    hits.append((t[i], cos[i] < 0,
+                                 f"{kind} at {np.round(o_i, 4).tolist()}", m))
+            if not hits:
+                continue
+            t, from_outside, what, m = min(hits, key=lambda h: h[0])
+            interior, exterior = self.materials[m].interface
+            name = exterior if from_outside else interior
+            if name is not None:
+                return name, what, m
+        return None
+
     def _build_bounded_media(self) -> dict:
         """Scene.bounded_media and Scene.medium_interfaces (none: a scene before them)."""
         bounding = [m for m in self.materials if m.interface is not None]
@@ -990,15 +1058,8 @@ class SceneBuilder:
                 raise SceneError(f"material '{self._material_name(i)}' is used by an emitting "
                                  f"shape and has exterior medium '{face[1]}': lights shine into "
                                  "the scene's own medium; allowed: exterior None")
-        # point and spot lights, and the camera, inside a sphere or cube that bounds a medium
-        # would sit in it, where their paths start in the scene's own: refused (meshes not
-        # checked)
-        inside = [(f"sphere at {np.round(c, 4).tolist()}",
-                   lambda q, c=c, r=r: np.linalg.norm(q - c) < r, m)
-                  for c, r, m, _ in self.spheres]
-        inside += [(f"cube at {np.round(c, 4).tolist()}",
-                    lambda q, c=c, a=a, h=h: bool(np.all(np.abs(a @ (q - c)) < h)), m)
-                   for c, a, h, m in self.boxes]
+        # point and spot lights, and the camera, in a bounded medium would sit in it, where
+        # their paths start in the scene's own: refused
         points = [(f"a point or spot light at {np.asarray(light['p0'], float).tolist()}",
                    "lights shine into the scene's own medium", light["p0"])
                   for light in self.lights if light["kind"] in (POINT, SPOT)]
@@ -1006,14 +1067,12 @@ class SceneBuilder:
                        "camera rays start in the scene's own medium",
                        self.camera_args["position"]))
         for who, why, q in points:
-            q = np.asarray(q, float)
-            for what, contains, m in inside:
-                face = self.materials[m].interface
-                if face is not None and face[0] is not None and contains(q):
-                    raise SceneError(f"{who} lies inside the {what}, whose material "
-                                     f"'{self._material_name(m)}' holds medium '{face[0]}': "
-                                     f"{why}; allowed: outside bounded media (or the medium "
-                                     "as the scene's own)")
+            found = self._bounded_medium_at(np.asarray(q, float))
+            if found is not None:
+                name, what, m = found
+                raise SceneError(f"{who} lies in medium '{name}', inside the {what} of material "
+                                 f"'{self._material_name(m)}': {why}; allowed: outside bounded "
+                                 "media (or the medium as the scene's own)")
         ids = {name: k + 1 for k, name in enumerate(self.bounded_media)}
         grid = None
         if self.bounded_grid is not None:   # its id: one after the homogeneous ones
