@@ -15,7 +15,18 @@ from typing import Callable
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 from jax import Array
+
+
+def padded_size(n: int, minimum: int = 1024) -> int:
+    """n rounded up to one of four sizes per octave (at least ``minimum``): arrays of a few
+    different lengths (photon maps, whose length changes every pass) then share one compiled
+    program, for at most 25% padding (a power of two wastes up to half)."""
+    if n <= minimum:
+        return minimum
+    step = 1 << (int(np.floor(np.log2(n))) - 2)
+    return int(-(-n // step) * step)
 
 
 def compact_map(fn: Callable, active: Array, inputs, out_like, batch: int):

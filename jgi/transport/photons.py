@@ -53,6 +53,7 @@ from jax import Array
 
 from ..core import rng
 from ..core.calls import ordered_calls
+from ..core.compaction import padded_size
 from ..core.sharding import device_mesh, sharded_calls
 from ..core.vec import V3, dot, max_component, where
 from ..physics import bsdf, geometry, grid_media, media, medium_interfaces, phase
@@ -227,7 +228,9 @@ def trace_photons(scene: Scene, n_photons: int, seed: int = 0, max_depth: int = 
     :mod:`jgi.core.sharding`); chunks keep memory bounded (13 floats per stored photon)."""
     if scene.lights.count == 0:
         raise ValueError("the scene has no lights to emit photons from")
-    chunk = int(min(chunk, max(256, 1 << int(np.ceil(np.log2(max(n_photons, 1)))))))
+    # lanes: four sizes per octave, not the next power of two (20,000 photons: 20,480 lanes,
+    # not 32,768)
+    chunk = int(min(chunk, padded_size(max(n_photons, 1), minimum=256)))
     starts = list(range(0, n_photons, chunk))
     devices = list(devices if devices is not None else jax.devices())
     parts = []
