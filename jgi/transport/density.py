@@ -362,7 +362,13 @@ def volume_sum_within(scene: Scene, pm, x: V3, wo: V3, r2, *, live=None, kind: s
     ``medium`` (scenes with media bounded by shapes): each point's medium id, whose phase
     function weighs the photons. Photons are not told apart by medium: near a boundary the
     estimate mixes the two sides' photons, a bias of the kernel's width like a surface's
-    boundary bias, which shrinks with the radius."""
+    boundary bias, which shrinks with the radius. That is the smaller bias: a volume photon's
+    power carries T / p, so the photons of either medium estimate the radiance where they lie,
+    whatever its extinction, and the mix is the radiance averaged over the ball; counting only
+    the point's own medium would leave the ball's part beyond the boundary empty, a deficit
+    even where the radiance is continuous across it. (Measured on ``milk_ball``, pm at radius
+    0.2, 8 seeds against the path tracer: the image mean -0.07% mixed, -0.47% with the other
+    medium's photons left out, and 15 against 23 of 1,728 pixel channels beyond |t| 4.)"""
     volume_filter_weight(kind, 0.0, 1.0)     # refuses filters without a 3-D form
     vol = pm.select(np.asarray(pm.volume))
     N = x.x.shape[0]
