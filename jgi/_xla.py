@@ -113,8 +113,17 @@ ENABLED = not os.environ.get("JGI_NO_MATERIALIZE")
 FAST_DIVISION = not os.environ.get("JGI_NO_FAST_DIVISION")
 
 
-def materialize(tree):
-    """Return ``tree`` unchanged in value, but computed once and stored (see module docstring)."""
+def materialize(tree, group: int | None = None):
+    """Return ``tree`` unchanged in value, but computed once and stored (see module docstring).
+
+    ``group``: store the leaves ``group`` at a time, each group its own kernel. One kernel
+    computing a hundred outputs is too large for LLVM to vectorise its loop over lanes (BDPT's
+    MIS weights and contributions ran as scalar code, about 1 ns an operation per lane)."""
+    if group is not None:
+        leaves, treedef = jax.tree_util.tree_flatten(tree)
+        stored = [x for k in range(0, len(leaves), group)
+                  for x in materialize(tuple(leaves[k:k + group]))]
+        return jax.tree_util.tree_unflatten(treedef, stored)
     if not ENABLED:
         return tree
     leaves, treedef = jax.tree_util.tree_flatten(tree)

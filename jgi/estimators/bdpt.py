@@ -130,6 +130,8 @@ from .registry import Estimator, Render, param, register
 
 LOG_RATIO_MAX = 80.0          # r_i <= e^80: sums of a few stay below float32's maximum
 
+STORE_GROUP = 8   # MIS weight rows per stored kernel (materialize(group=))
+
 
 @dataclass(frozen=True)
 class BDPTConfig:
@@ -637,6 +639,9 @@ def contributions(scene: Scene, cfg: BDPTConfig, seed, pixel: Array, sample: Arr
         camera_v[-1] = camera_v[-1]._replace(fwd=env_fwd + t - 2)
         chains.append(ratio_chain(camera_v, [], no_delta))
     weights = mis_weights([log_remap0(r) for r in P.rows], F.rows, chains, cfg.exponent)
+    # stored a few rows at a time: one kernel for all of them ran unvectorised
+    # (perf: docs/performance.md#bdpt-stored-in-groups)
+    weights = materialize([weights[j] for j in range(weights.shape[0])], group=STORE_GROUP)
 
     # ---- contributions C* and C = w C* per strategy ----
     out = {}
@@ -668,7 +673,7 @@ def contributions(scene: Scene, cfg: BDPTConfig, seed, pixel: Array, sample: Arr
 def pixel_contributions(scene, cfg, seed, pixel, sample):
     """The render's splat list: the sum of all t >= 2 strategies at the sample's own pixel,
     then one splat per t = 1 strategy."""
-    out = materialize(contributions(scene, cfg, seed, pixel, sample))
+    out = contributions(scene, cfg, seed, pixel, sample)
     own = None
     splats = []
     for (s, t), (pix, weighted, _) in out.items():
