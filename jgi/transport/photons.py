@@ -138,7 +138,7 @@ def trace_photon_paths(scene: Scene, seed, photon_index: Array, n_emitted, max_d
             alive = alive & (hit.valid | in_medium)
             hit = hit._replace(valid=hit.valid & ~in_medium)
         alive = alive & hit.valid if not scene.has_medium else alive
-        mp = bsdf.lookup(mats, hit.material, hit.uv)
+        mp = bsdf.lookup_specialised(mats, hit.material, hit.uv)
         store = alive & is_lookup_surface(mp, mats.kinds)
         # caustic: L S+ D with S what Jensen's split samples through (Dirac and microfacet
         # lobes) and D a diffuse or Phong surface, where its camera chains end

@@ -194,7 +194,7 @@ def trace_to_diffuse(scene: Scene, uniform, o: V3, d: V3, *, max_depth: int,
             if lights.environment >= 0:
                 L = L + where(active & ~hit.valid, beta * environment_radiance(lights, d), Z)
         active = active & hit.valid
-        mp = bsdf.lookup(mats, hit.material, hit.uv)
+        mp = bsdf.lookup_specialised(mats, hit.material, hit.uv)
         specular = samples_through(mp, lookup_rough, kinds)
         u1, u2 = ((uniform(glossy_dim0 + 2 * depth), uniform(glossy_dim0 + 2 * depth + 1))
                   if rough else (z, z))
