@@ -362,8 +362,8 @@ def test_toml_shapes_bound_media(tmp_path):
     assert g is not None and g.border == "zero" and float(g.g) == pytest.approx(0.3)
     np.testing.assert_array_equal(np.asarray(g.density), [[[1.0, 2.0]]])
     np.testing.assert_allclose([float(c) for c in g.sigma_t], [1, 2, 3])
-    row = int(scene.spheres.material[0])
-    assert (int(faces.interior[row]), int(faces.exterior[row])) == (1, 0)
+    row, faces = int(scene.spheres.material[0]), scene.medium_interfaces
+    assert (int(faces.interior[row]), int(faces.exterior[row])) == (1, 0)   # the grid's id: 1
     assert scene.bounded_media is None
     f = tmp_path / "two.toml"
     f.write_text(MILK_TOML.format(sides='interior = "milk"', milk=smoke, milk_type="grid")

@@ -17,9 +17,9 @@ import numpy as np
 
 from ..core import transform as xf
 from ..core import warps
-from ..core.bvh import build_bvh
+from ..core.bvh import build_bvh, moller_trumbore
 from ..core.imageio import read_image
-from ..core.vec import V3
+from ..core.vec import V3, cross, dot
 from .rough_coating import TABLE_SIZE, fresnel_diffuse_reflectance, plastic_tables
 from .tables import (
     AREA_CYLINDER,
@@ -1013,21 +1013,18 @@ class SceneBuilder:
             planar += [(a, b - a, c - a, m, "triangle") for a, b, c, m, _ in self.triangles
                        if bounding(m)]
             if planar:
-                o, u, v = (np.array([x[k] for x in planar], float) for k in range(3))
-                n = np.cross(u, v)
-                cos = n @ d
-                with np.errstate(divide="ignore", invalid="ignore"):
-                    t = np.einsum("ij,ij->i", n, o - q) / cos
-                    p = q + t[:, None] * d - o
-                    # the hit's coordinates along u and v (dual basis of the face's plane)
-                    uu, uv, vv = (np.einsum("ij,ij->i", x, y) for x, y in ((u, u), (u, v), (v, v)))
-                    pu, pv = np.einsum("ij,ij->i", p, u), np.einsum("ij,ij->i", p, v)
-                    det = uu * vv - uv * uv
-                    a_, b_ = (vv * pu - uv * pv) / det, (uu * pv - uv * pu) / det
+                o, u, v = (V3(*np.array([x[k] for x in planar], float).T) for k in range(3))
+                ray = lambda a: V3(*(np.full(len(planar), c) for c in a))   # noqa: E731
+
+                def solve(det):   # numpy: the rejected rays' t is discarded by ``ok``
+                    solved = np.abs(det) > 1e-12
+                    return 1.0 / np.where(solved, det, 1.0), solved
+
+                t, b1, b2, in_triangle = moller_trumbore(o, u, v, ray(q), ray(d), solve)
                 triangle = np.array([x[4] == "triangle" for x in planar])
-                inside = (a_ >= 0) & (b_ >= 0) & np.where(triangle, a_ + b_ <= 1,
-                                                           (a_ <= 1) & (b_ <= 1))
-                ok = np.isfinite(t) & (t > 0) & inside & (np.abs(cos) > 1e-12)
+                cos = dot(cross(u, v), ray(d))   # the normal's side the ray meets: its sign
+                in_quad = (np.abs(cos) > 1e-12) & (b1 >= 0) & (b1 <= 1) & (b2 >= 0) & (b2 <= 1)
+                ok = (t > 0) & np.where(triangle, in_triangle, in_quad)
                 for i in np.flatnonzero(ok):
                     o_i, _, _, m, kind = planar[i]
                     hits.append((t[i], cos[i] < 0,
