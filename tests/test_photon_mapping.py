@@ -76,34 +76,43 @@ def test_a_table_entry_shared_by_neighbour_cells_is_read_once(rng_np):
     assert np.all((counts >= ref_lo) & (counts <= ref_hi)), np.max(counts - ref_hi)
 
 
-def test_neighbour_hash_gives_a_cells_27_neighbours_distinct_entries():
+def test_neighbour_hash_gives_a_query_block_distinct_entries_and_rows_consecutive_ones():
     """The device grid's linear hash (:func:`hash_grid.neighbour_hash`): for every table size
-    VCM uses, the 27 cells around a cell land on 27 distinct entries (so a query reads no entry
-    twice), checked on random cells including negative and large coordinates."""
+    VCM uses, the BLOCK^3 cells a query can reach land on distinct entries (so a query reads no
+    entry twice), and the cells along x are consecutive entries modulo the table (a row of
+    cells is one range), checked on random cells including negative and large coordinates."""
     rng = np.random.default_rng(5)
     ijk = rng.integers(-2**20, 2**20, (2000, 3)).astype(np.int32)
-    off = hash_grid.NEIGHBOURS
+    B = hash_grid.BLOCK
+    r = np.arange(B) - B // 2
+    off = np.stack(np.meshgrid(r, r, r, indexing="ij"), -1).reshape(-1, 3)
     for T in (128, 1024, 1 << 16, 1 << 23):
         h = np.asarray(hash_grid.neighbour_hash(*(jnp.asarray(ijk[:, None, i] + off[:, i])
                                               for i in range(3)), T))
         assert h.min() >= 0 and h.max() < T
-        assert all(len(set(row)) == 27 for row in h), T
+        assert all(len(set(row)) == B ** 3 for row in h), T
+        step = np.asarray(hash_grid.neighbour_hash(*(jnp.asarray(ijk[:, i] + (i == 0))
+                                                     for i in range(3)), T))
+        assert np.array_equal(step, (h[:, off.shape[0] // 2] + 1) % T)
 
 
-@pytest.mark.parametrize("capacity", [None, 4000, 1000])   # 1000 < valid points: full sort
-def test_device_grid_pairs_list_every_point_within_the_cell_once(rng_np, capacity):
-    """index_cells + cell_ranges + candidate_pairs / pair_block (VCM's merges): every valid
-    point within the cell size of a query is listed exactly once for it, in blocks of any
-    size, whether only the valid points are sorted (capacity) or all slots are."""
+@pytest.mark.parametrize("capacity, T", [(None, 1 << 13), (4000, 1 << 13), (1000, 1 << 13),
+                                         (None, 128)])
+def test_device_grid_pairs_list_every_point_within_the_radius_once(rng_np, capacity, T):
+    """index_cells + cell_ranges + candidate_pairs / pair_block (VCM's merges, the photon
+    gathers): every valid point within the radius of a query is listed exactly once for it, in
+    blocks of any size, whether only the valid points are sorted (capacity; 1000 < valid
+    points: the full sort) or all slots are. A table of 128 entries makes many rows wrap past
+    its end (a row read as two ranges of the sorted points)."""
     pm, xy = plane_photons(rng_np, 3000, clustered=True)
     valid = rng_np.random(3000) < 0.7
-    cell = 0.03
-    T = 1 << 13
-    cells = hash_grid.index_cells(pm.position, jnp.asarray(valid), jnp.float32(cell), T, capacity)
+    radius = 0.03
+    cells = hash_grid.index_cells(pm.position, jnp.asarray(valid), jnp.float32(radius), T,
+                                  capacity)
     q = rng_np.random((300, 2))
     x, _ = queries(q)
-    start, count = hash_grid.cell_ranges(cells, T, x)
-    pairs = hash_grid.candidate_pairs(start, count)
+    start, count = hash_grid.cell_ranges(cells, T, x, radius ** 2)
+    pairs = hash_grid.candidate_pairs(start, count, cells.n_valid)
     got = []
     for b in range(-(-int(pairs.total) // 1024)):
         qi, slot, ok = (np.asarray(a) for a in hash_grid.pair_block(pairs, 1024, b))
@@ -112,9 +121,17 @@ def test_device_grid_pairs_list_every_point_within_the_cell_once(rng_np, capacit
     assert all(valid[i] for _, i in got)
     tree = cKDTree(xy[valid])
     index = np.flatnonzero(valid)
-    near = {(k, int(index[i])) for k, ids in enumerate(tree.query_ball_point(q, cell * 0.999))
+    near = {(k, int(index[i])) for k, ids in enumerate(tree.query_ball_point(q, radius * 0.999))
             for i in ids}
     assert near and near <= set(got)
+    # fewer candidates than the 27 cells around the query's cell hold (the same table): the
+    # rows' ranges skip the cells the ball misses
+    around = hash_grid.neighbour_hash(*(c[:, None] + hash_grid.NEIGHBOURS[:, i] for i, c in
+                                        enumerate(hash_grid.cell_of(cells.origin, cells.cell, x))),
+                                      T)
+    in_27 = int(np.asarray(cells.count)[np.asarray(around)].sum())
+    print(f"candidates {len(got)}, within r {len(near)}, in the 27 cells {in_27}")
+    assert len(got) < 0.8 * in_27
 
 
 @pytest.mark.parametrize("kind, thickness", [("box", None), ("epanechnikov", None),

@@ -59,8 +59,8 @@ s = 0 technique with the direction's light-sampling density (SmallVCM's GetLight
 A directional light is a Dirac direction: dVC = 0 and no s = 0.
 
 Merging reads light vertices from a hash grid rebuilt on the device every iteration
-(:func:`jgi.transport.hash_grid.index_cells`, the photon maps' hash and 27-cell query, cell =
-r). Every (camera vertex, light vertex) pair of a vertex's 27 cells is listed and evaluated,
+(:func:`jgi.transport.hash_grid.index_cells`, the photon gathers' grid, cells of r). Every
+(camera vertex, light vertex) pair of the cells a vertex's ball overlaps is listed and evaluated,
 in blocks of fixed size, as many as there are pairs (:func:`merge_at_camera_vertices`): no
 vertex has a cap, so no light vertex is ever dropped. The merge filter K_r (``filter``) is any
 of photon mapping's density filters (:data:`jgi.transport.density.FILTERS`: box, cone,
@@ -1038,7 +1038,8 @@ def merge_at_camera_vertices(scene: Scene, cfg: VCMConfig, grid: MergeGrid, z: C
                              volume_radius=None):
     """Vertex merging at every camera vertex (``ppm``: the first non-specular one), the live
     ones gathered into batches (:func:`jgi.core.compaction.compact_map`; ``cfg.compact``).
-    A batch reads every (camera vertex, light vertex) pair of its vertices' 27 grid cells
+    A batch reads every (camera vertex, light vertex) pair of the grid cells its vertices' balls
+    overlap
     (:func:`jgi.transport.hash_grid.accumulate_near_pairs`), ``MERGE_PAIRS`` at a time, and
     evaluates the pairs within r ``MERGE_NEAR`` at a time: no vertex has a cap, so no light
     vertex is ever dropped, and a dense caustic costs its own pairs only. Returns (weighted,

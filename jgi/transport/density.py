@@ -16,7 +16,7 @@ photon density is estimated without bias by every filter (:data:`FILTERS`):
                 elsewhere in jgi)
   epanechnikov  W = 1 - d^2 / r^2                       K = pi r^2 / 2
 
-Fixed-radius estimates (:func:`sum_within`) take every photon of the 27 grid cells around x;
+Fixed-radius estimates (:func:`sum_within`) take every photon of the grid cells x's ball overlaps;
 k-nearest ones read at most ``cap`` photons per cell (:func:`jgi.transport.hash_grid.cells_around`),
 by default as many as the fullest cell holds, and refuse (:class:`TruncatedGather`) rather
 than drop any. Photons are selected in a disc (|x - x_p| < r), or a flattened
@@ -238,7 +238,7 @@ def estimate_at_points(scene, grid, x, n, wo, m, r, *, cap, k, kind, thickness, 
 
 PAIR_BLOCK = 1 << 14     # (point, photon) candidate pairs tested per block
 NEAR_BLOCK = 1 << 12     # pairs within r evaluated per batch
-QUERY_CHUNK = 1 << 16    # points per jitted call (its pair lists are 27 entries a point)
+QUERY_CHUNK = 1 << 16    # points per jitted call (its pair lists are 9 ranges a point)
 
 
 class PhotonRows(NamedTuple):
@@ -252,10 +252,10 @@ class PhotonRows(NamedTuple):
 
 
 @partial(jax.jit, static_argnames=("table_size",))
-def photon_rows(position: V3, normal: V3, wi: V3, power: V3, valid: Array, cell,
+def photon_rows(position: V3, normal: V3, wi: V3, power: V3, valid: Array, radius,
                 table_size: int) -> PhotonRows:
     # one program (jit: the gathers fuse, where eager ops were a dispatch each: ~15 ms a pass)
-    cells = index_cells(position, valid, cell, table_size)
+    cells = index_cells(position, valid, radius, table_size)
     o = cells.order
     rows = jnp.stack([c[o] for c in (*position, *normal, *wi, *power)], -1)
     return PhotonRows(cells, rows[:, :6], rows)
@@ -294,8 +294,7 @@ def _sum_within(scene: Scene, photons: PhotonRows, table_size: int, x: V3, n: V3
     visit = partial(_add_photons, scene=scene, rows=photons.rows, x=x, n=n, wo=wo,
                     material=material, r2=r2, uv=uv, ns=ns, kind=kind,
                     filter_params=filter_params)
-    acc = accumulate_near_pairs(photons.cells, table_size, photons.where, x, live,
-                                jnp.max(jnp.where(live, r2, 0.0)), visit,
+    acc = accumulate_near_pairs(photons.cells, table_size, photons.where, x, live, r2, visit,
                                 jnp.zeros((live.shape[0], 4), jnp.float32), block=PAIR_BLOCK,
                                 near_block=NEAR_BLOCK,
                                 keep=partial(_facing_within, x=x, n=n, r2=r2, thickness=thickness))
@@ -343,8 +342,7 @@ def _add_volume_photons(acc: Array, q: Array, slot: Array, ok: Array, *, rows: A
 def _volume_sum_within(photons: PhotonRows, table_size: int, x: V3, wo: V3, r2: Array,
                        live: Array, g, kind: str):
     visit = partial(_add_volume_photons, rows=photons.rows, x=x, wo=wo, r2=r2, g=g, kind=kind)
-    acc = accumulate_near_pairs(photons.cells, table_size, photons.where, x, live,
-                                jnp.max(jnp.where(live, r2, 0.0)), visit,
+    acc = accumulate_near_pairs(photons.cells, table_size, photons.where, x, live, r2, visit,
                                 jnp.zeros((live.shape[0], 4), jnp.float32), block=PAIR_BLOCK,
                                 near_block=NEAR_BLOCK, keep=partial(_volume_within, x=x, r2=r2))
     return V3(acc[:, 1], acc[:, 2], acc[:, 3]), acc[:, 0]
@@ -357,7 +355,7 @@ def volume_sum_within(scene: Scene, pm, x: V3, wo: V3, r2, *, live=None, kind: s
     int p(w, wo) L_i(x, w) dw is the sum divided by K = (the filter's constant) 4/3 pi r^3
     (:func:`volume_filter_weight`), the volume photons' power being the flux times T / p
     (:mod:`jgi.transport.photons`). x's throughput carries sigma_s already (its free-flight
-    weight). Exact as :func:`sum_within`: every pair of the 27 cells is read.
+    weight). Exact as :func:`sum_within`: every pair of the cells a point's ball overlaps is read.
 
     ``medium`` (scenes with media bounded by shapes): each point's medium id, whose phase
     function weighs the photons. Photons are not told apart by medium: near a boundary the
@@ -483,9 +481,9 @@ def beam_sum(scene: Scene, pm, segments, r: float) -> np.ndarray:
     return per_segment.reshape(3, D, N).sum(1).astype(np.float32)
 
 
-def _device_rows(pm, cell: float):
+def _device_rows(pm, radius: float):
     """The photon map ``pm`` (host arrays) padded to a compiled size and sorted into the device
-    grid of cells ``cell``: (PhotonRows, table size)."""
+    grid for queries of radius up to ``radius``: (PhotonRows, table size)."""
     M = pm.count
     size = padded_size(M)
     pad = lambda a: jnp.asarray(np.pad(np.asarray(a, np.float32), (0, size - M)))  # noqa: E731
@@ -493,7 +491,7 @@ def _device_rows(pm, cell: float):
     valid = jnp.asarray(np.arange(size) < M)
     table_size = int(1 << max(10, int(np.ceil(np.log2(2 * size)))))
     return photon_rows(padv(pm.position), padv(pm.normal), padv(pm.wi), padv(pm.power), valid,
-                       jnp.float32(cell), table_size), table_size
+                       jnp.float32(radius), table_size), table_size
 
 
 def sum_within(scene: Scene, pm, x: V3, n: V3, wo: V3, material, r2, *, live=None,
@@ -506,14 +504,14 @@ def sum_within(scene: Scene, pm, x: V3, n: V3, wo: V3, material, r2, *, live=Non
     K = (the filter's constant) pi r^2 (:func:`filter_weight`).
 
     Exact, with no cap: the photons are sorted into cells of the largest radius on the device
-    and every (point, photon) pair of a point's 27 cells is read
+    and every (point, photon) pair of the cells a point's ball overlaps is read
     (:func:`jgi.transport.hash_grid.accumulate_near_pairs`, as vertex merging does), so a
     crowded cell costs its own photons and none is dropped."""
     N = x.x.shape[0]
     r2 = np.asarray(r2, np.float32)
     live = np.ones(N, bool) if live is None else np.asarray(live, bool)
-    cell = float(np.sqrt(max(float(r2[live].max(initial=0.0)), 1e-12)))
-    photons, table_size = _device_rows(pm, cell)
+    radius = float(np.sqrt(max(float(r2[live].max(initial=0.0)), 1e-12)))
+    photons, table_size = _device_rows(pm, radius)
     return _by_chunks(N, live, lambda take, alive: _sum_within(
         scene, photons, table_size, take(x), take(n), take(wo), take(material), take(r2), alive,
         kind, filter_params or {}, take(uv), take(ns),

@@ -12,16 +12,19 @@ Two builders, for two uses:
   reading at most ``cap`` points per cell (:func:`cells_around`, static shapes for jit; k-nearest
   estimates take their k from these candidates). Its hash is Teschner et al.'s XOR hash.
 * :func:`index_cells` (device, inside jit): points that change every iteration (vertex
-  merging's light vertices), queried without a cap by listing every (query, point) pair of the
-  27 cells and walking them in fixed-size blocks (:func:`accumulate_near_pairs`). Its hash is
-  :func:`neighbour_hash`, linear, under which the 27 cells around any cell are 27 distinct table
-  entries, so a query reads each entry once.
+  merging's light vertices, the photon maps of fixed-radius estimates), queried without a cap
+  by listing every (query, point) pair of the cells the query's ball overlaps and walking them
+  in fixed-size blocks (:func:`accumulate_near_pairs`). Its cells are a fraction
+  1 / ``CELLS_PER_RADIUS`` of the query radius, and its hash is :func:`neighbour_hash`, linear:
+  the cells along x of one (y, z) row are consecutive table entries, so a row of cells is one
+  contiguous range of the sorted points (:func:`cell_ranges`), and the cells of any block a
+  ball can reach are distinct entries, so a query reads each entry once.
 
 They stay two because photon mapping's images follow its grid's order: an estimate sums its
 candidates in the order :func:`build_grid` sorts them and :func:`cells_around` lists them, so
 sorting photon maps by :func:`neighbour_hash` (or building them on the device) would change
-pm, ppm, sppm and the irradiance cache's photon gathers in the last bits. They share the cell
-arithmetic (:func:`cell_of`, :func:`neighbour_cells`) and the 27-cell enumeration.
+the k-nearest gathers (pm with ``k``, pm_jensen, the irradiance cache) in the last bits. They
+share the cell arithmetic (:func:`cell_of`).
 """
 
 from __future__ import annotations
@@ -147,40 +150,54 @@ def cells_around(grid: HashGrid, x: V3, cap: int):
     return slot.reshape(shape), valid.reshape(shape), trunc
 
 
-# --- the device-built grid: points of an iteration, every pair of the 27 cells read in blocks -----
+# --- the device-built grid: points of an iteration, every pair of a ball's cells read in blocks ---
+
+# Cells per query radius of the device grid, and its rows: the (y, z) offsets within a query's
+# reach, each read as one range of cells along x (cells of r: 9 ranges a query where the 27
+# cells were 27; cells of r / 2 were measured slower, perf: docs/performance.md#photon-gathers).
+CELLS_PER_RADIUS = 1
+ROWS = np.array([(dj, dk) for dj in range(-CELLS_PER_RADIUS, CELLS_PER_RADIUS + 1)
+                 for dk in range(-CELLS_PER_RADIUS, CELLS_PER_RADIUS + 1)], np.int32)  # [R, 2]
+
 
 class CellIndex(NamedTuple):
     """A hash grid built on the device (inside jit), for points that change every iteration
     (vertex merging's light vertices): ``order`` lists the point indices sorted by hashed cell,
     ``start`` / ``count`` give each hashed cell's range in it (invalid points are hashed past
     the table and never referenced). The hash is :func:`neighbour_hash`, not
-    :func:`teschner_hash`: the 27 cells around any cell occupy 27 distinct table entries, so a
-    query reads each entry once without comparing its cells' hashes."""
-    order: Array      # [M] point indices by hashed cell (the first ``count.sum()`` are valid)
+    :func:`teschner_hash`: consecutive cells along x are consecutive entries, and the cells of
+    any block of (2 CELLS_PER_RADIUS + 1)^3 occupy distinct entries, so a query reads each
+    entry once without comparing its cells' hashes."""
+    order: Array      # [M] point indices by hashed cell (the first ``n_valid`` are valid)
     start: Array      # [table]
     count: Array      # [table]
     origin: V3        # scalar
-    cell: Array       # scalar cell size
+    cell: Array       # scalar cell size: the query radius / CELLS_PER_RADIUS
+    n_valid: Array    # scalar: valid points
+
+
+BLOCK = 2 * CELLS_PER_RADIUS + 1    # cells per axis a query can reach
 
 
 @lru_cache(maxsize=None)
 def _neighbour_strides(table_size: int) -> tuple[int, int]:
     """Strides (a, b) of h = (i + a j + b k) mod T (T a power of two) such that no two cells of
-    any 3 x 3 x 3 block share an entry (no nonzero offset in {-2..2}^3 maps to 0 mod T) and,
-    among such pairs of Teschner et al.'s and Knuth's odd multipliers, the nearest two cells
-    that do share one (a lattice of offsets: the hash is linear) are as far apart as can be."""
-    assert table_size & (table_size - 1) == 0 and table_size >= 128, table_size
+    any BLOCK^3 block share an entry (no nonzero offset in {-(BLOCK-1)..BLOCK-1}^3 maps to 0
+    mod T) and, among such pairs of Teschner et al.'s and Knuth's odd multipliers (and the
+    dense strides BLOCK, BLOCK^2, which always qualify), the nearest two cells that do share
+    one (a lattice of offsets: the hash is linear) are as far apart as can be."""
+    assert table_size & (table_size - 1) == 0 and table_size >= BLOCK ** 3, table_size
     r = np.arange(-12, 13)
     d = np.stack(np.meshgrid(r, r, r, indexing="ij"), -1).reshape(-1, 3).astype(np.int64)
     d = d[np.any(d != 0, 1)]
     reach = np.abs(d).max(1)
     best, best_reach = None, -1
-    for a in (19349663, 83492791, 73856093, 2654435761, 40503, 1640531527):
-        for b in (83492791, 73856093, 19349663, 2246822519, 3266489917, 668265263):
+    for a in (19349663, 83492791, 73856093, 2654435761, 40503, 1640531527, BLOCK):
+        for b in (83492791, 73856093, 19349663, 2246822519, 3266489917, 668265263, BLOCK ** 2):
             a_, b_ = a % table_size, b % table_size
             hit = (d[:, 0] + a_ * d[:, 1] + b_ * d[:, 2]) % table_size == 0
             nearest = reach[hit].min() if hit.any() else 13
-            if nearest > 2 and nearest > best_reach:
+            if nearest > BLOCK - 1 and nearest > best_reach:
                 best, best_reach = (a_, b_), nearest
     assert best is not None, f"no neighbour-distinct strides for table size {table_size}"
     return best
@@ -193,16 +210,18 @@ def neighbour_hash(ix, iy, iz, table_size: int):
     return (ix + iy * np.int32(a) + iz * np.int32(b)) & np.int32(table_size - 1)
 
 
-def index_cells(p: V3, valid: Array, cell, table_size: int, capacity: int | None = None
+def index_cells(p: V3, valid: Array, radius, table_size: int, capacity: int | None = None
                 ) -> CellIndex:
-    """Sort the points p ([M], where ``valid``) into hashed cells of size ``cell`` (traced).
+    """Sort the points p ([M], where ``valid``) into hashed cells for queries of radius up to
+    ``radius`` (traced; cells of radius / CELLS_PER_RADIUS).
     ``capacity``: when at most that many points are valid, only they are sorted (a sort of
     ``capacity`` keys, not M; the full sort otherwise, under ``lax.cond``)."""
     M = valid.shape[0]
+    cell = jnp.asarray(radius, jnp.float32) / CELLS_PER_RADIUS
     big = jnp.float32(3e38)
     lo = V3(*(jnp.min(jnp.where(valid, c, big)) for c in p))
     lo = V3(*(jnp.where(jnp.any(valid), c, 0.0) for c in lo))
-    origin = lo - V3.full(cell, cell)
+    origin = lo - V3.full(radius, radius)
     h = jnp.where(valid, neighbour_hash(*cell_of(origin, cell, p), table_size), table_size)
     n_valid = jnp.sum(valid)
     if capacity is None or capacity >= M:
@@ -213,7 +232,8 @@ def index_cells(p: V3, valid: Array, cell, table_size: int, capacity: int | None
                              partial(_sort_all, h))
     count = jax.ops.segment_sum(jnp.ones_like(h), h, num_segments=table_size + 1)[:table_size]
     start = (jnp.cumsum(count) - count).astype(jnp.int32)
-    return CellIndex(order, start, count.astype(jnp.int32), origin, jnp.asarray(cell))
+    return CellIndex(order, start, count.astype(jnp.int32), origin, cell,
+                     n_valid.astype(jnp.int32))
 
 
 def stable_order(keys: Array) -> Array:
@@ -239,27 +259,60 @@ def _sort_valid(h: Array, valid: Array, n_valid, capacity: int, table_size: int)
     return jnp.concatenate([order, jnp.full((M - capacity,), M - 1, jnp.int32)])
 
 
-def cell_ranges(cells: CellIndex, table_size: int, x: V3):
-    """(start, count) [N, 27]: the ranges (in grid order, ``cells.order``) of the 27 hashed
-    cells around each query x, so every point within ``cells.cell`` of x lies in one of them;
-    the 27 are distinct table entries (:func:`neighbour_hash`), so no point is read twice."""
-    h = neighbour_hash(*neighbour_cells(cells.origin, cells.cell, x), table_size)   # [N, 27]
-    return cells.start[h], cells.count[h]
+def cell_ranges(cells: CellIndex, table_size: int, x: V3, r2):
+    """(start, count) [N, R]: for each query x ([N]) with radius^2 r2 (scalar or [N], at most
+    the grid's radius^2) and each row of :data:`ROWS`, the range of the cells along x that its
+    ball overlaps in that row, in grid order (``cells.order``), so every point within r of x
+    lies in one of the ranges, and no entry is in two (the rows' cells are distinct entries
+    of :func:`neighbour_hash`). A row the ball misses has count 0.
+
+    A row's cells i_lo .. i_hi have the consecutive entries h(i_lo) .. h(i_lo) + i_hi - i_lo,
+    so their points are one range of the sorted order, or, where the entries wrap past the
+    table's end, the range from h(i_lo) to the last valid point followed by the range from the
+    first: ``start`` and ``count`` then run past ``cells.n_valid``, and :func:`pair_block`
+    reads slot s as s - n_valid. The culling is widened by a margin of rounding, so no point
+    within r is lost to it; the distance test decides."""
+    o, cell = cells.origin, cells.cell
+    ci, cj, ck = cell_of(o, cell, x)
+    r2 = jnp.asarray(r2, jnp.float32)
+    r2 = (r2[..., None] if r2.ndim else r2) * (1.0 + 1e-4) + (1e-5 * cell) ** 2
+    j = cj[..., None] + ROWS[:, 0]                                                   # [N, R]
+    k = ck[..., None] + ROWS[:, 1]
+
+    def gap(a, c, oc):   # distance along one axis from a to the cells c
+        lo = oc + c.astype(jnp.float32) * cell
+        return jnp.maximum(jnp.maximum(lo - a[..., None], a[..., None] - (lo + cell)), 0.0)
+
+    chord2 = r2 - gap(x.y, j, o.y) ** 2 - gap(x.z, k, o.z) ** 2
+    chord = jnp.sqrt(jnp.maximum(chord2, 0.0)) + 1e-5 * cell
+    reach = CELLS_PER_RADIUS
+    i_lo = jnp.maximum(jnp.floor((x.x[..., None] - chord - o.x) / cell).astype(jnp.int32),
+                       ci[..., None] - reach)
+    i_hi = jnp.minimum(jnp.floor((x.x[..., None] + chord - o.x) / cell).astype(jnp.int32),
+                       ci[..., None] + reach)
+    h_lo = neighbour_hash(i_lo, j, k, table_size)
+    last = h_lo + (i_hi - i_lo)
+    h_hi = last & jnp.int32(table_size - 1)
+    end = (cells.start[h_hi] + cells.count[h_hi]
+           + jnp.where(last >= table_size, cells.n_valid, 0))
+    start = cells.start[h_lo]
+    return start, jnp.where(chord2 > 0, end - start, 0)
 
 
 class Pairs(NamedTuple):
     """The (query, point) candidate pairs of :func:`cell_ranges`: every entry of every query's
-    27 cells, queries in order, as flat ranges; :func:`pair_block` reads them in blocks."""
-    start: Array      # [N * 27] first slot (grid order) of each (query, cell)
-    count: Array      # [N * 27] entries in it
-    end: Array        # [N * 27] inclusive prefix sum of count
+    rows, queries in order, as flat ranges; :func:`pair_block` reads them in blocks."""
+    start: Array      # [N * R] first slot (grid order, may run past n_valid) of each range
+    count: Array      # [N * R] entries in it
+    end: Array        # [N * R] inclusive prefix sum of count
     total: Array      # scalar: number of pairs
+    n_valid: Array    # scalar: the grid's valid points (slots past it wrap to its start)
 
 
-def candidate_pairs(start: Array, count: Array) -> Pairs:
+def candidate_pairs(start: Array, count: Array, n_valid) -> Pairs:
     count = count.reshape(-1)
     end = jnp.cumsum(count)
-    return Pairs(start.reshape(-1), count, end, end[-1])
+    return Pairs(start.reshape(-1), count, end, end[-1], jnp.asarray(n_valid, jnp.int32))
 
 
 def pair_block(pairs: Pairs, block: int, b) -> tuple[Array, Array, Array]:
@@ -270,8 +323,9 @@ def pair_block(pairs: Pairs, block: int, b) -> tuple[Array, Array, Array]:
     seg = jnp.minimum(jnp.searchsorted(pairs.end, k, side="right", method="scan_unrolled"),
                       pairs.count.shape[0] - 1)
     slot = pairs.start[seg] + (k - (pairs.end[seg] - pairs.count[seg]))
+    slot = jnp.where(slot >= pairs.n_valid, slot - pairs.n_valid, slot)   # a wrapped row
     valid = k < pairs.total
-    return seg // NEIGHBOURS.shape[0], jnp.where(valid, slot, 0), valid
+    return seg // ROWS.shape[0], jnp.where(valid, slot, 0), valid
 
 
 # A pair visitor: visit(acc, query [B], slot [B], ok [B]) -> acc, the caller's evaluation of the
@@ -288,17 +342,18 @@ def accumulate_near_pairs(cells: CellIndex, table_size: int, points: Array, x: V
     ``live``. ``points``: [M, >= 3] rows in grid order (``cells.order``) whose first three
     columns are the position (the rest is the caller's, for ``keep``).
 
-    Every pair of a query's 27 cells is listed (:func:`candidate_pairs`) and read ``block`` at a
-    time, as many blocks as there are pairs; the cheap test (distance, and ``keep(query [block],
-    rows [block, ...])`` if given) selects the near pairs, about a third (a ball of r in 3 x 3 x 3
-    cells of r), packed ``near_block`` at a time into ``visit``: no query has a cap, so no point
-    is dropped, and a dense cell costs its own pairs only.
+    Every pair of the cells a query's ball overlaps is listed (:func:`cell_ranges`,
+    :func:`candidate_pairs`; r2 scalar or per query) and read ``block`` at a time, as many
+    blocks as there are pairs; the cheap test (distance, and ``keep(query [block],
+    rows [block, ...])`` if given) selects the near pairs, packed ``near_block`` at a time into
+    ``visit``: no query has a cap, so no point is dropped, and a dense cell costs its own pairs
+    only.
 
     ``dense`` (a differentiable form: a loop of traced length has no reverse-mode derivative):
     one block of that many pairs for all queries, ``visit`` given every candidate (no cheap
     test); if the queries have more pairs the result is NaN, never a silently truncated sum."""
-    start, count = cell_ranges(cells, table_size, x)
-    pairs = candidate_pairs(start, jnp.where(live[:, None], count, 0))
+    start, count = cell_ranges(cells, table_size, x, r2)
+    pairs = candidate_pairs(start, jnp.where(live[:, None], count, 0), cells.n_valid)
     if dense is not None:
         q, slot, ok = pair_block(pairs, dense, 0)
         return visit(acc, q, slot, ok) + jnp.where(pairs.total > dense, jnp.nan, 0.0)
@@ -315,7 +370,7 @@ def _near_pairs_of_block(i, acc, *, pairs: Pairs, points: Array, x: V3, r2, visi
     q, slot, ok = pair_block(pairs, block, i)
     y = points[slot]
     diff = V3(y[:, 0], y[:, 1], y[:, 2]) - V3(*(c[q] for c in x))
-    near = ok & (dot(diff, diff) < r2)
+    near = ok & (dot(diff, diff) < (r2[q] if jnp.ndim(r2) else r2))
     if keep is not None:
         near = near & keep(q, y)
     (sel,) = jnp.nonzero(near, size=block, fill_value=block)

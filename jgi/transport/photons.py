@@ -200,10 +200,15 @@ def trace_photon_paths(scene: Scene, seed, photon_index: Array, n_emitted, max_d
 
 @partial(jax.jit, static_argnames=("chunk", "max_depth"))
 def _trace_chunk(scene, seed, start, n_emitted, *, chunk, max_depth):
+    """Photons start .. start + chunk - 1: their stored records in (bounce, photon) order,
+    compacted to the front, and how many there are. The compaction runs here, fused with the
+    tracing: on the host, boolean indexing of the 14 [max_depth, chunk] fields took as long as
+    the tracing itself (perf: docs/performance.md#photon-passes)."""
     idx = start + jnp.arange(chunk, dtype=jnp.int32)
     pm, valid = trace_photon_paths(scene, seed, idx, n_emitted, max_depth)
-    valid = valid & (idx < n_emitted)[None, :]
-    return pm, valid
+    valid = (valid & (idx < n_emitted)[None, :]).reshape(-1)
+    (stored,) = jnp.nonzero(valid, size=valid.shape[0], fill_value=0)
+    return jax.tree_util.tree_map(lambda a: a.reshape(-1)[stored], pm), jnp.sum(valid)
 
 
 @dataclass(frozen=True)
@@ -235,26 +240,26 @@ def trace_photons(scene: Scene, n_photons: int, seed: int = 0, max_depth: int = 
     devices = list(devices if devices is not None else jax.devices())
     parts = []
 
-    def keep(pm, valid):
-        mask = np.asarray(valid).ravel()
-        parts.append(jax.tree_util.tree_map(lambda a: np.asarray(a).ravel()[mask], pm))
+    def keep(pm, count):
+        n = int(count)
+        parts.append(jax.tree_util.tree_map(lambda a: np.asarray(a)[:n], pm))
 
     if len(devices) == 1:
         def call(i):
-            pm, valid = _trace_chunk(scene, jnp.uint32(seed), jnp.int32(starts[i]),
+            pm, count = _trace_chunk(scene, jnp.uint32(seed), jnp.int32(starts[i]),
                                      jnp.int32(n_photons), chunk=chunk, max_depth=max_depth)
-            return jax.tree_util.tree_map(np.asarray, pm), np.asarray(valid)
+            return jax.tree_util.tree_map(np.asarray, pm), np.asarray(count)
 
-        for pm, valid in ordered_calls(call, len(starts)):
-            keep(pm, valid)
+        for pm, count in ordered_calls(call, len(starts)):
+            keep(pm, count)
     else:
         mesh = device_mesh(devices)
         D = len(devices)
         for first in range(0, len(starts), D):
             group = [starts[min(first + k, len(starts) - 1)] for k in range(D)]
-            pm, valid = sharded_calls(scene, jnp.uint32(seed), jnp.asarray(group, jnp.int32),
+            pm, count = sharded_calls(scene, jnp.uint32(seed), jnp.asarray(group, jnp.int32),
                                       jnp.zeros(D, jnp.int32), jnp.full(D, n_photons, jnp.int32),
                                       call=PhotonChunk(chunk, max_depth), mesh=mesh)
             for k in range(min(D, len(starts) - first)):  # in chunk order, as on one device
-                keep(jax.tree_util.tree_map(lambda a: a[k], pm), valid[k])
+                keep(jax.tree_util.tree_map(lambda a: a[k], pm), count[k])
     return jax.tree_util.tree_map(lambda *xs: np.concatenate(xs), *parts)
