@@ -36,6 +36,7 @@ import jax.numpy as jnp
 import numpy as np
 from jax import Array
 
+from ..core.calls import ordered_calls
 from ..core.compaction import padded_size
 from ..core.errors import ParameterError
 from ..core.vec import V3, dot, where
@@ -522,16 +523,24 @@ def _by_chunks(n: int, live, query):
     """``query(take, alive)`` over chunks of QUERY_CHUNK points padded to one compiled size:
     ``take(a)`` is the chunk of a (an array, V3 or tuple of [n] arrays; None stays None), padded
     with its last point; ``alive`` marks the chunk's points to estimate (``live``), padding
-    excluded. Returns the query's sums [3, n] and counts [n] as numpy."""
+    excluded. Returns the query's sums [3, n] and counts [n] as numpy. The chunks run as
+    concurrent calls (:func:`jgi.core.calls.ordered_calls`): a chunk's block loop is a chain of
+    small kernels that leaves the other core idle."""
     chunk = min(QUERY_CHUNK, padded_size(n))
     out, count = np.zeros((3, n), np.float32), np.zeros(n, np.float32)
     live = np.asarray(live, bool)
-    for s in range(0, n, chunk):
+    starts = list(range(0, n, chunk))
+
+    def call(i):
+        s = starts[i]
         k = min(s + chunk, n) - s
         pad = lambda a: jnp.asarray(np.pad(np.asarray(a)[s:s + k], (0, chunk - k),  # noqa: E731
                                            mode="edge"))
         take = lambda v: None if v is None else jax.tree_util.tree_map(pad, v)      # noqa: E731
         L, c = query(take, jnp.asarray(np.pad(live[s:s + k], (0, chunk - k))))
-        out[:, s:s + k] = np.stack([np.asarray(a)[:k] for a in L])
-        count[s:s + k] = np.asarray(c)[:k]
+        return np.stack([np.asarray(a)[:k] for a in L]), np.asarray(c)[:k]
+
+    for s, (L, c) in zip(starts, ordered_calls(call, len(starts))):
+        out[:, s:s + L.shape[1]] = L
+        count[s:s + L.shape[1]] = c
     return out, count
