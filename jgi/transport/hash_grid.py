@@ -153,8 +153,8 @@ def cells_around(grid: HashGrid, x: V3, cap: int):
 # --- the device-built grid: points of an iteration, every pair of a ball's cells read in blocks ---
 
 # Cells per query radius of the device grid, and its rows: the (y, z) offsets within a query's
-# reach, each read as one range of cells along x (cells of r: 9 ranges a query where the 27
-# cells were 27; cells of r / 2 were measured slower, perf: docs/performance.md#photon-gathers).
+# reach, each read as one range of cells along x (cells of r: a query reads 9 ranges, not 27
+# cells; cells of r / 2 measured slower, perf: docs/performance.md#photon-passes).
 CELLS_PER_RADIUS = 1
 ROWS = np.array([(dj, dk) for dj in range(-CELLS_PER_RADIUS, CELLS_PER_RADIUS + 1)
                  for dk in range(-CELLS_PER_RADIUS, CELLS_PER_RADIUS + 1)], np.int32)  # [R, 2]
