@@ -15,6 +15,12 @@ os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", "0.5")
 # compiles faster (perf: docs/performance.md#test-suite-settings). It changes no result:
 # tests/test_xla.py renders with both and compares bit for bit.
 os.environ.setdefault("JGI_UNROLL_THRESHOLD", "1000")
+# Two pytest-xdist workers share the two cores: each XLA client's Eigen pool of one thread a core
+# only oversubscribes them (perf: docs/performance.md#test-suite-settings). No result depends on
+# it (tests/test_xla.py, test_wavefront.py: images bit for bit across thread counts and calls).
+if "--xla_cpu_multi_thread_eigen" not in os.environ.get("XLA_FLAGS", ""):
+    os.environ["XLA_FLAGS"] = (os.environ.get("XLA_FLAGS", "")
+                               + " --xla_cpu_multi_thread_eigen=false").strip()
 
 import numpy as np  # noqa: E402
 import pytest  # noqa: E402
