@@ -766,7 +766,9 @@ def occluded(scene: Scene, o: V3, d: V3, t_max: Array) -> Array:
                         lambda: triangle_uv(tr.uv, i, b1, b2))
             return a | (t < t_max)
         occ = _scan(tr.count, triangle_body, occ)
-    return occ
+    # stored: XLA would repeat the whole unrolled test in every consumer fusion (a pixel index,
+    # each channel of a value; perf: docs/performance.md#occlusion-stored)
+    return materialize(occ)
 
 
 def offset_origin(p: V3, n: V3, w: V3) -> V3:
