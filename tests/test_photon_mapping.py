@@ -96,19 +96,27 @@ def test_neighbour_hash_gives_a_query_block_distinct_entries_and_rows_consecutiv
         assert np.array_equal(step, (h[:, off.shape[0] // 2] + 1) % T)
 
 
-@pytest.mark.parametrize("capacity, T", [(None, 1 << 13), (4000, 1 << 13), (1000, 1 << 13),
-                                         (None, 128)])
+@pytest.mark.parametrize("capacity, T", [(None, 1 << 13), (4000, 1 << 13), (1200, 1 << 13),
+                                         (1000, 1 << 13), (None, 128)])
 def test_device_grid_pairs_list_every_point_within_the_radius_once(rng_np, capacity, T):
     """index_cells + cell_ranges + candidate_pairs / pair_block (VCM's merges, the photon
     gathers): every valid point within the radius of a query is listed exactly once for it, in
-    blocks of any size, whether only the valid points are sorted (capacity; 1000 < valid
-    points: the full sort) or all slots are. A table of 128 entries makes many rows wrap past
-    its end (a row read as two ranges of the sorted points)."""
+    blocks of any size, whether only the valid points are sorted (capacity; about 2,100 valid:
+    1200 sorts in the second tier, 2400 keys; 1000 < 2000 < valid: the full sort) or all slots
+    are, and in the same order (the valid points' stable order by cell). A table of 128
+    entries makes many rows wrap past its end (a row read as two ranges of the sorted
+    points)."""
     pm, xy = plane_photons(rng_np, 3000, clustered=True)
     valid = rng_np.random(3000) < 0.7
     radius = 0.03
     cells = hash_grid.index_cells(pm.position, jnp.asarray(valid), jnp.float32(radius), T,
                                   capacity)
+    h = np.asarray(hash_grid.neighbour_hash(*hash_grid.cell_of(cells.origin, cells.cell,
+                                                              pm.position), T))
+    n = int(valid.sum())
+    assert n in {1200: range(1201, 2401), 1000: range(2001, 3001)}.get(capacity, [n]), n
+    assert np.array_equal(np.asarray(cells.order)[:n],
+                          np.flatnonzero(valid)[np.argsort(h[valid], kind="stable")])
     q = rng_np.random((300, 2))
     x, _ = queries(q)
     start, count = hash_grid.cell_ranges(cells, T, x, radius ** 2)

@@ -215,7 +215,8 @@ def index_cells(p: V3, valid: Array, radius, table_size: int, capacity: int | No
     """Sort the points p ([M], where ``valid``) into hashed cells for queries of radius up to
     ``radius`` (traced; cells of radius / CELLS_PER_RADIUS).
     ``capacity``: when at most that many points are valid, only they are sorted (a sort of
-    ``capacity`` keys, not M; the full sort otherwise, under ``lax.cond``)."""
+    ``capacity`` keys, not M); else at most twice as many, and so on; the full sort when more
+    than M / 2 are valid."""
     M = valid.shape[0]
     cell = jnp.asarray(radius, jnp.float32) / CELLS_PER_RADIUS
     big = jnp.float32(3e38)
@@ -224,12 +225,7 @@ def index_cells(p: V3, valid: Array, radius, table_size: int, capacity: int | No
     origin = lo - V3.full(radius, radius)
     h = jnp.where(valid, neighbour_hash(*cell_of(origin, cell, p), table_size), table_size)
     n_valid = jnp.sum(valid)
-    if capacity is None or capacity >= M:
-        order = _sort_all(h)
-    else:
-        order = jax.lax.cond(n_valid <= capacity,
-                             partial(_sort_valid, h, valid, n_valid, capacity, table_size),
-                             partial(_sort_all, h))
+    order = _sort_tiers(h, valid, n_valid, capacity, table_size)
     count = jax.ops.segment_sum(jnp.ones_like(h), h, num_segments=table_size + 1)[:table_size]
     start = (jnp.cumsum(count) - count).astype(jnp.int32)
     return CellIndex(order, start, count.astype(jnp.int32), origin, cell,
@@ -248,6 +244,17 @@ def stable_order(keys: Array) -> Array:
 
 def _sort_all(h: Array) -> Array:
     return stable_order(h)
+
+
+def _sort_tiers(h: Array, valid: Array, n_valid, capacity: int | None, table_size: int):
+    """:func:`_sort_all`, sorting only the valid points where they fit ``capacity``, or twice
+    that, and so on below M (one ``lax.cond`` a tier)."""
+    M = valid.shape[0]
+    if capacity is None or capacity >= M:
+        return _sort_all(h)
+    return jax.lax.cond(n_valid <= capacity,
+                        partial(_sort_valid, h, valid, n_valid, capacity, table_size),
+                        partial(_sort_tiers, h, valid, n_valid, 2 * capacity, table_size))
 
 
 def _sort_valid(h: Array, valid: Array, n_valid, capacity: int, table_size: int) -> Array:
