@@ -276,8 +276,10 @@ def test_connections_miss_specular_diffuse_specular_light(sds):
 # --- technique images, derivatives, errors --------------------------------------------------------
 
 def test_technique_images_sum_to_the_image():
+    """Each technique's image (rows kept per technique) against the render, which sums a
+    pixel's connections and merges as it goes (depth 3: connections with s, t >= 2 too)."""
     scene = builtin.cornell_box_caustics(resolution=8)
-    cfg = vcm.VCMConfig(max_depth=2, radius=0.1)
+    cfg = vcm.VCMConfig(max_depth=3, radius=0.1)
     techs = vcm.render_techniques(scene, cfg, spp=2, seed=5)
     assert list(techs) == cfg.techniques()
     img = vcm.render(scene, cfg, spp=2, seed=5).image
@@ -286,6 +288,7 @@ def test_technique_images_sum_to_the_image():
     for t, (unw, wtd) in techs.items():
         assert np.all(np.isfinite(unw)) and np.all(wtd <= unw + 1e-5 * (1 + unw)), t
     assert techs[("merge", 2)][0].sum() > 0 and techs[("connect", 1, 2)][1].sum() > 0
+    assert techs[("connect", 2, 2)][1].sum() > 0
 
 
 def test_image_is_differentiable_in_the_radius():

@@ -797,11 +797,11 @@ def _connect(scene: Scene, cfg: VCMConfig, y: LightVertices, z: CameraVertices, 
 
 
 def connections(scene: Scene, cfg: VCMConfig, y: LightVertices, z: CameraVertices,
-                fs: Factors):
+                fs: Factors, summed: bool = False):
     """s, t >= 2: y_{s-1} of the pixel's own light subpath joined to z_{t-1}, for every
     :func:`connection_pairs` pair whose two vertices are connectable (gathered into batches:
     :func:`jgi.core.compaction.compact_map`; ``cfg.compact``). Returns (weighted, unweighted)
-    [J, N] V3."""
+    [J, N] V3; ``summed``: (the weighted sum over the pairs [1, N], None)."""
     pairs = connection_pairs(cfg)
     if not pairs:
         return None, None
@@ -818,6 +818,10 @@ def connections(scene: Scene, cfg: VCMConfig, y: LightVertices, z: CameraVertice
         wtd, unw = _connect(scene, cfg, yb._replace(stored=yb.stored & live), zb, fs)
         return jnp.stack(list(wtd), -1), jnp.stack(list(unw), -1)
 
+    if cfg.compact and summed:   # a pixel's sum: no [J N] rows to store and read back
+        wtd = compact_map(lambda idx, live: batch(idx, live)[0], active, (k, j, n),
+                          jnp.zeros((N, 3)), CONNECT_BATCH, dest=n)
+        return V3(*(wtd[None, :, c] for c in range(3))), None
     like = (jnp.zeros((J * N, 3)), jnp.zeros((J * N, 3)))
     if cfg.compact:
         wtd, unw = compact_map(batch, active, (k, j, n), like, CONNECT_BATCH)
@@ -1035,7 +1039,7 @@ def _per_camera_vertex(a: Array, D: int, N: int, by_length: bool) -> V3:
 def merge_at_camera_vertices(scene: Scene, cfg: VCMConfig, grid: MergeGrid, z: CameraVertices,
                              fs: Factors, radius, filter_params: dict, n_light: int,
                              table_size: int, by_length: bool, dense_pairs: int | None = None,
-                             volume_radius=None):
+                             volume_radius=None, summed: bool = False):
     """Vertex merging at every camera vertex (``ppm``: the first non-specular one), the live
     ones gathered into batches (:func:`jgi.core.compaction.compact_map`; ``cfg.compact``).
     A batch reads every (camera vertex, light vertex) pair of the grid cells its vertices' balls
@@ -1048,7 +1052,10 @@ def merge_at_camera_vertices(scene: Scene, cfg: VCMConfig, grid: MergeGrid, z: C
 
     ``dense_pairs`` (the differentiable form, ``cfg.compact`` false): one block of that many
     pairs for all vertices (a loop of traced length has no reverse-mode derivative); if the
-    vertices have more pairs the result is NaN, never a silently truncated sum."""
+    vertices have more pairs the result is NaN, never a silently truncated sum.
+
+    ``summed`` (with ``cfg.compact``, not ``by_length``): (the weighted sum over a pixel's
+    vertices [1, N] V3, None)."""
     D, N = z.material.shape
     kernel = merge_kernel(cfg, radius, radius if volume_radius is None else volume_radius,
                           n_light, filter_params, scene.has_medium)
@@ -1057,6 +1064,11 @@ def merge_at_camera_vertices(scene: Scene, cfg: VCMConfig, grid: MergeGrid, z: C
                     filter_params=filter_params, table_size=table_size, by_length=by_length,
                     dense_pairs=dense_pairs)
     inputs = _camera_vertex_rows(z)
+    if cfg.compact and summed and not by_length:   # no [D N] rows to store and read back
+        wtd = compact_map(lambda zs, live: batch(zs, live)[0], active, inputs,
+                          jnp.zeros((N, 3)), MERGE_BATCH,
+                          dest=jnp.tile(jnp.arange(N, dtype=jnp.int32), D))
+        return V3(*(wtd[None, :, c] for c in range(3))), None
     tail = (D - 1, 3) if by_length else (3,)
     like = (jnp.zeros((D * N,) + tail), jnp.zeros((D * N,) + tail))
     if cfg.compact:
@@ -1090,11 +1102,12 @@ def camera_pass(scene: Scene, cfg: VCMConfig, seed, iteration, fs: Factors, radi
     conn = (None, None)
     if cfg.connects and D >= 3:
         y_own = jax.tree_util.tree_map(lambda a: a.reshape(D - 1, -1)[:, pixels], y_all)
-        conn = connections(scene, cfg, y_own, z, fs)
+        conn = connections(scene, cfg, y_own, z, fs, summed=not by_technique)
     mrg = (None, None)
     if cfg.merges and D >= 2:
         mrg = merge_at_camera_vertices(scene, cfg, cells, z, fs, radius, filter_params, n_light,
-                                       table_size, by_technique, dense_pairs, volume_radius)
+                                       table_size, by_technique, dense_pairs, volume_radius,
+                                       summed=not by_technique)
     return Techniques(em, ne, conn, mrg)
 
 

@@ -217,7 +217,6 @@ def index_cells(p: V3, valid: Array, radius, table_size: int, capacity: int | No
     ``capacity``: when at most that many points are valid, only they are sorted (a sort of
     ``capacity`` keys, not M); else at most twice as many, and so on; the full sort when more
     than M / 2 are valid."""
-    M = valid.shape[0]
     cell = jnp.asarray(radius, jnp.float32) / CELLS_PER_RADIUS
     big = jnp.float32(3e38)
     lo = V3(*(jnp.min(jnp.where(valid, c, big)) for c in p))
