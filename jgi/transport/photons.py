@@ -51,9 +51,10 @@ import jax.numpy as jnp
 import numpy as np
 from jax import Array
 
+from .._xla import materialize
 from ..core import rng
 from ..core.calls import ordered_calls
-from ..core.compaction import padded_size
+from ..core.compaction import live_indices, padded_size
 from ..core.sharding import device_mesh, sharded_calls
 from ..core.vec import V3, dot, max_component, where
 from ..physics import bsdf, geometry, grid_media, media, medium_interfaces, phase
@@ -151,8 +152,8 @@ def trace_photon_paths(scene: Scene, seed, photon_index: Array, n_emitted, max_d
         # flux the surface scatters where it stops a ray), unbiased in expectation
         stored_pw = pw if not mats.has_masks else pw * (1.0 / geometry.hit_opacity(scene, hit))
         ns = hit.n if hit.ns is None else hit.ns
-        bs = bsdf.sample(mats.kinds, mp, ns, -d, u(base), u(base + 1), u(base + 2),
-                         mode=bsdf.IMPORTANCE)
+        bs = materialize(bsdf.sample(mats.kinds, mp, ns, -d, u(base), u(base + 1), u(base + 2),
+                                     mode=bsdf.IMPORTANCE))
         if hit.ns is not None:   # Veach's adjoint correction for shading normals
             bs = bs._replace(weight=bs.weight * bsdf.adjoint_correction(ns, hit.n, -d, bs.wi))
         p_at, n_at, origin = hit.p, n_arrival, None
@@ -190,7 +191,8 @@ def trace_photon_paths(scene: Scene, seed, photon_index: Array, n_emitted, max_d
         spec_seen = spec_seen | bs.delta | through
         medium_id = medium_interfaces.leaving(scene, medium_id, hit.material, hit.n, bs.wi,
                                               in_medium)
-        return (o_next, bs.wi, pw, survive, spec_seen, only_spec, medium_id), record
+        return materialize(((o_next, bs.wi, pw, survive, spec_seen, only_spec, medium_id),
+                            record))
 
     _, rec = jax.lax.scan(bounce, state, jnp.arange(max_depth))
     p, pw, wi, n, caustic, valid = rec
@@ -207,7 +209,7 @@ def _trace_chunk(scene, seed, start, n_emitted, *, chunk, max_depth):
     idx = start + jnp.arange(chunk, dtype=jnp.int32)
     pm, valid = trace_photon_paths(scene, seed, idx, n_emitted, max_depth)
     valid = (valid & (idx < n_emitted)[None, :]).reshape(-1)
-    (stored,) = jnp.nonzero(valid, size=valid.shape[0], fill_value=0)
+    stored = live_indices(valid, fill=0)
     return jax.tree_util.tree_map(lambda a: a.reshape(-1)[stored], pm), jnp.sum(valid)
 
 
