@@ -169,11 +169,20 @@ class CellIndex(NamedTuple):
     any block of (2 CELLS_PER_RADIUS + 1)^3 occupy distinct entries, so a query reads each
     entry once without comparing its cells' hashes."""
     order: Array      # [M] point indices by hashed cell (the first ``n_valid`` are valid)
-    start: Array      # [table]
-    count: Array      # [table]
+    # [table + 1]: entry c's points are order[bounds[c]:bounds[c + 1]] (one array, not a start
+    # and a count: a row's two ends are then mostly one cache line of it)
+    bounds: Array
     origin: V3        # scalar
     cell: Array       # scalar cell size: the query radius / CELLS_PER_RADIUS
     n_valid: Array    # scalar: valid points
+
+    @property
+    def start(self) -> Array:
+        return self.bounds[:-1]
+
+    @property
+    def count(self) -> Array:
+        return self.bounds[1:] - self.bounds[:-1]
 
 
 BLOCK = 2 * CELLS_PER_RADIUS + 1    # cells per axis a query can reach
@@ -226,9 +235,8 @@ def index_cells(p: V3, valid: Array, radius, table_size: int, capacity: int | No
     n_valid = jnp.sum(valid)
     order = _sort_tiers(h, valid, n_valid, capacity, table_size)
     count = jax.ops.segment_sum(jnp.ones_like(h), h, num_segments=table_size + 1)[:table_size]
-    start = (jnp.cumsum(count) - count).astype(jnp.int32)
-    return CellIndex(order, start, count.astype(jnp.int32), origin, cell,
-                     n_valid.astype(jnp.int32))
+    bounds = jnp.concatenate([jnp.zeros((1,), jnp.int32), jnp.cumsum(count).astype(jnp.int32)])
+    return CellIndex(order, bounds, origin, cell, n_valid.astype(jnp.int32))
 
 
 def stable_order(keys: Array) -> Array:
@@ -299,9 +307,8 @@ def cell_ranges(cells: CellIndex, table_size: int, x: V3, r2):
     h_lo = neighbour_hash(i_lo, j, k, table_size)
     last = h_lo + (i_hi - i_lo)
     h_hi = last & jnp.int32(table_size - 1)
-    end = (cells.start[h_hi] + cells.count[h_hi]
-           + jnp.where(last >= table_size, cells.n_valid, 0))
-    start = cells.start[h_lo]
+    end = cells.bounds[h_hi + 1] + jnp.where(last >= table_size, cells.n_valid, 0)
+    start = cells.bounds[h_lo]
     return start, jnp.where(chord2 > 0, end - start, 0)
 
 
