@@ -177,11 +177,7 @@ class CellIndex(NamedTuple):
     n_valid: Array    # scalar: valid points
 
     @property
-    def start(self) -> Array:
-        return self.bounds[:-1]
-
-    @property
-    def count(self) -> Array:
+    def count(self) -> Array:   # [table] points an entry holds
         return self.bounds[1:] - self.bounds[:-1]
 
 
