@@ -594,7 +594,7 @@ def test_pbrt_shapes_bound_media(tmp_path):
     for table in (scene.spheres, scene.triangles):
         row = int(table.material[0])
         assert (int(faces.interior[row]), int(faces.exterior[row])) == (1, 0)
-    # a uniformgrid inside glass: the scene's one grid bounded by shapes (id after the
+    # a uniformgrid inside glass: a grid bounded by shapes (id after the
     # homogeneous ones), its densities x fastest, box p0 p1, pbrt's zero border
     smoke = ('MakeNamedMedium "smoke" "string type" "uniformgrid" "float density" [1 2 3 4 5 6] '
              '"integer nx" 3 "integer ny" 2 "integer nz" 1 "point3 p0" [-1 -1 -1] '
@@ -604,7 +604,7 @@ def test_pbrt_shapes_bound_media(tmp_path):
                     'Shape "sphere" "float radius" 0.5\nMediumInterface "milk" "fog"\n'
                     'Shape "sphere" "float radius" 0.2\n')
     scene = load_pbrt(grid)
-    g = scene.bounded_grid
+    (g,) = scene.bounded_grids
     assert g is not None and g.border == "zero" and float(g.g) == pytest.approx(0.5)
     np.testing.assert_array_equal(np.asarray(g.density), np.arange(1, 7).reshape(1, 2, 3))
     np.testing.assert_allclose([float(c) for c in g.sigma_t], [2, 3, 4], rtol=1e-6)
@@ -617,10 +617,10 @@ def test_pbrt_shapes_bound_media(tmp_path):
                      + 'Material "dielectric"\nMediumInterface "smoke" "fog"\n'
                      'Shape "sphere" "float radius" 0.5\nMediumInterface "soot" "fog"\n'
                      'Shape "sphere" "float radius" 0.2\n')
-    with pytest.raises(SceneError, match=r'twice\.pbrt:16: Shape "sphere" bounds medium "soot" '
-                                         r'\(uniformgrid\), a second grid bounded by shapes '
-                                         r'after "smoke"; allowed: one per scene'):
-        load_pbrt(twice)
+    two = load_pbrt(twice)   # two grids bounded by shapes: ids 1 and 2, in the order used
+    assert len(two.bounded_grids) == 2
+    faces = two.medium_interfaces
+    assert [int(faces.interior[int(r)]) for r in two.spheres.material] == [1, 2]
     lamp = tmp_path / "lamp.pbrt"
     lamp.write_text(head + 'AreaLightSource "diffuse" "rgb L" [1 1 1]\n'
                     'MediumInterface "fog" "milk"\nShape "sphere" "float radius" 0.5\n')

@@ -183,12 +183,11 @@ def _shade(scene: Scene, cfg: PathTracerConfig, s: PathState, hit: geometry.Hit,
     in_grid = medium_interfaces.in_grid(scene, s.medium)
     if grid:   # delta (spectral) tracking; not differentiated (jgi.physics.grid_media)
         dm = cfg.dims_per_bounce
-        medium = grid_media.held_constant(medium_interfaces.grid(scene))
+        medium = grid_media.held_constant(medium_interfaces.grids(scene)[0])   # (its phase)
         key_m = rng.substream(u(dm), u(dm + 1))
-        gf = grid_media.sample_free_flight(medium, s.o, s.d, jnp.where(hit.valid, hit.t, jnp.inf),
-                                           jax.lax.stop_gradient(s.beta),
-                                           s.active if in_grid is None else s.active & in_grid,
-                                           key_m)
+        gf = medium_interfaces.free_flight(scene, s.medium, s.o, s.d,
+                                           jnp.where(hit.valid, hit.t, jnp.inf),
+                                           jax.lax.stop_gradient(s.beta), s.active, key_m)
         in_medium = s.active & gf.scattered
         reached = ~gf.scattered
         p_m = s.o + s.d * jnp.where(in_medium, gf.t, 0.0)
@@ -275,10 +274,8 @@ def _shade(scene: Scene, cfg: PathTracerConfig, s: PathState, hit: geometry.Hit,
                 key_j = rng.derive(key_m, rng.SALTS["ratio_tracking"] + j)
                 lit = nee_active & (max_component(value) > 0)
                 shadow_in_grid = medium_interfaces.in_grid(scene, shadow_medium)
-                if shadow_in_grid is not None:
-                    lit = lit & shadow_in_grid
-                tr = grid_media.ratio_tracking(medium_interfaces.held_grid(scene), o_s, d_s,
-                                               t_s, lit, key_j)
+                tr = medium_interfaces.transmittance(scene, shadow_medium, o_s, d_s, t_s, lit,
+                                                     key_j)
                 if shadow_in_grid is not None:   # the other lanes: their medium's exp(-s d)
                     sigma_t = medium_interfaces.parameters(scene, shadow_medium).sigma_t
                     tr = where(shadow_in_grid, tr,
@@ -371,7 +368,7 @@ def radiance(scene: Scene, cfg: PathTracerConfig, uniform: Callable[[Array], Arr
     bounce b uses dimensions 2 + b * cfg.dims_per_bounce onwards."""
     max_depth = cfg.path_length if cfg.path_length > 0 else cfg.max_depth
     if scene.has_grid_medium:   # its derivatives would come out zero: refused by name
-        grid_media.refuse_derivatives(medium_interfaces.grid(scene))
+        grid_media.refuse_derivatives(medium_interfaces.grids(scene))
 
     def bounce(depth, s: PathState) -> PathState:
         base = 2 + depth * dims_per_bounce(cfg, scene)

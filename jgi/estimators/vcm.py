@@ -477,7 +477,7 @@ def light_walk(scene: Scene, cfg: VCMConfig, key: Array, fs: Factors):
     medium = scene.has_medium
     dims = light_dims_per_step(scene)
     if scene.has_grid_medium:   # the trackings' derivatives would come out zero: refused
-        grid_media.refuse_derivatives(medium_interfaces.grid(scene))
+        grid_media.refuse_derivatives(medium_interfaces.grids(scene))
     u = lambda k: rng.uniform(key, k)  # noqa: E731
     em = sample_emission(lights, u(0), u(1), u(2), u(3), u(4))
     ok = (em.pdf_pos > 0) & (max_component(em.weight) > 0)
@@ -650,7 +650,7 @@ def camera_walk(scene: Scene, cfg: VCMConfig, key: Array, pixel: Array,
     medium = scene.has_medium
     dims = camera_dims_per_step(scene)
     if scene.has_grid_medium:   # the trackings' derivatives would come out zero: refused
-        grid_media.refuse_derivatives(medium_interfaces.grid(scene))
+        grid_media.refuse_derivatives(medium_interfaces.grids(scene))
     u0 = lambda k: rng.uniform(key, k)  # noqa: E731
     o, d = camera_ray(cam, pixel, u0)
     z = jnp.zeros_like(o.x)
@@ -857,7 +857,7 @@ def merge_grid(y_all: LightVertices, radius, table_size: int, n_light: int,
     if y_all.in_medium is not None:   # (a grid medium's sigma_s at the vertex)
         in_grid = medium_interfaces.in_grid(scene, y_all.medium)
         if scene.has_grid_medium:
-            sigma_s = grid_media.scattering(medium_interfaces.held_grid(scene), y_all.p)
+            sigma_s = medium_interfaces.scattering(scene, y_all.medium, y_all.p)
         if not scene.has_grid_medium or in_grid is not None:
             at = medium_interfaces.parameters(scene, y_all.medium)   # the vertex's medium's
             sigma_h = at.sigma_t * at.albedo

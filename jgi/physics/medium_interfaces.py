@@ -17,22 +17,27 @@ connection carries a medium id (0: the scene's own medium; k >= 1: bounded mediu
   it: a bounded medium's surface scatters (a dielectric, a diffuse shell), it is not a null
   interface, so no unoccluded segment crosses one.
 
-Each bounded medium is homogeneous, so the maths of :mod:`jgi.physics.media` applies segment
-by segment with the parameters looked up per lane (:func:`parameters`), but for one that may be
-a density grid (``Scene.bounded_grid``): lanes in it (:func:`in_grid`) are tracked
-(:mod:`jgi.physics.grid_media`), and its row of the table is a vacuum with the grid's phase
-function, so that the homogeneous code leaves those lanes alone. Scenes without bounded media
-carry no ids (None) and compile to the programs they compiled to before.
+Each homogeneous bounded medium's maths is that of :mod:`jgi.physics.media`, applied segment by
+segment with the parameters looked up per lane (:func:`parameters`). Bounded media may also be
+density grids (``Scene.bounded_grids``, ids after the homogeneous ones): lanes in one
+(:func:`in_grid`) are tracked in their own grid (:func:`free_flight`, :func:`transmittance`:
+:mod:`jgi.physics.grid_media` once per grid, on that grid's lanes), and each grid's row of the
+table is a vacuum with the grid's phase function, so that the homogeneous code leaves those
+lanes alone. Scenes without bounded media carry no ids (None) and compile to the programs they
+compiled to before; a scene with one bounded grid to those it compiled to before there could be
+several.
 """
 
 from __future__ import annotations
 
+import jax
 import jax.numpy as jnp
 from jax import Array
 
 from ..core.vec import V3, dot
 from ..scene.tables import GridMedium, Medium, Scene
-from .grid_media import held_constant
+from .grid_media import GridFlight, held_constant, ratio_tracking, sample_free_flight
+from .grid_media import scattering as grid_scattering
 
 AMBIENT = 0   # the id of the scene's own medium (Scene.medium, or vacuum)
 
@@ -45,37 +50,90 @@ def start(scene: Scene, like: Array) -> Array | None:
     return jnp.full(like.shape, AMBIENT, jnp.int32)
 
 
-def grid(scene: Scene) -> GridMedium | None:
-    """The scene's density grid: its own medium, or the one bounded by shapes; None."""
-    return scene.medium if isinstance(scene.medium, GridMedium) else scene.bounded_grid
-
-
-def held_grid(scene: Scene):
-    """The scene's density grid held constant (rendered, not differentiated:
-    :func:`jgi.physics.grid_media.held_constant`)."""
-    return held_constant(grid(scene))
+def grids(scene: Scene) -> tuple[GridMedium, ...]:
+    """The scene's density grids: its own medium (one), or those bounded by shapes (the g-th
+    has id ``grid_id(scene) + g``); () in a scene without."""
+    if isinstance(scene.medium, GridMedium):
+        return (scene.medium,)
+    return scene.bounded_grids or ()
 
 
 def grid_id(scene: Scene) -> int:
-    """The medium id of the bounded grid: one after the homogeneous bounded media (static)."""
+    """The medium id of the first bounded grid: one after the homogeneous bounded media
+    (static)."""
     bounded = scene.bounded_media
     return 1 + (0 if bounded is None else int(bounded.g.shape[0]))
 
 
 def in_grid(scene: Scene, medium_id: Array | None) -> Array | None:
-    """Which lanes travel in the density grid: None where the grid is the scene's own medium
-    (every lane: it fills its box, vacuum around), the lanes whose medium id is the bounded
-    grid's otherwise."""
-    if scene.bounded_grid is None:
+    """Which lanes travel in a density grid: None where the grid is the scene's own medium
+    (every lane: it fills its box, vacuum around) or there is none, the lanes whose medium id
+    is a bounded grid's otherwise."""
+    if scene.bounded_grids is None:
         return None
-    return medium_id == grid_id(scene)
+    return medium_id >= grid_id(scene)
+
+
+def _each_grid(scene: Scene, medium_id: Array | None, track):
+    """``track(grid, mine)`` for every grid of the scene (held constant), ``mine`` its lanes
+    (None: the scene's own grid, every lane), merged lane by lane: the lanes of grid g take its
+    result, lanes in no grid the first grid's."""
+    every = held_constant(grids(scene))
+    if in_grid(scene, medium_id) is None:
+        return track(every[0], None)
+    first, out = grid_id(scene), None
+    for g, grid in enumerate(every):
+        mine = medium_id == first + g
+        result = track(grid, mine)
+        out = result if out is None else jax.tree_util.tree_map(
+            lambda a, b, m=mine: jnp.where(m, a, b), result, out)
+    return out
+
+
+def _only(active: Array, mine: Array | None) -> Array:
+    return active if mine is None else active & mine
+
+
+def free_flight(scene: Scene, medium_id: Array | None, o: V3, d: V3, t_max: Array,
+                throughput: V3, active: Array, key: Array) -> GridFlight:
+    """Spectral tracking (:func:`jgi.physics.grid_media.sample_free_flight`) of the lanes
+    ``active`` that travel in a density grid, each in its own; the other lanes collide
+    nowhere (t = t_max, weight 1)."""
+    return _each_grid(scene, medium_id, lambda grid, mine: sample_free_flight(
+        grid, o, d, t_max, throughput, _only(active, mine), key))
+
+
+def transmittance(scene: Scene, medium_id: Array | None, o: V3, d: V3, t_max: Array,
+                  active: Array, key: Array) -> V3:
+    """Ratio tracking's transmittance estimate (:func:`jgi.physics.grid_media.ratio_tracking`)
+    along o + t d, t in [0, t_max], for the lanes ``active`` that travel in a density grid,
+    each in its own; 1 on the other lanes."""
+    return _each_grid(scene, medium_id, lambda grid, mine: ratio_tracking(
+        grid, o, d, t_max, _only(active, mine), key))
+
+
+def scattering(scene: Scene, medium_id: Array | None, p: V3) -> V3:
+    """sigma_s,c of each lane's density grid at points p (lanes in no grid: the first
+    grid's)."""
+    return _each_grid(scene, medium_id, lambda grid, _: grid_scattering(grid, p))
+
+
+def mean_extinction(scene: Scene, medium_id: Array | None) -> V3:
+    """Each lane's density grid's extinction averaged over its voxels, RGB (sigma_t times the
+    mean density; lanes in no grid: the first grid's): a homogeneous stand-in. Scalars where
+    the grid is the scene's own (``medium_id`` None), shaped like ``medium_id`` otherwise."""
+    def mean(grid, mine):
+        d = jnp.mean(grid.density)
+        return V3(*(d * c if mine is None else jnp.broadcast_to(d * c, mine.shape)
+                    for c in grid.sigma_t))
+    return _each_grid(scene, medium_id, mean)
 
 
 def table(scene: Scene) -> Medium:
-    """Every medium of the scene, id by id ([K + 1] per field, or K + 2 with a bounded grid):
-    the scene's own (vacuum: zero extinction, albedo and g), the bounded homogeneous ones, then
-    the bounded grid's row: a vacuum with the grid's g (its lanes are tracked, not sampled
-    here; their phase function is the grid's)."""
+    """Every medium of the scene, id by id ([K + 1 + G] per field, G bounded grids): the
+    scene's own (vacuum: zero extinction, albedo and g), the bounded homogeneous ones, then a
+    row per bounded grid: a vacuum with the grid's g (its lanes are tracked, not sampled here;
+    their phase function is the grid's)."""
     own = scene.medium
     zero = jnp.zeros((1,), jnp.float32)
     vacuum = (V3(zero, zero, zero), V3(zero, zero, zero), zero)
@@ -85,8 +143,8 @@ def table(scene: Scene) -> Medium:
         b = scene.bounded_media
         f = lambda v: V3(*(jnp.asarray(c, jnp.float32) for c in v))   # noqa: E731
         rows.append((f(b.sigma_t), f(b.albedo), jnp.asarray(b.g, jnp.float32)))
-    if scene.bounded_grid is not None:
-        rows.append(vacuum[:2] + (jax_row(scene.bounded_grid.g),))
+    for grid in scene.bounded_grids or ():
+        rows.append(vacuum[:2] + (jax_row(grid.g),))
     cat = lambda parts: jnp.concatenate(parts)   # noqa: E731
     return Medium(V3(*(cat([r[0][c] for r in rows]) for c in range(3))),
                   V3(*(cat([r[1][c] for r in rows]) for c in range(3))),

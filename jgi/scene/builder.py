@@ -368,7 +368,7 @@ class SceneBuilder:
     cylinders: list = dc_field(default_factory=list)
     medium_args: dict | None = None   # the homogeneous medium filling the scene, if any
     bounded_media: dict = dc_field(default_factory=dict)   # name -> homogeneous medium args
-    bounded_grid: tuple | None = None   # (name, grid medium args): a grid bounded by shapes
+    bounded_grids: dict = dc_field(default_factory=dict)   # name -> grid medium args (bounded)
 
     # --- participating medium ----------------------------------------------------------------
     def medium(self, *, sigma_t=None, albedo=None, sigma_a=None, sigma_s=None, g=0.0,
@@ -397,15 +397,15 @@ class SceneBuilder:
                             bbox_max=(1.0, 1.0, 1.0), **params) -> None:
         """Define heterogeneous medium ``name`` (parameters as :meth:`grid_medium`'s; zero
         outside its box) to be bounded by shapes, as :meth:`bounded_medium` defines a
-        homogeneous one: smoke in a glass jar. One per scene, and not with a grid medium of
-        the scene's own."""
-        if name in self.bounded_media or self.bounded_grid is not None:
-            raise SceneError(f"medium '{name}': a scene takes one grid medium bounded by shapes, "
-                             "and medium names are unique")
+        homogeneous one: smoke in a glass jar. A scene may hold several (two jars of smoke),
+        each tracked on the lanes that travel in it, but not with a grid medium of the
+        scene's own."""
+        if name in self.bounded_media or name in self.bounded_grids:
+            raise SceneError(f"medium '{name}' is defined twice")
         saved = self.medium_args
         try:
             self.grid_medium(density, bbox_min, bbox_max, **params)
-            self.bounded_grid = (name, self.medium_args)
+            self.bounded_grids[name] = self.medium_args
         except SceneError as e:
             raise SceneError(f"medium '{name}': {e}") from None
         finally:
@@ -420,12 +420,13 @@ class SceneBuilder:
         vacuum). Shapes made with the returned row bound the media; a closed shape with
         outward normals holds ``interior`` inside. One row per (material, interior, exterior)."""
         m = self._mat(material)
-        grid_name = None if self.bounded_grid is None else self.bounded_grid[0]
         for side, name in (("interior", interior), ("exterior", exterior)):
-            if name is not None and name not in self.bounded_media and name != grid_name:
+            if name is not None and name not in self.bounded_media \
+                    and name not in self.bounded_grids:
+                defined = ", ".join([*self.bounded_media, *self.bounded_grids]) or "(none)"
                 raise SceneError(f"medium interface of material '{self._material_name(m)}': "
                                  f"{side} names medium '{name}', which is not defined; defined: "
-                                 f"{', '.join(self.bounded_media) or '(none)'} (bounded_medium)")
+                                 f"{defined} (bounded_medium, bounded_grid_medium)")
         if interior == exterior:
             return m   # no transition
         base = self.materials[m]
@@ -1071,10 +1072,10 @@ class SceneBuilder:
                                  f"'{self._material_name(m)}': {why}; allowed: outside bounded "
                                  "media (or the medium as the scene's own)")
         ids = {name: k + 1 for k, name in enumerate(self.bounded_media)}
-        grid = None
-        if self.bounded_grid is not None:   # its id: one after the homogeneous ones
-            ids[self.bounded_grid[0]] = len(self.bounded_media) + 1
-            grid = _grid_medium_of(self.bounded_grid[1])
+        # the grids' ids: after the homogeneous ones, in the order they were defined
+        for g, name in enumerate(self.bounded_grids):
+            ids[name] = len(self.bounded_media) + 1 + g
+        grids = tuple(_grid_medium_of(a) for a in self.bounded_grids.values()) or None
         rows = [m.interface for m in (self.materials or [_Material(DIFFUSE)])]
         f = lambda key: V3(*(jnp.asarray([a[key][c] for a in self.bounded_media.values()],  # noqa: E731
                                          jnp.float32) for c in range(3)))
@@ -1086,7 +1087,7 @@ class SceneBuilder:
         side = lambda r, k: -1 if r is None else (0 if r[k] is None else ids[r[k]])  # noqa: E731
         faces = MediumInterfaces(jnp.asarray([side(r, 0) for r in rows], jnp.int32),
                                  jnp.asarray([side(r, 1) for r in rows], jnp.int32))
-        return dict(bounded_media=media, medium_interfaces=faces, bounded_grid=grid)
+        return dict(bounded_media=media, medium_interfaces=faces, bounded_grids=grids)
 
     def _build_medium(self) -> Medium | None:
         m = self.medium_args

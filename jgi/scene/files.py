@@ -435,8 +435,8 @@ class _TomlLoader:
         for i, s in enumerate(self.array_of_tables(doc, "shape")):
             self.shape(b, f"shape[{i}]", s)
         for name, (key, _) in self.medium_tables.items():
-            bounded_grid = None if b.bounded_grid is None else b.bounded_grid[0]
-            if name not in (self.camera_medium, bounded_grid) and name not in b.bounded_media:
+            if name != self.camera_medium and name not in b.bounded_media \
+                    and name not in b.bounded_grids:
                 self.fail(key, f"medium '{name}' is not used; allowed: name it as the camera's "
                                "(camera.medium), or as a shape's interior or exterior")
         for i, l in enumerate(self.array_of_tables(doc, "light")):
@@ -513,7 +513,7 @@ class _TomlLoader:
     def shape_media(self, b: SceneBuilder, key: str, t: dict, mat: str):
         """The material row of shape ``key`` that bounds the media its ``interior`` and
         ``exterior`` name (SceneBuilder.medium_interface; the camera's medium, or a side left
-        out, is the scene's own). Those media must be homogeneous [[medium]] tables."""
+        out, is the scene's own): homogeneous or grid [[medium]] tables."""
         sides = {}
         for side in ("interior", "exterior"):
             name = t.get(side)
@@ -525,12 +525,8 @@ class _TomlLoader:
                                            f"{', '.join(self.medium_tables) or '(none)'}")
             mkey, m = self.medium_tables[name]
             if m["type"] == "grid":
-                if b.bounded_grid is None:
+                if name not in b.bounded_grids:
                     self.grid_medium(b, mkey, m, bounded=name)
-                elif b.bounded_grid[0] != name:
-                    self.fail(f"{key}.{side}", f"medium '{name}' is a second grid medium "
-                                               f"bounded by shapes (after "
-                                               f"'{b.bounded_grid[0]}'); allowed: one per scene")
             elif name not in b.bounded_media:
                 try:
                     b.bounded_medium(name, **self.homogeneous(mkey, m))
@@ -549,7 +545,7 @@ class _TomlLoader:
         """A [[medium]] of type grid: ``file`` (a Mitsuba .vol file, one channel; its box unless
         bbox_min / bbox_max are given) or ``density`` (inline, with bbox_min and bbox_max); a
         constant ``albedo`` or an ``albedo_file`` (.vol, 1 or 3 channels, over the same box).
-        The camera's medium, or, with ``bounded`` (its name), the grid bounded by shapes."""
+        The camera's medium, or, with ``bounded`` (its name), a grid bounded by shapes."""
         if ("file" in m) == ("density" in m):
             self.fail(key, "a grid medium takes file (a .vol file) or density (an inline "
                            "[nz][ny][nx] array); allowed: one of the two")

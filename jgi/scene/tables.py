@@ -473,22 +473,22 @@ class Scene(eqx.Module):
     # of a scene before bounded media)
     bounded_media: Medium | None = None
     medium_interfaces: MediumInterfaces | None = None
-    # a heterogeneous medium bounded by shapes (its id: one after the homogeneous ones; zero
-    # outside its box as well), or None
-    bounded_grid: GridMedium | None = None
+    # heterogeneous media bounded by shapes (ids K + 1, K + 2, ... after the homogeneous ones;
+    # each zero outside its box as well), or None
+    bounded_grids: tuple[GridMedium, ...] | None = None
 
     @property
     def has_medium(self) -> bool:
         """Static: some of the scene's space holds a participating medium (paths then sample
         free flights)."""
         return (self.medium is not None or self.bounded_media is not None
-                or self.bounded_grid is not None)
+                or self.bounded_grids is not None)
 
     @property
     def has_bounded_media(self) -> bool:
         """Static: media bounded by shapes; rays and path vertices carry the id of the medium
-        they travel in (:mod:`jgi.transport.media_ids`)."""
-        return self.bounded_media is not None or self.bounded_grid is not None
+        they travel in (:mod:`jgi.physics.medium_interfaces`)."""
+        return self.bounded_media is not None or self.bounded_grids is not None
 
     @property
     def fills_with_homogeneous_medium(self) -> bool:
@@ -499,8 +499,8 @@ class Scene(eqx.Module):
     @property
     def has_grid_medium(self) -> bool:
         """Static: a medium is a density grid (null-scattering tracking): the scene's own, or
-        one bounded by shapes (``bounded_grid``)."""
-        return isinstance(self.medium, GridMedium) or self.bounded_grid is not None
+        some bounded by shapes (``bounded_grids``)."""
+        return isinstance(self.medium, GridMedium) or self.bounded_grids is not None
 
     @property
     def resolution(self) -> tuple[int, int]:

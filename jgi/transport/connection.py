@@ -37,7 +37,7 @@ from jax import Array
 from .._xla import materialize
 from ..core import rng
 from ..core.vec import V3, dot, max_component, where
-from ..physics import bsdf, camera, geometry, grid_media, media, medium_interfaces
+from ..physics import bsdf, camera, geometry, media, medium_interfaces
 from ..scene.tables import Scene
 from .subpath import (
     Vertices,
@@ -217,26 +217,26 @@ def transmittance(scene: Scene, dist: Array, shadow: tuple, active: Array,
     if not scene.has_grid_medium:
         return media.transmittance(medium_parameters(scene, medium).sigma_t, dist)
     in_grid = medium_interfaces.in_grid(scene, medium)
+    tracked = shadow_transmittance(scene, shadow, active, medium)
     if in_grid is None:
-        return shadow_transmittance(scene, shadow, active)
-    tracked = shadow_transmittance(scene, shadow, active & in_grid)
+        return tracked
     return where(in_grid, tracked,
                  media.transmittance(medium_parameters(scene, medium).sigma_t, dist))
 
 
-def shadow_transmittance(scene: Scene, shadow: tuple, active: Array) -> V3:
+def shadow_transmittance(scene: Scene, shadow: tuple, active: Array,
+                         medium: Array | None = None) -> V3:
     """Ratio tracking's estimate of the grid medium's transmittance along a shadow ray (origin,
     direction of any length, t_max; :func:`jgi.physics.geometry.shadow_ray`) for lanes
-    ``active`` (1 elsewhere), on a stream hashed from the ray itself
+    ``active`` (1 elsewhere; with bounded grids, the lanes whose ids ``medium`` are a grid's,
+    each tracked in its own), on a stream hashed from the ray itself
     (:func:`jgi.core.rng.ray_key`): the ray is random, so the stream is fresh for every
     connection and the same for a connection however it is reached (BDPT's strategies and
     MMLT's single one), with no key to carry from the subpaths. Not differentiated (the grid
     is held constant: :mod:`jgi.physics.grid_media`)."""
     o, d, t_max = shadow
     key = rng.ray_key(o, d, rng.SALTS["ratio_tracking"])
-    return grid_media.ratio_tracking(grid_media.held_constant(medium_interfaces.grid(scene)),
-                                     o, d, t_max,
-                                     active, key)
+    return medium_interfaces.transmittance(scene, medium, o, d, t_max, active, key)
 
 
 # --- shadow rays ----------------------------------------------------------------------------------

@@ -112,17 +112,15 @@ def trace_photon_paths(scene: Scene, seed, photon_index: Array, n_emitted, max_d
         # the grid's lanes (all, or a bounded grid's) are tracked, the others sampled in their
         # homogeneous medium (the table's row of a bounded grid: a vacuum with its g)
         in_grid = medium_interfaces.in_grid(scene, medium_id)
-        medium = (medium_interfaces.held_grid(scene) if grid and in_grid is None
-                  else medium_interfaces.parameters(scene, medium_id))
+        medium = (grid_media.held_constant(medium_interfaces.grids(scene)[0])
+                  if grid and in_grid is None else medium_interfaces.parameters(scene, medium_id))
         in_medium = None
         if scene.has_medium:   # a free flight before the surface (see the module)
             dm = 5 + max_depth * DIMS_PER_BOUNCE + 2 * depth
             t_hit = jnp.where(hit.valid, hit.t, jnp.inf)
             if grid:   # spectral tracking; its weight at a collision carries sigma_s(x)
-                gf = grid_media.sample_free_flight(
-                    medium_interfaces.held_grid(scene), o, d, t_hit, pw,
-                    alive if in_grid is None else alive & in_grid,
-                    rng.substream(u(dm), u(dm + 1)))
+                gf = medium_interfaces.free_flight(scene, medium_id, o, d, t_hit, pw, alive,
+                                                   rng.substream(u(dm), u(dm + 1)))
                 ff_t, ff_scattered, ff_weight = gf.t, gf.scattered, gf.weight
             if not grid or in_grid is not None:
                 ff = media.sample_free_flight(medium.sigma_t, medium.albedo, pw, t_hit, u(dm),
@@ -163,7 +161,7 @@ def trace_photon_paths(scene: Scene, seed, photon_index: Array, n_emitted, max_d
             x = o + d * jnp.where(in_medium, ff_t, 0.0)
             ph = phase.sample(medium.g, d, u(base), u(base + 1))
             if grid:   # the tracking's weight without sigma_s(x): its T / p
-                sigma_s = grid_media.scattering(medium_interfaces.held_grid(scene), x)
+                sigma_s = medium_interfaces.scattering(scene, medium_id, x)
                 t_over_p = V3(*(jnp.where(sc > 0, wc / jnp.where(sc > 0, sc, 1.0), 0.0)
                                 for wc, sc in zip(ff_weight, sigma_s)))
             if not grid or in_grid is not None:

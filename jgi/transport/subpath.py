@@ -178,23 +178,21 @@ def segment_density(scene: Scene, d2: Array, at_medium: Array, medium: Array | N
     In a grid medium the distance density of a tracked flight has no closed form (it holds the
     transmittance along the segment, which tracking only estimates). There the densities MIS
     reads take a proxy: the homogeneous medium's p(d) or P(d) at the grid's mean extinction
-    (:func:`mean_extinction`). It is a function of the segment alone, the same in every
-    strategy's density of the path, so the MIS weights of a path still sum to one and BDPT,
-    MMLT and VCM stay unbiased (consistent, for VCM's merges); what the proxy costs is variance
-    where the medium is far from its mean. (pbrt-v3's BDPT leaves the distance densities out
-    altogether; the proxy keeps their units, a medium vertex's 1 / length, and is exact in a
-    constant grid. Measured in tests/test_grid_media.py's smoke room, 16 seeds: BDPT's and
-    VCM's per-pixel variance within 0.5% of leaving them out, so the choice is a principle
-    there, not yet a measured gain.)"""
-    grid = medium_interfaces.grid(scene)
-    if grid is None:
+    (:func:`jgi.physics.medium_interfaces.mean_extinction`). It is a function of the segment
+    alone, the same in every strategy's density of the path, so the MIS weights of a path still
+    sum to one and BDPT, MMLT and VCM stay unbiased (consistent, for VCM's merges); what the
+    proxy costs is variance where the medium is far from its mean. (pbrt-v3's BDPT leaves the
+    distance densities out altogether; the proxy keeps their units, a medium vertex's 1 /
+    length, and is exact in a constant grid. Measured in tests/test_grid_media.py's smoke room,
+    16 seeds: BDPT's and VCM's per-pixel variance within 0.5% of leaving them out, so the choice
+    is a principle there, not yet a measured gain.)"""
+    if not scene.has_grid_medium:
         sigma_t = medium_parameters(scene, medium).sigma_t
     elif not scene.has_bounded_media:
-        sigma_t = mean_extinction(grid)
-    else:   # the bounded grid's lanes take its proxy, the others their medium's extinction
-        in_grid = medium_interfaces.in_grid(scene, medium)
-        sigma_t = where(in_grid, V3(*(jnp.broadcast_to(c, in_grid.shape)
-                                      for c in mean_extinction(grid))),
+        sigma_t = medium_interfaces.mean_extinction(scene, None)
+    else:   # the bounded grids' lanes take their grid's proxy, the others their medium's
+        sigma_t = where(medium_interfaces.in_grid(scene, medium),
+                        medium_interfaces.mean_extinction(scene, medium),
                         medium_parameters(scene, medium).sigma_t)
     return media.segment_pdf(sigma_t, jnp.sqrt(d2), at_medium)
 
@@ -205,13 +203,6 @@ def medium_parameters(scene: Scene, medium: Array | None):
     if scene.has_bounded_media and medium is None:
         raise ValueError("a scene with media bounded by shapes needs the segment's medium id")
     return medium_interfaces.parameters(scene, medium)
-
-
-def mean_extinction(medium) -> V3:
-    """A grid medium's extinction averaged over its voxels, RGB (sigma_t times the mean
-    density): the homogeneous stand-in of :func:`segment_density`'s proxy."""
-    d = jnp.mean(jax.lax.stop_gradient(medium.density))
-    return V3(*(d * jax.lax.stop_gradient(c) for c in medium.sigma_t))
 
 
 def area_density(scene: Scene, pdf_solid: Array, d2: Array, cos_at: Array, on_surface: Array,
@@ -319,12 +310,11 @@ def free_flight(scene: Scene, o: V3, d: V3, hit: geometry.Hit, alive: Array, u_c
     are tracked and the others sampled)."""
     sg = jax.lax.stop_gradient
     t_hit = jnp.where(hit.valid, hit.t, jnp.inf)
-    grid = medium_interfaces.grid(scene)
+    grid = scene.has_grid_medium or None
     in_grid = medium_interfaces.in_grid(scene, medium_id)
     if grid is not None:
         beta = V3.full(1.0, t_hit) if throughput is None else throughput
-        gf = grid_media.sample_free_flight(grid_media.held_constant(grid), o, d, t_hit,
-                                           sg(beta), alive if in_grid is None else alive & in_grid,
+        gf = medium_interfaces.free_flight(scene, medium_id, o, d, t_hit, sg(beta), alive,
                                            rng.substream(u_channel, u_distance))
         t_ff, scattered, weight = gf.t, gf.scattered, gf.weight
     if grid is None or in_grid is not None:
@@ -407,7 +397,7 @@ def random_walk(scene: Scene, key: Array, dim0: int, dims_per_step: int, n_steps
     mats = scene.materials
     kinds = mats.kinds
     if scene.has_grid_medium:   # the trackings' derivatives would come out zero: refused
-        grid_media.refuse_derivatives(medium_interfaces.grid(scene))
+        grid_media.refuse_derivatives(medium_interfaces.grids(scene))
 
     def step(s: WalkState, j):
         base = dim0 + j * dims_per_step

@@ -154,8 +154,8 @@ def trace_to_diffuse(scene: Scene, uniform, o: V3, d: V3, *, max_depth: int,
         # the grid's lanes (all, or a bounded grid's) are tracked, the others sampled in their
         # homogeneous medium
         in_grid = medium_interfaces.in_grid(scene, medium_id)
-        medium = (medium_interfaces.held_grid(scene) if grid and in_grid is None
-                  else medium_interfaces.parameters(scene, medium_id))
+        medium = (grid_media.held_constant(medium_interfaces.grids(scene)[0])
+                  if grid and in_grid is None else medium_interfaces.parameters(scene, medium_id))
         scattered = None
         if scene.has_medium and beams:   # the segment, for the beam estimate; T(s)
             t_seg = jnp.where(active, jnp.where(hit.valid, hit.t, jnp.inf), 0.0)
@@ -168,9 +168,8 @@ def trace_to_diffuse(scene: Scene, uniform, o: V3, d: V3, *, max_depth: int,
             dm = medium_dim0 + 2 * depth
             t_hit = jnp.where(hit.valid, hit.t, jnp.inf)
             if grid:   # spectral tracking; weight sigma_s(x) (null products) / (mu P_r)
-                ff = grid_media.sample_free_flight(
-                    medium_interfaces.held_grid(scene), o, d, t_hit, beta,
-                    active if in_grid is None else active & in_grid,
+                ff = medium_interfaces.free_flight(
+                    scene, medium_id, o, d, t_hit, beta, active,
                     rng.substream(uniform(dm), uniform(dm + 1)))
             if not grid or in_grid is not None:
                 fh = media.sample_free_flight(medium.sigma_t, medium.albedo, beta, t_hit,

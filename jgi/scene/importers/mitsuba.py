@@ -79,10 +79,11 @@ supported):
              on the side it leaves such a shape to, as in Mitsuba 3's volpath; homogeneous
              media other than the sensor's (and vacuum, where the sensor has a medium) become
              media bounded by shapes (glass holding milk, a fog inside a dielectric shell), and
-             so does one heterogeneous medium, the sensor's being homogeneous or none (smoke
-             in a glass jar; zero outside its grid's box). Refused: a second heterogeneous
-             medium, an area emitter whose exterior is not the sensor's medium, a shape medium
-             on a masked bsdf, and other medium plugins
+             so do heterogeneous media, the sensor's being homogeneous or none (smoke in
+             glass jars; each zero outside its grid's box). Refused: a heterogeneous medium
+             with another as the sensor's or a null cube's, an area emitter whose exterior is
+             not the sensor's medium, a shape medium on a masked bsdf, and other medium
+             plugins
   values     rgb, float, spectrum (a constant, wavelength:value pairs, a filename= .spd
              file, blackbody in emitters: converted to RGB as Mitsuba 3's RGB variants
              do, jgi.scene.spectra; a blackbody as its spectral variants' RGB film sees
@@ -1147,13 +1148,8 @@ class _Importer:
             name = m
         else:
             name = self.nested_media.setdefault(id(m), f"_medium{len(self.nested_media)}")
-        grid_name = None if self.b.bounded_grid is None else self.b.bounded_grid[0]
-        if name not in self.b.bounded_media and name != grid_name:
+        if name not in self.b.bounded_media and name not in self.b.bounded_grids:
             if self.check_type(el) == "heterogeneous":   # a grid bounded by the shape
-                if self.b.bounded_grid is not None:
-                    self.fail(shape, f"{kind}: heterogeneous medium '{name}' bounded by a shape, "
-                                     "in a scene with another: allowed: one heterogeneous "
-                                     "medium")
                 self.heterogeneous(el, bounded=name)
                 return name
             try:

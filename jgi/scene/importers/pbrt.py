@@ -73,8 +73,8 @@ supported):
              fastest, over the box p0 p1 in the medium's space, sigma_a, sigma_s, scale, g):
              jgi's grid medium with pbrt-v4's zero border, its box mapped by the transform
              current at MakeNamedMedium (scales and translations; rotations refused), as the
-             camera's medium or as one grid bounded by shapes (smoke in a glass jar). Refused
-             by name: a second grid, an area light
+             camera's medium or as grids bounded by shapes (smoke in glass jars). Refused
+             by name: a grid bounded by shapes with the camera's or a null box's, an area light
              whose outside is not the camera's medium, other medium types (rgbgrid, cloud,
              nanovdb), "preset", emissive media (Le, temperature)
   files      Include / Import; relative file names (includes, meshes, images, spectra)
@@ -1222,8 +1222,7 @@ class _Importer:
 
     def bounded_medium(self, name: str, shape, where) -> str:
         """The builder's name of medium ``name`` ("": vacuum) bounded by a shape, defined on
-        first use: a homogeneous medium, or a "uniformgrid" (the scene's one grid bounded by
-        shapes)."""
+        first use: a homogeneous medium, or a "uniformgrid" (a grid bounded by shapes)."""
         key = name or "_vacuum"
         if key in self.b.bounded_media:
             return key
@@ -1237,14 +1236,9 @@ class _Importer:
         p, mwhere, to_world = self.media[name]
         params = self.homogeneous_params(name, p, mwhere)
         is_grid = self._get(p, "type", None, mwhere)[0] == "uniformgrid"
-        bounded = None if self.b.bounded_grid is None else self.b.bounded_grid[0]
-        if is_grid and bounded not in (None, key):
-            self.fail(where, f"Shape \"{shape}\" bounds medium \"{name}\" (uniformgrid), a "
-                             f"second grid bounded by shapes after \"{bounded}\"; allowed: one "
-                             "per scene")
         try:
             if is_grid:
-                if bounded is None:
+                if key not in self.b.bounded_grids:
                     self.fill_uniformgrid(name, p, mwhere, to_world, params["sigma_a"],
                                           params["sigma_s"], params["scale"], params["g"],
                                           bounded=key)
