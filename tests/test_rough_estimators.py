@@ -113,14 +113,17 @@ def test_photon_mapping_matches_the_path_tracer_per_region(scene, pt):
     assert np.all(excess < 5 * se), np.round(excess / se, 2)
 
 
+# pm_jensen rendered this scene here too (finite, non-negative, lit: 37 s from an empty cache,
+# all of it compile, for a check that weak) until 2026-12-07, when the suite needed the time:
+# pm_jensen on microfacet materials is now unchecked (tests/test_photon_mapping.py checks it on
+# diffuse and specular scenes).
 @pytest.mark.parametrize("estimator, params", [
-    ("pm_jensen", dict(photons=10_000, caustic_photons=10_000, final_gather=8)),
     ("irradiance_cache", dict()),
     ("whitted", dict()),
 ])
 def test_other_estimators_render_microfacets(scene, estimator, params):
-    """Jensen's split and the irradiance cache sample through every microfacet vertex (their
-    lookups assume diffuse surfaces); Whitted stops at rough ones with direct light."""
+    """The irradiance cache samples through every microfacet vertex (its lookups assume
+    diffuse surfaces); Whitted stops at rough ones with direct light."""
     img = jgi.render(scene, estimator, spp=1, seed=0, **params)
     _check(img[None], estimator)
     assert img.mean() > 0
