@@ -183,7 +183,7 @@ def _shade(scene: Scene, cfg: PathTracerConfig, s: PathState, hit: geometry.Hit,
     in_grid = medium_interfaces.in_grid(scene, s.medium)
     if grid:   # delta (spectral) tracking; not differentiated (jgi.physics.grid_media)
         dm = cfg.dims_per_bounce
-        medium = grid_media.held_constant(medium_interfaces.grids(scene)[0])   # (its phase)
+        medium = medium_interfaces.held_grid(scene)   # (its phase)
         key_m = rng.substream(u(dm), u(dm + 1))
         gf = medium_interfaces.free_flight(scene, s.medium, s.o, s.d,
                                            jnp.where(hit.valid, hit.t, jnp.inf),

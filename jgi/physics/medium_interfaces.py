@@ -58,6 +58,13 @@ def grids(scene: Scene) -> tuple[GridMedium, ...]:
     return scene.bounded_grids or ()
 
 
+def held_grid(scene: Scene) -> GridMedium:
+    """The scene's first density grid held constant (rendered, not differentiated:
+    :func:`jgi.physics.grid_media.held_constant`): where the grid is the scene's own medium,
+    the one every lane travels in (its phase function)."""
+    return held_constant(grids(scene)[0])
+
+
 def grid_id(scene: Scene) -> int:
     """The medium id of the first bounded grid: one after the homogeneous bounded media
     (static)."""

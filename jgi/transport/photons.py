@@ -57,7 +57,7 @@ from ..core.calls import ordered_calls
 from ..core.compaction import live_indices, padded_size
 from ..core.sharding import device_mesh, sharded_calls
 from ..core.vec import V3, dot, max_component, where
-from ..physics import bsdf, geometry, grid_media, media, medium_interfaces, phase
+from ..physics import bsdf, geometry, media, medium_interfaces, phase
 from ..physics.lights import sample_emission
 from ..scene.tables import Scene
 from .visible_points import is_lookup_surface, samples_through
@@ -112,7 +112,7 @@ def trace_photon_paths(scene: Scene, seed, photon_index: Array, n_emitted, max_d
         # the grid's lanes (all, or a bounded grid's) are tracked, the others sampled in their
         # homogeneous medium (the table's row of a bounded grid: a vacuum with its g)
         in_grid = medium_interfaces.in_grid(scene, medium_id)
-        medium = (grid_media.held_constant(medium_interfaces.grids(scene)[0])
+        medium = (medium_interfaces.held_grid(scene)
                   if grid and in_grid is None else medium_interfaces.parameters(scene, medium_id))
         in_medium = None
         if scene.has_medium:   # a free flight before the surface (see the module)

@@ -21,7 +21,7 @@ from jax import Array
 
 from ..core import rng
 from ..core.vec import V3, where
-from ..physics import bsdf, geometry, grid_media, media, medium_interfaces
+from ..physics import bsdf, geometry, media, medium_interfaces
 from ..physics.lights import emitted, environment_radiance
 from ..scene.tables import DIFFUSE, PHONG, PLASTIC, ROUGH_DIELECTRIC, ROUGH_KINDS, Scene
 from .subpath import (
@@ -154,7 +154,7 @@ def trace_to_diffuse(scene: Scene, uniform, o: V3, d: V3, *, max_depth: int,
         # the grid's lanes (all, or a bounded grid's) are tracked, the others sampled in their
         # homogeneous medium
         in_grid = medium_interfaces.in_grid(scene, medium_id)
-        medium = (grid_media.held_constant(medium_interfaces.grids(scene)[0])
+        medium = (medium_interfaces.held_grid(scene)
                   if grid and in_grid is None else medium_interfaces.parameters(scene, medium_id))
         scattered = None
         if scene.has_medium and beams:   # the segment, for the beam estimate; T(s)
