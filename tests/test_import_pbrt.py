@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 import jgi
+from jgi.core import transform as xf
 from jgi.scene import SceneBuilder, SceneError
 from jgi.scene.importers import load_pbrt, pbrt
 from jgi.scene.tables import (
@@ -729,6 +730,12 @@ def test_uniformgrid_is_a_grid_medium_with_pbrts_zero_border(tmp_path):
     np.testing.assert_allclose([float(c) for c in t.lo], [-2, 1, -0.5])
     np.testing.assert_allclose([float(c) for c in t.hi], [2, 2, 0.5])
     np.testing.assert_array_equal(np.asarray(t.density), np.asarray(m.density)[:, :, ::-1])
+    # rotated: the box p0 p1 stays in the grid's frame, which the transform maps to the world
+    r = load_pbrt(_grid_file(tmp_path, "Translate 0 1 0\nRotate 30 0 1 0")).medium
+    np.testing.assert_allclose([float(c) for c in r.lo], [-1, 0, -1])
+    np.testing.assert_array_equal(np.asarray(r.density), np.asarray(m.density))
+    corner = np.asarray(xf.translate([0, 1, 0]) @ xf.rotate([0, 1, 0], 30) @ [1, 1, 1, 1])
+    np.testing.assert_allclose(np.asarray(r.to_local) @ corner, [1, 1, 1], atol=1e-6)
     a = jgi.render(load_pbrt(_grid_file(tmp_path)), "pt", spp=4, seed=3, max_depth=3)
     c = jgi.render(load_pbrt(_grid_file(tmp_path, density=" ".join(["0"] * 12))), "pt", spp=4,
                    seed=3, max_depth=3)
@@ -736,7 +743,7 @@ def test_uniformgrid_is_a_grid_medium_with_pbrts_zero_border(tmp_path):
 
 
 @pytest.mark.parametrize("transform, density, message", [
-    ("Rotate 30 0 1 0", None, "rotates, shears or projects the grid"),
+    ("Scale 1 0 1", None, "projects or flattens the grid; allowed: an invertible affine"),
     ("", "1 2 3", r'"density" has 3 values; nx ny nz = 3 x 2 x 2 needs 12'),
 ])
 def test_unsupported_uniformgrids_name_file_line_and_what_is_allowed(tmp_path, transform,
@@ -753,11 +760,12 @@ BOX = ('Shape "trianglemesh" "point3 P" [-1 -1 -1  1 -1 -1  1 1 -1  -1 1 -1  -1 
 
 
 def test_an_interface_box_holding_a_medium_is_a_grid_medium(tmp_path):
-    """pbrt-v4's usual volume: a box-shaped mesh with the "interface" material (no surface),
-    a medium inside and vacuum outside: jgi's grid medium over the box (a homogeneous medium a
-    constant grid, a uniformgrid its own box, which must be the mesh's); an interface shape
-    without a transition is left out. Refused by name: a box that is not one, a uniformgrid
-    over another box, the camera inside."""
+    """pbrt-v4's usual volume: a box-shaped mesh or a sphere with the "interface" material (no
+    surface), a medium inside and vacuum outside: jgi's grid medium cut to the shape (a
+    homogeneous medium a constant grid; a uniformgrid its own box, cut to the mesh's where it
+    differs); an interface shape without a transition is left out; the camera may sit inside
+    with the inside medium as its own. Refused by name: a mesh that is no box, a partial
+    sphere, the camera inside in another medium, outside in a medium."""
     head = FOG_HEADER.replace('MediumInterface "" "fog"\n', "")
     grid = ('MakeNamedMedium "smoke" "string type" "uniformgrid" "float density" [1 2 3 4 5 6 7 8]'
             ' "integer nx" 2 "integer ny" 2 "integer nz" 2 "point3 p0" [-1 -1 -1]'
@@ -770,6 +778,7 @@ def test_an_interface_box_holding_a_medium_is_a_grid_medium(tmp_path):
     p.write_text(head + body.format(inside="fog"))
     fog = load_pbrt(p)
     assert fog.has_grid_medium and fog.spheres.count == 0 and fog.triangles.count == 0
+    assert fog.medium.to_local is None and fog.medium.clip is None
     np.testing.assert_allclose([float(c) for c in fog.medium.lo], [-0.5, 0.0, -0.5], atol=1e-6)
     np.testing.assert_allclose([float(c) for c in fog.medium.hi], [0.5, 1.0, 0.5], atol=1e-6)
     # extinction (sigma_a + sigma_s) scale density: the scale 2 folded into the density
@@ -780,20 +789,46 @@ def test_an_interface_box_holding_a_medium_is_a_grid_medium(tmp_path):
     p.write_text(head + body.format(inside="smoke").replace(
         ' Material "interface"\n', ' ' + grid + ' Material "interface"\n', 1))
     smoke = load_pbrt(p)
-    assert np.asarray(smoke.medium.density).shape == (2, 2, 2)
+    assert np.asarray(smoke.medium.density).shape == (2, 2, 2) and smoke.medium.clip is None
+    # a uniformgrid over another box: cut to the mesh's (its top face y = 1 at the clip's 1)
+    p.write_text(head + body.format(inside="smoke").replace("AttributeBegin\n",
+                                                            grid + "AttributeBegin\n"))
+    cut = load_pbrt(p).medium
+    assert cut.clip is not None and cut.clip_shape == "cube"
+    np.testing.assert_allclose(np.asarray(cut.clip) @ [0.2, 1.0, 0.1, 1.0], [0.4, 1.0, 0.2],
+                               atol=1e-6)
+    # a turned box and a stretched sphere (an ellipsoid, as pbrt intersects it in object space)
+    p.write_text(head + body.format(inside="fog").replace("Scale 0.5",
+                                                          "Rotate 40 1 0 1\n Scale 0.5"))
+    turned = load_pbrt(p).medium
+    assert turned.to_local is not None and turned.clip is None
+    world = xf.translate([0, 0.5, 0]) @ xf.rotate([1, 0, 1], 40) @ xf.scale(0.5)
+    np.testing.assert_allclose(np.asarray(turned.to_local) @ world @ [1, -1, 1, 1], [1, -1, 1],
+                               atol=1e-5)
+    p.write_text(head + body.format(inside="fog").replace(BOX, 'Shape "sphere"\n').replace(
+        "Scale 0.5 0.5 0.5", "Scale 0.5 0.3 0.4"))
+    ball = load_pbrt(p).medium
+    assert ball.clip is not None and ball.clip_shape == "sphere"
+    np.testing.assert_allclose(np.asarray(ball.clip) @ [0.0, 0.8, 0.0, 1.0], [0, 1, 0], atol=1e-6)
+    # the camera (at 0 1 5) inside a big ball of fog that is its medium
+    # (the header's MediumInterface would make the unit sphere after the box bound fog too)
+    inside = body.format(inside="fog").replace(BOX, 'Shape "sphere"\n').replace(
+        "Scale 0.5 0.5 0.5", "Scale 9 9 9").replace('Shape "sphere" "float radius" 3\n', "")
+    p.write_text(FOG_HEADER + inside)
+    assert load_pbrt(p).medium.clip_shape == "sphere"
     cases = {
         "not a box": (body.format(inside="fog").replace("-1 1 1]", "-1 1 0.5]"),
-                      "its vertices are not the corners of an axis-aligned box"),
-        "other box": (body.format(inside="smoke").replace("AttributeBegin\n",
-                                                          grid + "AttributeBegin\n"),
-                      r'"smoke" \(uniformgrid\): its box \[-1.0, -1.0, -1.0\] - \[1.0, 1.0, 1.0\]'
-                      r' differs from the interface box'),
-        "sphere": (body.format(inside="fog").replace(BOX, 'Shape "sphere"\n'),
-                   'Shape "sphere" with the "interface" material bounding media'),
-        "camera inside": (body.format(inside="fog").replace("Scale 0.5 0.5 0.5", "Scale 9 9 9"),
-                          "the camera lies inside the box"),
+                      "its vertices are not the corners of a box"),
+        "partial sphere": (body.format(inside="fog").replace(
+            BOX, 'Shape "sphere" "float zmax" 0.5\n'), r'a partial sphere \("zmax"\)'),
+        "cylinder": (body.format(inside="fog").replace(BOX, 'Shape "cylinder"\n'),
+                     'Shape "cylinder" with the "interface" material bounding media'),
+        "camera inside": (inside, "the camera lies inside the sphere but its medium is \"\""),
     }
     for name, (text, message) in cases.items():
         p.write_text(head + text)
         with pytest.raises(SceneError, match=message):
             load_pbrt(p)
+    p.write_text(FOG_HEADER + body.format(inside="fog"))
+    with pytest.raises(SceneError, match='the camera lies outside the box in medium "fog"'):
+        load_pbrt(p)

@@ -1,17 +1,23 @@
 """Heterogeneous participating media on a density grid: null-scattering tracking.
 
-The medium (:class:`jgi.scene.tables.GridMedium`) is a density grid d[nz, ny, nx] over an
-axis-aligned box [lo, hi], with extinction per RGB channel
+The medium (:class:`jgi.scene.tables.GridMedium`) is a density grid d[nz, ny, nx] over a box
+[lo, hi] of the grid's frame (the world's, or an affine image of it: a rotated grid), with
+extinction per RGB channel
 
     sigma_t,c(x) = d(x) sigma_t,c^0,     sigma_s,c(x) = rho_c sigma_t,c(x),
 
 a single-scattering albedo rho (constant, or times an RGB albedo grid over the same box,
 interpolated alike) and a Henyey-Greenstein phase function; outside the box the density is 0
-(vacuum). d(x) interpolates the grid trilinearly with Mitsuba 3's
-``gridvolume`` convention: the box's unit coordinates u in [0, 1]^3 map to the continuous index
-u n - 1/2 (voxel centres at (i + 1/2) / n), clamped to [0, n - 1] per axis, so the density is
-constant between the box's faces and the outermost voxel centres (Dr.Jit's texture lookup with
-the clamp wrap mode, checked against ``mi.load_dict({'type': 'gridvolume', ...}).eval``).
+(vacuum), and so it is outside the medium's convex null boundary where it has one (a cube or
+sphere under an affine map: Mitsuba's shape with a ``null`` bsdf, pbrt-v4's ``interface``; a
+homogeneous medium in a null sphere is a constant grid clipped to the sphere). Box and boundary
+are convex, so a ray meets the medium in one interval (:func:`extent`) and the trackings below
+run over it alone, in the grid's frame with the world's distances. d(x) interpolates the grid
+trilinearly with Mitsuba 3's ``gridvolume`` convention: the box's unit coordinates u in [0, 1]^3
+map to the continuous index u n - 1/2 (voxel centres at (i + 1/2) / n), clamped to [0, n - 1]
+per axis, so the density is constant between the box's faces and the outermost voxel centres
+(Dr.Jit's texture lookup with the clamp wrap mode, checked against
+``mi.load_dict({'type': 'gridvolume', ...}).eval``).
 
 Null scattering (Woodcock tracking; Miller, Georgiev and Jarosz 2019; Mitsuba 3's volpath,
 pbrt-v4): with a majorant mu >= sigma_t,c(x) for every channel and point of the box, the
@@ -181,6 +187,68 @@ def clip_to_box(lo: V3, hi: V3, o: V3, d: V3) -> tuple[Array, Array]:
     return t0, t1
 
 
+def _affine(m: Array, p: V3) -> V3:
+    """The affine map m ([3, 4]) applied to points p."""
+    return V3(*(m[i, 0] * p.x + m[i, 1] * p.y + m[i, 2] * p.z + m[i, 3] for i in range(3)))
+
+
+def _linear(m: Array, d: V3) -> V3:
+    """The linear part of m ([3, 4]) applied to directions d."""
+    return V3(*(m[i, 0] * d.x + m[i, 1] * d.y + m[i, 2] * d.z for i in range(3)))
+
+
+def to_grid_frame(medium, o: V3, d: V3) -> tuple[V3, V3]:
+    """The ray o + t d in the grid's frame (``GridMedium.to_local``), its parameter t unchanged:
+    d is mapped, not normalised, so distances along it stay the world's and so do the
+    extinction's units."""
+    if medium.to_local is None:
+        return o, d
+    return _affine(medium.to_local, o), _linear(medium.to_local, d)
+
+
+def _clip_interval(medium, o: V3, d: V3) -> tuple[Array, Array]:
+    """(t_enter, t_exit) of the world ray o + t d in the medium's convex null boundary (its
+    unit cube or sphere, in the frame ``clip`` maps to); (-inf, inf) without one."""
+    if medium.clip is None:
+        return -jnp.inf, jnp.inf
+    oc, dc = _affine(medium.clip, o), _linear(medium.clip, d)
+    if medium.clip_shape == "cube":
+        one = jnp.float32(1.0)
+        return clip_to_box(V3(-one, -one, -one), V3(one, one, one), oc, dc)
+    # |oc + t dc|^2 = 1, with the cancellation-free roots (q = -(b + sign(b) sqrt(disc)))
+    a = dc.x * dc.x + dc.y * dc.y + dc.z * dc.z
+    b = oc.x * dc.x + oc.y * dc.y + oc.z * dc.z
+    c = oc.x * oc.x + oc.y * oc.y + oc.z * oc.z - 1.0
+    disc = b * b - a * c
+    hit = (disc > 0) & (a > 0)
+    q = -(b + jnp.where(b >= 0, 1.0, -1.0) * jnp.sqrt(jnp.where(hit, disc, 0.0)))
+    r0 = q / jnp.where(hit, a, 1.0)
+    r1 = c / jnp.where(hit & (q != 0), q, 1.0)
+    r1 = jnp.where(q != 0, r1, r0)
+    return (jnp.where(hit, jnp.minimum(r0, r1), jnp.inf),
+            jnp.where(hit, jnp.maximum(r0, r1), -jnp.inf))
+
+
+def inside_clip(medium, p: V3) -> Array | bool:
+    """Whether world points p lie inside the medium's null boundary (True without one)."""
+    if medium.clip is None:
+        return True
+    q = _affine(medium.clip, p)
+    if medium.clip_shape == "cube":
+        return (jnp.abs(q.x) <= 1.0) & (jnp.abs(q.y) <= 1.0) & (jnp.abs(q.z) <= 1.0)
+    return q.x * q.x + q.y * q.y + q.z * q.z <= 1.0
+
+
+def extent(medium, o: V3, d: V3) -> tuple[Array, Array]:
+    """(t_enter, t_exit) of the world ray o + t d in the medium: its box (in the grid's frame)
+    cut by its null boundary; t_enter >= t_exit: a miss. Both are convex, so the ray meets the
+    medium in one interval and the trackings run over it alone."""
+    o_l, d_l = to_grid_frame(medium, o, d)
+    t0, t1 = clip_to_box(medium.lo, medium.hi, o_l, d_l)
+    c0, c1 = _clip_interval(medium, o, d)
+    return jnp.maximum(t0, c0), jnp.minimum(t1, c1)
+
+
 class GridFlight(NamedTuple):
     t: Array          # distance of the real collision (= t_max where none)
     scattered: Array  # bool: a real collision before t_max
@@ -188,8 +256,8 @@ class GridFlight(NamedTuple):
 
 
 def albedo(medium, p: V3) -> V3:
-    """The single-scattering albedo at points p inside the box: the constant, times the albedo
-    grid's interpolated RGB where the medium has one."""
+    """The single-scattering albedo at points p of the grid's frame inside the box: the
+    constant, times the albedo grid's interpolated RGB where the medium has one."""
     a = medium.albedo
     if medium.albedo_grid is None:
         return a
@@ -199,8 +267,12 @@ def albedo(medium, p: V3) -> V3:
 
 
 def scattering(medium, p: V3) -> V3:
-    """sigma_s,c(x) = albedo_c(x) sigma_t,c(x) at points p (0 outside the box)."""
-    return V3(*(a * st for a, st in zip(albedo(medium, p), _sigma_t(medium, p))))
+    """sigma_s,c(x) = albedo_c(x) sigma_t,c(x) at world points p (0 outside the box and the
+    null boundary)."""
+    q = p if medium.to_local is None else _affine(medium.to_local, p)
+    inside = inside_clip(medium, p)
+    return V3(*(jnp.where(inside, a * st, 0.0)
+                for a, st in zip(albedo(medium, q), _sigma_t(medium, q))))
 
 
 def _sigma_t(medium, p: V3) -> V3:
@@ -210,7 +282,8 @@ def _sigma_t(medium, p: V3) -> V3:
 
 def _tracker(medium, o: V3, d: V3, t_start: Array, t_end: Array, live: Array, key: Array,
              carry, collide):
-    """Tentative collisions along o + t d (unit d), t in [t_start, t_end], against the majorant
+    """Tentative collisions along o + t d (in the grid's frame, t the world distance: d the
+    image of a unit direction), t in [t_start, t_end], against the majorant
     grid (one cell: the global majorant), for lanes ``live``. Cells are crossed by a DDA
     (Amanatides and Woo 1987; pbrt-v4's DDAMajorantIterator): in a cell of majorant mu the next
     distance is exponential at rate mu, and one that passes the cell's exit restarts there at
@@ -274,7 +347,8 @@ def sample_free_flight(medium, o: V3, d: V3, t_max: Array, throughput: V3, activ
                        key: Array) -> GridFlight:
     """Spectral (weighted delta) tracking along the unit-direction ray o + t d, t in
     [0, t_max] (inf: unbounded), for lanes ``active``; ``key``: the flight's random stream."""
-    t0, t1 = clip_to_box(medium.lo, medium.hi, o, d)
+    t0, t1 = extent(medium, o, d)
+    o, d = to_grid_frame(medium, o, d)
     t_start, t_end = jnp.maximum(t0, 0.0), jnp.minimum(t1, t_max)
     go = active & (t_start < t_end)
     one = jnp.ones_like(t_start)
@@ -308,7 +382,8 @@ def ratio_tracking(medium, o: V3, d: V3, t_max: Array, active: Array, key: Array
     collisions (see the module)."""
     n = length_of(d)
     dn = d * (1.0 / jnp.where(n > 0, n, 1.0))
-    t0, t1 = clip_to_box(medium.lo, medium.hi, o, dn)
+    t0, t1 = extent(medium, o, dn)
+    o, dn = to_grid_frame(medium, o, dn)
     t_start, t_end = jnp.maximum(t0, 0.0), jnp.minimum(t1, t_max * n)
     go = active & (t_start < t_end) & (n > 0)
     one = jnp.ones_like(t_start)

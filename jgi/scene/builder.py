@@ -341,7 +341,10 @@ def _grid_medium_of(m: dict) -> GridMedium:
                       jnp.asarray(grid), f(m["lo"]), f(m["hi"]),
                       jnp.float32(grid.max()), jnp.asarray(m["majorants"]),
                       None if m["albedo_grid"] is None else jnp.asarray(m["albedo_grid"]),
-                      border=m["border"])
+                      border=m["border"],
+                      to_local=None if m["to_local"] is None else jnp.asarray(m["to_local"]),
+                      clip=None if m["clip"] is None else jnp.asarray(m["clip"]),
+                      clip_shape=m["clip_shape"])
 
 
 @dataclass
@@ -442,7 +445,8 @@ class SceneBuilder:
 
     def grid_medium(self, density, bbox_min=(0.0, 0.0, 0.0), bbox_max=(1.0, 1.0, 1.0), *,
                     sigma_t=1.0, albedo=1.0, g=0.0, scale=1.0,
-                    majorant_resolution=MAJORANT_RESOLUTION, border="clamp"):
+                    majorant_resolution=MAJORANT_RESOLUTION, border="clamp", to_world=None,
+                    clip=None):
         """Fill the box [bbox_min, bbox_max] with a heterogeneous medium (vacuum around it; the
         camera's medium, both sides of every surface): extinction
         sigma_t,c(x) = scale density(x) sigma_t,c, ``density`` a [nz, ny, nx] grid (x fastest,
@@ -453,7 +457,13 @@ class SceneBuilder:
         ``majorant_resolution`` cells per axis (at most the grid's; 1: one global majorant).
         ``border``: the density between a face and the outermost voxel centres, "clamp"
         (Mitsuba's gridvolume: the outermost voxels') or "zero" (pbrt-v4's grids: falling
-        towards 0 half a voxel beyond the face); the majorants bound both."""
+        towards 0 half a voxel beyond the face); the majorants bound both. ``to_world``: a
+        4 x 4 affine map from the grid's frame, where the box lies, to the world (None: the
+        identity; a rotated or sheared grid otherwise). ``clip``: a convex null boundary the
+        medium is cut to, ("cube" or "sphere", the 4 x 4 map of the unit shape, [-1, 1]^3 or
+        the unit ball, to the world): Mitsuba's shape with a ``null`` bsdf, pbrt-v4's
+        ``interface`` one; a homogeneous medium in it is a 1 x 1 x 1 grid over a box that holds
+        the shape."""
         if border not in ("clamp", "zero"):
             raise SceneError(f"grid medium: border {border!r} is not one of 'clamp' (Mitsuba), "
                              "'zero' (pbrt-v4)")
@@ -487,8 +497,18 @@ class SceneBuilder:
             raise SceneError(f"medium albedo {alb.tolist()} must lie in [0, 1]")
         if not -1.0 < float(g) < 1.0:
             raise SceneError(f"medium g = {g} must lie in (-1, 1) (Henyey-Greenstein)")
+        to_local = self._grid_frame("the grid's to_world", to_world)
+        clip_shape, clip_to_local = "cube", None
+        if clip is not None:
+            if not (isinstance(clip, tuple) and len(clip) == 2 and clip[0] in ("cube", "sphere")):
+                raise SceneError(f"grid medium: clip must be (\"cube\" or \"sphere\", a 4 x 4 "
+                                 f"to_world), got {clip!r}")
+            clip_shape, clip_to_local = clip[0], self._grid_frame("the clip's to_world", clip[1])
         grid = (grid * float(scale)).astype(np.float32)
-        depth = float(grid.max()) * float(st.max()) * float(np.linalg.norm(hi - lo))
+        # the box's diagonal in world space bounds any chord through it
+        stretch = 1.0 if to_world is None else float(np.linalg.norm(
+            np.asarray(to_world, float)[:3, :3], 2))
+        depth = float(grid.max()) * float(st.max()) * float(np.linalg.norm(hi - lo)) * stretch
         if depth > MAX_OPTICAL_DEPTH:
             raise SceneError(f"grid medium: majorant optical depth {depth:.3g} across the box "
                              f"exceeds {MAX_OPTICAL_DEPTH:.0e} tentative collisions per crossing; "
@@ -499,7 +519,23 @@ class SceneBuilder:
         self.medium_args = dict(sigma_t=tuple(st), albedo=tuple(alb), g=float(g), grid=grid,
                                 lo=tuple(lo), hi=tuple(hi),
                                 majorants=majorant_grid(grid, int(majorant_resolution)),
-                                albedo_grid=alb_grid, border=border)
+                                albedo_grid=alb_grid, border=border, to_local=to_local,
+                                clip=clip_to_local, clip_shape=clip_shape)
+
+    @staticmethod
+    def _grid_frame(what: str, to_world) -> np.ndarray | None:
+        """The [3, 4] world-to-frame map of an invertible affine 4 x 4 ``to_world`` (None:
+        None, the identity)."""
+        if to_world is None:
+            return None
+        m = np.asarray(to_world, float)
+        if m.shape != (4, 4) or not np.all(np.isfinite(m)) or np.any(m[3] != (0, 0, 0, 1)):
+            raise SceneError(f"grid medium: {what} must be a finite affine 4 x 4 matrix (last "
+                             "row 0 0 0 1)")
+        lin = m[:3, :3]
+        if abs(np.linalg.det(lin)) <= 1e-12 * max(np.abs(lin).max(), 1e-30) ** 3:
+            raise SceneError(f"grid medium: {what} is singular (it flattens the medium)")
+        return np.linalg.inv(m)[:3].astype(np.float32)
 
     # --- textures ---------------------------------------------------------------------------
     def texture(self, name: str, kind: str, *, color0=(0.4, 0.4, 0.4), color1=(0.2, 0.2, 0.2),

@@ -62,11 +62,14 @@ MEDIUM_KEYS = {"homogeneous": {"name": "str", "type": "str", "sigma_t": "rgb", "
                                "sigma_a": "rgb", "sigma_s": "rgb", "g": "number",
                                "scale": "number"},
                # a density grid (SceneBuilder.grid_medium): from a Mitsuba .vol file (its box by
-               # default) or inline, density = [[[x values] per y] per z]
+               # default) or inline, density = [[[x values] per y] per z]; transform: the
+               # grid's frame (its box) to the world; clip: "cube" or "sphere", a convex null
+               # boundary cutting the medium (its unit shape placed by clip_transform)
                "grid": {"name": "str", "type": "str", "file": "str", "density": "grid",
                         "bbox_min": "vec3", "bbox_max": "vec3", "sigma_t": "rgb", "albedo": "rgb",
                         "albedo_file": "str", "g": "number", "scale": "number",
-                        "border": "str"}}
+                        "border": "str", "transform": "table", "clip": "str",
+                        "clip_transform": "table"}}
 
 # Each material type accepts only the parameters its BSDF uses (a key another type uses is a
 # likely mistake, e.g. `ior` on a mirror). Defaults are filled in by `_material`.
@@ -563,8 +566,19 @@ class _TomlLoader:
             if "albedo" in m:
                 self.fail(key, "give albedo or albedo_file; allowed: one of the two")
             albedo = self.vol(f"{key}.albedo_file", m["albedo_file"], (1, 3))[0]
+        frame = {}
+        if "transform" in m:
+            frame["to_world"] = self.transform(f"{key}.transform", m["transform"])
+        if ("clip" in m) != ("clip_transform" in m):
+            self.fail(key, "clip and clip_transform go together (the shape, and where its unit "
+                           "cube or sphere lies)")
+        if "clip" in m:
+            if m["clip"] not in ("cube", "sphere"):
+                self.fail(f"{key}.clip", f"unknown shape {m['clip']!r}; allowed: cube, sphere")
+            frame["clip"] = (m["clip"], self.transform(f"{key}.clip_transform",
+                                                       m["clip_transform"]))
         params = dict(sigma_t=m.get("sigma_t", 1.0), albedo=albedo, g=m.get("g", 0.0),
-                      scale=m.get("scale", 1.0), border=m.get("border", "clamp"))
+                      scale=m.get("scale", 1.0), border=m.get("border", "clamp"), **frame)
         try:
             if bounded is None:
                 b.grid_medium(grid, lo, hi, **params)

@@ -412,9 +412,10 @@ class MediumInterfaces(eqx.Module):
 
 class GridMedium(eqx.Module):
     """A heterogeneous medium (:mod:`jgi.physics.grid_media`): extinction
-    sigma_t,c(x) = density(x) sigma_t,c inside the axis-aligned box [lo, hi] (0 outside), the
-    density interpolated trilinearly from the grid (voxel centres, Mitsuba 3's gridvolume
-    convention), constant albedo, Henyey-Greenstein g. The grid's shape is static (one compile
+    sigma_t,c(x) = density(x) sigma_t,c inside the box [lo, hi] of the grid's frame (0 outside;
+    optionally clipped to a convex null boundary, ``clip``), the density interpolated
+    trilinearly from the grid (voxel centres, Mitsuba 3's gridvolume convention), constant
+    albedo, Henyey-Greenstein g. The grid's shape is static (one compile
     per shape); ``majorant`` is max(density) and ``majorants`` the max per coarse cell, computed
     when the scene is built (the trackings' bounds: a density above them would bias them, so
     edit the grid through the builder, or :func:`jgi.scene.builder.majorant_grid`)."""
@@ -435,6 +436,15 @@ class GridMedium(eqx.Module):
     # between a face and the outermost voxel centres: "clamp" (Mitsuba's gridvolume) or "zero"
     # (pbrt-v4's grids: towards 0 half a voxel beyond the face); see grid_media.density
     border: str = eqx.field(static=True, default="clamp")
+    # world -> the grid's frame, [3, 4] affine (the box [lo, hi] lies in that frame: a rotated
+    # or sheared grid); None: the grid's frame is the world's (an axis-aligned box)
+    to_local: Array | None = None
+    # a convex null boundary the medium is clipped to (Mitsuba's shape with a "null" bsdf,
+    # pbrt-v4's with the "interface" material): world -> the frame of its unit shape, [3, 4]
+    # affine; None: the box alone bounds the medium
+    clip: Array | None = None
+    # the unit shape of ``clip``: "cube" ([-1, 1]^3, Mitsuba's cube) or "sphere" (radius 1)
+    clip_shape: str = eqx.field(static=True, default="cube")
 
 
 class Camera(eqx.Module):

@@ -7,6 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ...core import transform as xf
 from ..builder import SceneError
 from ..tables import NAMED_METALS
 
@@ -298,3 +299,28 @@ def load_mesh(path: Path, where: str, allow_vertex_normals: bool = True, with_uv
     uv = getattr(mesh.visual, "uv", None)
     uv = None if uv is None or len(uv) != len(v) else np.asarray(uv, float)
     return v, f, uv
+
+
+def axis_aligned(m: np.ndarray) -> bool:
+    """Whether the affine 4 x 4 map m only scales (positively, per axis) and translates."""
+    lin = m[:3, :3]
+    return bool(np.all(np.abs(lin - np.diag(np.diag(lin))) <= 1e-9) and np.all(np.diag(lin) > 0)
+                and np.all(m[3] == (0, 0, 0, 1)))
+
+
+def zero_faces(grid: np.ndarray) -> bool:
+    """Whether every voxel on the faces of grid [nz, ny, nx] is 0."""
+    return not any(np.any(np.take(grid, i, axis=a)) for a in range(3) for i in (0, -1))
+
+
+def same_region(null, lo, hi, to_world) -> bool:
+    """Whether the null shape ``null`` (shape, unit shape to world: Mitsuba's cube or sphere
+    with a null bsdf, pbrt-v4's box or sphere with the interface material) is the grid's box
+    [lo, hi] (in the frame ``to_world`` maps to the world; None: the world's): then it cuts
+    nothing."""
+    shape, unit = null
+    if shape != "cube":
+        return False
+    box = xf.translate((np.asarray(lo) + hi) / 2) @ xf.scale((np.asarray(hi) - lo) / 2)
+    grid = box if to_world is None else np.asarray(to_world, float) @ box
+    return bool(np.allclose(grid, unit, rtol=0, atol=1e-6 * max(np.abs(unit).max(), 1.0)))

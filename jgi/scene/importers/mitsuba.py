@@ -36,8 +36,9 @@ supported):
              int_ior bk7 (1.5046), (rough)plastic diffuse_reflectance 0.5, int_ior
              polypropylene (1.49), nonlinear false, ext_ior air (1.000277). Unknown parameters
              are refused (Mitsuba refuses unreferenced properties too). null: no surface; a
-             shape with it is left out, or, an axis-aligned cube holding a medium in vacuum
-             (Mitsuba's usual volume), becomes jgi's grid medium over the cube's box (see
+             shape with it is left out, or, a cube (any affine to_world) or sphere holding a
+             medium in vacuum (Mitsuba's usual volume; the sensor outside, or inside with the
+             medium as its own), becomes jgi's grid medium cut to the shape (see
              _Importer.null_shape). A shape without a bsdf is diffuse 0.5, or black if it
              emits (as in Mitsuba 3). Refused: the other plugins.
   texture    bitmap (filename: PNG, JPEG or EXR; filter_type bilinear; wrap_mode repeat; raw;
@@ -81,7 +82,7 @@ supported):
              media bounded by shapes (glass holding milk, a fog inside a dielectric shell), and
              so do heterogeneous media, the sensor's being homogeneous or none (smoke in
              glass jars; each zero outside its grid's box). Refused: a heterogeneous medium
-             with another as the sensor's or a null cube's, an area emitter whose exterior is
+             with another as the sensor's or a null shape's, an area emitter whose exterior is
              not the sensor's medium, a shape medium on a masked bsdf, and other medium
              plugins
   values     rgb, float, spectrum (a constant, wavelength:value pairs, a filename= .spd
@@ -117,13 +118,16 @@ from ..tables import DIELECTRIC, ROUGH_DIELECTRIC, Scene
 from ._common import (
     NAMED_IOR,
     ImportError_,
+    axis_aligned,
     has_texture_coordinates,
     load_mesh,
     load_mesh_with_normals,
     named_metals,
     normals_are_flat,
     read_serialized,
+    same_region,
     tangent_frame,
+    zero_faces,
 )
 from .volgrid import VolError, read_vol
 
@@ -225,6 +229,7 @@ class _Importer:
         self.b = SceneBuilder(path.stem)
         self.bsdfs: dict[str, tuple] = {}   # id -> (kind, kwargs)
         self.null_bsdfs: set = set()        # names of null bsdfs (no material: see null_shape)
+        self.null_volume = None              # the medium a null shape bounds (null_shape)
         self.anisotropic: set[str] = set()  # BSDFs with alpha_u != alpha_v
         self.two_sided_rows: dict[int, int] = {}  # one-sided row -> its twosided copy
         self.n_anon = 0
@@ -1047,7 +1052,9 @@ class _Importer:
                 media.append(self.media[c.get("id")])
         if len(media) > 1:
             self.fail(el, "a sensor takes one medium")
-        if media:
+        bounded = self.null_volume and self.null_volume[3]
+        if media and not (bounded is not None and (self.media.get(bounded) if isinstance(
+                bounded, str) else bounded) is media[0]):   # (else the null shape's, clipped)
             self.medium(media[0])
 
     def sensor_medium_element(self, el):
@@ -1090,13 +1097,17 @@ class _Importer:
 
     def null_shape(self, el, kind: str, m, shape_media: dict, emission):
         """A shape whose bsdf is ``null``: no surface (rays pass through it unchanged, as in
-        Mitsuba 3). Without media of its own it is left out. A ``cube`` that bounds a medium
-        (its interior) with the sensor's vacuum outside, axis-aligned (to_world a positive
-        scale and a translation), is Mitsuba's usual volume: jgi's grid medium over the cube's
-        box (vacuum around it), a heterogeneous interior's grid over the same box, a
-        homogeneous one a constant grid. Other null boundaries (around a medium the camera
-        sits in, inside another medium, other shapes, rotated cubes) are refused by name:
-        jgi's surfaces that bound media scatter light."""
+        Mitsuba 3). Without media of its own it is left out. A ``cube`` (any invertible affine
+        to_world) or ``sphere`` (rotated, scaled uniformly, moved) whose
+        interior is a medium and whose exterior is vacuum is Mitsuba's usual volume: jgi's
+        grid medium cut to the shape (:mod:`jgi.physics.grid_media`; a heterogeneous
+        interior's grid, zero outside its box too; a homogeneous one a constant grid), the
+        scene's own medium. The sensor sits outside it in vacuum, or inside it with the
+        interior as its medium: Mitsuba starts camera rays in the sensor's medium and changes
+        media only where they cross a shape that names them, so either way a ray travels in the
+        medium where it is inside the shape and in vacuum outside. Other null boundaries
+        (inside another medium, meshes, several volumes) are refused by name: jgi's surfaces
+        that bound media scatter light."""
         if emission is not None:
             self.fail(el, f"{kind}: an area emitter on a 'null' bsdf is not supported (the "
                           "surface does not exist); give the shape a bsdf")
@@ -1109,31 +1120,61 @@ class _Importer:
             return a == b if isinstance(a, str) and isinstance(b, str) else a is b
         if same(interior, exterior):
             return   # no surface and no medium transition: nothing to render
-        what = (f"{kind} with a 'null' bsdf bounding media: supported is an axis-aligned cube "
-                "whose interior is a medium and whose exterior is vacuum, the sensor's too (a "
-                "volume in a box)")
-        if kind != "cube" or exterior is not None or fill is not None or interior is None:
+        what = (f"{kind} with a 'null' bsdf bounding media: supported is a cube or a sphere "
+                "whose interior is a medium and whose exterior is vacuum, the sensor outside "
+                "it in vacuum or inside it in that medium (a volume in a convex shape)")
+        if kind not in ("cube", "sphere") or exterior is not None or interior is None:
             self.fail(el, what)
-        lin = m[:3, :3]
-        if (np.any(np.abs(lin - np.diag(np.diag(lin))) > 1e-9) or np.any(np.diag(lin) <= 0)
-                or np.any(m[3] != (0, 0, 0, 1))):
-            self.fail(el, f"{what}; its to_world must be a positive scale and a translation")
-        lo, hi = m[:3, 3] - np.diag(lin), m[:3, 3] + np.diag(lin)
-        if self.b.medium_args is not None:
+        unit = np.asarray(m, float)   # the unit shape ([-1, 1]^3, the unit ball) to world
+        if kind == "sphere":
+            p = self.props(el)
+            unit = unit @ xf.translate(p.get("center", np.zeros(3))) @ xf.scale(
+                float(p.get("radius", 1.0)))
+            cols = unit[:3, :3]
+            if not np.allclose(cols.T @ cols, np.eye(3) * (cols[:, 0] @ cols[:, 0]), rtol=0,
+                               atol=1e-9 * (cols[:, 0] @ cols[:, 0])):
+                self.fail(el, "sphere: to_world must be a uniform scale, rotation and "
+                              "translation (as Mitsuba's sphere)")
+        if np.any(unit[3] != (0, 0, 0, 1)) or abs(np.linalg.det(unit[:3, :3])) < 1e-12:
+            self.fail(el, f"{what}; its to_world must be an invertible affine map")
+        if self.null_volume is not None or (self.b.medium_args is not None
+                                            and not same(fill, interior)):
             self.fail(el, f"{what}; the scene has one already (jgi takes one grid medium)")
-        cam = self.b.camera_args
-        if cam is not None and np.all(np.asarray(cam["position"]) > lo) \
-                and np.all(np.asarray(cam["position"]) < hi):
-            self.fail(el, f"{what}; the sensor lies inside the cube")
+        self.null_volume = (el, kind, unit, interior, what)   # the sensor: check_null_volume
+        self.b.medium_args = None   # the sensor's medium, unclipped, if the sensor came first
         medium = self.media[interior] if isinstance(interior, str) else interior
         if self.check_type(medium) == "heterogeneous":
-            return self.heterogeneous(medium, box=(lo, hi))
+            return self.heterogeneous(medium, null=(kind, unit))
         q = self.homogeneous_params(medium)
+        if kind == "cube" and axis_aligned(unit):   # a constant grid over the box
+            lo, hi = unit[:3, 3] - np.diag(unit[:3, :3]), unit[:3, 3] + np.diag(unit[:3, :3])
+            frame = dict()
+        else:   # a constant grid over the shape's own [-1, 1]^3, cut to the ball
+            lo, hi = -np.ones(3), np.ones(3)
+            frame = dict(to_world=unit, clip=("sphere", unit) if kind == "sphere" else None)
         try:
             self.b.grid_medium(np.ones((1, 1, 1)), lo, hi, sigma_t=q["sigma_t"],
-                               albedo=q["albedo"], g=q["g"], scale=q["scale"])
+                               albedo=q["albedo"], g=q["g"], scale=q["scale"], **frame)
         except SceneError as e:
             self.fail(medium, str(e))
+
+    def check_null_volume(self):
+        """The sensor against the null shape's volume (:meth:`null_shape`), once both are
+        read: inside it with the interior as its medium, or outside in vacuum."""
+        if self.null_volume is None:
+            return
+        el, kind, unit, interior, what = self.null_volume
+        fill, cam = self.sensor_medium_of_file, self.b.camera_args
+        q = xf.apply_point(np.linalg.inv(unit), np.asarray(cam["position"], float))
+        inside = bool(np.all(np.abs(q) < 1) if kind == "cube" else q @ q < 1)
+        element = lambda m: self.media[m] if isinstance(m, str) else m   # noqa: E731
+        if inside and (fill is None or element(fill) is not element(interior)):
+            self.fail(el, f"{what}; the sensor lies inside the {kind} but its medium is not "
+                          "the interior (Mitsuba starts its rays in the sensor's medium); "
+                          "give the sensor the interior's medium")
+        if not inside and fill is not None:
+            self.fail(el, f"{what}; the sensor lies outside the {kind} in a medium (allowed: "
+                          "vacuum outside)")
 
     def bounded_medium(self, shape, kind: str, m) -> str:
         """The builder's name of medium ``m`` (an id, a nested element, or None: vacuum) bounded
@@ -1190,13 +1231,14 @@ class _Importer:
                 g = float(self.props(c).get("g", 0.8))    # Mitsuba's default g
         return g
 
-    def heterogeneous(self, el, box=None, bounded: str | None = None):
+    def heterogeneous(self, el, null=None, bounded: str | None = None):
         """Mitsuba's heterogeneous medium: sigma_t a single-channel ``gridvolume`` (.vol file;
-        its box the unit cube or, with use_grid_bbox, the file's, through a to_world of scale
-        and translation), an albedo (float, rgb, constvolume, or a gridvolume of 1 or 3 channels
+        its box the unit cube or, with use_grid_bbox, the file's, through an affine to_world),
+        an albedo (float, rgb, constvolume, or a gridvolume of 1 or 3 channels
         over the same box), scale, an isotropic or hg phase. Vacuum outside the grid's box, as
-        Mitsuba clips the medium to it. ``box`` (lo, hi): the null cube bounding it, whose box
-        the grid's must be. ``bounded``: the name of a medium bounded by shapes (a shape's
+        Mitsuba clips the medium to it. ``null`` (shape, to_world): the null cube or sphere
+        bounding it (:meth:`null_shape`), which cuts the grid where it differs from the grid's
+        box. ``bounded``: the name of a medium bounded by shapes (a shape's
         interior or exterior), zero outside its grid's box too."""
         allowed = ("sigma_t", "albedo", "scale", "sample_emitted", "has_spectral_extinction")
         p, volumes = self.props(el), {}   # (props reads no <volume>)
@@ -1215,22 +1257,26 @@ class _Importer:
         if "sigma_t" not in volumes:
             self.fail(el, "heterogeneous medium: sigma_t must be a <volume type=\"gridvolume\"> "
                           "(a constant extinction is a homogeneous medium)")
-        grid, lo, hi = self.gridvolume(volumes["sigma_t"], "sigma_t", (1,))
+        grid, lo, hi, to_world = self.gridvolume(volumes["sigma_t"], "sigma_t", (1,))
         grid = grid[..., 0]
-        if box is not None and not (np.allclose(lo, box[0], rtol=0, atol=1e-6)
-                                    and np.allclose(hi, box[1], rtol=0, atol=1e-6)):
-            r = lambda v: np.round(v, 6).tolist()   # noqa: E731
-            self.fail(el, f"heterogeneous medium: its grid's box {r(lo)} - {r(hi)} differs "
-                          f"from the null cube's {r(box[0])} - {r(box[1])} "
-                          "that bounds it; allowed: the same box (a gridvolume to_world that "
-                          "maps it onto the cube)")
+        exact = null is not None and same_region(null, lo, hi, to_world)
+        clip = None if null is None or exact else null   # the grid cut to the null shape
+        if to_world is not None and not exact and not zero_faces(grid):
+            # Mitsuba bounds a gridvolume by the axis-aligned box around its turned box and
+            # clamps lookups there, so its edge voxels' values reach into the corners between
+            self.fail(el, "heterogeneous medium: a rotated or sheared gridvolume is taken where "
+                          "a null cube is its very box, or where its outermost voxels are 0 "
+                          "(Mitsuba extends their values to the axis-aligned box around it; jgi "
+                          "does not); allowed: one of those")
         albedo = p.get("albedo", 0.75)
         if "albedo" in volumes:
             v = volumes["albedo"]
             if v.get("type") == "gridvolume":
-                albedo, a_lo, a_hi = self.gridvolume(v, "albedo", (1, 3))
+                albedo, a_lo, a_hi, a_to_world = self.gridvolume(v, "albedo", (1, 3))
                 if not (np.allclose(a_lo, lo, rtol=0, atol=1e-6)
-                        and np.allclose(a_hi, hi, rtol=0, atol=1e-6)):
+                        and np.allclose(a_hi, hi, rtol=0, atol=1e-6)
+                        and (a_to_world is None) == (to_world is None)
+                        and (to_world is None or np.allclose(a_to_world, to_world, atol=1e-6))):
                     self.fail(v, f"albedo gridvolume: its box {a_lo.tolist()} - {a_hi.tolist()} "
                                  f"differs from sigma_t's {lo.tolist()} - {hi.tolist()}; allowed: "
                                  "an albedo grid over the same box")
@@ -1242,20 +1288,22 @@ class _Importer:
             else:
                 self.fail(v, f"heterogeneous medium: albedo volume '{v.get('type')}' is not "
                              "supported; allowed: gridvolume, constvolume, <float>, <rgb>")
+        params = dict(sigma_t=1.0, albedo=albedo, g=self.phase_g(el),
+                      scale=float(p.get("scale", 1.0)), to_world=to_world, clip=clip)
         try:
             if bounded is not None:
-                self.b.bounded_grid_medium(bounded, grid, lo, hi, sigma_t=1.0, albedo=albedo,
-                                           g=self.phase_g(el), scale=float(p.get("scale", 1.0)))
+                self.b.bounded_grid_medium(bounded, grid, lo, hi, **params)
             else:
-                self.b.grid_medium(grid, lo, hi, sigma_t=1.0, albedo=albedo, g=self.phase_g(el),
-                                   scale=float(p.get("scale", 1.0)))
+                self.b.grid_medium(grid, lo, hi, **params)
         except SceneError as e:
             self.fail(el, str(e))
 
     def gridvolume(self, v, what: str, channels: tuple[int, ...]):
-        """(data [nz, ny, nx, channels], box min, box max in world space) of the ``gridvolume``
-        ``v`` (the medium's ``what``) read from its .vol file (Mitsuba 3's conventions, see
-        :mod:`jgi.physics.grid_media`)."""
+        """(data [nz, ny, nx, channels], box min, box max, to_world) of the ``gridvolume`` ``v``
+        (the medium's ``what``) read from its .vol file (Mitsuba 3's conventions, see
+        :mod:`jgi.physics.grid_media`): the box in world space and to_world None where the
+        volume's to_world only scales (positively) and translates, else the box in the grid's
+        frame and the 4 x 4 to_world that maps it (rotated, sheared, mirrored grids)."""
         if v.get("type") != "gridvolume":
             self.fail(v, f"volume '{v.get('type')}' is not supported for {what}; allowed: "
                          "gridvolume (a .vol file)")
@@ -1283,13 +1331,13 @@ class _Importer:
                          f"{what}: {' or '.join(map(str, channels))}")
         if not q.get("use_grid_bbox", False):
             lo, hi = np.zeros(3), np.ones(3)
-        m = q.get("to_world", np.eye(4))
-        lin = m[:3, :3]
-        if (np.any(np.abs(lin - np.diag(np.diag(lin))) > 1e-9) or np.any(np.diag(lin) <= 0)
-                or np.any(m[3] != (0, 0, 0, 1))):
-            self.fail(v, "gridvolume: to_world must be a scale (positive) and a translation; "
-                         "rotations, shears and mirrorings are not supported")
-        return data, m[:3, :3] @ lo + m[:3, 3], m[:3, :3] @ hi + m[:3, 3]
+        m = np.asarray(q.get("to_world", np.eye(4)), float)
+        if axis_aligned(m):
+            return data, m[:3, :3] @ lo + m[:3, 3], m[:3, :3] @ hi + m[:3, 3], None
+        if np.any(m[3] != (0, 0, 0, 1)) or abs(np.linalg.det(m[:3, :3])) < 1e-12:
+            self.fail(v, "gridvolume: to_world must be an invertible affine map (a projection "
+                         "or a flattening scale is not)")
+        return data, lo, hi, m
 
     def read_integrator(self, el):
         """Record the settings of the integrator ``el``, reading through ``moment`` and ``aov``
@@ -1380,6 +1428,7 @@ class _Importer:
             return None
         if not self.sensor_done:
             raise ImportError_(f"{self.path}: the scene has no <sensor>")
+        self.check_null_volume()
         return self.b.build()
 
 

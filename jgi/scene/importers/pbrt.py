@@ -24,9 +24,10 @@ supported):
              pbrt-v4's TrowbridgeReitzDistribution::RoughnessToAlpha): GGX (Trowbridge-Reitz)
              microfacets, jgi's roughconductor / roughdielectric; where pbrt treats the surface
              as smooth (the smaller alpha below 1e-3) jgi's smooth conductor / dielectric.
-             "interface": no surface; a shape with it is left out, or, a mesh forming an
-             axis-aligned box with a medium inside and vacuum outside (pbrt's usual volume),
-             becomes jgi's grid medium over the box (_Importer.null_shape).
+             "interface": no surface; a shape with it is left out, or, a sphere or a mesh
+             forming a box (any transform) with a medium inside and vacuum outside (pbrt's
+             usual volume), becomes jgi's grid medium cut to the shape, the camera outside in
+             vacuum or inside in that medium (_Importer.null_shape).
              Refused: "coateddiffuse" (a stochastic layered BSDF that no jgi material equals;
              use a Mitsuba or TOML roughplastic, or plastic for a smooth coating), the other
              materials, displacement and normal
@@ -72,11 +73,11 @@ supported):
              bounded by shapes (fog inside glass). "uniformgrid" (density [nx ny nz] values, x
              fastest, over the box p0 p1 in the medium's space, sigma_a, sigma_s, scale, g):
              jgi's grid medium with pbrt-v4's zero border, its box mapped by the transform
-             current at MakeNamedMedium (scales and translations; rotations refused), as the
-             camera's medium or as grids bounded by shapes (smoke in glass jars). Refused
-             by name: a grid bounded by shapes with the camera's or a null box's, an area light
-             whose outside is not the camera's medium, other medium types (rgbgrid, cloud,
-             nanovdb), "preset", emissive media (Le, temperature)
+             current at MakeNamedMedium (any invertible affine one), as the camera's medium, an
+             interface shape's or as grids bounded by shapes (smoke in glass jars). Refused
+             by name: a grid bounded by shapes with the camera's or an interface shape's, an
+             area light whose outside is not the camera's medium, other medium types
+             (rgbgrid, cloud, nanovdb), "preset", emissive media (Le, temperature)
   files      Include / Import; relative file names (includes, meshes, images, spectra)
              are found in the main scene file's folder, also from included files, as pbrt-v4
              resolves them
@@ -127,9 +128,11 @@ from ..tables import Scene
 from ._common import (
     PBRT_PLY_UV,
     ImportError_,
+    axis_aligned,
     load_mesh_with_normals,
     named_metals,
     normals_are_flat,
+    same_region,
 )
 
 _TOKEN = re.compile(r'"[^"]*"|\[|\]|[^\s\[\]"]+')
@@ -234,6 +237,7 @@ class _Importer:
         self.coordinate_systems: dict[str, np.ndarray] = {}   # CoordinateSystem "name"
         self.material_kind: dict[str, str] = {}              # builder name -> pbrt material
         self.null_materials: set = set()     # "interface" materials (no surface: null_shape)
+        self.null_volume = None                # the medium an interface shape bounds
         self.named = {}
         self.n_mat = 0
         self.textures: dict[str, str] = {}   # pbrt texture name -> builder texture name
@@ -1160,24 +1164,80 @@ class _Importer:
 
     def null_shape(self, kind, p, where, emits: bool):
         """A Shape with the "interface" material: no surface (rays pass through it, as in
-        pbrt-v4). Without a medium transition it is left out. A triangle mesh whose vertices
-        are corners of their axis-aligned bounding box, with a medium inside and vacuum outside,
-        the camera's too, is pbrt's usual volume: jgi's grid medium over that box (a
-        "uniformgrid" whose box p0 p1 must be it; a homogeneous medium a constant grid).
-        Other interface shapes that bound media are refused by name: jgi's surfaces that bound
-        media scatter light."""
+        pbrt-v4). Without a medium transition it is left out. A sphere (any transform: an
+        ellipsoid too, as pbrt intersects it in object space) or a triangle mesh whose vertices
+        are the corners of a box, axis-aligned in world or in object space (then any
+        transform), with a medium inside and vacuum outside, is pbrt's usual volume: jgi's grid
+        medium cut to the shape (a "uniformgrid", zero outside its bounds too; a homogeneous
+        medium a constant grid; :mod:`jgi.physics.grid_media`), the scene's own medium. The
+        camera sits outside it in vacuum, or inside it with the inside medium as its own
+        (pbrt-v4 starts camera rays in the camera's medium and changes media where they cross
+        a MediumInterface). Other interface shapes that bound media are refused by name: jgi's
+        surfaces that bound media scatter light."""
         if emits:
             self.fail(where, f"Shape \"{kind}\" with the \"interface\" material is an area "
                              "light: not supported (the surface does not exist)")
         if self.inside == self.outside:
             return
         what = (f"Shape \"{kind}\" with the \"interface\" material bounding media (inside "
-                f"\"{self.inside}\", outside \"{self.outside}\"): supported is a triangle mesh "
-                "forming an axis-aligned box with a medium inside and vacuum outside, the "
-                "camera's too (a volume in a box)")
-        if (kind not in ("trianglemesh", "plymesh") or self.outside or self.camera_medium[0]
-                or not self.inside):
+                f"\"{self.inside}\", outside \"{self.outside}\"): supported is a sphere or a "
+                "triangle mesh forming a box with a medium inside and vacuum outside, the camera "
+                "outside it in vacuum or inside it in that medium (a volume in a convex shape)")
+        if kind not in ("sphere", "trianglemesh", "plymesh") or self.outside or not self.inside:
             self.fail(where, what)
+        if kind == "sphere":
+            for k in ("zmin", "zmax", "phimax"):
+                if k in p:
+                    self.fail(where, f"{what}; a partial sphere (\"{k}\") bounds no volume")
+            shape = "sphere"
+            unit = self.ctm @ xf.scale(float(self._get(p, "radius", 1.0, where, 1)))
+        else:
+            shape, unit = "cube", self.interface_box(kind, p, where, what)
+        if abs(np.linalg.det(unit[:3, :3])) < 1e-12 or np.any(unit[3] != (0, 0, 0, 1)):
+            self.fail(where, f"{what}; its transform flattens it")
+        if self.cam is not None:
+            q = xf.apply_point(np.linalg.inv(unit), xf.apply_point(self.cam[0], np.zeros(3)))
+            inside = bool(np.all(np.abs(q) < 1) if shape == "cube" else q @ q < 1)
+            camera, named = self.camera_medium[0], "box" if shape == "cube" else shape
+            if inside and camera != self.inside:
+                self.fail(where, f"{what}; the camera lies inside the {named} but its medium is "
+                                 f"\"{camera}\", not the inside's (pbrt-v4 starts its rays in the "
+                                 "camera's medium)")
+            if not inside and camera:
+                self.fail(where, f"{what}; the camera lies outside the {named} in medium "
+                                 f"\"{camera}\" (allowed: vacuum outside)")
+        if self.inside not in self.media:
+            defined = ", ".join(self.media) or "(none)"
+            self.fail(where, f"MediumInterface names medium \"{self.inside}\", which no "
+                             f"MakeNamedMedium defines; defined: {defined}")
+        if self.b.medium_args is not None or self.null_volume is not None:
+            self.fail(where, f"{what}; the scene has one already (jgi takes one grid medium)")
+        self.null_volume = self.inside   # (fill_medium: not the camera's medium again)
+        mp, mwhere, to_world = self.media[self.inside]
+        params = self.homogeneous_params(self.inside, mp, mwhere)
+        try:
+            if self._get(mp, "type", None, mwhere)[0] == "uniformgrid":
+                self.fill_uniformgrid(self.inside, mp, mwhere, to_world, params["sigma_a"],
+                                      params["sigma_s"], params["scale"], params["g"],
+                                      null=(shape, unit))
+                return
+            sigma_t = np.asarray(params["sigma_a"]) + np.asarray(params["sigma_s"])
+            albedo = np.divide(params["sigma_s"], sigma_t, out=np.zeros(3), where=sigma_t > 0)
+            if shape == "cube" and axis_aligned(unit):   # a constant grid over the box
+                d = np.diag(unit[:3, :3])
+                lo, hi, frame = unit[:3, 3] - d, unit[:3, 3] + d, {}
+            else:   # a constant grid over the shape's own [-1, 1]^3, cut to the ball
+                lo, hi = -np.ones(3), np.ones(3)
+                frame = dict(to_world=unit, clip=(shape, unit) if shape == "sphere" else None)
+            self.b.grid_medium(np.ones((1, 1, 1)), lo, hi, sigma_t=sigma_t, albedo=albedo,
+                               g=params["g"], scale=params["scale"], **frame)
+        except SceneError as e:
+            self.fail(mwhere, f"MakeNamedMedium \"{self.inside}\": {e}")
+
+    def interface_box(self, kind, p, where, what) -> np.ndarray:
+        """The map of the unit cube [-1, 1]^3 to the box an interface mesh forms: its vertices
+        the corners of a box axis-aligned in world space, or in object space (then under the
+        current transform, whatever it is)."""
         if kind == "trianglemesh":
             P = self._get(p, "P", None, where)
             if P is None or len(P) % 3:
@@ -1189,36 +1249,14 @@ class _Importer:
                 self.fail(where, "plymesh needs \"string filename\"")
             v = load_mesh_with_normals(self.resolve(fname[0]), f"{where[0]}:{where[1]}",
                                        PBRT_PLY_UV)[0]
-        v = xf.apply_point(self.ctm, v)
-        lo, hi = v.min(0), v.max(0)
-        tol = 1e-6 * max(float(np.abs(v).max()), 1.0)
-        corner = (np.abs(v - lo) <= tol) | (np.abs(v - hi) <= tol)
-        if not (np.all(corner) and np.all(hi - lo > tol)):
-            self.fail(where, f"{what}; its vertices are not the corners of an axis-aligned box")
-        if self.cam is not None:
-            eye = xf.apply_point(self.cam[0], np.zeros(3))
-            if np.all(eye > lo) and np.all(eye < hi):
-                self.fail(where, f"{what}; the camera lies inside the box")
-        if self.inside not in self.media:
-            defined = ", ".join(self.media) or "(none)"
-            self.fail(where, f"MediumInterface names medium \"{self.inside}\", which no "
-                             f"MakeNamedMedium defines; defined: {defined}")
-        if self.b.medium_args is not None:
-            self.fail(where, f"{what}; the scene has one already (jgi takes one grid medium)")
-        mp, mwhere, to_world = self.media[self.inside]
-        params = self.homogeneous_params(self.inside, mp, mwhere)
-        try:
-            if self._get(mp, "type", None, mwhere)[0] == "uniformgrid":
-                self.fill_uniformgrid(self.inside, mp, mwhere, to_world, params["sigma_a"],
-                                      params["sigma_s"], params["scale"], params["g"],
-                                      box=(lo, hi))
-                return
-            sigma_t = np.asarray(params["sigma_a"]) + np.asarray(params["sigma_s"])
-            albedo = np.divide(params["sigma_s"], sigma_t, out=np.zeros(3), where=sigma_t > 0)
-            self.b.grid_medium(np.ones((1, 1, 1)), lo, hi, sigma_t=sigma_t, albedo=albedo,
-                               g=params["g"], scale=params["scale"])
-        except SceneError as e:
-            self.fail(mwhere, f"MakeNamedMedium \"{self.inside}\": {e}")
+        for points, to_world in ((xf.apply_point(self.ctm, v), np.eye(4)), (v, self.ctm)):
+            lo, hi = points.min(0), points.max(0)
+            tol = 1e-6 * max(float(np.abs(points).max()), 1.0)
+            corner = (np.abs(points - lo) <= tol) | (np.abs(points - hi) <= tol)
+            if np.all(corner) and np.all(hi - lo > tol):
+                return to_world @ xf.translate((lo + hi) / 2) @ xf.scale((hi - lo) / 2)
+        self.fail(where, f"{what}; its vertices are not the corners of a box (axis-aligned in "
+                         "world or object space)")
 
     def bounded_medium(self, name: str, shape, where) -> str:
         """The builder's name of medium ``name`` ("": vacuum) bounded by a shape, defined on
@@ -1294,7 +1332,7 @@ class _Importer:
         """The medium outside the Camera fills the scene (pbrt-v4 keeps a ray's medium at
         surfaces that are no transition, and jgi refused every transition)."""
         name, where = self.camera_medium
-        if not name:
+        if not name or name == self.null_volume:   # (then an interface shape's, cut to it)
             return
         if name not in self.media:
             self.fail(where, f"the Camera's MediumInterface names medium \"{name}\", which no "
@@ -1311,15 +1349,17 @@ class _Importer:
         except SceneError as e:
             self.fail(mwhere, f"MakeNamedMedium \"{name}\": {e}")
 
-    def fill_uniformgrid(self, name, p, where, to_world, sigma_a, sigma_s, scale, g, box=None,
+    def fill_uniformgrid(self, name, p, where, to_world, sigma_a, sigma_s, scale, g, null=None,
                          bounded: str | None = None):
         """pbrt-v4's GridMedium: densities d[(z ny + y) nx + x] over the box [p0, p1] of the
         medium's space (its sample i at (i + 1/2) / n, lookups beyond the samples 0: jgi's
         "zero" border), extinction (sigma_a + sigma_s) scale d(x), albedo sigma_s / sigma_t.
-        The box goes to world space by the transform current at MakeNamedMedium, which jgi's
-        axis-aligned grid takes if it only scales (per axis, flips too) and translates. The
-        camera's medium, or, with ``bounded`` (the builder's name), the grid bounded by shapes
-        (smoke in a glass jar)."""
+        The box goes to world space by the transform current at MakeNamedMedium: an
+        axis-aligned box where it only scales (per axis, flips too) and translates, else the
+        grid's own frame (pbrt-v4 tracks in medium space, so the medium is the turned box). The
+        camera's medium; with ``null`` (shape, unit shape to world), the volume of an
+        interface shape, cut to it where it is not the grid's box; with ``bounded`` (the
+        builder's name), the grid bounded by shapes (smoke in a glass jar)."""
         dims = [int(self._get(p, k, 1, where, 1)) for k in ("nx", "ny", "nz")]
         if min(dims) < 1:
             self.fail(where, f"MakeNamedMedium \"{name}\" (uniformgrid): nx, ny, nz must be "
@@ -1339,25 +1379,23 @@ class _Importer:
             self.fail(where, f"MakeNamedMedium \"{name}\" (uniformgrid): p1 {p1.tolist()} must "
                              f"exceed p0 {p0.tolist()} in every axis")
         linear = to_world[:3, :3]
-        if np.any(np.abs(linear - np.diag(np.diag(linear))) > 1e-9 * np.abs(linear).max()) \
-                or np.any(np.diag(linear) == 0) or np.any(to_world[3] != (0, 0, 0, 1)):
+        if np.any(to_world[3] != (0, 0, 0, 1)) or abs(np.linalg.det(linear)) < 1e-12:
             self.fail(where, f"MakeNamedMedium \"{name}\" (uniformgrid): the current transform "
-                             "rotates, shears or projects the grid; jgi's grids are axis-aligned "
-                             "boxes, so only scales and translations are supported here")
-        a, b = (xf.apply_point(to_world, q) for q in (p0, p1))
-        lo, hi = np.minimum(a, b), np.maximum(a, b)
-        if box is not None and not (np.allclose(lo, box[0], rtol=0, atol=1e-6)
-                                    and np.allclose(hi, box[1], rtol=0, atol=1e-6)):
-            r = lambda v: np.round(v, 6).tolist()   # noqa: E731
-            self.fail(where, f"MakeNamedMedium \"{name}\" (uniformgrid): its box {r(lo)} - "
-                             f"{r(hi)} differs from the interface box {r(box[0])} - "
-                             f"{r(box[1])} that bounds it; allowed: the same box")
-        for axis, flip in enumerate(np.diag(linear) < 0):   # a mirrored axis: samples reversed
-            if flip:
-                grid = np.flip(grid, axis=2 - axis)
+                             "projects or flattens the grid; allowed: an invertible affine one")
+        frame = None
+        if np.all(np.abs(linear - np.diag(np.diag(linear))) <= 1e-9 * np.abs(linear).max()):
+            a, b = (xf.apply_point(to_world, q) for q in (p0, p1))
+            lo, hi = np.minimum(a, b), np.maximum(a, b)
+            for axis, flip in enumerate(np.diag(linear) < 0):   # a mirrored axis: reversed
+                if flip:
+                    grid = np.flip(grid, axis=2 - axis)
+        else:   # rotated or sheared: the box in the grid's frame
+            lo, hi, frame = p0, p1, to_world
+        clip = None if null is None or same_region(null, lo, hi, frame) else null
         sigma_t = np.asarray(sigma_a) + np.asarray(sigma_s)
         albedo = np.divide(sigma_s, sigma_t, out=np.zeros(3), where=sigma_t > 0)
-        params = dict(sigma_t=sigma_t, albedo=albedo, g=g, scale=scale, border="zero")
+        params = dict(sigma_t=sigma_t, albedo=albedo, g=g, scale=scale, border="zero",
+                      to_world=frame, clip=clip)
         if bounded is None:
             self.b.grid_medium(grid, lo, hi, **params)
         else:
