@@ -1,7 +1,8 @@
 """Path-tracing throughput on the Cornell box: jgi against Mitsuba 3 measured in the same run.
 
     python -m experiments.bench.pt [--spp 64] [--resolution 256] [--devices N] [--no-mitsuba]
-                                   [--objects blocks|spheres] [--json out.json]
+                                   [--objects blocks|spheres|veach_ggx|envmap|fog|milk|cloud]
+                                   [--json out.json]
 
 Both render the same scene (jgi's ``cornell_box`` replicates Mitsuba's ``cornell_box()``) at
 max depth 8 with Russian roulette from depth 5, NEE + MIS. Prints compile time, million paths
@@ -25,7 +26,10 @@ the room, rendered by its ``volpath`` integrator): free-flight sampling, NEE fro
 vertices with the transmittance of the shadow ray, and phase sampling.
 ``--objects milk`` renders a backlit rough glass ball holding milk-like fog (jgi's ``milk_ball``
 without haze; both load the same Mitsuba XML, the fog the sphere's interior medium): a medium
-bounded by a shape, each lane carrying its medium's id.
+bounded by a shape, each lane carrying its medium's id. ``--objects cloud`` puts a 32^3 density
+grid (a blob, written as a .vol file) in a turned null cube under the same light instead (one
+Mitsuba XML both load): jgi's grid medium in a frame of its own, tracked against its majorant
+grid, against Mitsuba's heterogeneous medium.
 
 By default jgi traces the image with two concurrent loops on one CPU device (see
 ``jgi.core.calls``), and XLA splits each of their large kernels over the cores.
@@ -128,6 +132,47 @@ def milk_scene_file(resolution: int) -> str:
     return path
 
 
+# --objects cloud: a density grid (a .vol blob written here, zero on its faces) in a turned
+# null cube under the same light, as a Mitsuba XML file both load: jgi's grid in a frame of
+# its own (spectral tracking against the majorant grid), Mitsuba's heterogeneous medium
+CLOUD_XML = MILK_XML.replace("""  <shape type="sphere"><float name="radius" value="0.8"/>
+    <bsdf type="roughdielectric"><string name="distribution" value="ggx"/>
+      <float name="alpha" value="0.2"/><float name="int_ior" value="1.33"/>
+      <float name="ext_ior" value="1"/></bsdf>
+    <medium type="homogeneous" name="interior">
+      <rgb name="sigma_t" value="0.4, 0.6, 1.0"/><float name="scale" value="5"/>
+      <float name="albedo" value="0.6"/>
+      <phase type="hg"><float name="g" value="0.4"/></phase>
+    </medium></shape>""", """  <shape type="cube">
+    <transform name="to_world">{cube}</transform>
+    <bsdf type="null"/>
+    <medium type="heterogeneous" name="interior">
+      <volume name="sigma_t" type="gridvolume"><string name="filename" value="cloud.vol"/>
+        <transform name="to_world"><scale value="2"/><translate value="-1, -1, -1"/>{cube}
+        </transform></volume>
+      <rgb name="albedo" value="0.9, 0.85, 0.8"/><float name="scale" value="6"/>
+      <phase type="hg"><float name="g" value="0.3"/></phase>
+    </medium></shape>""")
+CLOUD_CUBE = '<scale value="0.9, 0.6, 0.7"/><rotate y="1" angle="30"/><translate y="0.1"/>'
+
+
+def cloud_scene_file(resolution: int) -> str:
+    """The cloud bench scene (and its 32^3 .vol grid) in a temporary folder."""
+    import tempfile
+
+    from jgi.scene.importers.volgrid import write_vol
+
+    folder = tempfile.mkdtemp(prefix="bench_cloud_")
+    z, y, x = np.meshgrid(*(np.linspace(-1, 1, 32),) * 3, indexing="ij")
+    blob = np.exp(-3.0 * (x**2 + 1.5 * y**2 + z**2)) * (1.0 + 0.3 * np.sin(6 * x) * np.cos(5 * z))
+    blob[[0, -1]], blob[:, [0, -1]], blob[:, :, [0, -1]] = 0.0, 0.0, 0.0
+    write_vol(os.path.join(folder, "cloud.vol"), blob.astype(np.float32))
+    path = os.path.join(folder, "cloud.xml")
+    with open(path, "w") as f:
+        f.write(CLOUD_XML.format(res=resolution, cube=CLOUD_CUBE))
+    return path
+
+
 def bench_jgi(resolution: int, spp: int, repeats: int, objects: str = "blocks") -> dict:
     import jax
 
@@ -141,10 +186,11 @@ def bench_jgi(resolution: int, spp: int, repeats: int, objects: str = "blocks") 
         scene = load_mitsuba_xml(envmap_scene_file(resolution))
     elif objects == "fog":
         scene = jgi.load_scene("cornell_box_fog", resolution=resolution)
-    elif objects == "milk":
+    elif objects in ("milk", "cloud"):
         from jgi.scene.importers.mitsuba import load_mitsuba_xml
 
-        scene = load_mitsuba_xml(milk_scene_file(resolution))
+        scene = load_mitsuba_xml(milk_scene_file(resolution) if objects == "milk"
+                                 else cloud_scene_file(resolution))
     elif objects == "spheres":
         from jgi.scene import SceneBuilder
         from jgi.scene.builtin import cornell_room
@@ -193,6 +239,8 @@ def bench_mitsuba(resolution: int, spp: int, repeats: int, objects: str = "block
         scene = mi.load_file(envmap_scene_file(resolution))
     elif objects == "milk":
         scene = mi.load_file(milk_scene_file(resolution))
+    elif objects == "cloud":
+        scene = mi.load_file(cloud_scene_file(resolution))
     elif objects == "veach_ggx":
         from experiments.mitsuba_scene import to_mitsuba
         from jgi.scene import builtin
@@ -203,7 +251,7 @@ def bench_mitsuba(resolution: int, spp: int, repeats: int, objects: str = "block
         for i, (centre, radius) in enumerate(SPHERES):
             desc[f"sphere-{i}"] = {"type": "sphere", "center": list(centre), "radius": radius,
                                    "bsdf": {"type": "ref", "id": "white"}}
-    if objects not in ("envmap", "milk"):
+    if objects not in ("envmap", "milk", "cloud"):
         desc["sensor"]["film"]["width"] = desc["sensor"]["film"]["height"] = resolution
         desc["sensor"]["film"]["rfilter"] = {"type": "box"}
         desc["integrator"] = {"type": "path", "max_depth": 8, "rr_depth": 5}
@@ -211,7 +259,7 @@ def bench_mitsuba(resolution: int, spp: int, repeats: int, objects: str = "block
         desc["sensor"]["medium"] = {"type": "homogeneous", "sigma_t": 0.6, "albedo": 0.8,
                                     "phase": {"type": "isotropic"}}
         desc["integrator"] = {"type": "volpath", "max_depth": 8, "rr_depth": 5}
-    if objects not in ("envmap", "milk"):
+    if objects not in ("envmap", "milk", "cloud"):
         scene = mi.load_dict(desc)
     t0 = time.perf_counter()
     np.asarray(mi.render(scene, spp=1, seed=0))
@@ -238,12 +286,13 @@ def main(argv=None) -> dict:
                     help="split jgi's lanes over this many virtual CPU devices")
     ap.add_argument("--no-mitsuba", action="store_true")
     ap.add_argument("--objects", choices=("blocks", "spheres", "veach_ggx", "envmap", "fog",
-                                          "milk"),
+                                          "milk", "cloud"),
                     default="blocks",
                     help="what stands in the room: the two blocks, or two diffuse spheres; or "
                          "Veach's plates with GGX plates instead of the room; or two balls "
                          "under an environment map; or the box filled with fog; or a "
-                         "backlit glass ball holding a medium (bounded by the sphere)")
+                         "backlit glass ball holding a medium (bounded by the sphere); or a "
+                         "density grid in a turned null cube")
     ap.add_argument("--json", default=None)
     a = ap.parse_args(argv)
     if a.devices > 1:

@@ -280,8 +280,31 @@ def _sigma_t(medium, p: V3) -> V3:
     return V3(*(d * s for s in medium.sigma_t))
 
 
+# A tracking of at least TIERED_FROM lanes compacts its live lanes into batches SHRINK times
+# smaller, down to MIN_TIER lanes (see _tracker). Smaller batches (the test suite's images, up
+# to 32^2 pixels) run one loop. Each batch size is a copy of the loop for XLA to compile.
+# Measured on the cloud bench (`python -m experiments.bench.pt --objects cloud`, 128^2 x 64 spp;
+# the path tracer tracks 4096 lanes at a time), render time and first call from an empty
+# compilation cache: one loop 2.07-2.26 s, 8.9 s; 4096 then 512 lanes 1.03-1.07 s, 12.2-13.2 s;
+# 4096, 1024, 256: 0.81-0.97 s, 16.8 s; 4096, 256: 1.25 s, 13.2 s (docs/performance.md#grid-media).
+MIN_TIER = 256
+TIERED_FROM = 4096
+SHRINK = 8
+
+
+def _tiers(n: int, smallest: int | None = None) -> list[int]:
+    """The batch sizes a tracking of n lanes runs at: n, then the last over SHRINK while that
+    is at least ``smallest`` (MIN_TIER); n alone below TIERED_FROM."""
+    sizes = [n]
+    if n < TIERED_FROM and smallest is None:
+        return sizes
+    while sizes[-1] // SHRINK >= (smallest or MIN_TIER):
+        sizes.append(sizes[-1] // SHRINK)
+    return sizes
+
+
 def _tracker(medium, o: V3, d: V3, t_start: Array, t_end: Array, live: Array, key: Array,
-             carry, collide):
+             carry, collide, smallest: int | None = None):
     """Tentative collisions along o + t d (in the grid's frame, t the world distance: d the
     image of a unit direction), t in [t_start, t_end], against the majorant
     grid (one cell: the global majorant), for lanes ``live``. Cells are crossed by a DDA
@@ -290,8 +313,17 @@ def _tracker(medium, o: V3, d: V3, t_start: Array, t_end: Array, live: Array, ke
     the next cell's rate (exact, by memorylessness; a cell of mu = 0 is skipped). At each
     collision ``collide(carry, at, p, sigma_t, mu, u)`` returns (carry, stop): ``at`` the lanes
     colliding, p where, sigma_t the RGB extinction there, u a uniform for the choice; lanes
-    ``stop`` end. Iteration i uses dimensions 2i, 2i + 1 of stream ``key``. Returns (carry,
-    t of the last collision, the loop's iterations: the batch's longest tracking)."""
+    ``stop`` end (``carry``: per-lane leaves; ``collide`` may close over no per-lane array).
+    Iteration i uses dimensions 2i, 2i + 1 of stream ``key``. Returns (carry, t of the last
+    collision, the loop's iterations: the batch's longest tracking).
+
+    The loop steps every lane of its batch until the last one ends, and the longest tracking
+    is several times the mean (measured on a 32^3 cloud: 41 trips, 3.4 collisions a ray on
+    average, 21 at most), so once few enough lanes are live it gathers them into a smaller
+    batch and goes on there, down to ``smallest`` lanes
+    (:func:`_tiers`: from TIERED_FROM lanes, down to MIN_TIER by default; 1-D batches).
+    Every lane takes the same steps and random numbers as in one loop: the results are the
+    same bit for bit."""
     maj = medium.majorants
     res = (maj.shape[2], maj.shape[1], maj.shape[0])   # cells along x, y, z
     s = medium.sigma_t
@@ -310,54 +342,81 @@ def _tracker(medium, o: V3, d: V3, t_start: Array, t_end: Array, live: Array, ke
         dt.append(jnp.where(par, jnp.inf, jnp.abs(ext / m * inv)))
         step.append(jnp.where(pos, 1, -1).astype(jnp.int32))
 
-    def cond(c):
-        return jnp.any(c[2])
+    def body(consts):
+        o, d, t_end, dt, step, key = consts
 
-    def body(c):
-        i, t, live, (kx, ky, kz), (nx, ny, nz), carry = c
-        ctr = rng.counter(key, 2 * i)
-        mu = flat[(kz * res[1] + ky) * res[0] + kx] * s_max
-        t_seg = jnp.minimum(jnp.minimum(nx, ny), jnp.minimum(nz, t_end))
-        t_c = t - jnp.log1p(-rng.uniform_at(ctr, 0)) / jnp.where(mu > 0, mu, 1.0)
-        at = live & (mu > 0) & (t_c < t_seg)
-        cross = live & ~at
-        t = jnp.where(at, t_c, jnp.where(cross, jnp.maximum(t_seg, t), t))
-        p = o + d * jnp.where(at, t, 0.0)
-        carry, stop = collide(carry, at, p, _sigma_t(medium, p), jnp.where(mu > 0, mu, 1.0),
-                              rng.uniform_at(ctr, 1))
-        # a crossing: on to the next cell along the axis whose boundary comes first, or out
-        ax = jnp.where(nx <= jnp.minimum(ny, nz), 0, jnp.where(ny <= nz, 1, 2))
-        move = cross & (t_seg < t_end)
-        k, n = [kx, ky, kz], [nx, ny, nz]
-        for a in range(3):
-            go = move & (ax == a)
-            k[a] = jnp.where(go, k[a] + step[a], k[a])
-            n[a] = jnp.where(go, n[a] + dt[a], n[a])
-        inside = ((k[0] >= 0) & (k[0] < res[0]) & (k[1] >= 0) & (k[1] < res[1]) & (k[2] >= 0)
-                  & (k[2] < res[2]))
-        live = live & ~stop & ~(cross & ~move) & inside
-        return i + 1, t, live, tuple(k), tuple(n), carry
+        def run(c):
+            i, t, live, (kx, ky, kz), (nx, ny, nz), carry = c
+            ctr = rng.counter(key, 2 * i)
+            mu = flat[(kz * res[1] + ky) * res[0] + kx] * s_max
+            t_seg = jnp.minimum(jnp.minimum(nx, ny), jnp.minimum(nz, t_end))
+            t_c = t - jnp.log1p(-rng.uniform_at(ctr, 0)) / jnp.where(mu > 0, mu, 1.0)
+            at = live & (mu > 0) & (t_c < t_seg)
+            cross = live & ~at
+            t = jnp.where(at, t_c, jnp.where(cross, jnp.maximum(t_seg, t), t))
+            p = o + d * jnp.where(at, t, 0.0)
+            carry, stop = collide(carry, at, p, _sigma_t(medium, p),
+                                  jnp.where(mu > 0, mu, 1.0), rng.uniform_at(ctr, 1))
+            # a crossing: on to the next cell along the axis whose boundary comes first, or out
+            ax = jnp.where(nx <= jnp.minimum(ny, nz), 0, jnp.where(ny <= nz, 1, 2))
+            move = cross & (t_seg < t_end)
+            k, n = [kx, ky, kz], [nx, ny, nz]
+            for a in range(3):
+                go = move & (ax == a)
+                k[a] = jnp.where(go, k[a] + step[a], k[a])
+                n[a] = jnp.where(go, n[a] + dt[a], n[a])
+            inside = ((k[0] >= 0) & (k[0] < res[0]) & (k[1] >= 0) & (k[1] < res[1])
+                      & (k[2] >= 0) & (k[2] < res[2]))
+            live = live & ~stop & ~(cross & ~move) & inside
+            return i + 1, t, live, tuple(k), tuple(n), carry
+        return run
 
-    init = (jnp.uint32(0), t_start, live, tuple(cell), tuple(t_next), carry)
-    out = jax.lax.while_loop(cond, body, init)
+    def loop(consts, state, sizes):
+        limit = sizes[1] if len(sizes) > 1 else 0
+        state = jax.lax.while_loop(
+            lambda c: jnp.sum(c[2].astype(jnp.int32)) > limit if limit else jnp.any(c[2]),
+            body(consts), state)
+        if len(sizes) == 1:
+            return state
+        # at most ``limit`` lanes live: on in a batch of that size, then back in place
+        n = state[2].shape[0]
+        idx = jnp.nonzero(state[2], size=limit, fill_value=n)[0]
+        safe = jnp.minimum(idx, n - 1)
+        lanes = lambda tree: jax.tree_util.tree_map(lambda a: a[safe], tree)   # noqa: E731
+        sub = lanes(state[1:])
+        sub = loop(lanes(consts), (state[0], sub[0], sub[1] & (idx < n)) + sub[2:], sizes[1:])
+        back = jax.tree_util.tree_map(lambda a, b: a.at[idx].set(b, mode="drop"),
+                                      state[1:], sub[1:])
+        return (sub[0],) + back
+
+    key = jnp.broadcast_to(key, live.shape)
+    wide = lambda a: jnp.broadcast_to(a, live.shape)   # noqa: E731
+    consts = (V3(*map(wide, o)), V3(*map(wide, d)), wide(t_end), tuple(map(wide, dt)),
+              tuple(map(wide, step)), key)
+    init = (jnp.uint32(0), wide(t_start), live, tuple(map(wide, cell)), tuple(map(wide, t_next)),
+            carry)
+    sizes = _tiers(live.shape[0], smallest) if live.ndim == 1 else [0]
+    out = loop(consts, init, sizes)
     return out[5], out[1], out[0]
 
 
 def sample_free_flight(medium, o: V3, d: V3, t_max: Array, throughput: V3, active: Array,
-                       key: Array) -> GridFlight:
+                       key: Array, tier_floor: int | None = None) -> GridFlight:
     """Spectral (weighted delta) tracking along the unit-direction ray o + t d, t in
-    [0, t_max] (inf: unbounded), for lanes ``active``; ``key``: the flight's random stream."""
+    [0, t_max] (inf: unbounded), for lanes ``active``; ``key``: the flight's random stream;
+    ``tier_floor``: the smallest batch the tracking compacts into (:func:`_tracker`; None: by
+    the batch's size; the result is the same bit for bit)."""
     t0, t1 = extent(medium, o, d)
     o, d = to_grid_frame(medium, o, d)
     t_start, t_end = jnp.maximum(t0, 0.0), jnp.minimum(t1, t_max)
     go = active & (t_start < t_end)
     one = jnp.ones_like(t_start)
-    bx, by, bz = (jnp.abs(b) for b in throughput)
+    beta = V3(*(jnp.broadcast_to(jnp.abs(b), go.shape) for b in throughput))
 
     def collide(carry, at, p, st, mu, u):
         alb = albedo(medium, p)
-        hit, w = carry
-        b = V3(bx * w.x, by * w.y, bz * w.z)
+        hit, w, beta = carry
+        b = V3(beta.x * w.x, beta.y * w.y, beta.z * w.z)
         bsum = b.x + b.y + b.z
         pr_w = (b.x * st.x + b.y * st.y + b.z * st.z) / (mu * jnp.where(bsum > 0, bsum, 1.0))
         pr_u = (st.x + st.y + st.z) / (3.0 * mu)
@@ -369,17 +428,18 @@ def sample_free_flight(medium, o: V3, d: V3, t_max: Array, throughput: V3, activ
                   for sc in st]
         w = V3(*(wc * jnp.where(real, fr, jnp.where(null, fn, 1.0))
                  for fr, fn, wc in zip(f_real, f_null, w)))
-        return (hit | real, w), real
+        return (hit | real, w, beta), real
 
-    (scattered, w), t, _ = _tracker(medium, o, d, t_start, t_end, go, key,
-                                 (go & False, V3(one, one, one)), collide)
+    (scattered, w, _), t, _ = _tracker(medium, o, d, t_start, t_end, go, key,
+                                    (go & False, V3(one, one, one), beta), collide, tier_floor)
     return GridFlight(jnp.where(scattered, t, t_max), scattered, w)
 
 
-def ratio_tracking(medium, o: V3, d: V3, t_max: Array, active: Array, key: Array) -> V3:
+def ratio_tracking(medium, o: V3, d: V3, t_max: Array, active: Array, key: Array,
+                   tier_floor: int | None = None) -> V3:
     """Transmittance estimate along o + t d, t in [0, t_max] (any direction length; t_max may be
     inf), for lanes ``active`` (1 elsewhere): the product of sigma_n,c / mu over the tentative
-    collisions (see the module)."""
+    collisions (see the module); ``tier_floor`` as :func:`sample_free_flight`'s."""
     n = length_of(d)
     dn = d * (1.0 / jnp.where(n > 0, n, 1.0))
     t0, t1 = extent(medium, o, dn)
@@ -392,5 +452,6 @@ def ratio_tracking(medium, o: V3, d: V3, t_max: Array, active: Array, key: Array
         T = V3(*(jnp.where(at, tc * jnp.maximum(mu - sc, 0.0) / mu, tc) for tc, sc in zip(T, st)))
         return T, (T.x <= 0) & (T.y <= 0) & (T.z <= 0)   # 0 in every channel stays 0: stop
 
-    T, _, _ = _tracker(medium, o, dn, t_start, t_end, go, key, V3(one, one, one), collide)
+    T, _, _ = _tracker(medium, o, dn, t_start, t_end, go, key, V3(one, one, one), collide,
+                       tier_floor)
     return T
