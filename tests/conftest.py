@@ -15,6 +15,11 @@ os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", "0.5")
 # compiles faster (perf: docs/performance.md#test-suite-settings). It changes no result:
 # tests/test_xla.py renders with both and compares bit for bit.
 os.environ.setdefault("JGI_UNROLL_THRESHOLD", "1000")
+# Grid trackings in one loop, not also in smaller batches of the live lanes (jgi.physics.
+# grid_media.TIERED_FROM): each batch size is another copy of the loop to compile (about 4 s a
+# render). It changes no result: test_grid_media runs the smaller batches and compares bit for
+# bit.
+os.environ.setdefault("JGI_TIERED_FROM", str(1 << 30))
 # Two pytest-xdist workers share the two cores: each XLA client's Eigen pool of one thread a core
 # only oversubscribes them (perf: docs/performance.md#test-suite-settings). No result depends on
 # it (tests/test_xla.py, test_wavefront.py: images bit for bit across thread counts and calls).

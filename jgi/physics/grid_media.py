@@ -77,6 +77,7 @@ on two loaded CPU cores took 6.7-7.7 s with the global majorant and 3.2-3.5 s wi
 
 from __future__ import annotations
 
+import os
 from typing import NamedTuple
 
 import jax
@@ -287,8 +288,11 @@ def _sigma_t(medium, p: V3) -> V3:
 # the path tracer tracks 4096 lanes at a time), render time and first call from an empty
 # compilation cache: one loop 2.07-2.26 s, 8.9 s; 4096 then 512 lanes 1.03-1.07 s, 12.2-13.2 s;
 # 4096, 1024, 256: 0.81-0.97 s, 16.8 s; 4096, 256: 1.25 s, 13.2 s (docs/performance.md#grid-media).
+# JGI_TIERED_FROM sets TIERED_FROM: the test suite, which is compile-bound, tracks in one loop
+# (tests/conftest.py), except where a test asks for the smaller batches (tier_floor), which
+# change no result (test_grid_media checks them bit for bit).
 MIN_TIER = 256
-TIERED_FROM = 4096
+TIERED_FROM = int(os.environ.get("JGI_TIERED_FROM", 4096))
 SHRINK = 8
 
 
