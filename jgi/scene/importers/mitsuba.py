@@ -1052,9 +1052,11 @@ class _Importer:
                 media.append(self.media[c.get("id")])
         if len(media) > 1:
             self.fail(el, "a sensor takes one medium")
-        bounded = self.null_volume and self.null_volume[3]
-        if media and not (bounded is not None and (self.media.get(bounded) if isinstance(
-                bounded, str) else bounded) is media[0]):   # (else the null shape's, clipped)
+        # the medium of a null shape read before: that shape's volume, cut to it (null_shape)
+        bounded = None if self.null_volume is None else self.null_volume[3]
+        if isinstance(bounded, str):
+            bounded = self.media.get(bounded)
+        if media and (bounded is None or bounded is not media[0]):
             self.medium(media[0])
 
     def sensor_medium_element(self, el):
