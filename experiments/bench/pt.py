@@ -92,9 +92,10 @@ def envmap_scene_file(resolution: int) -> str:
     return path
 
 
-# --objects milk: jgi's milk_ball (a backlit rough glass ball holding a bounded medium) as a
-# Mitsuba XML file both renderers load: the sphere's interior is the medium
-MILK_XML = """<scene version="3.0.0">
+# --objects milk and cloud: a floor under an area light, with what stands on it, as a Mitsuba
+# XML file both renderers load. milk: jgi's milk_ball (a backlit rough glass ball holding a
+# bounded medium, the sphere's interior)
+STAGE_XML = """<scene version="3.0.0">
   <integrator type="volpath"><integer name="max_depth" value="8"/>
     <integer name="rr_depth" value="5"/></integrator>
   <sensor type="perspective"><float name="fov" value="40"/><string name="fov_axis" value="x"/>
@@ -109,7 +110,10 @@ MILK_XML = """<scene version="3.0.0">
   <shape type="rectangle"><transform name="to_world"><scale x="4" y="3"/>
     <translate y="2.2" z="-2"/></transform>
     <emitter type="area"><rgb name="radiance" value="1, 1, 1"/></emitter></shape>
-  <shape type="sphere"><float name="radius" value="0.8"/>
+<!-- objects -->
+</scene>
+"""
+MILK_BALL = """  <shape type="sphere"><float name="radius" value="0.8"/>
     <bsdf type="roughdielectric"><string name="distribution" value="ggx"/>
       <float name="alpha" value="0.2"/><float name="int_ior" value="1.33"/>
       <float name="ext_ior" value="1"/></bsdf>
@@ -117,9 +121,8 @@ MILK_XML = """<scene version="3.0.0">
       <rgb name="sigma_t" value="0.4, 0.6, 1.0"/><float name="scale" value="5"/>
       <float name="albedo" value="0.6"/>
       <phase type="hg"><float name="g" value="0.4"/></phase>
-    </medium></shape>
-</scene>
-"""
+    </medium></shape>"""
+MILK_XML = STAGE_XML.replace("<!-- objects -->", MILK_BALL)
 
 
 def milk_scene_file(resolution: int) -> str:
@@ -135,15 +138,7 @@ def milk_scene_file(resolution: int) -> str:
 # --objects cloud: a density grid (a .vol blob written here, zero on its faces) in a turned
 # null cube under the same light, as a Mitsuba XML file both load: jgi's grid in a frame of
 # its own (spectral tracking against the majorant grid), Mitsuba's heterogeneous medium
-CLOUD_XML = MILK_XML.replace("""  <shape type="sphere"><float name="radius" value="0.8"/>
-    <bsdf type="roughdielectric"><string name="distribution" value="ggx"/>
-      <float name="alpha" value="0.2"/><float name="int_ior" value="1.33"/>
-      <float name="ext_ior" value="1"/></bsdf>
-    <medium type="homogeneous" name="interior">
-      <rgb name="sigma_t" value="0.4, 0.6, 1.0"/><float name="scale" value="5"/>
-      <float name="albedo" value="0.6"/>
-      <phase type="hg"><float name="g" value="0.4"/></phase>
-    </medium></shape>""", """  <shape type="cube">
+CLOUD_XML = STAGE_XML.replace("<!-- objects -->", """  <shape type="cube">
     <transform name="to_world">{cube}</transform>
     <bsdf type="null"/>
     <medium type="heterogeneous" name="interior">
