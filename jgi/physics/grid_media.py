@@ -86,7 +86,7 @@ from jax import Array
 
 from ..core import rng
 from ..core.errors import ParameterError
-from ..core.vec import V3
+from ..core.vec import V3, dot
 from ..core.vec import length as length_of
 
 
@@ -217,9 +217,7 @@ def _clip_interval(medium, o: V3, d: V3) -> tuple[Array, Array]:
         one = jnp.float32(1.0)
         return clip_to_box(V3(-one, -one, -one), V3(one, one, one), oc, dc)
     # |oc + t dc|^2 = 1, with the cancellation-free roots (q = -(b + sign(b) sqrt(disc)))
-    a = dc.x * dc.x + dc.y * dc.y + dc.z * dc.z
-    b = oc.x * dc.x + oc.y * dc.y + oc.z * dc.z
-    c = oc.x * oc.x + oc.y * oc.y + oc.z * oc.z - 1.0
+    a, b, c = dot(dc, dc), dot(oc, dc), dot(oc, oc) - 1.0
     disc = b * b - a * c
     hit = (disc > 0) & (a > 0)
     q = -(b + jnp.where(b >= 0, 1.0, -1.0) * jnp.sqrt(jnp.where(hit, disc, 0.0)))
@@ -237,7 +235,7 @@ def inside_clip(medium, p: V3) -> Array | bool:
     q = _affine(medium.clip, p)
     if medium.clip_shape == "cube":
         return (jnp.abs(q.x) <= 1.0) & (jnp.abs(q.y) <= 1.0) & (jnp.abs(q.z) <= 1.0)
-    return q.x * q.x + q.y * q.y + q.z * q.z <= 1.0
+    return dot(q, q) <= 1.0
 
 
 def extent(medium, o: V3, d: V3) -> tuple[Array, Array]:
