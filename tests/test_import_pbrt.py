@@ -764,8 +764,9 @@ def test_an_interface_box_holding_a_medium_is_a_grid_medium(tmp_path):
     surface), a medium inside and vacuum outside: jgi's grid medium cut to the shape (a
     homogeneous medium a constant grid; a uniformgrid its own box, cut to the mesh's where it
     differs); an interface shape without a transition is left out; the camera may sit inside
-    with the inside medium as its own. Refused by name: a mesh that is no box, a partial
-    sphere, the camera inside in another medium, outside in a medium."""
+    with the inside medium as its own, and several such shapes are several volumes. Refused by
+    name: a mesh that is no box, a partial sphere, the camera inside in another medium, outside
+    in a medium."""
     head = FOG_HEADER.replace('MediumInterface "" "fog"\n', "")
     grid = ('MakeNamedMedium "smoke" "string type" "uniformgrid" "float density" [1 2 3 4 5 6 7 8]'
             ' "integer nx" 2 "integer ny" 2 "integer nz" 2 "point3 p0" [-1 -1 -1]'
@@ -816,6 +817,13 @@ def test_an_interface_box_holding_a_medium_is_a_grid_medium(tmp_path):
         "Scale 0.5 0.5 0.5", "Scale 9 9 9").replace('Shape "sphere" "float radius" 3\n', "")
     p.write_text(FOG_HEADER + inside)
     assert load_pbrt(p).medium.clip_shape == "sphere"
+    # and a box of fog far behind it: two volumes, the camera in one with its medium
+    box_alone = body.format(inside="fog").split('Material "interface"\nShape')[0]
+    p.write_text(FOG_HEADER + inside + box_alone.replace("Translate 0 0.5 0",
+                                                         "Translate 0 0.5 -12"))
+    two = load_pbrt(p).medium
+    assert [v.clip_shape for v in two] == ["sphere", "cube"]
+    np.testing.assert_allclose([float(c) for c in two[1].lo], [-0.5, 0.0, -12.5], atol=1e-6)
     cases = {
         "not a box": (body.format(inside="fog").replace("-1 1 1]", "-1 1 0.5]"),
                       "its vertices are not the corners of a box"),
@@ -829,6 +837,6 @@ def test_an_interface_box_holding_a_medium_is_a_grid_medium(tmp_path):
         p.write_text(head + text)
         with pytest.raises(SceneError, match=message):
             load_pbrt(p)
-    p.write_text(FOG_HEADER + body.format(inside="fog"))
+    p.write_text(FOG_HEADER + box_alone)
     with pytest.raises(SceneError, match='the camera lies outside the box in medium "fog"'):
         load_pbrt(p)

@@ -84,6 +84,9 @@ SALTS: dict[str, int] = {
     # (substream), per (path, bounce), in the path tracer; the connections of the other
     # estimators (transport.connection.shadow_transmittance): + 0, from the shadow ray (ray_key)
     "ratio_tracking": 0x6A09E667,
+    # the trackings of volume v >= 1 of the scene's own medium where it is several (+ v), from
+    # the flight's or shadow ray's stream (physics.medium_interfaces)
+    "grid_volume": 0x3F84D5B5,
     # Veach's MLT: bootstrap paths; + 1: chain steps. The bootstrap shares its value with
     # "final_gather": harmless, as no estimate uses both (pm_jensen never runs an MLT chain,
     # mlt never final-gathers), and estimators run with one seed are correlated anyway through

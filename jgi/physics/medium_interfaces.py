@@ -26,6 +26,13 @@ table is a vacuum with the grid's phase function, so that the homogeneous code l
 lanes alone. Scenes without bounded media carry no ids (None) and compile to the programs they
 compiled to before; a scene with one bounded grid to those it compiled to before there could be
 several.
+
+The scene's own medium may also be several density grids (``Scene.medium`` a tuple: disjoint
+volumes in vacuum, two clouds, Mitsuba's shapes with a ``null`` bsdf). Their extinction is the
+sum of theirs, so a flight through them is tracked in each on a stream of its own and the
+nearest real collision taken (:func:`free_flight`), and a transmittance is the product of
+theirs. They share one phase function (the builder checks it), so a medium vertex needs no
+record of the volume it lies in: the albedo entered the flight's weight where it collided.
 """
 
 from __future__ import annotations
@@ -34,9 +41,10 @@ import jax
 import jax.numpy as jnp
 from jax import Array
 
+from ..core import rng
 from ..core.vec import V3, dot
 from ..scene.tables import GridMedium, Medium, Scene
-from .grid_media import GridFlight, held_constant, ratio_tracking, sample_free_flight
+from .grid_media import GridFlight, extent, held_constant, ratio_tracking, sample_free_flight
 from .grid_media import scattering as grid_scattering
 
 AMBIENT = 0   # the id of the scene's own medium (Scene.medium, or vacuum)
@@ -55,7 +63,29 @@ def grids(scene: Scene) -> tuple[GridMedium, ...]:
     has id ``grid_id(scene) + g``); () in a scene without."""
     if isinstance(scene.medium, GridMedium):
         return (scene.medium,)
+    if isinstance(scene.medium, tuple):
+        return scene.medium
     return scene.bounded_grids or ()
+
+
+def own_medium(scene: Scene) -> Medium | GridMedium | None:
+    """The scene's own medium; its first volume where it is several (they share the phase
+    function, the part of it a medium vertex reads)."""
+    return scene.medium[0] if isinstance(scene.medium, tuple) else scene.medium
+
+
+def _volumes(scene: Scene, medium_id: Array | None) -> tuple[GridMedium, ...] | None:
+    """The scene's own volumes where it has several and the lanes travel in them (held
+    constant), else None."""
+    if not isinstance(scene.medium, tuple) or in_grid(scene, medium_id) is not None:
+        return None
+    return held_constant(scene.medium)
+
+
+def _volume_key(key: Array, v: int) -> Array:
+    """The stream of volume v's tracking in a flight through several (v = 0: the flight's own,
+    as where there is one volume)."""
+    return key if v == 0 else rng.derive(key, rng.SALTS["grid_volume"] + v)
 
 
 def held_grid(scene: Scene) -> GridMedium:
@@ -106,8 +136,35 @@ def free_flight(scene: Scene, medium_id: Array | None, o: V3, d: V3, t_max: Arra
     """Spectral tracking (:func:`jgi.physics.grid_media.sample_free_flight`) of the lanes
     ``active`` that travel in a density grid, each in its own; the other lanes collide
     nowhere (t = t_max, weight 1)."""
+    volumes = _volumes(scene, medium_id)
+    if volumes is not None:
+        return _first_collision(volumes, o, d, t_max, throughput, active, key)
     return _each_grid(scene, medium_id, lambda grid, mine: sample_free_flight(
         grid, o, d, t_max, throughput, _only(active, mine), key))
+
+
+def _first_collision(volumes: tuple[GridMedium, ...], o: V3, d: V3, t_max: Array,
+                     throughput: V3, active: Array, key: Array) -> GridFlight:
+    """A flight through several disjoint volumes: each tracked on a stream of its own, the
+    nearest real collision taken (the first event of independent processes whose rates add, as
+    the volumes' extinctions do). Its weight is the collider's times those of the volumes the ray
+    crossed before reaching it without a collision: the volumes are disjoint and convex, so each
+    other volume's interval lies wholly before the collision (entered before it, crossed) or
+    wholly after (never reached; its tracking is discarded). Each tracking's spectral
+    probabilities read the flight's throughput, not the one after the volumes before it: any
+    positive choice keeps the weights unbiased."""
+    flights = [sample_free_flight(v, o, d, t_max, throughput, active, _volume_key(key, i))
+               for i, v in enumerate(volumes)]
+    t_first, scattered = flights[0].t, flights[0].scattered
+    for f in flights[1:]:
+        t_first, scattered = jnp.minimum(t_first, f.t), scattered | f.scattered
+    weight, taken = V3(*(jnp.ones_like(t_first) for _ in range(3))), jnp.zeros_like(scattered)
+    for v, f in zip(volumes, flights):
+        collider = f.scattered & (f.t <= t_first) & ~taken
+        crossed = ~f.scattered & (extent(v, o, d)[0] < t_first)
+        taken = taken | collider
+        weight = V3(*(jnp.where(collider | crossed, w * fw, w) for w, fw in zip(weight, f.weight)))
+    return GridFlight(t_first, scattered, weight)
 
 
 def transmittance(scene: Scene, medium_id: Array | None, o: V3, d: V3, t_max: Array,
@@ -115,6 +172,13 @@ def transmittance(scene: Scene, medium_id: Array | None, o: V3, d: V3, t_max: Ar
     """Ratio tracking's transmittance estimate (:func:`jgi.physics.grid_media.ratio_tracking`)
     along o + t d, t in [0, t_max], for the lanes ``active`` that travel in a density grid,
     each in its own; 1 on the other lanes."""
+    volumes = _volumes(scene, medium_id)
+    if volumes is not None:   # the product of the volumes' own
+        out = None
+        for i, v in enumerate(volumes):
+            T = ratio_tracking(v, o, d, t_max, active, _volume_key(key, i))
+            out = T if out is None else V3(*(a * b for a, b in zip(out, T)))
+        return out
     return _each_grid(scene, medium_id, lambda grid, mine: ratio_tracking(
         grid, o, d, t_max, _only(active, mine), key))
 
@@ -122,6 +186,13 @@ def transmittance(scene: Scene, medium_id: Array | None, o: V3, d: V3, t_max: Ar
 def scattering(scene: Scene, medium_id: Array | None, p: V3) -> V3:
     """sigma_s,c of each lane's density grid at points p (lanes in no grid: the first
     grid's)."""
+    volumes = _volumes(scene, medium_id)
+    if volumes is not None:   # the sum of the volumes' own (each 0 outside itself)
+        out = None
+        for v in volumes:
+            s = grid_scattering(v, p)
+            out = s if out is None else V3(*(a + b for a, b in zip(out, s)))
+        return out
     return _each_grid(scene, medium_id, lambda grid, _: grid_scattering(grid, p))
 
 
@@ -133,7 +204,20 @@ def mean_extinction(scene: Scene, medium_id: Array | None) -> V3:
         d = jnp.mean(grid.density)
         return V3(*(d * c if mine is None else jnp.broadcast_to(d * c, mine.shape)
                     for c in grid.sigma_t))
+    volumes = _volumes(scene, medium_id)
+    if volumes is not None:   # several volumes: their means weighted by their boxes' volumes
+        means, sizes = [mean(v, None) for v in volumes], [_box_volume(v) for v in volumes]
+        return V3(*(sum(m[c] * s for m, s in zip(means, sizes)) / sum(sizes) for c in range(3)))
     return _each_grid(scene, medium_id, mean)
+
+
+def _box_volume(grid: GridMedium) -> Array:
+    """The world volume of a grid's box (its frame's box over |det| of the world-to-frame
+    map)."""
+    size = (grid.hi.x - grid.lo.x) * (grid.hi.y - grid.lo.y) * (grid.hi.z - grid.lo.z)
+    if grid.to_local is None:
+        return size
+    return size / jnp.abs(jnp.linalg.det(grid.to_local[:, :3]))
 
 
 def table(scene: Scene) -> Medium:
@@ -169,7 +253,7 @@ def parameters(scene: Scene, medium_id: Array | None) -> Medium:
     """The homogeneous medium each lane travels in (fields shaped like ``medium_id``); the
     scene's own medium, unchanged, in a scene without bounded media (``medium_id`` None)."""
     if medium_id is None or not scene.has_bounded_media:
-        return scene.medium
+        return own_medium(scene)
     t = table(scene)
     pick = lambda a: a[medium_id]   # noqa: E731
     return Medium(V3(*(pick(c) for c in t.sigma_t)), V3(*(pick(c) for c in t.albedo)),

@@ -347,6 +347,28 @@ def _grid_medium_of(m: dict) -> GridMedium:
                       clip_shape=m["clip_shape"])
 
 
+def _volume_bounds(m: dict) -> np.ndarray:
+    """[2, 3]: the world bounding box of checked grid medium arguments ``m``: its box's, cut by
+    its null boundary's."""
+    def bounds(to_local, lo, hi):
+        corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1])
+                            for z in (lo[2], hi[2])], float)
+        if to_local is not None:
+            frame = np.vstack([np.asarray(to_local, float), [0, 0, 0, 1]])
+            corners = xf.apply_point(np.linalg.inv(frame), corners)
+        return np.stack([corners.min(0), corners.max(0)])
+    box = bounds(m["to_local"], m["lo"], m["hi"])
+    if m["clip"] is None:
+        return box
+    if m["clip_shape"] == "cube":
+        cut = bounds(m["clip"], -np.ones(3), np.ones(3))
+    else:   # the ellipsoid's extent along each axis: the norm of its map's row
+        to_world = np.linalg.inv(np.vstack([np.asarray(m["clip"], float), [0, 0, 0, 1]]))
+        reach = np.linalg.norm(to_world[:3, :3], axis=1)
+        cut = np.stack([to_world[:3, 3] - reach, to_world[:3, 3] + reach])
+    return np.stack([np.maximum(box[0], cut[0]), np.minimum(box[1], cut[1])])
+
+
 @dataclass
 class SceneBuilder:
     """Accumulates materials, shapes, lights and a camera; ``build()`` makes the pytree."""
@@ -405,14 +427,10 @@ class SceneBuilder:
         scene's own."""
         if name in self.bounded_media or name in self.bounded_grids:
             raise SceneError(f"medium '{name}' is defined twice")
-        saved = self.medium_args
         try:
-            self.grid_medium(density, bbox_min, bbox_max, **params)
-            self.bounded_grids[name] = self.medium_args
+            self.bounded_grids[name] = self._grid_args(density, bbox_min, bbox_max, **params)
         except SceneError as e:
             raise SceneError(f"medium '{name}': {e}") from None
-        finally:
-            self.medium_args = saved
 
     def medium_interface(self, material, *, interior: str | None = None,
                          exterior: str | None = None) -> int:
@@ -463,7 +481,31 @@ class SceneBuilder:
         medium is cut to, ("cube" or "sphere", the 4 x 4 map of the unit shape, [-1, 1]^3 or
         the unit ball, to the world): Mitsuba's shape with a ``null`` bsdf, pbrt-v4's
         ``interface`` one; a homogeneous medium in it is a 1 x 1 x 1 grid over a box that holds
-        the shape."""
+        the shape.
+
+        Called again, it adds another volume (clouds in vacuum): volumes must be disjoint (their
+        bounding boxes, each the box's cut by its null boundary's, may not overlap) and share
+        ``g``; a homogeneous :meth:`medium` before them is replaced."""
+        args = self._grid_args(density, bbox_min, bbox_max, sigma_t=sigma_t, albedo=albedo, g=g,
+                               scale=scale, majorant_resolution=majorant_resolution,
+                               border=border, to_world=to_world, clip=clip)
+        volumes = [] if self.medium_args is None else self.medium_args.get("volumes", [])
+        for k, other in enumerate(volumes):
+            if other["g"] != args["g"]:
+                raise SceneError(f"grid medium: volume {len(volumes)} has g = {args['g']}, volume "
+                                 f"{k} g = {other['g']}; volumes of the scene's own medium share "
+                                 "one phase function (allowed: equal g)")
+            a, b = _volume_bounds(other), _volume_bounds(args)
+            if np.all(a[0] < b[1]) and np.all(b[0] < a[1]):
+                raise SceneError(f"grid medium: volume {len(volumes)}'s bounding box "
+                                 f"{np.round(b, 6).tolist()} overlaps volume {k}'s "
+                                 f"{np.round(a, 6).tolist()}; allowed: disjoint volumes")
+        self.medium_args = dict(volumes=[*volumes, args])
+
+    def _grid_args(self, density, bbox_min, bbox_max, *, sigma_t=1.0, albedo=1.0, g=0.0,
+                   scale=1.0, majorant_resolution=MAJORANT_RESOLUTION, border="clamp",
+                   to_world=None, clip=None) -> dict:
+        """The checked arguments of one grid medium (:meth:`grid_medium`)."""
         if border not in ("clamp", "zero"):
             raise SceneError(f"grid medium: border {border!r} is not one of 'clamp' (Mitsuba), "
                              "'zero' (pbrt-v4)")
@@ -516,11 +558,10 @@ class SceneBuilder:
         if int(majorant_resolution) < 1:
             raise SceneError(f"grid medium: majorant_resolution {majorant_resolution} must be "
                              ">= 1")
-        self.medium_args = dict(sigma_t=tuple(st), albedo=tuple(alb), g=float(g), grid=grid,
-                                lo=tuple(lo), hi=tuple(hi),
-                                majorants=majorant_grid(grid, int(majorant_resolution)),
-                                albedo_grid=alb_grid, border=border, to_local=to_local,
-                                clip=clip_to_local, clip_shape=clip_shape)
+        return dict(sigma_t=tuple(st), albedo=tuple(alb), g=float(g), grid=grid, lo=tuple(lo),
+                    hi=tuple(hi), majorants=majorant_grid(grid, int(majorant_resolution)),
+                    albedo_grid=alb_grid, border=border, to_local=to_local, clip=clip_to_local,
+                    clip_shape=clip_shape)
 
     @staticmethod
     def _grid_frame(what: str, to_world) -> np.ndarray | None:
@@ -1080,7 +1121,7 @@ class SceneBuilder:
         bounding = [m for m in self.materials if m.interface is not None]
         if not bounding:
             return {}
-        if self.medium_args is not None and "grid" in self.medium_args:
+        if self.medium_args is not None and "volumes" in self.medium_args:
             raise SceneError("media bounded by shapes (medium_interface) with a grid medium "
                              "around them: allowed: a homogeneous medium or vacuum around "
                              "bounded media (a grid among them: bounded_grid_medium)")
@@ -1130,8 +1171,9 @@ class SceneBuilder:
         if m is None:
             return None
         f = lambda v: V3(*(jnp.float32(c) for c in v))  # noqa: E731
-        if "grid" in m:
-            return _grid_medium_of(m)
+        if "volumes" in m:
+            grids = tuple(_grid_medium_of(v) for v in m["volumes"])
+            return grids[0] if len(grids) == 1 else grids
         return Medium(f(m["sigma_t"]), f(m["albedo"]), jnp.float32(m["g"]))
 
     def _material_name(self, m: int) -> str:

@@ -476,8 +476,9 @@ class Scene(eqx.Module):
     cylinders: Cylinders | None = None
     # the medium filling the scene's space: the camera's, and both sides of every surface
     # (pbrt-v4 with one MediumInterface for all shapes). None: vacuum (kernels as before media)
-    # (a GridMedium: a heterogeneous medium in a box, vacuum around it)
-    medium: Medium | GridMedium | None = None
+    # (a GridMedium: a heterogeneous medium in a box, vacuum around it; a tuple of them:
+    # several disjoint volumes with one phase function, clouds in vacuum)
+    medium: Medium | GridMedium | tuple[GridMedium, ...] | None = None
     # homogeneous media bounded by shapes (medium ids 1..K, each field [K]), and the interfaces
     # of the materials whose surfaces bound them; None in a scene without (its kernels are those
     # of a scene before bounded media)
@@ -510,7 +511,8 @@ class Scene(eqx.Module):
     def has_grid_medium(self) -> bool:
         """Static: a medium is a density grid (null-scattering tracking): the scene's own, or
         some bounded by shapes (``bounded_grids``)."""
-        return isinstance(self.medium, GridMedium) or self.bounded_grids is not None
+        return (isinstance(self.medium, GridMedium | tuple)
+                or self.bounded_grids is not None)
 
     @property
     def resolution(self) -> tuple[int, int]:

@@ -381,7 +381,7 @@ def volume_sum_within(scene: Scene, pm, x: V3, wo: V3, r2, *, live=None, kind: s
         g = medium_interfaces.parameters(scene, jnp.asarray(medium, jnp.int32)).g
         return _by_chunks(N, live, lambda take, alive: _volume_sum_within(
             photons, table_size, take(x), take(wo), take(r2), alive, take(g), kind))
-    g = jnp.float32(scene.medium.g)
+    g = jnp.float32(medium_interfaces.own_medium(scene).g)
     return _by_chunks(N, live, lambda take, alive: _volume_sum_within(
         photons, table_size, take(x), take(wo), take(r2), alive, g, kind))
 

@@ -229,7 +229,7 @@ class _Importer:
         self.b = SceneBuilder(path.stem)
         self.bsdfs: dict[str, tuple] = {}   # id -> (kind, kwargs)
         self.null_bsdfs: set = set()        # names of null bsdfs (no material: see null_shape)
-        self.null_volume = None              # the medium a null shape bounds (null_shape)
+        self.null_volumes = []               # the media null shapes bound (null_shape)
         self.anisotropic: set[str] = set()  # BSDFs with alpha_u != alpha_v
         self.two_sided_rows: dict[int, int] = {}  # one-sided row -> its twosided copy
         self.n_anon = 0
@@ -1053,10 +1053,9 @@ class _Importer:
         if len(media) > 1:
             self.fail(el, "a sensor takes one medium")
         # the medium of a null shape read before: that shape's volume, cut to it (null_shape)
-        bounded = None if self.null_volume is None else self.null_volume[3]
-        if isinstance(bounded, str):
-            bounded = self.media.get(bounded)
-        if media and (bounded is None or bounded is not media[0]):
+        bounded = [self.media.get(v[3]) if isinstance(v[3], str) else v[3]
+                   for v in self.null_volumes]
+        if media and not any(b is media[0] for b in bounded):
             self.medium(media[0])
 
     def sensor_medium_element(self, el):
@@ -1107,14 +1106,14 @@ class _Importer:
         scene's own medium. The sensor sits outside it in vacuum, or inside it with the
         interior as its medium: Mitsuba starts camera rays in the sensor's medium and changes
         media only where they cross a shape that names them, so either way a ray travels in the
-        medium where it is inside the shape and in vacuum outside. Other null boundaries
-        (inside another medium, meshes, several volumes) are refused by name: jgi's surfaces
-        that bound media scatter light."""
+        medium where it is inside the shape and in vacuum outside. Several such shapes are
+        several volumes (two clouds; disjoint, with one phase function: the builder's
+        grid_medium checks). Other null boundaries (inside another medium, meshes) are refused
+        by name: jgi's surfaces that bound media scatter light."""
         if emission is not None:
             self.fail(el, f"{kind}: an area emitter on a 'null' bsdf is not supported (the "
                           "surface does not exist); give the shape a bsdf")
         interior, exterior = shape_media.get("interior"), shape_media.get("exterior")
-        fill = self.sensor_medium_of_file
 
         def same(a, b):
             if a is None or b is None:
@@ -1139,11 +1138,9 @@ class _Importer:
                               "translation (as Mitsuba's sphere)")
         if np.any(unit[3] != (0, 0, 0, 1)) or abs(np.linalg.det(unit[:3, :3])) < 1e-12:
             self.fail(el, f"{what}; its to_world must be an invertible affine map")
-        if self.null_volume is not None or (self.b.medium_args is not None
-                                            and not same(fill, interior)):
-            self.fail(el, f"{what}; the scene has one already (jgi takes one grid medium)")
-        self.null_volume = (el, kind, unit, interior, what)   # the sensor: check_null_volume
-        self.b.medium_args = None   # the sensor's medium, unclipped, if the sensor came first
+        if not self.null_volumes:   # the sensor's medium, unclipped, if the sensor came first
+            self.b.medium_args = None   # (check_null_volume: the sensor in a volume or vacuum)
+        self.null_volumes.append((el, kind, unit, interior, what))
         medium = self.media[interior] if isinstance(interior, str) else interior
         if self.check_type(medium) == "heterogeneous":
             return self.heterogeneous(medium, null=(kind, unit))
@@ -1161,20 +1158,23 @@ class _Importer:
             self.fail(medium, str(e))
 
     def check_null_volume(self):
-        """The sensor against the null shape's volume (:meth:`null_shape`), once both are
-        read: inside it with the interior as its medium, or outside in vacuum."""
-        if self.null_volume is None:
-            return
-        el, kind, unit, interior, what = self.null_volume
+        """The sensor against the null shapes' volumes (:meth:`null_shape`), once all are
+        read: inside one with its interior as the sensor's medium, or outside all in vacuum."""
         fill, cam = self.sensor_medium_of_file, self.b.camera_args
-        q = xf.apply_point(np.linalg.inv(unit), np.asarray(cam["position"], float))
-        inside = bool(np.all(np.abs(q) < 1) if kind == "cube" else q @ q < 1)
         element = lambda m: self.media[m] if isinstance(m, str) else m   # noqa: E731
-        if inside and (fill is None or element(fill) is not element(interior)):
-            self.fail(el, f"{what}; the sensor lies inside the {kind} but its medium is not "
-                          "the interior (Mitsuba starts its rays in the sensor's medium); "
-                          "give the sensor the interior's medium")
-        if not inside and fill is not None:
+        outside = None
+        for el, kind, unit, interior, what in self.null_volumes:
+            q = xf.apply_point(np.linalg.inv(unit), np.asarray(cam["position"], float))
+            if not (np.all(np.abs(q) < 1) if kind == "cube" else q @ q < 1):
+                outside = outside or (el, kind, what)
+                continue
+            if fill is None or element(fill) is not element(interior):
+                self.fail(el, f"{what}; the sensor lies inside the {kind} but its medium is not "
+                              "the interior (Mitsuba starts its rays in the sensor's medium); "
+                              "give the sensor the interior's medium")
+            return
+        if outside is not None and fill is not None:
+            el, kind, what = outside
             self.fail(el, f"{what}; the sensor lies outside the {kind} in a medium (allowed: "
                           "vacuum outside)")
 

@@ -237,7 +237,9 @@ class _Importer:
         self.coordinate_systems: dict[str, np.ndarray] = {}   # CoordinateSystem "name"
         self.material_kind: dict[str, str] = {}              # builder name -> pbrt material
         self.null_materials: set = set()     # "interface" materials (no surface: null_shape)
-        self.null_volume = None                # the medium an interface shape bounds
+        self.null_volumes = []                 # the media interface shapes bound (null_shape)
+        self.camera_volume = None              # the one of them the camera lies in
+        self.camera_outside = None             # (where, message): the camera outside one
         self.named = {}
         self.n_mat = 0
         self.textures: dict[str, str] = {}   # pbrt texture name -> builder texture name
@@ -1172,8 +1174,9 @@ class _Importer:
         medium a constant grid; :mod:`jgi.physics.grid_media`), the scene's own medium. The
         camera sits outside it in vacuum, or inside it with the inside medium as its own
         (pbrt-v4 starts camera rays in the camera's medium and changes media where they cross
-        a MediumInterface). Other interface shapes that bound media are refused by name: jgi's
-        surfaces that bound media scatter light."""
+        a MediumInterface). Several such shapes are several volumes (disjoint, with one phase
+        function: the builder's grid_medium checks). Other interface shapes that bound media
+        are refused by name: jgi's surfaces that bound media scatter light."""
         if emits:
             self.fail(where, f"Shape \"{kind}\" with the \"interface\" material is an area "
                              "light: not supported (the surface does not exist)")
@@ -1203,16 +1206,16 @@ class _Importer:
                 self.fail(where, f"{what}; the camera lies inside the {named} but its medium is "
                                  f"\"{camera}\", not the inside's (pbrt-v4 starts its rays in the "
                                  "camera's medium)")
-            if not inside and camera:
-                self.fail(where, f"{what}; the camera lies outside the {named} in medium "
-                                 f"\"{camera}\" (allowed: vacuum outside)")
+            if inside:
+                self.camera_volume = self.inside
+            elif camera and self.camera_outside is None:   # (fill_medium: in no volume)
+                self.camera_outside = (where, f"{what}; the camera lies outside the {named} in "
+                                              f"medium \"{camera}\" (allowed: vacuum outside)")
         if self.inside not in self.media:
             defined = ", ".join(self.media) or "(none)"
             self.fail(where, f"MediumInterface names medium \"{self.inside}\", which no "
                              f"MakeNamedMedium defines; defined: {defined}")
-        if self.b.medium_args is not None or self.null_volume is not None:
-            self.fail(where, f"{what}; the scene has one already (jgi takes one grid medium)")
-        self.null_volume = self.inside   # (fill_medium: not the camera's medium again)
+        self.null_volumes.append(self.inside)   # (fill_medium: not the camera's medium again)
         mp, mwhere, to_world = self.media[self.inside]
         params = self.homogeneous_params(self.inside, mp, mwhere)
         try:
@@ -1332,7 +1335,13 @@ class _Importer:
         """The medium outside the Camera fills the scene (pbrt-v4 keeps a ray's medium at
         surfaces that are no transition, and jgi refused every transition)."""
         name, where = self.camera_medium
-        if not name or name == self.null_volume:   # (then an interface shape's, cut to it)
+        if self.null_volumes:   # then the camera's medium is one of theirs, or vacuum
+            if name and self.camera_volume is None:
+                self.fail(*(self.camera_outside or (where, f"the camera's medium \"{name}\" "
+                            "with interface volumes: allowed: vacuum, or the inside of the "
+                            "interface shape the camera lies in")))
+            return
+        if not name:
             return
         if name not in self.media:
             self.fail(where, f"the Camera's MediumInterface names medium \"{name}\", which no "
