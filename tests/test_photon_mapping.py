@@ -283,10 +283,6 @@ def test_photon_mapped_cornell_box_converges_to_path_tracing():
         img = jgi.render(scene, "pm", spp=4, seed=2, photons=photons, radius=r)
         rel.append(float(np.mean((img - ref) ** 2 / (ref**2 + 1e-2))))
     assert rel[0] > rel[1] > rel[2], rel
-    # any 32-bit seed (a study's derived seeds are large; a pass's seed is taken modulo 2^32)
-    big = jgi.render(scene, "sppm", spp=1, seed=2**32 - 1, passes=1, photons=10_000,
-                     radius=0.15, radius_alpha=0.7)
-    assert np.isfinite(big).all() and big.mean() > 0
 
 
 def test_caustic_appears_only_with_the_caustic_map():

@@ -148,6 +148,7 @@ def test_subpaths_flag_the_sampled_lobe_not_the_material(scene):
     4096 light subpaths: the flag equals 'the sampled direction is the mirror direction', the
     next vertex's forward density and the previous one's reverse density vanish exactly there,
     and the coating is chosen as often as its sampling probability says (binomial, 5 sigma)."""
+    import jax
     import jax.numpy as jnp
 
     from jgi.physics import bsdf as B
@@ -156,7 +157,7 @@ def test_subpaths_flag_the_sampled_lobe_not_the_material(scene):
 
     n_paths = 4096
     key = SP.light_key(jnp.uint32(5), jnp.arange(n_paths, dtype=jnp.int32), 0)
-    v = SP.light_subpath(scene, key, max_depth=4).vertices
+    v = jax.jit(lambda k: SP.light_subpath(scene, k, max_depth=4).vertices)(key)   # one program
     arr = lambda c: np.asarray(c, np.float64)  # noqa: E731
     n, wo = (np.stack([arr(c) for c in x]) for x in (v.n, v.wo))   # [3, K, N]
     kind = np.asarray(scene.materials.kind)[np.asarray(v.material)]
