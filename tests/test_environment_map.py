@@ -159,17 +159,17 @@ def test_furnace_with_a_constant_map():
 
 
 def test_estimators_agree_on_an_environment_lit_scene():
-    """PT (MIS with the map's sampling) against BDPT, SPPM and PT with BSDF sampling only."""
+    """PT (MIS with the map's sampling) against PT with BSDF sampling only. (BDPT rendered this
+    scene at 16 x 16 here too until 2026-12-08; tests/test_environment_estimators.py checks it,
+    VCM, MMLT and PSSMLT against the path tracer on the same scene at 8 x 8, and the second
+    BDPT compile went for the suite's time.)"""
     scene = env_scene()
     seeds = range(6)
     pt = np.stack([jgi.render(scene, "pt", spp=64, seed=s, max_depth=4) for s in seeds])
     bs = np.stack([jgi.render(scene, "pt", spp=64, seed=100 + s, max_depth=4, strategy="bsdf")
                    for s in seeds])
-    bd = np.stack([jgi.render(scene, "bdpt", spp=32, seed=200 + s, max_depth=4)
-                   for s in seeds])
-    t1 = assert_agree(pt, bs, regions=4, label="pt mis vs pt bsdf")
-    t2 = assert_agree(pt, bd, regions=4, label="pt vs bdpt")
-    print(f"max |t|: pt-bsdf {t1.max():.2f}, pt-bdpt {t2.max():.2f}")
+    t = assert_agree(pt, bs, regions=4, label="pt mis vs pt bsdf")
+    print(f"max |t|: pt-bsdf {t.max():.2f}")
 
 
 def test_light_tracing_and_photons_from_the_map():
