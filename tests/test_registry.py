@@ -284,7 +284,9 @@ def test_salts_are_one_table_and_distinct_where_streams_meet():
             "mcmc": [salts["mcmc"]], "pssmlt": [salts["pssmlt"], salts["pssmlt"] + 1],
             "mmlt": [salts["mmlt"] + 1 + L for L in range(1, 17)],
             "mlt": [salts["mlt"], salts["mlt"] + 1],
-            "ratio_tracking": [salts["ratio_tracking"] + j for j in range(64)]}
+            "ratio_tracking": [salts["ratio_tracking"] + j for j in range(64)],
+            # volume v >= 1 of several, from a flight's or shadow ray's stream (as ratio tracking)
+            "grid_volume": [salts["grid_volume"] + v for v in range(1, 64)]}
     assert set(used) == set(salts)
     owner = {}
     for stream, values in used.items():
